@@ -1,0 +1,1 @@
+"""Subcommands of the `lfusd` CLI; each module defines ``register(subparsers)``."""

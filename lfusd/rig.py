@@ -1,0 +1,226 @@
+"""Light-field rig geometry: a pure-NumPy model of a camera grid (no USD, no Blender).
+
+Frames follow ../shared/CONVENTIONS.md: camera poses are OpenCV (x right, y down, z forward),
+world is Z up, views are (row, col) row-major with (0, 0) top-left seen from behind the rig.
+
+Spacings (offsets of a view from the centre, in units of the baseline ``b``): counting the
+gaps between neighbouring cameras outward from the centre as j = 1, 2, ..., gap j is
+``b`` (uniform), ``j*b`` (linear), ``b/j`` (inverse) or ``2**(j-1)*b`` (exponential). With an
+even count the innermost gap straddles the centre, so the two middle views sit at -/+ half of
+gap 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .errors import LfusdError
+
+SPACINGS = ("uniform", "linear", "inverse", "exponential")
+LAYOUTS = ("plane", "sphere")
+AXES = ("parallel", "converge")
+
+View = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class RigSpec:
+    """Everything that defines a light-field rig; distances in metres, lens in millimetres."""
+
+    name: str = "rig"
+    rows: int = 9
+    cols: int = 9
+    baseline: float = 0.125
+    focal_length_mm: float = 39.0
+    sensor_mm: float = 36.0
+    width: int = 1024
+    height: int = 1024
+    at: tuple[float, float, float] = (0.0, -10.0, 1.5)
+    look_at: tuple[float, float, float] = (0.0, 0.0, 1.5)
+    spacing: str = "uniform"
+    layout: str = "plane"
+    radius: float | None = None
+    axes: str = "parallel"
+    extra: dict = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("extra")
+        d["at"], d["look_at"] = list(self.at), list(self.look_at)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RigSpec":
+        d = dict(d)
+        d["at"], d["look_at"] = tuple(d["at"]), tuple(d["look_at"])
+        return cls(**d)
+
+    # -- grid -------------------------------------------------------------------------
+    @property
+    def views(self) -> list[View]:
+        return [(r, c) for r in range(self.rows) for c in range(self.cols)]
+
+    @property
+    def centre_view(self) -> View:
+        """The view nearest the rig centre (exactly the centre for odd counts)."""
+        return ((self.rows - 1) // 2, (self.cols - 1) // 2)
+
+    @property
+    def sphere_radius(self) -> float:
+        return float(self.radius) if self.radius else float(np.linalg.norm(np.subtract(self.look_at, self.at)))
+
+    def offsets(self, view: View) -> tuple[float, float]:
+        """(sx, sy): the view's offset from the rig centre in units of the baseline (x right, y down)."""
+        r, c = view
+        return grid_offset(c, self.cols, self.spacing), grid_offset(r, self.rows, self.spacing)
+
+    # -- intrinsics -------------------------------------------------------------------
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels; the sensor size is the image width (horizontal fit)."""
+        return self.focal_length_mm / self.sensor_mm * self.width
+
+    def intrinsics(self) -> np.ndarray:
+        """OpenCV K with pixel centres at integer coordinates (cx = (W-1)/2)."""
+        f = self.focal_px
+        return np.array([[f, 0.0, (self.width - 1) / 2.0], [0.0, f, (self.height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+    # -- extrinsics -------------------------------------------------------------------
+    def rig_to_world(self) -> np.ndarray:
+        """4x4 pose of the rig frame (OpenCV axes, origin at the rig centre, z towards look_at)."""
+        return look_at_pose(np.asarray(self.at, float), np.asarray(self.look_at, float))
+
+    def view_in_rig(self, view: View) -> np.ndarray:
+        """4x4 OpenCV camera-to-rig transform of one view."""
+        sx, sy = self.offsets(view)
+        b = self.baseline
+        if self.layout == "plane":
+            pos = np.array([sx * b, sy * b, 0.0])
+            target = np.array([0.0, 0.0, float(np.linalg.norm(np.subtract(self.look_at, self.at)))])
+        else:
+            # Cameras on a sphere around (0, 0, R), the arc between neighbours equal to gap lengths.
+            rad = self.sphere_radius
+            # Viewing direction d from the camera to the centre; a camera right of (below) the
+            # centre looks left (up), so the angles take the opposite sign of the offsets.
+            theta, phi = -sx * b / rad, -sy * b / rad
+            centre = np.array([0.0, 0.0, rad])
+            d = np.array([math.sin(theta) * math.cos(phi), math.sin(phi), math.cos(theta) * math.cos(phi)])
+            pos = centre - rad * d
+            target = centre
+        if self.axes == "parallel":
+            pose = np.eye(4)
+            pose[:3, 3] = pos
+            return pose
+        return look_at_pose(pos, target, up=np.array([0.0, -1.0, 0.0]))
+
+    def cam_to_world(self, view: View) -> np.ndarray:
+        """4x4 OpenCV camera-to-world pose of one view at rest (the stage may animate the rig)."""
+        return self.rig_to_world() @ self.view_in_rig(view)
+
+
+def grid_offset(index: int, count: int, spacing: str) -> float:
+    """Signed offset of grid index ``index`` (of ``count``) from the centre, in baselines."""
+    k = index - (count - 1) / 2.0
+    if k == 0:
+        return 0.0
+    sign = 1.0 if k > 0 else -1.0
+    steps = abs(k)
+    gap = {
+        "uniform": lambda j: 1.0,
+        "linear": lambda j: float(j),
+        "inverse": lambda j: 1.0 / j,
+        "exponential": lambda j: 2.0 ** (j - 1),
+    }[spacing]
+    if count % 2 == 1:
+        return sign * sum(gap(j) for j in range(1, int(round(steps)) + 1))
+    # Even count: half of gap 1, then whole gaps 2, 3, ... outward.
+    n = int(round(steps - 0.5))
+    return sign * (0.5 * gap(1) + sum(gap(j) for j in range(2, n + 2)))
+
+
+def look_at_pose(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """4x4 OpenCV pose at ``eye`` looking at ``target``; image up follows ``up`` (world +Z by default)."""
+    z = np.asarray(target, float) - np.asarray(eye, float)
+    n = np.linalg.norm(z)
+    if n == 0:
+        raise LfusdError("the rig's --at and --look-at are the same point; give a look-at point away from the rig")
+    z = z / n
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, float)
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:  # looking along the up axis: take world +Y as image up instead
+        x = np.cross(z, np.array([0.0, 1.0, 0.0]))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, eye
+    return pose
+
+
+def validate(spec: RigSpec) -> None:
+    """Raise LfusdError naming the first impossible parameter of a rig."""
+    if not spec.name or not spec.name.replace("_", "a").isalnum() or spec.name[0].isdigit():
+        raise LfusdError(f"rig name {spec.name!r} is not a valid USD prim name; use letters, digits and _ (not first a digit)")
+    for what, v in (("grid rows", spec.rows), ("grid cols", spec.cols), ("resolution width", spec.width), ("resolution height", spec.height)):
+        if not isinstance(v, int) or v <= 0:
+            raise LfusdError(f"{what} must be a positive integer, got {v!r}")
+    for what, v in (("baseline", spec.baseline), ("focal length", spec.focal_length_mm), ("sensor size", spec.sensor_mm)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise LfusdError(f"{what} must be a positive number, got {v!r}")
+    if spec.spacing not in SPACINGS:
+        raise LfusdError(f"unknown spacing {spec.spacing!r}; use one of {', '.join(SPACINGS)}")
+    if spec.layout not in LAYOUTS:
+        raise LfusdError(f"unknown layout {spec.layout!r}; use one of {', '.join(LAYOUTS)}")
+    if spec.axes not in AXES:
+        raise LfusdError(f"unknown axes {spec.axes!r}; use one of {', '.join(AXES)}")
+    if spec.radius is not None and not (math.isfinite(spec.radius) and spec.radius > 0):
+        raise LfusdError(f"radius must be a positive number of metres, got {spec.radius!r}")
+    if any(not math.isfinite(float(v)) for v in (*spec.at, *spec.look_at)):
+        raise LfusdError("--at and --look-at must be finite X,Y,Z numbers")
+    if np.allclose(spec.at, spec.look_at):
+        raise LfusdError("the rig's --at and --look-at are the same point; give a look-at point away from the rig")
+    if spec.layout == "sphere":
+        rad = spec.sphere_radius
+        half = max(abs(grid_offset(0, spec.cols, spec.spacing)), abs(grid_offset(0, spec.rows, spec.spacing)))
+        if half * spec.baseline / rad >= math.pi / 2:
+            raise LfusdError(
+                f"a {spec.rows}x{spec.cols} spherical rig with baseline {spec.baseline} m spans more than a hemisphere "
+                f"of radius {rad:g} m; use a larger --radius or a smaller --baseline"
+            )
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """'9x9' -> (9, 9); LfusdError unless both are positive integers."""
+    return _parse_pair(text, "grid", "RxC, e.g. 9x9")
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """'1024x768' -> (1024, 768) as (width, height)."""
+    return _parse_pair(text, "resolution", "WxH, e.g. 1024x1024")
+
+
+def _parse_pair(text: str, what: str, form: str) -> tuple[int, int]:
+    parts = str(text).lower().split("x")
+    try:
+        a, b = (int(p) for p in parts)
+    except ValueError:
+        raise LfusdError(f"{what} {text!r} is not {form}") from None
+    if a <= 0 or b <= 0:
+        raise LfusdError(f"{what} {text!r} must have positive numbers ({form})")
+    return a, b
+
+
+def parse_point(text: str, what: str) -> tuple[float, float, float]:
+    """'1,2,3' -> (1.0, 2.0, 3.0)."""
+    try:
+        x, y, z = (float(p) for p in str(text).split(","))
+    except ValueError:
+        raise LfusdError(f"{what} {text!r} is not X,Y,Z (three numbers in metres)") from None
+    if not all(math.isfinite(v) for v in (x, y, z)):
+        raise LfusdError(f"{what} {text!r} must be finite numbers")
+    return x, y, z
