@@ -1,0 +1,213 @@
+"""Blender worker process: imports a USD stage once and renders many frames of a rig's views.
+
+Run as ``python -m lfusd.render.worker`` with a JSON job on stdin (see ``lfusd.render.job``).
+This is the only module that imports ``bpy``; it must not import usd-core's ``pxr`` (Blender
+carries its own USD, see ../shared/BLENDER_FACTS.md). It talks back through stdout lines
+starting with ``LFUSD `` followed by JSON; everything else on stdout is Blender's chatter.
+
+Per frame it renders twice, into a scratch folder the parent owns:
+- beauty: the user's samples and Blender's default pixel filter, linear RGB EXR per view;
+- data: 1 sample with a box filter of tiny width, so every ground-truth pass (depth, normal,
+  position, object index, vector) is the exact value at the pixel centre.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+
+import bpy
+
+bpy.utils.expose_bundled_modules()  # Blender's USD hooks hand out objects of its bundled pxr
+
+PRIM_MAP: dict[str, list] = {}
+# Where Cycles puts its single sample inside a pixel with a 0.01-wide box filter, measured with
+# bpy 5.0.1 (the same for every seed): (+0.000486, +0.000474) px in raster axes (x right, y up).
+# The data render shifts the lens by the opposite so the sample lands on the pixel centre; the
+# test suite measures the residual from the position pass.
+SAMPLE_OFFSET_PX = (0.000486, 0.000474)
+VIEW_PREFIX = "lfusd_view"
+
+
+def emit(kind: str, **data) -> None:
+    sys.stdout.write("LFUSD " + json.dumps({"event": kind, **data}) + "\n")
+    sys.stdout.flush()
+
+
+class _PrimMapHook(bpy.types.USDHook):
+    bl_idname = "lfusd_prim_map"
+    bl_label = "lfusd prim map"
+
+    @staticmethod
+    def on_import(context):
+        for path, ids in context.get_prim_map().items():
+            PRIM_MAP[str(path)] = list(ids)
+
+
+def _objects_of(prim_path: str) -> list:
+    return [i for i in PRIM_MAP.get(prim_path, []) if isinstance(i, bpy.types.Object)]
+
+
+def import_stage(path: str) -> None:
+    bpy.utils.register_class(_PrimMapHook)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    result = bpy.ops.wm.usd_import(
+        filepath=path,
+        import_skeletons=True,
+        import_blendshapes=True,
+        import_lights=True,
+        import_cameras=True,
+        set_frame_range=False,
+        read_mesh_attributes=True,
+    )
+    if "FINISHED" not in result:
+        raise RuntimeError(f"Blender could not import stage {path}")
+
+
+def select_device(scene, device: str) -> str:
+    """Enable the requested Cycles device; 'auto' prefers OptiX, then CUDA, then the CPU."""
+    scene.cycles.device = "CPU"
+    if device == "cpu":
+        return "cpu"
+    prefs = bpy.context.preferences.addons["cycles"].preferences
+    for kind in (("OPTIX", "CUDA") if device == "auto" else (device.upper(),)):
+        try:
+            prefs.compute_device_type = kind
+        except TypeError:
+            continue
+        prefs.get_devices()
+        found = [d for d in prefs.devices if d.type == kind]
+        if found:
+            for d in prefs.devices:
+                d.use = d.type == kind
+            scene.cycles.device = "GPU"
+            return kind.lower()
+    if device != "auto":
+        raise RuntimeError(f"Blender found no {device.upper()} device; use --device auto or --device cpu")
+    return "cpu"
+
+
+def setup_scene(job: dict) -> tuple[object, list[str]]:
+    scene = bpy.context.scene
+    # Identity comes from prim paths (never Blender names): object index = instance id.
+    for prim_path, instance_id in job["instances"].items():
+        for obj in _objects_of(prim_path):
+            obj.pass_index = int(instance_id)
+    # Rename the rig's cameras so multiview finds each by its suffix.
+    suffixes = []
+    for key, prim_path in job["cameras"].items():
+        cams = [o for o in _objects_of(prim_path) if o.type == "CAMERA"]
+        if not cams:
+            raise RuntimeError(f"camera {prim_path} did not import into Blender")
+        cam = cams[0]
+        clash = bpy.data.objects.get(f"{VIEW_PREFIX}_{key}")
+        if clash is not None and clash != cam:
+            clash.name = f"{clash.name}_renamed"
+        cam.name = f"{VIEW_PREFIX}_{key}"
+        cam.data.sensor_fit = "HORIZONTAL"
+        suffixes.append(f"_{key}")
+    scene.camera = bpy.data.objects[f"{VIEW_PREFIX}{suffixes[0]}"]
+
+    render = scene.render
+    render.engine = "CYCLES"
+    render.resolution_x, render.resolution_y = job["width"], job["height"]
+    render.resolution_percentage = 100
+    render.pixel_aspect_x = render.pixel_aspect_y = 1.0
+    render.use_motion_blur = False
+    render.film_transparent = False
+    render.use_persistent_data = bool(job.get("persistent", False))
+    render.use_multiview = True
+    render.views_format = "MULTIVIEW"
+    for v in render.views:
+        v.use = False
+    for s in suffixes:
+        view = render.views.new(s)  # files are named <filepath><view name>.exr
+        view.camera_suffix = s
+    if job.get("threads"):
+        render.threads_mode = "FIXED"
+        render.threads = int(job["threads"])
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.cycles.seed = int(job.get("seed", 0))
+    scene.cycles.use_denoising = False
+    scene.cycles.use_adaptive_sampling = False
+    return scene, suffixes
+
+
+def _shift_lenses(scene, on: bool) -> None:
+    w = scene.render.resolution_x  # with a horizontal sensor fit, lens shift is in image widths
+    for view in scene.render.views:
+        if not view.use:
+            continue
+        cam = bpy.data.objects[VIEW_PREFIX + view.camera_suffix].data
+        cam.shift_x = -SAMPLE_OFFSET_PX[0] / w if on else 0.0
+        cam.shift_y = -SAMPLE_OFFSET_PX[1] / w if on else 0.0
+
+
+def _render(scene, filepath: str) -> None:
+    scene.render.filepath = filepath
+    bpy.ops.render.render(write_still=True)
+
+
+def render_frame(scene, job: dict, frame: int, scratch: str) -> None:
+    scene.frame_set(frame)
+    vl = scene.view_layers[0]
+    cyc = scene.cycles
+    im = scene.render.image_settings
+
+    # Beauty: linear RGB, user samples, default filter.
+    vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = False
+    vl.use_pass_vector = vl.use_pass_object_index = False
+    vl.use_pass_combined = True
+    cyc.samples = job["samples"]
+    cyc.pixel_filter_type = "BLACKMAN_HARRIS"
+    cyc.filter_width = 1.5
+    cyc.max_bounces = job.get("max_bounces", 12)
+    im.media_type = "IMAGE"
+    im.file_format = "OPEN_EXR"
+    im.color_mode = "RGB"
+    im.color_depth = "16"
+    im.exr_codec = "ZIP"
+    _shift_lenses(scene, False)
+    _render(scene, os.path.join(scratch, "rgb"))
+
+    # Data passes: one sample at each pixel centre, no bounces needed.
+    vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = True
+    vl.use_pass_vector = vl.use_pass_object_index = True
+    vl.use_pass_combined = False
+    cyc.samples = 1
+    cyc.pixel_filter_type = "BOX"
+    cyc.filter_width = 0.01
+    cyc.max_bounces = 0
+    im.media_type = "MULTI_LAYER_IMAGE"
+    im.color_depth = "32"
+    im.exr_codec = "ZIP"
+    _shift_lenses(scene, True)
+    _render(scene, os.path.join(scratch, "passes"))
+
+
+def main() -> int:
+    job = json.loads(sys.stdin.read())
+    try:
+        t0 = time.time()
+        import_stage(job["stage"])
+        scene, suffixes = setup_scene(job)
+        device = select_device(scene, job.get("device", "auto"))
+        emit("ready", device=device, seconds=time.time() - t0)
+        for frame in job["frames"]:
+            scratch = os.path.join(job["scratch"], f"f{frame:06d}")
+            os.makedirs(scratch, exist_ok=True)
+            t = time.time()
+            render_frame(scene, job, frame, scratch)
+            emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in suffixes], seconds=time.time() - t)
+    except Exception as e:  # the parent turns this into a one-line error
+        emit("error", message=f"{type(e).__name__}: {e}", trace=traceback.format_exc())
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
