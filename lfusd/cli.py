@@ -15,10 +15,17 @@ from . import __version__, commands
 from .errors import LfusdError
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with usage errors on one line, like every other lfusd error."""
+
+    def error(self, message: str):
+        self.exit(2, f"lfusd: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="lfusd", description="Light-field datasets from USD stages.")
+    parser = _Parser(prog="lfusd", description="Light-field datasets from USD stages.")
     parser.add_argument("--version", action="version", version=f"lfusd {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         importlib.import_module(f"{commands.__name__}.{info.name}").register(sub)
     return parser
@@ -26,7 +33,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # usage errors and --help
+        return int(e.code or 0)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -16,7 +16,7 @@ from .render.job import FORMAT, frame_dir, view_key
 from .rig import RigSpec, View
 
 # Keys derived from the data passes; motion keys come from the flow module's files.
-RAW_KEYS = ("depth", "normal", "position", "instance", "vector")
+RAW_KEYS = ("depth", "normal", "position", "instance", "vector", "next_position", "prev_position")
 DERIVED_KEYS = ("semantic", "disparity")
 IMAGE_KEYS = ("rgb", "rgb_linear")
 MOTION_FILE = "motion.npz"
@@ -117,7 +117,10 @@ class Dataset:
         if key == "rgb_linear":
             return passes.read_rgb_linear(d / "rgb.exr")
         if key in RAW_KEYS:
-            return self._raw(str(d))[key].copy()  # the cache must not be mutated by callers
+            raw = self._raw(str(d))
+            if key not in raw:
+                raise LfusdError(f"{d / 'passes.exr'} has no {key} pass; render the dataset with 'lfusd render-video'")
+            return raw[key].copy()  # the cache must not be mutated by callers
         if key == "semantic":
             return passes.semantic(self._raw(str(d))["instance"], self._class_of_instance)
         if key == "disparity":
@@ -130,6 +133,19 @@ class Dataset:
             raise LfusdError(f"unknown key {key!r}; {motion} holds {', '.join(sorted(z.files))}")
         known = IMAGE_KEYS + RAW_KEYS + DERIVED_KEYS
         raise LfusdError(f"unknown or missing key {key!r} for {d}; keys: {', '.join(known)} (motion keys need 'lfusd render-video')")
+
+    def raw_passes(self, frame: int, view: View):
+        """The view's raw passes with its camera, as lfusd.flow.RawPasses (input of derive_motion)."""
+        from .flow import Camera, RawPasses
+
+        raw = self._raw(str(self.view_dir(frame, view)))
+        if "vector" not in raw:
+            raise LfusdError(f"{self.view_dir(frame, view) / 'passes.exr'} has no vector pass; re-render with 'lfusd render-video'")
+        return RawPasses(
+            depth=raw["depth"], vector=raw["vector"], camera=Camera(self.intrinsics(view), self.cam_to_world(frame, view)),
+            position=raw["position"], instance=raw["instance"],
+            next_position=raw.get("next_position"), prev_position=raw.get("prev_position"),
+        )
 
     # -- internals ----------------------------------------------------------------------
     def _check_view(self, view: View) -> None:

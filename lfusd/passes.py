@@ -3,7 +3,9 @@
 Raw files per view (written by the renderer):
 - ``rgb.exr``: linear RGB (half float), the beauty render;
 - ``passes.exr``: Blender's multilayer EXR of the exact data render (1 sample at each pixel
-  centre): Depth.Z, Normal.XYZ, Position.XYZ, Vector.XYZW, Object Index.X.
+  centre): Depth.Z, Normal.XYZ, Position.XYZ, Vector.XYZW, Object Index.X, and with
+  render-video the AOVs next_position / prev_position;
+- ``motion.npz``: the motion keys derived by lfusd.flow (render-video, ``lfusd flow``).
 
 Everything here follows ../shared/CONVENTIONS.md; Blender's own conventions are converted in
 this one place (background depth 1e10 -> inf; object index float -> int32 instance id).
@@ -19,6 +21,8 @@ import OpenEXR
 from .errors import LfusdError
 
 BACKGROUND_DEPTH = 1.0e9  # Blender writes 1e10 where no surface is hit
+# AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
+MOTION_AOVS = ("next_position", "prev_position")
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
@@ -54,7 +58,12 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     position = np.where(surface[..., None], stack("Position", "XYZ"), nan)
     instance = np.rint(_channel(ch, "Object Index.X", path)).astype(np.int32)
     instance[~surface] = 0
-    return {"depth": depth, "normal": normal, "position": position, "instance": instance, "vector": stack("Vector", "XYZW")}
+    raw = {"depth": depth, "normal": normal, "position": position, "instance": instance, "vector": stack("Vector", "XYZW")}
+    for aov in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
+        arr = next((a for n, a in ch.items() if n.endswith("." + aov)), None)
+        if arr is not None:
+            raw[aov] = np.where(surface[..., None], arr[..., :3].astype(np.float32), nan)
+    return raw
 
 
 def read_rgb_linear(path: str | Path) -> np.ndarray:

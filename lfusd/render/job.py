@@ -67,6 +67,7 @@ class RenderRequest:
     resolution: tuple[int, int] | None = None
     overwrite: bool = False
     quiet: bool = False
+    motion: bool = False  # also render the t+/-1 position AOVs (render-video)
     extra_settings: dict = field(default_factory=dict)
 
 
@@ -133,6 +134,7 @@ def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict
         "stage_sha256": stage_hash,
         "rigs": {r.spec.name: r.spec.to_dict() for r in rigs},
         "samples": req.samples,
+        "motion": req.motion,
         **req.extra_settings,
     }
 
@@ -323,6 +325,8 @@ def _run_workers(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], pla
                     "instances": instances,
                     "threads": max(1, (os.cpu_count() or 1) // min(req.workers, len(views))),
                     "scratch": str(scratch_root / f"{rig_name}-{i}"),
+                    "motion": req.motion,
+                    "stage_range": list(frame_range(stage)),
                 }
             )
     report = progress or _Progress(plan.total, plan.total - plan.remaining, req.quiet)

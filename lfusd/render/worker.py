@@ -20,6 +20,7 @@ import time
 import traceback
 
 import bpy
+import numpy as np
 
 bpy.utils.expose_bundled_modules()  # Blender's USD hooks hand out objects of its bundled pxr
 
@@ -137,6 +138,86 @@ def setup_scene(job: dict) -> tuple[object, list[str]]:
     return scene, suffixes
 
 
+NEIGHBOUR_AOVS = {"next": "next_position", "prev": "prev_position"}
+
+
+class MotionAttributes:
+    """Per-vertex world positions at t+1 and t-1 on every mesh, read by an AOV in every material.
+
+    At one sample on the pixel centre the AOV is the barycentric blend of the hit triangle's
+    vertex positions at t+/-1: the exact position then of the surface point seen at t, visible
+    or not. Needs meshes whose vertex count does not change over time (rigid, skinned).
+    """
+
+    def __init__(self, scene, first: int, last: int):
+        self.scene, self.first, self.last = scene, first, last
+        self.meshes = [o for o in scene.objects if o.type == "MESH"]
+        self.cache: dict[int, dict[str, np.ndarray]] = {}
+        default = None
+        for obj in self.meshes:
+            if obj.data.users > 1:  # attributes live on mesh data: give each object its own
+                obj.data = obj.data.copy()
+            if not obj.material_slots or all(s.material is None for s in obj.material_slots):
+                if default is None:
+                    default = bpy.data.materials.new("lfusd_default")
+                obj.data.materials.clear()
+                obj.data.materials.append(default)
+            for key in NEIGHBOUR_AOVS:
+                if f"lfusd_{key}" not in obj.data.attributes:
+                    obj.data.attributes.new(f"lfusd_{key}", "FLOAT_VECTOR", "POINT")
+        for mat in {s.material for o in self.meshes for s in o.material_slots if s.material}:
+            self._add_aov_nodes(mat)
+        vl = scene.view_layers[0]
+        for name in NEIGHBOUR_AOVS.values():
+            if name not in vl.aovs:
+                aov = vl.aovs.add()
+                aov.name, aov.type = name, "COLOR"
+
+    @staticmethod
+    def _add_aov_nodes(mat) -> None:
+        mat.use_nodes = True
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        for key, aov_name in NEIGHBOUR_AOVS.items():
+            attr = nodes.new("ShaderNodeAttribute")
+            attr.attribute_type, attr.attribute_name = "GEOMETRY", f"lfusd_{key}"
+            out = nodes.new("ShaderNodeOutputAOV")
+            out.aov_name = aov_name
+            links.new(attr.outputs["Vector"], out.inputs["Color"])
+
+    def _world_vertices(self, frame: int) -> dict[str, np.ndarray]:
+        if frame not in self.cache:
+            self.scene.frame_set(frame)
+            dg = bpy.context.evaluated_depsgraph_get()
+            out = {}
+            for obj in self.meshes:
+                ev = obj.evaluated_get(dg)
+                me = ev.to_mesh()
+                co = np.empty(len(me.vertices) * 3, np.float64)
+                me.vertices.foreach_get("co", co)
+                m = np.array(ev.matrix_world, dtype=np.float64)
+                out[obj.name] = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+                ev.to_mesh_clear()
+            self.cache = {f: v for f, v in self.cache.items() if abs(f - frame) <= 2}
+            self.cache[frame] = out
+        return self.cache[frame]
+
+    def set_frame(self, frame: int) -> None:
+        """Fill the attributes for ``frame`` (NaN where t+/-1 is outside the stage) and go there."""
+        for key, other in (("next", frame + 1), ("prev", frame - 1)):
+            known = self.first <= other <= self.last
+            verts = self._world_vertices(other) if known else None
+            for obj in self.meshes:
+                attr = obj.data.attributes[f"lfusd_{key}"]
+                n = len(obj.data.vertices)
+                v = verts[obj.name] if known else np.full((n, 3), np.nan)
+                if len(v) != n:
+                    raise RuntimeError(f"mesh {obj.name} changes its vertex count over time; lfusd needs fixed topology")
+                attr.data.foreach_set("vector", v.astype(np.float32).ravel())
+        for obj in self.meshes:
+            obj.data.update()
+        self.scene.frame_set(frame)
+
+
 def _shift_lenses(scene, on: bool) -> None:
     w = scene.render.resolution_x  # with a horizontal sensor fit, lens shift is in image widths
     for view in scene.render.views:
@@ -152,8 +233,11 @@ def _render(scene, filepath: str) -> None:
     bpy.ops.render.render(write_still=True)
 
 
-def render_frame(scene, job: dict, frame: int, scratch: str) -> None:
-    scene.frame_set(frame)
+def render_frame(scene, job: dict, frame: int, scratch: str, motion: MotionAttributes | None) -> None:
+    if motion is not None:
+        motion.set_frame(frame)
+    else:
+        scene.frame_set(frame)
     vl = scene.view_layers[0]
     cyc = scene.cycles
     im = scene.render.image_settings
@@ -196,12 +280,13 @@ def main() -> int:
         import_stage(job["stage"])
         scene, suffixes = setup_scene(job)
         device = select_device(scene, job.get("device", "auto"))
+        motion = MotionAttributes(scene, *job["stage_range"]) if job.get("motion") else None
         emit("ready", device=device, seconds=time.time() - t0)
         for frame in job["frames"]:
             scratch = os.path.join(job["scratch"], f"f{frame:06d}")
             os.makedirs(scratch, exist_ok=True)
             t = time.time()
-            render_frame(scene, job, frame, scratch)
+            render_frame(scene, job, frame, scratch, motion)
             emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in suffixes], seconds=time.time() - t)
     except Exception as e:  # the parent turns this into a one-line error
         emit("error", message=f"{type(e).__name__}: {e}", trace=traceback.format_exc())

@@ -1,0 +1,142 @@
+"""The CLI: `lfusd rig add`, `lfusd render`; one-line errors for bad input, nothing half-written."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+
+import pytest
+from scenes import write_box_stage
+
+from lfusd.cli import main
+from lfusd.rig import RigSpec
+from lfusd.stageio import open_stage
+from lfusd.usdrig import rigs
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def assert_one_line_error(code: int, err: str, *needles: str) -> None:
+    assert code != 0
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("lfusd: error: "), err
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+@pytest.fixture
+def bare_stage(tmp_path):
+    path = tmp_path / "bare.usda"
+    write_box_stage(path, [])
+    return path
+
+
+def test_rig_add_writes_a_rig_with_the_default_reference_parameters(capsys, bare_stage):
+    code, out, _ = run_cli(capsys, "rig", "add", bare_stage, "--name", "main")
+    assert code == 0 and "added rig main" in out
+    rig = rigs(open_stage(bare_stage))["main"]
+    assert rig.spec == RigSpec(name="main")
+    assert len(rig.cameras) == 81
+
+
+def test_rig_add_sphere_defaults_to_converging_axes(capsys, bare_stage):
+    code, _, _ = run_cli(
+        capsys, "rig", "add", bare_stage, "--name", "s", "--grid", "3x5", "--layout", "sphere", "--radius", "6",
+        "--spacing", "inverse", "--resolution", "32x24", "--at", "0,-6,1", "--look-at", "0,0,1",
+    )
+    assert code == 0
+    spec = rigs(open_stage(bare_stage))["s"].spec
+    assert (spec.rows, spec.cols, spec.layout, spec.axes, spec.radius, spec.spacing, spec.width, spec.height) == (3, 5, "sphere", "converge", 6.0, "inverse", 32, 24)
+
+
+@pytest.mark.parametrize(
+    "args,needles",
+    [
+        (["--grid", "9"], ["grid", "RxC"]),
+        (["--grid", "0x3"], ["grid", "positive"]),
+        (["--resolution", "1024"], ["resolution", "WxH"]),
+        (["--resolution=-5x5"], ["resolution", "positive"]),
+        (["--baseline", "abc"], ["--baseline", "invalid float"]),
+        (["--baseline", "0"], ["baseline must be a positive"]),
+        (["--baseline", "-0.1"], ["baseline must be a positive"]),
+        (["--at", "1,2"], ["--at", "X,Y,Z"]),
+        (["--spacing", "weird"], ["unknown spacing"]),
+    ],
+)
+def test_rig_add_bad_input(capsys, bare_stage, args, needles):
+    before = bare_stage.read_bytes()
+    code, _, err = run_cli(capsys, "rig", "add", bare_stage, *args)
+    assert_one_line_error(code, err, *needles)
+    assert bare_stage.read_bytes() == before
+
+
+def test_rig_add_missing_and_malformed_stage(capsys, tmp_path):
+    code, _, err = run_cli(capsys, "rig", "add", tmp_path / "nope.usda")
+    assert_one_line_error(code, err, "nope.usda", "does not exist")
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\ndef Xform \"A\" {\n  float x = \n")
+    code, _, err = run_cli(capsys, "rig", "add", bad)
+    assert_one_line_error(code, err, "bad.usda", "not a readable USD file")
+
+
+def test_render_bad_input_writes_nothing(capsys, tmp_path, bare_stage):
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "render", tmp_path / "missing.usda", "-o", out)
+    assert_one_line_error(code, err, "missing.usda", "does not exist")
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out)
+    assert_one_line_error(code, err, "has no light-field rig", "lfusd rig add")
+    assert run_cli(capsys, "rig", "add", bare_stage, "--name", "a", "--grid", "1x1", "--resolution", "8x8")[0] == 0
+    assert run_cli(capsys, "rig", "add", bare_stage, "--name", "b", "--grid", "1x1", "--resolution", "8x8")[0] == 0
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out)
+    assert_one_line_error(code, err, "2 rigs", "--rig")
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out, "--rig", "c")
+    assert_one_line_error(code, err, "no rig named 'c'", "a, b")
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out, "--rig", "a", "--frame", "7")
+    assert_one_line_error(code, err, "frame 7", "range 1-1")
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out, "--rig", "a", "--samples", "0")
+    assert_one_line_error(code, err, "--samples")
+    assert not out.exists()
+
+
+def test_render_refuses_a_folder_holding_something_else(capsys, tmp_path, bare_stage):
+    run_cli(capsys, "rig", "add", bare_stage, "--name", "a", "--grid", "1x1", "--resolution", "8x8")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out)
+    assert_one_line_error(code, err, str(out), "not empty")
+    (out / "notes.txt").unlink()
+    (out / "manifest.json").write_text(json.dumps({"format": "lfusd-dataset", "settings": {"stage_sha256": "0" * 64, "samples": 16, "rigs": {}}}))
+    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out)
+    assert_one_line_error(code, err, "holds a different dataset", "stage_sha256", "--overwrite")
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json"]
+
+
+@pytest.mark.render
+def test_rerun_resumes_only_missing_views_and_settings_change_is_refused(capsys, tmp_path):
+    stage = tmp_path / "s.usda"
+    write_box_stage(stage, [RigSpec(name="main", rows=1, cols=3, width=16, height=12, at=(0, -5, 1), look_at=(0, 0, 0.5))])
+    out = tmp_path / "out"
+    assert run_cli(capsys, "render", stage, "-o", out, "--samples", "2", "--quiet", "--device", "cpu")[0] == 0
+    frame = out / "main" / "f000001"
+    keep = (frame / "00_00" / "passes.exr").stat().st_mtime_ns
+    shutil.rmtree(frame / "00_02")
+    (frame / ".00_02.tmp-999").mkdir()  # debris of a killed run
+    (frame / ".00_02.tmp-999" / "rgb.exr").write_bytes(b"partial")
+    code, _, err = run_cli(capsys, "render", stage, "-o", out, "--samples", "2", "--device", "cpu")
+    assert code == 0
+    assert "1/3" not in err and "3/3 views" in err  # only one view was rendered again
+    assert (frame / "00_02" / "passes.exr").is_file() and not (frame / ".00_02.tmp-999").exists()
+    assert (frame / "00_00" / "passes.exr").stat().st_mtime_ns == keep
+    code, _, err = run_cli(capsys, "render", stage, "-o", out, "--samples", "3", "--device", "cpu")
+    assert_one_line_error(code, err, "holds a different dataset", "samples")
+    assert (frame / "00_00" / "passes.exr").stat().st_mtime_ns == keep
+    code, _, _ = run_cli(capsys, "render", stage, "-o", out, "--samples", "3", "--quiet", "--device", "cpu", "--overwrite")
+    assert code == 0 and json.loads((out / "manifest.json").read_text())["settings"]["samples"] == 3
+    assert not any(p.name.startswith(".") for p in frame.iterdir())
+    assert os.listdir(out / "main") == ["f000001"]
