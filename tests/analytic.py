@@ -65,3 +65,15 @@ def project(K: np.ndarray, cam_to_world: np.ndarray, points: np.ndarray) -> np.n
     pc = points @ w2c[:3, :3].T + w2c[:3, 3]
     uvw = pc @ K.T
     return uvw[..., :2] / uvw[..., 2:3]
+
+
+def cast_uv(K, cam_to_world, uv: np.ndarray, boxes: dict[str, tuple[np.ndarray, float]], ground_half: float | None) -> np.ndarray:
+    """Depth of the first surface along the rays through arbitrary pixel positions uv (N,2)."""
+    pix = np.concatenate([uv, np.ones((len(uv), 1))], axis=1)
+    dirs = (pix @ np.linalg.inv(K).T) @ cam_to_world[:3, :3].T
+    origin = cam_to_world[:3, 3]
+    ts = [np.full(len(uv), np.inf)]
+    if ground_half is not None:
+        ts.append(hit_plane_z0(origin, dirs, ground_half))
+    ts += [hit_box(origin, dirs, m, size) for m, size in boxes.values()]
+    return np.min(np.stack(ts), axis=0)

@@ -66,3 +66,57 @@ SPHERE_RIG = RigSpec(
     name="dome", rows=2, cols=3, width=40, height=40, baseline=0.4, at=(3.0, -4.0, 2.5), look_at=(0.0, 0.0, 0.5),
     layout="sphere", spacing="linear",
 )
+
+
+# Moving scene: name -> (pose(frame) -> 4x4, edge size, label). Motion per frame is large enough
+# to see (several pixels) and small enough that t+1 stays in view.
+def _slider(f):
+    return box_matrix((-1.0 + 0.25 * f, 0.5 + 0.15 * f, 0.5 + 0.08 * f), (0.0, 0.0, 15.0))
+
+
+def _spinner(f):
+    return box_matrix((1.0, 0.2, 0.6), (0.0, 0.0, 12.0 * f))
+
+
+MOVERS = {"Slider": (_slider, 0.8, "crate"), "Spinner": (_spinner, 0.9, "drone")}
+
+
+def rig_offset(f, per_frame):
+    """Translation of a moving rig at frame f (zero at frame 1)."""
+    return np.asarray(per_frame, float) * (f - 1)
+
+
+def write_motion_stage(path, rig: RigSpec, frames: int = 3, rig_motion=(0.0, 0.0, 0.0)) -> None:
+    """Ground plane, a translating box and a spinning box as time-sampled transforms; the rig
+    prim itself translates by ``rig_motion`` metres per frame."""
+    stage = new_stage(path, 1, frames)
+    g = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    h = GROUND_HALF
+    g.CreatePointsAttr([(-h, -h, 0), (h, -h, 0), (h, h, 0), (-h, h, 0)])
+    g.CreateFaceVertexCountsAttr([4])
+    g.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    set_class_label(g.GetPrim(), "ground")
+    for name, (pose, size, label) in MOVERS.items():
+        cube = UsdGeom.Cube.Define(stage, f"/World/{name}")
+        cube.CreateSizeAttr(size)
+        op = cube.AddTransformOp()
+        for f in range(1, frames + 1):
+            op.Set(Gf.Matrix4d(*pose(f).T.ravel().tolist()), f)
+        set_class_label(cube.GetPrim(), label)
+    sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
+    sun.CreateIntensityAttr(1.0)
+    sun.CreateNormalizeAttr(True)
+    UsdGeom.XformCommonAPI(sun).SetRotate(Gf.Vec3f(30.0, 20.0, 0.0))
+    prim = add_rig(stage, rig)
+    if any(rig_motion):
+        op = UsdGeom.Xformable(prim).GetOrderedXformOps()[0]
+        rest = np.array(op.Get()).T
+        for f in range(1, frames + 1):
+            m = rest.copy()
+            m[:3, 3] += rig_offset(f, rig_motion)
+            op.Set(Gf.Matrix4d(*m.T.ravel().tolist()), f)
+    stage.Save()
+
+
+def movers_world(frame) -> dict[str, tuple[np.ndarray, float]]:
+    return {f"/World/{n}": (pose(frame), size) for n, (pose, size, _) in MOVERS.items()}

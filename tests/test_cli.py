@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 
 import pytest
@@ -23,7 +24,8 @@ def run_cli(capsys, *argv) -> tuple[int, str, str]:
 
 def assert_one_line_error(code: int, err: str, *needles: str) -> None:
     assert code != 0
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    # --quiet progress logs ("lfusd: 3/9 views, ...") may precede the error line
+    lines = [ln for ln in err.splitlines() if ln.strip() and not re.match(r"lfusd: \d+/\d+ views", ln)]
     assert len(lines) == 1 and lines[0].startswith("lfusd: error: "), err
     for n in needles:
         assert n in lines[0], lines[0]

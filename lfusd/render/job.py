@@ -19,9 +19,7 @@ from __future__ import annotations
 import json
 import os
 import platform
-import queue
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -30,19 +28,18 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 from pxr import Usd, UsdGeom
 
 from .. import __version__
 from ..errors import LfusdError
 from ..labels import object_table
-from ..passes import linear_to_srgb8, read_rgb_linear
 from ..stageio import check_frames, file_hash, frame_range, open_stage
 from ..usdrig import StageRig, select_rigs
 
 FORMAT = "lfusd-dataset"
 FORMAT_VERSION = 1
 DEVICES = ("auto", "cpu", "cuda", "optix")
+EXECUTORS = ("local", "ray")
 
 
 def view_key(view: tuple[int, int]) -> str:
@@ -67,6 +64,9 @@ class RenderRequest:
     resolution: tuple[int, int] | None = None
     overwrite: bool = False
     quiet: bool = False
+    executor: str = "local"
+    ray_address: str | None = None
+    frames_per_unit: int = 10
     motion: bool = False  # also render the t+/-1 position AOVs (render-video)
     extra_settings: dict = field(default_factory=dict)
 
@@ -215,57 +215,10 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
             atomic_write_text(d / "frame.json", json.dumps(meta))
 
 
-def _commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> None:
-    """Move one view's raw files from the worker's scratch into its final folder, atomically."""
-    final = frame_dir(out, rig, frame) / key
-    if final.is_dir():
-        return
-    tmp = final.parent / f".{key}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    for name in ("rgb", "passes"):
-        src = scratch / f"{name}_{key}.exr"
-        if not src.is_file():
-            raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
-        shutil.move(str(src), tmp / f"{name}.exr")
-    Image.fromarray(linear_to_srgb8(read_rgb_linear(tmp / "rgb.exr"))).save(tmp / "rgb.png", optimize=False, compress_level=3)
-    os.rename(tmp, final)
-
-
 def _clean_stale(out: Path) -> None:
     for tmp in out.glob("*/f*/.*.tmp-*"):
         shutil.rmtree(tmp, ignore_errors=True)
     shutil.rmtree(out / ".scratch", ignore_errors=True)
-
-
-def _chunks(items: list, n: int) -> list[list]:
-    n = max(1, min(n, len(items)))
-    return [items[i::n] for i in range(n)]
-
-
-class _Worker:
-    """One Blender worker process; a thread forwards its protocol lines to a shared queue."""
-
-    def __init__(self, job: dict, log: Path, events: "queue.Queue"):
-        self.job = job
-        self.log = open(log, "w")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-X", "faulthandler", "-m", "lfusd.render.worker"],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=self.log,
-            text=True,
-            bufsize=1,
-        )
-        self.proc.stdin.write(json.dumps(job))
-        self.proc.stdin.close()
-        threading.Thread(target=self._pump, args=(events,), daemon=True).start()
-
-    def _pump(self, events: "queue.Queue") -> None:
-        for line in self.proc.stdout:
-            if line.startswith("LFUSD "):
-                events.put((self, json.loads(line[6:])))
-        events.put((self, {"event": "exit", "code": self.proc.wait()}))
 
 
 def render(req: RenderRequest, progress=None) -> dict:
@@ -274,8 +227,14 @@ def render(req: RenderRequest, progress=None) -> dict:
         raise LfusdError(f"--samples must be a positive integer, got {req.samples}")
     if req.workers is None or req.workers < 1:
         raise LfusdError(f"--workers must be a positive integer, got {req.workers}")
+    if req.executor not in EXECUTORS:
+        raise LfusdError(f"unknown executor {req.executor!r}; use one of {', '.join(EXECUTORS)}")
     if req.device not in DEVICES:
         raise LfusdError(f"unknown device {req.device!r}; use one of {', '.join(DEVICES)}")
+    if req.executor == "ray" and req.ray_address:
+        from .executors import check_ray_address
+
+        check_ray_address(req.ray_address)
     stage = open_stage(req.stage)
     rigs = select_rigs(stage, req.rig, str(req.stage))
     if req.resolution:
@@ -291,86 +250,21 @@ def render(req: RenderRequest, progress=None) -> dict:
         _write_manifest(req, settings, previous, rigs, frames, None)
         _write_static_metadata(req, stage, rigs, frames)
         plan = _Plan(req.out, rigs, frames)
-        device = _run_workers(req, stage, rigs, plan, progress) if plan.remaining else None
+        device = None
+        if plan.remaining:
+            from .executors import run_units
+
+            report = progress or _Progress(plan.total, plan.total - plan.remaining, req.quiet)
+            try:
+                device = run_units(req, stage, rigs, plan, report)
+            finally:
+                report.close()
         _write_manifest(req, settings, json.loads((req.out / "manifest.json").read_text()), rigs, frames, device)
     except OSError as e:
         raise LfusdError(f"cannot write to {req.out} ({e.strerror or e}); free space or fix permissions, then rerun to resume") from None
     finally:
         shutil.rmtree(req.out / ".scratch", ignore_errors=True)
     return json.loads((req.out / "manifest.json").read_text())
-
-
-def _run_workers(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, progress) -> str:
-    objects, _ = object_table(stage)
-    instances = {mesh: o.instance_id for o in objects for mesh in o.mesh_paths}
-    by_name = {r.spec.name: r for r in rigs}
-    scratch_root = req.out / ".scratch"
-    jobs = []
-    # One job per (rig, set of views), covering all its frames: a worker imports the stage once.
-    for rig_name in sorted({k[0] for k in plan.todo}):
-        rig = by_name[rig_name]
-        frames = sorted(f for (r, f) in plan.todo if r == rig_name)
-        views = sorted({v for (r, f), vs in plan.todo.items() if r == rig_name for v in vs})
-        for i, chunk in enumerate(_chunks(views, req.workers)):
-            jobs.append(
-                {
-                    "rig": rig_name,
-                    "stage": str(Path(req.stage).resolve()),
-                    "cameras": {view_key(v): rig.cameras[v] for v in chunk},
-                    "frames": frames,
-                    "width": rig.spec.width,
-                    "height": rig.spec.height,
-                    "samples": req.samples,
-                    "device": req.device,
-                    "instances": instances,
-                    "threads": max(1, (os.cpu_count() or 1) // min(req.workers, len(views))),
-                    "scratch": str(scratch_root / f"{rig_name}-{i}"),
-                    "motion": req.motion,
-                    "stage_range": list(frame_range(stage)),
-                }
-            )
-    report = progress or _Progress(plan.total, plan.total - plan.remaining, req.quiet)
-    device = "cpu"
-    pending = list(jobs)
-    running: list[_Worker] = []
-    events: queue.Queue = queue.Queue()
-    logs = req.out / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
-    try:
-        while pending or running:
-            while pending and len(running) < req.workers:
-                job = pending.pop(0)
-                running.append(_Worker(job, logs / f"worker-{job['rig']}-{len(jobs) - len(pending)}.log", events))
-            w, event = events.get()
-            if event["event"] == "ready":
-                device = event["device"]
-            elif event["event"] == "frame":
-                for key in event["views"]:
-                    _commit_view(req.out, w.job["rig"], event["frame"], key, Path(event["scratch"]))
-                    report.advance(1)
-                shutil.rmtree(event["scratch"], ignore_errors=True)
-            elif event["event"] == "error":
-                raise LfusdError(_failure(w, event["message"]))
-            elif event["event"] == "exit":
-                running.remove(w)
-                w.log.close()
-                if event["code"] != 0:
-                    raise LfusdError(_failure(w, f"exited with code {event['code']} (log: {w.log.name})"))
-    finally:
-        for w in running:
-            if w.proc.poll() is None:
-                w.proc.kill()
-                w.proc.wait()
-        report.close()
-    return device
-
-
-def _failure(worker: _Worker, what: str) -> str:
-    frames = worker.job["frames"]
-    return (
-        f"Blender worker for rig {worker.job['rig']} (frames {frames[0]}-{frames[-1]}) failed: {what.splitlines()[0]}; "
-        "finished views are kept, rerun the same command to resume"
-    )
 
 
 class _Progress:
@@ -380,6 +274,7 @@ class _Progress:
         self.quiet = quiet or not sys.stderr.isatty()
         self.total, self.done, self.start, self.started_with = total, done, time.monotonic(), done
         self.bar = None
+        self.lock = threading.Lock()  # workers report from several threads
         if not self.quiet:
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -390,6 +285,10 @@ class _Progress:
             self.bar.start()
 
     def advance(self, n: int) -> None:
+        with self.lock:
+            self._advance(n)
+
+    def _advance(self, n: int) -> None:
         self.done += n
         rate = (self.done - self.started_with) / max(time.monotonic() - self.start, 1e-9)
         if self.bar:

@@ -273,6 +273,12 @@ def render_frame(scene, job: dict, frame: int, scratch: str, motion: MotionAttri
     _render(scene, os.path.join(scratch, "passes"))
 
 
+def _test_kill_hook(frame: int) -> None:
+    # Tests simulate a worker killed mid-run (SIGKILL: no clean-up) after a given frame.
+    if os.environ.get("LFUSD_TEST_KILL_AFTER_FRAME") == str(frame):
+        os.kill(os.getpid(), 9)
+
+
 def main() -> int:
     job = json.loads(sys.stdin.read())
     try:
@@ -288,6 +294,7 @@ def main() -> int:
             t = time.time()
             render_frame(scene, job, frame, scratch, motion)
             emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in suffixes], seconds=time.time() - t)
+            _test_kill_hook(frame)
     except Exception as e:  # the parent turns this into a one-line error
         emit("error", message=f"{type(e).__name__}: {e}", trace=traceback.format_exc())
         return 1

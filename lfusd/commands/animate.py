@@ -1,0 +1,70 @@
+"""`lfusd animate add-person`: put a walking or running person on a stage along a path."""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+from ..errors import LfusdError
+
+
+def register(sub) -> None:
+    anim = sub.add_parser("animate", help="add animated people to a stage")
+    asub = anim.add_subparsers(dest="animate_command", metavar="ACTION", required=True)
+    add = asub.add_parser(
+        "add-person",
+        help="add a person (UsdSkel, labelled person) moving along a path over the stage's ground",
+        description="Add a person that walks or runs along --path over the stage's supporting surfaces "
+        "(road, pavement, ground, grass, floor, bridge, ...), following their height; refuses a path that "
+        "would put the person over water, naming the frame.",
+    )
+    # Let points with a negative X (-3,2) be values, not options (argparse's private hook, stable since 3.2).
+    add._negative_number_matcher = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d*,")
+    add.add_argument("stage", help="the .usda/.usdc stage to edit in place")
+    add.add_argument("--path", nargs="+", required=True, metavar="X,Y", help="path points in stage units (at least two)")
+    add.add_argument("--gait", choices=("walk", "run", "idle"), default="walk",
+                     help="walk (default), run, or idle (stand at the first point, facing the second)")
+    add.add_argument("--speed", type=float, default=None, help="metres per second (default 1.3 walking, 3.5 running)")
+    add.add_argument("--start", type=int, default=None, help="frame at which the person sets off (default: the stage's first)")
+    add.add_argument("--character", default=None, help="a UsdSkel character file to use instead of lfusd's procedural human")
+    add.add_argument("--height", type=float, default=1.75, help="procedural human's stature in metres (default 1.75)")
+    add.add_argument("--build", type=float, default=0.5, help="procedural human's build, 0 slim to 1 heavy (default 0.5)")
+    add.add_argument("--name", default=None, help="prim path for the person (default /World/People/Person_NN)")
+    add.set_defaults(func=run_add_person)
+    cyc = asub.add_parser("write-cycles", help="write the procedural human's looping idle/walk/run clips (USD)")
+    cyc.add_argument("-o", "--out", default="animations", help="folder (default: animations)")
+    cyc.add_argument("--height", type=float, default=1.75, help="stature in metres (default 1.75)")
+    cyc.add_argument("--build", type=float, default=0.5, help="build, 0 slim to 1 heavy (default 0.5)")
+    cyc.set_defaults(func=run_write_cycles)
+
+
+def run_write_cycles(args) -> int:
+    from ..gait import write_cycle_library
+    from ..human import HumanSpec
+
+    for path in write_cycle_library(args.out, HumanSpec(args.height, args.build)):
+        print(f"wrote {path}")
+    return 0
+
+
+def run_add_person(args) -> int:
+    from ..animate import add_person, parse_points
+    from ..human import HumanSpec
+    from ..stageio import open_stage
+
+    points = parse_points(args.path)
+    speed = args.speed if args.speed is not None else (1.3 if args.gait == "walk" else 3.5)
+    spec = HumanSpec(args.height, args.build)
+    spec.validate()
+    t0 = time.perf_counter()
+    stage = open_stage(args.stage)
+    prim = add_person(stage, points, gait=args.gait, speed=speed, start=args.start, character=args.character,
+                      spec=spec, path=args.name)
+    try:
+        stage.GetRootLayer().Save()
+    except Exception as e:
+        raise LfusdError(f"cannot save stage {Path(args.stage)} ({e}); check the file is writable") from None
+    how = "standing" if args.gait == "idle" else f"{args.gait} at {speed:g} m/s"
+    print(f"added {prim.GetPath()} ({how}) to {args.stage} in {time.perf_counter() - t0:.2f} s")
+    return 0

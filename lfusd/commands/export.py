@@ -1,0 +1,47 @@
+"""`lfusd export FORMAT OUT DEST`: write a dataset in a research layout (HCI, KITTI, .flo, PFM, LF HDF5)."""
+
+from __future__ import annotations
+
+from ..errors import LfusdError
+
+
+def _view(text: str):
+    try:
+        r, c = (int(p) for p in str(text).split(","))
+    except ValueError:
+        raise LfusdError(f"view {text!r} is not ROW,COL (two integers, e.g. 4,4)") from None
+    return r, c
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "export",
+        help="export a dataset to HCI, KITTI, .flo, PFM or HDF5 LF layouts",
+        description="Export a rendered dataset OUT into DEST (which must not exist yet).",
+    )
+    p.add_argument("format", choices=["hci", "kitti", "flo", "pfm", "lfmat"], help="target layout")
+    p.add_argument("out", help="dataset folder (output of `lfusd render`)")
+    p.add_argument("dest", help="new folder to write")
+    p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
+    p.add_argument("--view", default=None, help="ROW,COL view for flo/pfm (default: the centre view)")
+    p.add_argument("--all-views", action="store_true", help="flo/pfm: every view; hci: also per-view disparity PFMs")
+    p.add_argument("--matlab", action="store_true", help="lfmat: write MATLAB v7.3 .mat files (LF is [U,V,H,W,3] in MATLAB)")
+    p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .. import export as ex
+
+    ds = ex.open_dataset(args.out, args.rig)
+    kw = {}
+    if args.format in ("flo", "pfm"):
+        kw = {"view": _view(args.view) if args.view else None, "all_views": args.all_views}
+    elif args.format == "hci":
+        kw = {"all_views": args.all_views}
+    elif args.format == "lfmat":
+        kw = {"matlab": args.matlab}
+    result = ex.export(ds, args.format, args.dest, frame=args.frame, **kw)
+    n = len(result) if isinstance(result, list) else 1
+    print(f"exported {args.format} to {args.dest} ({n} {'item' if n == 1 else 'items'})")
+    return 0

@@ -1,0 +1,37 @@
+"""`lfusd verify OUT`: check a dataset's ground truth against the stage's own geometry."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .flow import open_dataset, parse_frames, parse_views
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("verify", help="verify depth, instances, flow and scene flow against Open3D ray casting of the stage")
+    p.add_argument("out", help="dataset folder")
+    p.add_argument("--frames", help="frames to verify, e.g. 1-3 (default: all)")
+    p.add_argument("--views", nargs="+", metavar="R,C", help="views to verify (default: all)")
+    p.add_argument("--stage", help="the stage the dataset was rendered from (default: the one it records)")
+    p.set_defaults(func=handler)
+
+
+def handler(args) -> int:
+    from ..verify import verify_dataset
+
+    ds = open_dataset(args.out)
+    report = verify_dataset(
+        ds,
+        stage_path=args.stage,
+        frames=parse_frames(args.frames),
+        views=parse_views(args.views),
+        progress=lambda f, v: print(f"verifying frame {f} view {v[0]},{v[1]}", file=sys.stderr),
+    )
+    print(report.table())
+    if report.ok:
+        print("verify: all checks passed")
+        return 0
+    for line in report.failures():
+        print(f"FAIL {line}")
+    return 1

@@ -1,0 +1,234 @@
+"""Running work units (rig x views x frames) in Blender worker processes: locally or on Ray.
+
+A unit is one Blender worker process: it imports the stage once and renders its frames of its
+views with multiview. Each view is committed (moved from the worker's scratch folder into the
+dataset, atomically) as soon as its frame is written, so any failure loses at most the frame in
+flight of each worker.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+from PIL import Image
+from pxr import Usd
+
+from ..errors import LfusdError
+from ..labels import object_table
+from ..passes import linear_to_srgb8, read_rgb_linear
+from ..stageio import frame_range
+from ..usdrig import StageRig
+from .job import RenderRequest, _Plan, frame_dir, view_key
+
+
+def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> None:
+    """Move one view's raw files from a worker's scratch into its final folder, atomically."""
+    final = frame_dir(out, rig, frame) / key
+    if final.is_dir():
+        return
+    tmp = final.parent / f".{key}.tmp-{os.getpid()}-{threading.get_ident()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in ("rgb", "passes"):
+        src = scratch / f"{name}_{key}.exr"
+        if not src.is_file():
+            raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
+        shutil.move(str(src), tmp / f"{name}.exr")
+    Image.fromarray(linear_to_srgb8(read_rgb_linear(tmp / "rgb.exr"))).save(tmp / "rgb.png", compress_level=3)
+    os.rename(tmp, final)
+
+
+def chunks(items: list, n: int) -> list[list]:
+    """Split into at most n contiguous, nearly equal runs (contiguous frames share t+/-1)."""
+    n = max(1, min(n, len(items)))
+    size, extra = divmod(len(items), n)
+    out, i = [], 0
+    for k in range(n):
+        j = i + size + (1 if k < extra else 0)
+        out.append(items[i:j])
+        i = j
+    return out
+
+
+def plan_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan) -> list[dict]:
+    """Work units covering every missing (rig, frame, view)."""
+    objects, _ = object_table(stage)
+    instances = {mesh: o.instance_id for o in objects for mesh in o.mesh_paths}
+    by_name = {r.spec.name: r for r in rigs}
+    units = []
+    for rig_name in sorted({k[0] for k in plan.todo}):
+        rig = by_name[rig_name]
+        frames = sorted(f for (r, f) in plan.todo if r == rig_name)
+        views = sorted({v for (r, f), vs in plan.todo.items() if r == rig_name for v in vs})
+        view_chunks = chunks(views, req.workers)
+        # Fewer views than workers: split the frames too. Ray gets units of at most
+        # frames_per_unit frames, so retries and load balancing stay fine-grained.
+        n_frame_chunks = -(-req.workers // len(view_chunks))
+        if req.executor == "ray":
+            n_frame_chunks = max(n_frame_chunks, -(-len(frames) // req.frames_per_unit))
+        for fchunk in chunks(frames, n_frame_chunks):
+            for vchunk in view_chunks:
+                todo = [f for f in fchunk if any(v in plan.todo.get((rig_name, f), ()) for v in vchunk)]
+                if todo:
+                    units.append(
+                        {
+                            "unit": len(units),
+                            "rig": rig_name,
+                            "stage": str(Path(req.stage).resolve()),
+                            "cameras": {view_key(v): rig.cameras[v] for v in vchunk},
+                            "frames": todo,
+                            "width": rig.spec.width,
+                            "height": rig.spec.height,
+                            "samples": req.samples,
+                            "device": req.device,
+                            "instances": instances,
+                            # Locally, workers share the cores; on Ray, Blender takes what the node has.
+                            "threads": max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
+                            "motion": req.motion,
+                            "stage_range": list(frame_range(stage)),
+                        }
+                    )
+    return units
+
+
+_LIVE: set[subprocess.Popen] = set()
+_LIVE_LOCK = threading.Lock()
+
+
+def run_unit(job: dict, out: Path, on_view=None) -> str:
+    """Run one Blender worker over a unit, committing views as frames finish; return the device used."""
+    scratch = out / ".scratch" / f"{job['rig']}-{job['unit']}-{os.getpid()}-{threading.get_ident()}"
+    logs = out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    log_path = logs / f"{job['rig']}-unit{job['unit']:04d}.log"
+    device, error = "cpu", None
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-X", "faulthandler", "-m", "lfusd.render.worker"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
+        )
+        with _LIVE_LOCK:
+            _LIVE.add(proc)
+        try:
+            proc.stdin.write(json.dumps({**job, "scratch": str(scratch)}))
+            proc.stdin.close()
+            for line in proc.stdout:
+                if not line.startswith("LFUSD "):
+                    continue  # Blender's own chatter
+                event = json.loads(line[6:])
+                if event["event"] == "ready":
+                    device = event["device"]
+                elif event["event"] == "frame":
+                    for key in event["views"]:
+                        commit_view(out, job["rig"], event["frame"], key, Path(event["scratch"]))
+                        if on_view:
+                            on_view(1)
+                    shutil.rmtree(event["scratch"], ignore_errors=True)
+                elif event["event"] == "error":
+                    error = event["message"]
+            code = proc.wait()
+        finally:
+            with _LIVE_LOCK:
+                _LIVE.discard(proc)
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            shutil.rmtree(scratch, ignore_errors=True)
+    if error or code != 0:
+        what = error or f"exited with code {code} (log: {log_path})"
+        frames = job["frames"]
+        raise LfusdError(
+            f"Blender worker for rig {job['rig']} (frames {frames[0]}-{frames[-1]}) failed: {what.splitlines()[0]}; "
+            "finished views are kept, rerun the same command to resume"
+        )
+    return device
+
+
+def _kill_all() -> None:
+    with _LIVE_LOCK:
+        for proc in list(_LIVE):
+            if proc.poll() is None:
+                proc.kill()
+
+
+def run_local(units: list[dict], req: RenderRequest, report) -> str:
+    """A pool of ``req.workers`` Blender processes on this machine; the first failure stops all."""
+    from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+
+    pool = ThreadPoolExecutor(max_workers=req.workers)
+    try:
+        futures = [pool.submit(run_unit, u, req.out, report.advance) for u in units]
+        done, _ = wait(futures, return_when=FIRST_EXCEPTION)
+        for f in done:
+            if f.exception() is not None:
+                raise f.exception()
+        devices = [f.result() for f in futures]
+    finally:
+        _kill_all()
+        pool.shutdown(wait=True, cancel_futures=True)
+    return devices[0] if devices else "cpu"
+
+
+def _ray_unit(job: dict, out: str) -> str:
+    return run_unit(job, Path(out))
+
+
+def check_ray_address(address: str) -> None:
+    """Fail fast, in one line, when nothing listens at a host:port Ray address."""
+    import socket
+
+    host, _, port = address.rpartition(":")
+    if "://" in address or not port.isdigit():
+        return  # ray:// client addresses and 'auto' are Ray's to resolve
+    try:
+        socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
+    except OSError as e:
+        raise LfusdError(f"cannot reach the Ray cluster at {address} ({e.strerror or e}); check --ray-address, or leave it out to start a local Ray") from None
+
+
+def run_ray(units: list[dict], req: RenderRequest, report) -> str:
+    """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path."""
+    import ray
+
+    if req.ray_address:
+        check_ray_address(req.ray_address)
+    try:
+        if req.ray_address:
+            ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False)
+        else:
+            ray.init(num_cpus=req.workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
+    except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
+        where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
+        raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None
+    task = ray.remote(num_cpus=1, max_retries=2, retry_exceptions=True)(_ray_unit)
+    refs = {task.remote(u, str(Path(req.out).resolve())): u for u in units}
+    device = "cpu"
+    try:
+        while refs:
+            done, _ = ray.wait(list(refs), num_returns=1)
+            unit = refs.pop(done[0])
+            try:
+                device = ray.get(done[0])
+            except ray.exceptions.RayTaskError as e:
+                cause = getattr(e, "cause", None)
+                msg = str(cause) if isinstance(cause, LfusdError) else f"a Ray task of rig {unit['rig']} failed after retries ({str(e).splitlines()[0]}); rerun to resume"
+                raise LfusdError(msg) from None
+            report.advance(len(unit["cameras"]) * len(unit["frames"]))
+    finally:
+        for r in refs:
+            ray.cancel(r, force=True)
+        if not req.ray_address:
+            ray.shutdown()
+    return device
+
+
+def run_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, report) -> str:
+    """Render every missing view of ``plan`` with the requested executor; return the device used."""
+    units = plan_units(req, stage, rigs, plan)
+    return (run_ray if req.executor == "ray" else run_local)(units, req, report)

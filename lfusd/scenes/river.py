@@ -1,0 +1,86 @@
+"""River: water between grass banks (vertical bank walls, a dirt riverbed), a bridge with
+railings, floating boats, trees, benches and people on the banks and the bridge; sun and sky,
+with a disk light (a spot on the bridge)."""
+
+from __future__ import annotations
+
+from . import GAP, Scene
+from . import objects as kit
+from .build import box, merge
+
+L = 60.0
+
+
+def build(scene: Scene) -> dict:
+    rng, b = scene.rng, scene.builder
+    half = float(rng.uniform(4.5, 7.0))  # river half width (y)
+    level = -float(rng.uniform(0.4, 0.8))  # water surface height
+    bed = -2.5
+    bank = 20.0
+    scene.bounds = ((-L / 2, -(half + bank)), (L / 2, half + bank))
+
+    scene.add("/World/River", "water", [("surface", box((L, 2 * half, level - bed), (0, 0, (level + bed) / 2), tile=4.0), "water")], track=False)
+    scene.add("/World/Riverbed", "ground", [("surface", box((L, 2 * half, 0.5), (0, 0, bed - 0.25), tile=3.0), "dirt")], track=False)
+    for side, s in (("N", 1), ("S", -1)):
+        scene.add(f"/World/Bank_{side}", "grass", [("surface", box((L, bank, 3.0), (0, s * (half + bank / 2), -1.5), tile=3.0), "grass")], track=False)
+
+    # Bridge across the river: deck on two abutments resting on the banks, railings on the deck.
+    bx = float(rng.uniform(-10, 10))
+    bw = float(rng.uniform(2.5, 4.0))
+    span = half + 3.0
+    deck_z = 0.6
+    deck = box((bw, 2 * span, 0.3), (0, 0, deck_z - 0.15), tile=2.0)
+    abutments = merge(*[box((bw, 2.5, deck_z - 0.3), (0, s * (span - 1.25), (deck_z - 0.3) / 2), tile=2.0) for s in (1, -1)])
+    rails = merge(*[box((0.08, 2 * span, 0.9), (s * (bw / 2 - 0.04), 0, deck_z + 0.45 + GAP), tile=1.0) for s in (1, -1)])
+    scene.add("/World/Bridge", "bridge", [("deck", deck, "concrete"), ("abutments", abutments, "concrete"),
+                                          ("railings", rails, "paint_dark")], (bx, 0.0, GAP))
+    bridge_box = scene.placed[-1]
+
+    # Boats float with their draft below the water level; keep them clear of the bridge.
+    for _ in range(int(rng.integers(2, 5))):
+        parts, draft = kit.boat(rng)
+        pose = scene.place(parts, ((-L / 2 + 3, -half + 0.5), (L / 2 - 3, half - 0.5)), level - draft,
+                           yaw_choices=[0.0, 180.0, 10.0, 190.0, -10.0, 170.0], margin=0.8)
+        if pose:
+            scene.add(scene.name("Boat"), "boat", parts, pose[0], pose[1])
+
+    # People: on the banks and on the bridge deck.
+    for _ in range(int(rng.integers(3, 7))):
+        parts = kit.person(rng)
+        if rng.random() < 0.3:
+            region = ((bx - bw / 2 + 0.4, -span + 2.6), (bx + bw / 2 - 0.4, span - 2.6))
+            z = deck_z + 2 * GAP
+            pose = scene.place(parts, region, z, margin=0.2, ignore=(bridge_box.path,))
+        else:
+            s = 1 if rng.random() < 0.5 else -1
+            y0, y1 = sorted((s * (half + 0.5), s * (half + 8.0)))
+            pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)
+        if pose:
+            scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
+    for _ in range(int(rng.integers(3, 8))):
+        parts = kit.tree(rng)
+        s = 1 if rng.random() < 0.5 else -1
+        y0, y1 = sorted((s * (half + 2.0), s * (half + bank - 1.0)))
+        pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)
+        if pose:
+            scene.add(scene.name("Tree"), "tree", parts, pose[0], pose[1])
+    for _ in range(int(rng.integers(1, 4))):
+        parts = kit.bench(rng)
+        s = 1 if rng.random() < 0.5 else -1
+        y0, y1 = sorted((s * (half + 1.0), s * (half + 6.0)))
+        pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, yaw_choices=[90.0 if s < 0 else 270.0], margin=0.3)
+        if pose:
+            scene.add(scene.name("Bench"), "bench", parts, pose[0], pose[1])
+
+    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(15, 65)), float(rng.uniform(0.6, 1.4)))
+    b.dome(float(rng.uniform(0.3, 0.8)))
+    b.disk_light("BridgeSpot", (bx, 0.0, deck_z + 5.0), (bx, 0.0, deck_z), 0.3, float(rng.uniform(100, 300)))
+
+    def rig_position(r):
+        s = 1 if r.random() < 0.5 else -1
+        return (r.uniform(-L / 2 + 8, L / 2 - 8), s * r.uniform(half + 0.5, half + 4.0), r.uniform(1.6, 3.5))
+
+    def look_at(r):
+        return (bx + r.uniform(-12, 12), r.uniform(-half, half), r.uniform(level, 1.5))
+
+    return {"rig_position": rig_position, "look_at": look_at}

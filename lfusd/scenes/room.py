@@ -1,0 +1,94 @@
+"""Room: a floor with four walls (open to the sky), a table with chairs around it and bowls on
+it, a floor lamp (sphere light), cabinets, a person; ceiling rect light, a window sun, a disk
+spot and a dome fill."""
+
+from __future__ import annotations
+
+import math
+
+from . import GAP, Scene
+from . import objects as kit
+from .build import box
+
+H = 2.7  # wall height
+T = 0.15  # wall thickness
+
+
+def build(scene: Scene) -> dict:
+    rng, b = scene.rng, scene.builder
+    hx, hy = float(rng.uniform(2.8, 4.0)), float(rng.uniform(2.4, 3.5))  # inner half sizes
+    scene.bounds = ((-hx, -hy), (hx, hy))
+    floor_tex = "wood" if rng.random() < 0.5 else "floor_tiles"
+    wall_tex = "wallpaper" if rng.random() < 0.5 else "plaster"
+    scene.add("/World/Floor", "floor", [("surface", box((2 * hx + 2 * T + 0.1, 2 * hy + 2 * T + 0.1, 0.2), (0, 0, -0.1), tile=2.0), floor_tex)], track=False)
+    # Walls stand on the floor; the x walls span the corners, the y walls fit between them (no overlap).
+    walls = [("N", (2 * hx + 2 * T, T, H), (0, hy + T / 2)), ("S", (2 * hx + 2 * T, T, H), (0, -hy - T / 2)),
+             ("E", (T, 2 * hy - 0.01, H), (hx + T / 2, 0)), ("W", (T, 2 * hy - 0.01, H), (-hx - T / 2, 0))]
+    for name, size, (x, y) in walls:
+        scene.add(f"/World/Wall_{name}", "wall", [("surface", box(size, (0, 0, H / 2), tile=2.5), wall_tex)], (x, y, GAP))
+
+    inner = ((-hx + 0.05, -hy + 0.05), (hx - 0.05, hy - 0.05))
+    # Table near the middle; chairs face it; bowls stand on its top.
+    parts, top_h, (lx, ly) = kit.table(rng)
+    tx, ty = float(rng.uniform(-hx * 0.3, hx * 0.3)), float(rng.uniform(-hy * 0.3, hy * 0.3))
+    yaw = float(rng.choice([0.0, 90.0]))
+    table_path = scene.add("/World/Table", "table", parts, (tx, ty, GAP), yaw)
+    ex, ey = (lx, ly) if yaw == 0.0 else (ly, lx)
+    for k in range(int(rng.integers(2, 5))):
+        parts = kit.chair(rng)
+        # four sides of the table: the chair faces the table centre
+        side = k % 4
+        d = [(-1, 0), (1, 0), (0, -1), (0, 1)][side]
+        off = (ex / 2 + 0.35, ey / 2 + 0.35)
+        cx, cy = tx + d[0] * off[0] + (rng.uniform(-0.2, 0.2) if d[0] == 0 else 0), ty + d[1] * off[1] + (rng.uniform(-0.2, 0.2) if d[1] == 0 else 0)
+        cyaw = math.degrees(math.atan2(ty - cy, tx - cx))
+        pose = scene.place(parts, ((cx - 0.5, cy - 0.5), (cx + 0.5, cy + 0.5)), GAP, yaw_choices=[cyaw], margin=0.05)
+        if pose:
+            scene.add(scene.name("Chair"), "chair", parts, pose[0], pose[1])
+    top = ((tx - ex / 2 + 0.05, ty - ey / 2 + 0.05), (tx + ex / 2 - 0.05, ty + ey / 2 - 0.05))
+    for _ in range(int(rng.integers(2, 6))):
+        parts = kit.bowl_kit(rng)
+        pose = scene.place(parts, top, top_h + 2 * GAP, margin=0.05, ignore=(table_path,))
+        if pose:
+            scene.add(scene.name("Bowl"), "bowl", parts, pose[0], pose[1])
+
+    # Cabinets against the walls (backs to the wall), a floor lamp in a corner region, a person.
+    for _ in range(int(rng.integers(1, 4))):
+        parts = kit.cabinet(rng)
+        side = int(rng.integers(4))
+        yaw = [0.0, 180.0, 90.0, 270.0][side]
+        if side == 0:
+            region = ((-hx + 0.02, -hy + 0.3), (-hx + 0.6, hy - 0.3))
+        elif side == 1:
+            region = ((hx - 0.6, -hy + 0.3), (hx - 0.02, hy - 0.3))
+        elif side == 2:
+            region = ((-hx + 0.3, -hy + 0.02), (hx - 0.3, -hy + 0.6))
+        else:
+            region = ((-hx + 0.3, hy - 0.6), (hx - 0.3, hy - 0.02))
+        pose = scene.place(parts, region, GAP, yaw_choices=[yaw], margin=0.05, tries=20)
+        if pose:
+            scene.add(scene.name("Cabinet"), "cabinet", parts, pose[0], pose[1])
+    parts, light_h = kit.floor_lamp(rng)
+    pose = scene.place(parts, inner, GAP, margin=0.2)
+    if pose:
+        (x, y, z), _ = pose
+        scene.add("/World/Lamp", "lamp", parts, (x, y, z), pose[1])
+        b.sphere_light("LampBulb", (x + 0.12, y, z + light_h), 0.05, float(rng.uniform(20, 60)))
+    if rng.random() < 0.7:
+        parts = kit.person(rng)
+        pose = scene.place(parts, inner, GAP, margin=0.25)
+        if pose:
+            scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
+
+    b.rect_light("Ceiling", (0.0, 0.0, H + 0.3), (0.0, 0.0, 0.0), 1.2, 0.6, float(rng.uniform(40, 100)))
+    b.disk_light("Spot", (tx, ty, H + 0.2), (tx, ty, 0.0), 0.15, float(rng.uniform(30, 90)))
+    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(45, 75)), float(rng.uniform(0.4, 1.0)))
+    b.dome(float(rng.uniform(0.2, 0.5)), color=(0.9, 0.9, 1.0))
+
+    def rig_position(r):
+        return (r.uniform(-hx + 1.0, hx - 1.0), r.uniform(-hy + 1.0, hy - 1.0), r.uniform(1.4, 2.0))
+
+    def look_at(r):
+        return (tx + r.uniform(-0.5, 0.5), ty + r.uniform(-0.5, 0.5), top_h + r.uniform(-0.3, 0.3))
+
+    return {"rig_position": rig_position, "look_at": look_at}

@@ -1,0 +1,97 @@
+"""Street: a road along x with lane markings, raised pavements, grass verges, buildings, parked
+cars, street lights (sphere lights), trees and people; sun and sky."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import GAP, Scene, world_box
+from . import objects as kit
+from .build import box, merge
+
+L = 60.0  # street length (x from -L/2 to L/2)
+
+
+def build(scene: Scene) -> dict:
+    rng, b = scene.rng, scene.builder
+    road_w = float(rng.uniform(3.2, 4.2))  # half width
+    walk_w = float(rng.uniform(2.5, 3.5))
+    curb = 0.15
+    verge = 14.0
+    scene.bounds = ((-L / 2, -(road_w + walk_w + verge)), (L / 2, road_w + walk_w + verge))
+
+    # Road: top at z = 0, dashed centre line 1 mm above it (part of the road object).
+    dashes = [box((3.0, 0.15, 0.002), (x, 0.0, 0.001), tile=1.0) for x in np.arange(-L / 2 + 2.5, L / 2, 6.0)]
+    scene.add("/World/Road", "road", [("surface", box((L, 2 * road_w, 0.3), (0, 0, -0.15), tile=4.0), "asphalt"),
+                                       ("markings", merge(*dashes), "paint_white")], track=False)
+    for side, s in (("N", 1), ("S", -1)):
+        yc = s * (road_w + walk_w / 2)
+        scene.add(f"/World/Pavement_{side}", "sidewalk", [("surface", box((L, walk_w, 0.45), (0, yc, curb - 0.225), tile=2.0), "paving")], track=False)
+        yg = s * (road_w + walk_w + verge / 2)
+        scene.add(f"/World/Verge_{side}", "grass", [("surface", box((L, verge, 0.3), (0, yg, -0.15), tile=3.0), "grass")], track=False)
+
+    # Buildings on the verges, set back from the pavement.
+    for s in (1, -1):
+        x = -L / 2 + 1.0
+        while x < L / 2 - 6.0:
+            w, d = float(rng.uniform(6.0, 11.0)), float(rng.uniform(6.0, 9.0))
+            if x + w > L / 2 - 1.0:
+                break
+            parts, _ = kit.building(rng, w, d)
+            y0 = s * (road_w + walk_w + float(rng.uniform(1.5, 3.0)) + d / 2)
+            scene.add(scene.name("Building"), "building", parts, (x + w / 2, y0, GAP))
+            x += w + float(rng.uniform(1.0, 4.0))
+
+    # Parked cars near the kerbs, driving lanes kept clear for issue-6 movers.
+    for _ in range(int(rng.integers(4, 8))):
+        parts = kit.car(rng)
+        s = 1 if rng.random() < 0.5 else -1
+        y0, y1 = sorted((s * (road_w - 0.1), s * (road_w - 2.1)))
+        region = ((-L / 2 + 3, y0), (L / 2 - 3, y1))
+        pose = scene.place(parts, region, GAP, yaw_choices=[0.0, 180.0], margin=0.6)
+        if pose:
+            scene.add(scene.name("Car"), "car", parts, pose[0], pose[1])
+
+    # Street lights along the pavement edge, arm over the road.
+    lx = -L / 2 + float(rng.uniform(3, 8))
+    k = 0
+    while lx < L / 2 - 3:
+        s = 1 if k % 2 == 0 else -1
+        parts, lamp_h = kit.street_light(rng)
+        y = s * (road_w + 0.5)
+        yaw = 270.0 if s > 0 else 90.0
+        (lo, hi) = world_box([d for _, d, _ in parts], (lx, y, curb + GAP), yaw)
+        if scene.free(lo, hi, margin=0.2):
+            scene.add(scene.name("StreetLight"), "street_light", parts, (lx, y, curb + GAP), yaw)
+            th = np.radians(yaw)
+            b.sphere_light(f"Lamp_{k:02d}", (lx + 1.1 * np.cos(th), y + 1.1 * np.sin(th), curb + GAP + lamp_h),
+                           0.12, float(rng.uniform(150, 400)))
+        lx += float(rng.uniform(10, 16))
+        k += 1
+
+    # People on the pavements, trees on the verges in front of the buildings.
+    for _ in range(int(rng.integers(3, 7))):
+        parts = kit.person(rng)
+        s = 1 if rng.random() < 0.5 else -1
+        y0, y1 = sorted((s * (road_w + 0.6), s * (road_w + walk_w - 0.2)))
+        pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), curb + GAP, margin=0.3)
+        if pose:
+            scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
+    for _ in range(int(rng.integers(2, 6))):
+        parts = kit.tree(rng)
+        s = 1 if rng.random() < 0.5 else -1
+        y0, y1 = sorted((s * (road_w + walk_w + 0.2), s * (road_w + walk_w + verge - 0.5)))
+        pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)
+        if pose:
+            scene.add(scene.name("Tree"), "tree", parts, pose[0], pose[1])
+
+    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(20, 70)), float(rng.uniform(0.6, 1.4)))
+    b.dome(float(rng.uniform(0.3, 0.8)))
+
+    def rig_position(r):
+        return (r.uniform(-L / 2 + 8, L / 2 - 8), r.uniform(-road_w + 0.8, road_w - 0.8), r.uniform(1.5, 3.0))
+
+    def look_at(r):
+        return (r.uniform(-10, 10), r.uniform(-road_w - walk_w, road_w + walk_w), r.uniform(0.8, 2.0))
+
+    return {"rig_position": rig_position, "look_at": look_at}

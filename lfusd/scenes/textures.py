@@ -1,0 +1,242 @@
+"""Procedural, deterministic textures written as PNG files (NumPy + zlib, no imaging library).
+
+Every texture is a pure function of its name: the same bytes on every run and machine, so
+stages generated anywhere share one ``textures/`` folder. Textures tile seamlessly.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+SIZE = 256
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write an (H, W, 3) uint8 array as an 8-bit RGB PNG (fixed zlib level: stable bytes)."""
+    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
+    h, w, _ = rgb.shape
+    raw = b"".join(b"\x00" + rgb[i].tobytes() for i in range(h))
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b"")
+    Path(path).write_bytes(png)
+
+
+def _noise(rng: np.random.Generator, size: int, cells: int) -> np.ndarray:
+    """Tileable value noise in [0, 1]: a random cells x cells grid, bilinearly interpolated with wrap."""
+    grid = rng.random((cells, cells))
+    t = np.arange(size) * cells / size
+    i0 = np.floor(t).astype(int)
+    f = t - i0
+    f = f * f * (3 - 2 * f)  # smoothstep: no visible grid creases
+    i1 = (i0 + 1) % cells
+    a = grid[np.ix_(i0, i0)] * (1 - f)[None, :] + grid[np.ix_(i0, i1)] * f[None, :]
+    b = grid[np.ix_(i1, i0)] * (1 - f)[None, :] + grid[np.ix_(i1, i1)] * f[None, :]
+    return a * (1 - f)[:, None] + b * f[:, None]
+
+
+def fbm(rng: np.random.Generator, size: int = SIZE, octaves: int = 5, base: int = 4) -> np.ndarray:
+    """Fractal sum of tileable value noise, normalised to [0, 1]."""
+    out = np.zeros((size, size))
+    amp, total = 1.0, 0.0
+    for o in range(octaves):
+        out += amp * _noise(rng, size, min(size, base * 2**o))
+        total += amp
+        amp *= 0.5
+    out /= total
+    return (out - out.min()) / max(out.max() - out.min(), 1e-9)
+
+
+def _mix(a, b, t):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return a + (b - a) * t[..., None]
+
+
+def _to8(img: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
+
+
+def _asphalt(rng):
+    n = fbm(rng)
+    speck = (rng.random((SIZE, SIZE)) > 0.93) * 0.25
+    return _mix((0.16, 0.16, 0.17), (0.33, 0.33, 0.34), np.clip(n * 0.8 + speck, 0, 1))
+
+
+def _tiles(rng, c1, c2, grout, n_tiles=4, offset_rows=False):
+    n = fbm(rng)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    period = SIZE // n_tiles
+    shift = ((yy // period) % 2) * (period // 2) if offset_rows else 0
+    gx, gy = (xx + shift) % period, yy % period
+    tile_id = ((xx + shift) // period) * 7 + (yy // period) * 13
+    shade = (np.sin(tile_id * 12.9898) * 43758.5453) % 1.0  # per-tile tint, deterministic
+    img = _mix(c1, c2, np.clip(0.5 * shade + 0.5 * n, 0, 1))
+    line = (gx < 3) | (gy < 3)
+    img[line] = grout
+    return img
+
+
+def _bricks(rng):
+    n = fbm(rng)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    bh, bw = SIZE // 16, SIZE // 8
+    shift = ((yy // bh) % 2) * (bw // 2)
+    gx, gy = (xx + shift) % bw, yy % bh
+    bid = ((xx + shift) // bw) * 31 + (yy // bh) * 17
+    shade = (np.sin(bid * 78.233) * 43758.5453) % 1.0
+    img = _mix((0.45, 0.17, 0.10), (0.70, 0.35, 0.22), np.clip(0.6 * shade + 0.4 * n, 0, 1))
+    img[(gx < 2) | (gy < 2)] = (0.72, 0.70, 0.66)
+    # windows: a 2 x 2 grid of dark glass panes with frames (the texture spans one storey)
+    wx, wy = xx % (SIZE // 2), yy % (SIZE // 2)
+    win = (wx > 40) & (wx < 88) & (wy > 30) & (wy < 100)
+    frame = (wx > 36) & (wx < 92) & (wy > 26) & (wy < 104) & ~win
+    img[frame] = (0.85, 0.85, 0.82)
+    img[win] = _mix((0.10, 0.14, 0.20), (0.35, 0.45, 0.55), n)[win]
+    return img
+
+
+def _grass(rng):
+    n = fbm(rng, base=8)
+    blades = rng.random((SIZE, SIZE))
+    return _mix((0.10, 0.28, 0.06), (0.36, 0.55, 0.16), np.clip(0.6 * n + 0.4 * blades, 0, 1))
+
+
+def _wood(rng):
+    n = fbm(rng, base=2)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    rings = 0.5 + 0.5 * np.sin(2 * np.pi * (yy / SIZE * 12 + 2.0 * n))  # 12 periods: tileable
+    planks = ((xx % (SIZE // 4)) < 2)
+    img = _mix((0.38, 0.22, 0.10), (0.66, 0.45, 0.26), np.clip(0.7 * rings + 0.3 * n, 0, 1))
+    img[planks] = (0.20, 0.12, 0.06)
+    return img
+
+
+def _water(rng):
+    n = fbm(rng, base=4)
+    m = fbm(rng, base=16, octaves=3)
+    return _mix((0.05, 0.16, 0.22), (0.20, 0.42, 0.50), np.clip(0.6 * n + 0.4 * m, 0, 1))
+
+
+def _plaster(rng):
+    n = fbm(rng, base=8)
+    return _mix((0.70, 0.66, 0.58), (0.90, 0.87, 0.80), n)
+
+
+def _wallpaper(rng):
+    n = fbm(rng, base=8)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    stripes = ((xx // 16) % 2).astype(float)
+    dots = (((xx % 32) - 16) ** 2 + ((yy % 32) - 16) ** 2 < 20).astype(float)
+    img = _mix((0.60, 0.66, 0.55), (0.75, 0.78, 0.66), np.clip(0.5 * stripes + 0.3 * n, 0, 1))
+    img[dots > 0] = (0.45, 0.30, 0.25)
+    return img
+
+
+def _fabric(rng):
+    n = fbm(rng, base=16, octaves=3)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    check = (((xx // 32) + (yy // 32)) % 2).astype(float)
+    weave = 0.5 + 0.5 * np.sin(xx * np.pi / 2) * np.sin(yy * np.pi / 2)
+    return _mix((0.55, 0.12, 0.10), (0.85, 0.75, 0.55), np.clip(0.6 * check + 0.2 * weave + 0.2 * n, 0, 1))
+
+
+def _paint(color):
+    def make(rng):
+        n = fbm(rng, base=4, octaves=3)
+        c = np.asarray(color, float)
+        return _mix(c * 0.75, np.minimum(c * 1.15, 1.0), n)
+
+    return make
+
+
+def _bark(rng):
+    n = fbm(rng, base=4)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    grooves = 0.5 + 0.5 * np.sin(2 * np.pi * (xx / SIZE * 16 + 1.5 * n))
+    return _mix((0.18, 0.11, 0.06), (0.42, 0.30, 0.20), grooves)
+
+
+def _leaves(rng):
+    n = fbm(rng, base=16)
+    spots = rng.random((SIZE, SIZE))
+    return _mix((0.05, 0.20, 0.04), (0.30, 0.50, 0.12), np.clip(0.5 * n + 0.5 * spots, 0, 1))
+
+
+def _concrete(rng):
+    n = fbm(rng, base=8)
+    return _mix((0.45, 0.45, 0.43), (0.68, 0.67, 0.64), n)
+
+
+def _ceramic(rng):
+    n = fbm(rng, base=4, octaves=3)
+    yy, _ = np.mgrid[0:SIZE, 0:SIZE]
+    band = ((yy // 24) % 4 == 0).astype(float)
+    img = _mix((0.80, 0.82, 0.86), (0.93, 0.94, 0.96), n)
+    img[band > 0] = (0.15, 0.30, 0.60)
+    return img
+
+
+def _dirt(rng):
+    n = fbm(rng, base=8)
+    pebbles = (rng.random((SIZE, SIZE)) > 0.97).astype(float)
+    return _mix((0.30, 0.22, 0.14), (0.52, 0.42, 0.30), np.clip(0.8 * n + 0.5 * pebbles, 0, 1))
+
+
+TEXTURES = {
+    "asphalt": _asphalt,
+    "paving": lambda rng: _tiles(rng, (0.55, 0.53, 0.50), (0.72, 0.70, 0.66), (0.35, 0.34, 0.32)),
+    "bricks": _bricks,
+    "grass": _grass,
+    "wood": _wood,
+    "water": _water,
+    "plaster": _plaster,
+    "wallpaper": _wallpaper,
+    "fabric": _fabric,
+    "bark": _bark,
+    "leaves": _leaves,
+    "concrete": _concrete,
+    "ceramic": _ceramic,
+    "dirt": _dirt,
+    "floor_tiles": lambda rng: _tiles(rng, (0.62, 0.60, 0.56), (0.80, 0.78, 0.74), (0.30, 0.30, 0.30), 8, True),
+    "paint_red": _paint((0.70, 0.08, 0.06)),
+    "paint_blue": _paint((0.08, 0.20, 0.62)),
+    "paint_white": _paint((0.82, 0.82, 0.80)),
+    "paint_yellow": _paint((0.85, 0.65, 0.08)),
+    "paint_dark": _paint((0.12, 0.12, 0.13)),
+}
+
+
+def texture_pixels(name: str) -> np.ndarray:
+    """The (256, 256, 3) uint8 image of texture ``name``; seeded by the name's bytes, not hash()."""
+    seed = int.from_bytes(name.encode("utf-8")[:8].ljust(8, b"\0"), "little")
+    return _to8(TEXTURES[name](np.random.default_rng(seed)))
+
+
+_VERIFIED: set[str] = set()
+
+
+def ensure_texture(folder: str | Path, name: str) -> Path:
+    """Write ``folder/name.png`` unless it already holds this texture's exact pixels (checked
+    once per process; a stale or foreign file of that name is replaced)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.png"
+    key = str(path.resolve())
+    if key in _VERIFIED and path.exists():
+        return path
+    pixels = texture_pixels(name)
+    tmp = folder / f".{name}.png.tmp"
+    write_png(tmp, pixels)
+    if path.exists() and path.read_bytes() == tmp.read_bytes():
+        tmp.unlink()
+    else:
+        tmp.replace(path)
+    _VERIFIED.add(key)
+    return path

@@ -1,0 +1,235 @@
+"""The scene library (lfusd.scenes) and `lfusd stage new`: determinism, content, constraints."""
+
+from __future__ import annotations
+
+import hashlib
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
+
+from lfusd import cli
+from lfusd.constraints import Checker, usd_validation
+from lfusd.geometry import triangulate
+from lfusd.labels import class_label, object_table
+from lfusd.scenes import TEMPLATES, generate
+from lfusd.scenes import objects as kit
+from lfusd.scenes.build import box, cylinder, prism
+from lfusd.scenes.textures import TEXTURES, texture_pixels
+from lfusd.usdrig import rigs
+
+SMALL = dict(frames=3, rigs=2, grid=(1, 1), resolution=(32, 32))
+
+
+def small(tmp_path, template, seed=0, **kw):
+    args = {**SMALL, **kw}
+    return generate(template, tmp_path / f"{template}_{seed}.usda", seed, **args)
+
+
+def signed_volume(points, counts, indices):
+    t = triangulate(np.asarray(counts), np.asarray(indices))
+    v = np.asarray(points, float)[t]
+    return float(np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
+
+
+def test_mesh_primitives_are_closed_and_outward():
+    # The divergence theorem gives the enclosed volume only for a closed, consistently wound mesh;
+    # a positive sign means outward normals (USD rightHanded), which Blender shades and shadows right.
+    b = box((1.0, 2.0, 3.0), (5.0, -1.0, 2.0))
+    assert signed_volume(b.points, b.counts, b.indices) == pytest.approx(6.0)
+    n = 24
+    polygon_area = 0.5 * n * np.sin(2 * np.pi / n)  # regular n-gon of radius 1
+    for axis in ("z", "x", "y"):
+        c = cylinder(1.0, 0.0, 2.0, n, axis=axis)
+        assert signed_volume(c.points, c.counts, c.indices) == pytest.approx(2.0 * polygon_area)
+    p = prism([(0, 0), (2, 0), (2, 1), (0, 1)], 0.0, 3.0)
+    assert signed_volume(p.points, p.counts, p.indices) == pytest.approx(6.0)
+
+
+def test_every_kit_part_is_closed_and_rests_on_z0():
+    rng = np.random.default_rng(0)
+    kits = [kit.car(rng), kit.person(rng), kit.tree(rng), kit.street_light(rng)[0], kit.bench(rng),
+            kit.building(rng, 8, 6)[0], kit.boat(rng)[0], kit.table(rng)[0], kit.chair(rng), kit.bowl_kit(rng),
+            kit.floor_lamp(rng)[0], kit.cabinet(rng)]
+    for parts in kits:
+        assert min(float(np.min(d.points[:, 2])) for _, d, _ in parts) == pytest.approx(0.0, abs=1e-9)
+        for name, d, tex in parts:
+            assert tex in TEXTURES
+            assert signed_volume(d.points, d.counts, d.indices) > 0, name
+            assert len(d.uvs) == len(d.indices)
+
+
+def test_textures_are_deterministic_png_files(tmp_path):
+    a, b = texture_pixels("bricks"), texture_pixels("bricks")
+    assert a.shape == (256, 256, 3) and a.dtype == np.uint8 and np.array_equal(a, b)
+    assert not np.array_equal(a, texture_pixels("grass"))
+    assert a.std() > 10  # real texture, something to match
+    small(tmp_path, "street")
+    png = (tmp_path / "textures" / "asphalt.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    # decode the single IDAT chunk by hand and compare with the pixels
+    idat = png.index(b"IDAT")
+    size = int.from_bytes(png[idat - 4:idat], "big")
+    raw = np.frombuffer(zlib.decompress(png[idat + 4: idat + 4 + size]), np.uint8).reshape(256, 1 + 256 * 3)
+    assert np.all(raw[:, 0] == 0)
+    assert np.array_equal(raw[:, 1:].reshape(256, 256, 3), texture_pixels("asphalt"))
+
+
+@pytest.mark.parametrize("template", TEMPLATES)
+def test_same_seed_same_bytes_other_seed_other_scene(tmp_path, template):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    generate(template, tmp_path / "a" / "s.usda", 7, **SMALL)
+    generate(template, tmp_path / "b" / "s.usda", 7, **SMALL)
+    generate(template, tmp_path / "c.usda", 8, **SMALL)
+    digest = lambda p: hashlib.sha256(p.read_bytes()).hexdigest()  # noqa: E731
+    assert digest(tmp_path / "a" / "s.usda") == digest(tmp_path / "b" / "s.usda")
+    assert digest(tmp_path / "a" / "s.usda") != digest(tmp_path / "c.usda")
+    for png in (tmp_path / "a" / "textures").iterdir():
+        assert digest(png) == digest(tmp_path / "b" / "textures" / png.name)
+
+
+REQUIRED = {
+    "street": {"road", "sidewalk", "grass", "building", "car", "street_light", "person"},
+    "river": {"water", "grass", "bridge", "boat", "person", "tree"},
+    "room": {"floor", "wall", "table", "chair", "bowl", "lamp"},
+    "mixed": {"road", "grass", "water", "building", "car", "tree", "person"},
+}
+
+
+@pytest.mark.parametrize("template", TEMPLATES)
+def test_template_content(tmp_path, template):
+    stage = small(tmp_path, template, seed=3, rigs=3)
+    assert UsdGeom.GetStageUpAxis(stage) == "Z" and UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode(), stage.GetTimeCodesPerSecond()) == (1, 3, 24)
+    objects, classes = object_table(stage)
+    labels = {o.label for o in objects}
+    assert REQUIRED[template] <= labels, REQUIRED[template] - labels
+    assert all(o.label for o in objects)  # every piece of geometry belongs to a labelled object
+    # Geometry is polygon meshes only (no implicit shapes that Blender would tessellate its own way).
+    for prim in stage.Traverse():
+        if prim.IsA(UsdGeom.Gprim):
+            assert prim.IsA(UsdGeom.Mesh), prim.GetPath()
+            mesh = UsdGeom.Mesh(prim)
+            assert mesh.GetSubdivisionSchemeAttr().Get() == "none"
+            pts = np.array(mesh.GetPointsAttr().Get())
+            assert signed_volume(pts, mesh.GetFaceVertexCountsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get()) > 0
+            # bound to a UsdPreviewSurface whose diffuse colour reads an existing PNG by a relative path
+            mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+            surface = mat.ComputeSurfaceSource()[0]
+            assert surface.GetIdAttr().Get() == "UsdPreviewSurface"
+            tex = surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source
+            asset = UsdShade.Shader(tex.GetPrim()).GetInput("file").Get()
+            assert asset.path.startswith("./textures/") and (tmp_path / asset.path).is_file()
+    lights = {p.GetTypeName() for p in stage.Traverse() if p.HasAPI(UsdLux.LightAPI)}
+    assert {"DistantLight", "DomeLight"} <= lights and len(lights) >= 3, lights
+    for p in stage.Traverse():
+        if p.HasAPI(UsdLux.LightAPI):
+            assert UsdLux.LightAPI(p).GetNormalizeAttr().Get() is True
+    found = rigs(stage)
+    assert sorted(found) == ["rig_00", "rig_01", "rig_02"]
+    for r in found.values():
+        assert (r.spec.rows, r.spec.cols, r.spec.width) == (1, 1, 32)
+        assert np.linalg.norm(np.subtract(r.spec.look_at, r.spec.at)) >= 2.0
+
+
+def test_default_rig_spec_and_count(tmp_path):
+    stage = generate("room", tmp_path / "r.usda", 1, frames=2)
+    found = rigs(stage)
+    assert sorted(found) == [f"rig_{i:02d}" for i in range(10)]
+    s = found["rig_05"].spec
+    assert (s.rows, s.cols, s.baseline, s.focal_length_mm, s.sensor_mm, s.width, s.height) == (9, 9, 0.125, 39.0, 36.0, 1024, 1024)
+
+
+def test_generated_scenes_pass_check(tmp_path):
+    # 12 scenes here (seeds 0..11 across the four templates); benchmarks/bench_stage_new.py runs 50.
+    for k in range(12):
+        template = TEMPLATES[k % 4]
+        stage = generate(template, tmp_path / f"{template}_{k}.usda", k, **SMALL)
+        problems = [v.line() for v in Checker(stage).check()] + usd_validation(stage)
+        assert problems == [], (template, k, problems)
+
+
+def _move(stage, path, xyz):
+    op = UsdGeom.Xformable(stage.GetPrimAtPath(path)).GetOrderedXformOps()[0]
+    op.Set(Gf.Vec3d(*xyz))
+
+
+def test_breaking_a_generated_street_is_caught(tmp_path):
+    stage = small(tmp_path, "street", seed=5)
+    cars = [o.prim_path for o in object_table(stage)[0] if o.label == "car"]
+    verge = stage.GetPrimAtPath("/World/Verge_N")
+    lo = np.array(UsdGeom.Imageable(verge).ComputeWorldBound(1, "default").ComputeAlignedRange().GetMin())
+    hi = np.array(UsdGeom.Imageable(verge).ComputeWorldBound(1, "default").ComputeAlignedRange().GetMax())
+    _move(stage, cars[0], ((lo[0] + hi[0]) / 2 + 0.37, hi[1] - 2.5, hi[2] + 0.001))  # onto the grass
+    lines = [v.line() for v in Checker(stage).check()]
+    assert any(ln.startswith(f"{cars[0]}: on broken at frame 1") and "'grass'" in ln for ln in lines), lines
+
+
+def test_breaking_a_generated_river_is_caught(tmp_path):
+    stage = small(tmp_path, "river", seed=2)
+    boats = [o.prim_path for o in object_table(stage)[0] if o.label == "boat"]
+    people = [o.prim_path for o in object_table(stage)[0] if o.label == "person"]
+    bank = UsdGeom.Imageable(stage.GetPrimAtPath("/World/Bank_S")).ComputeWorldBound(1, "default").ComputeAlignedRange()
+    _move(stage, boats[0], (25.0, bank.GetMin()[1] + 2.5, 0.001))  # a boat on the grass bank
+    water = UsdGeom.Imageable(stage.GetPrimAtPath("/World/River")).ComputeWorldBound(1, "default").ComputeAlignedRange()
+    _move(stage, people[0], (-27.0, 0.0, water.GetMax()[2] + 0.001))  # a person standing on the river
+    lines = [v.line() for v in Checker(stage).check()]
+    assert any(ln.startswith(f"{boats[0]}: floats_on broken at frame 1") for ln in lines), lines
+    assert any(ln.startswith(f"{people[0]}: not_on broken at frame 1") and "'water'" in ln for ln in lines), lines
+
+
+def test_breaking_a_generated_room_is_caught(tmp_path):
+    stage = small(tmp_path, "room", seed=4)
+    bowls = [o.prim_path for o in object_table(stage)[0] if o.label == "bowl"]
+    chairs = [o.prim_path for o in object_table(stage)[0] if o.label == "chair"]
+    table = UsdGeom.Imageable(stage.GetPrimAtPath("/World/Table")).ComputeWorldBound(1, "default").ComputeAlignedRange()
+    c = (np.array(table.GetMin()) + np.array(table.GetMax())) / 2
+    _move(stage, bowls[0], (c[0], c[1], 2.2))  # a bowl in mid-air above the table
+    _move(stage, chairs[0], (c[0], c[1], 0.001))  # a chair inside the table
+    lines = [v.line() for v in Checker(stage).check()]
+    assert any(ln.startswith(f"{bowls[0]}: on broken at frame 1") and "above" in ln for ln in lines), lines
+    # one line per (object, rule): the first intersecting partner found is named
+    assert any(ln.startswith(f"{chairs[0]}: no_interpenetration broken at frame 1") for ln in lines), lines
+    assert any(ln.startswith("/World/Table: no_interpenetration broken at frame 1") and chairs[0] in ln for ln in lines), lines
+
+
+def test_stage_new_cli_and_errors(tmp_path, capsys):
+    out = tmp_path / "stages" / "m.usda"
+    code = cli.main(["stage", "new", "mixed", "-o", str(out), "--seed", "4", "--frames", "12", "--rigs", "1",
+                     "--grid", "3x2", "--resolution", "40x30"])
+    assert code == 0 and out.is_file() and (out.parent / "textures" / "grass.png").is_file()
+    stage = Usd.Stage.Open(str(out))
+    r = rigs(stage)["rig_00"].spec
+    assert (r.rows, r.cols, r.width, r.height) == (3, 2, 40, 30) and stage.GetEndTimeCode() == 12
+    assert class_label(stage.GetPrimAtPath("/World/Road")) == "road"
+    capsys.readouterr()
+    for argv, expect in (
+        (["stage", "new", "castle", "-o", str(tmp_path / "x.usda")], "unknown template 'castle'"),
+        (["stage", "new", "room", "-o", str(tmp_path / "x.usda"), "--grid", "9by9"], "--grid"),
+        (["stage", "new", "room", "-o", str(tmp_path / "x.usda"), "--rigs", "11"], "--rigs"),
+        (["stage", "new", "room", "-o", str(tmp_path / "x.txt")], "must end in .usda"),
+    ):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("lfusd: error:") and expect in err[0], err
+
+
+STAGES = Path(__file__).resolve().parents[1] / "stages"
+COMMITTED = sorted(p for p in STAGES.glob("*.usda") if p.name != "default.usda")
+
+
+@pytest.mark.parametrize("path", COMMITTED, ids=lambda p: p.name)
+def test_committed_stage_passes_check_and_regenerates_byte_for_byte(tmp_path, path):
+    stage = Usd.Stage.Open(str(path))
+    assert [v.line() for v in Checker(stage).check()] + usd_validation(stage) == []
+    # The stage records its template and seed; regenerating them here must give the same bytes
+    # (the seed -> stage mapping is stable across runs and machines).
+    world = stage.GetDefaultPrim()
+    template, seed = world.GetCustomDataByKey("lfusd:template"), world.GetCustomDataByKey("lfusd:seed")
+    generate(template, tmp_path / path.name, seed, frames=int(stage.GetEndTimeCode()))
+    assert (tmp_path / path.name).read_bytes() == path.read_bytes()
+    for png in (tmp_path / "textures").iterdir():
+        assert png.read_bytes() == (STAGES / "textures" / png.name).read_bytes()

@@ -1,0 +1,250 @@
+"""lfusd.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from motion_scenes import Box, Scene, intrinsics, pose, rot
+from pxr import Gf, UsdGeom
+
+from lfusd.errors import LfusdError
+from lfusd.flow import derive_motion
+from lfusd.labels import set_class_label
+from lfusd.stageio import new_stage
+from lfusd.verify import THRESHOLDS, interior_mask, trace_motion, verify_dataset
+
+N = 64
+
+
+def scene(cam_motion=True):
+    K = intrinsics(N * 1.05, N, N)
+    back = Box((5, 5, 0.05), {f: pose(t=(0, 0, 6.0)) for f in (1, 2, 3)}, 1, "/World/Wall")
+    cube = Box((0.6, 0.5, 0.4), {f: pose(rot((0.3, 1, 0.2), 12.0 * f + 20), (0.1 + 0.1 * f, 0.0, 4.0)) for f in (1, 2, 3)}, 2, "/World/Cube")
+    cams = {f: pose(rot((0, 1, 0), 2.0 * (f - 2)), (0.2 * (f - 2), 0.05 * (f - 2), 0)) if cam_motion else np.eye(4) for f in (1, 2, 3)}
+    return Scene([back, cube], K, cams, N, N, baseline=0.2)
+
+
+def stage_of(sc, path):
+    """The same boxes as USD Cubes (size 2, scaled by their half extents), labelled."""
+    stage = new_stage(str(path), 1, 3)
+    for box, label in zip(sc.boxes, ("wall", "block")):
+        cube = UsdGeom.Cube.Define(stage, box.prim_path)
+        cube.CreateSizeAttr(2.0)
+        op = cube.AddTransformOp()
+        for f, P in box.poses.items():
+            m = P @ np.diag([*box.half, 1.0])
+            op.Set(Gf.Matrix4d(*m.T.ravel().tolist()), f)
+        set_class_label(cube.GetPrim(), label)
+    stage.Save()
+    return stage
+
+
+class FakeDataset:
+    """The reader interface lfusd.verify needs, over arrays derived from closed-form raw passes."""
+
+    def __init__(self, sc, stage_path, exact=True):
+        self.sc, self.stage_path, self.baseline = sc, str(stage_path), sc.baseline
+        self.frames, self.views = [1, 2, 3], [(0, 0)]
+        self.objects = {b.instance: SimpleNamespace(prim_path=b.prim_path, label=lab) for b, lab in zip(sc.boxes, ("wall", "block"))}
+        self.data = {}
+        for f in self.frames:
+            raw = sc.raw(f, exact)
+            nxt = sc.raw(f + 1, exact) if f + 1 in sc.cams else None
+            prv = sc.raw(f - 1, exact) if f - 1 in sc.cams else None
+            d = derive_motion(raw, nxt, prv, baseline=sc.baseline)
+            d["depth"], d["instance"] = raw.depth, raw.instance
+            self.data[f] = d
+
+    def intrinsics(self, view):
+        return self.sc.K
+
+    def cam_to_world(self, frame, view):
+        return self.sc.cams[frame]
+
+    def read(self, frame, view, key):
+        return self.data[frame][key]
+
+
+def test_trace_motion_matches_closed_form_boxes(tmp_path):
+    sc = scene()
+    stage = stage_of(sc, tmp_path / "s.usda")
+    for step in (1, -1):
+        tr = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[2 + step], N, N, step=step, baseline=sc.baseline)
+        t = sc.truth(2)
+        fg = t["which"] >= 0
+        assert (np.isfinite(tr["depth"]) == fg).mean() > 0.995  # silhouettes may differ by float rounding
+        both = fg & np.isfinite(tr["depth"]) & (tr["mesh"] == t["which"])
+        assert both.mean() > 0.99
+        np.testing.assert_allclose(tr["depth"][both], t["depth"][both], rtol=1e-9)
+        X = t["next_position" if step > 0 else "prev_position"]
+        np.testing.assert_allclose(tr["scene_flow"][both], (X - t["position"])[both], atol=1e-9)
+        u1, v1, z1 = sc.project(X, 2 + step)
+        v, u = np.mgrid[0:N, 0:N]
+        np.testing.assert_allclose(tr["flow"][both], np.stack([u1 - u, v1 - v], -1)[both], atol=1e-7)
+        fb = sc.K[0, 0] * sc.baseline
+        np.testing.assert_allclose(tr["disparity_change"][both], (fb / z1 - fb / t["depth"])[both], rtol=1e-7, atol=1e-9)
+        hidden = fg & ~sc.visible_at(2, step)
+        assert hidden[both].sum() > 20
+        assert (tr["occluded"][both] == hidden[both]).mean() > 0.999
+
+
+def test_verify_passes_on_exact_data_and_prints_per_class_rows(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    report = verify_dataset(FakeDataset(sc, tmp_path / "s.usda"))
+    assert report.ok, report.failures()
+    keys = {r.key for r in report.rows}
+    assert keys >= {"depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change", "occlusion_fwd", "occlusion_bwd"}
+    labels = {r.label for r in report.rows}
+    assert {"(all)", "wall", "block"} <= labels
+    assert all(r.count > 100 for r in report.rows if r.key in ("flow_fwd", "depth") and r.label == "(all)")
+    table = report.table()
+    assert "scene_flow" in table and "block" in table
+
+
+def test_verify_passes_on_vector_plus_depth_route(tmp_path):
+    sc = scene(cam_motion=False)
+    stage_of(sc, tmp_path / "s.usda")
+    report = verify_dataset(FakeDataset(sc, tmp_path / "s.usda", exact=False))
+    assert report.ok, report.failures()
+
+
+@pytest.mark.parametrize(
+    "key,corrupt",
+    [
+        ("flow_fwd", lambda a: a * np.array([1.0, -1.0], np.float32)),  # sign flip of the v component
+        ("flow_bwd", lambda a: a * np.array([-1.0, 1.0], np.float32)),
+        ("depth", lambda a: a * np.float32(1.01)),  # depth shifted by 1 %
+        ("scene_flow", lambda a: a + np.float32(0.002)),
+        ("instance", lambda a: np.where(a == 1, 2, np.where(a == 2, 1, a))),
+    ],
+)
+def test_verify_fails_on_corrupted_data_naming_key_and_view(tmp_path, key, corrupt):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    ds.views = [(0, 0), (1, 0)]  # a second, untouched view: the failure must name the right one
+    clean = {f: dict(d) for f, d in ds.data.items()}
+    ds.read = lambda f, v, k: (ds.data if v == (1, 0) else clean)[f][k]
+    for f in ds.frames:
+        ds.data[f][key] = corrupt(ds.data[f][key])
+    report = verify_dataset(ds)
+    assert not report.ok
+    fails = report.failures()
+    assert any(line.startswith(f"{key} of view 1,0") for line in fails), fails
+    assert not any("view 0,0" in line for line in fails), fails
+
+
+def test_interior_mask_keeps_away_from_edges():
+    inst = np.zeros((20, 20), int)
+    inst[5:15, 5:15] = 1
+    depth = np.where(inst > 0, 2.0, np.inf)
+    m = interior_mask(inst, depth, 2)
+    # Pixels touching the edge (5 and 14) and two more on each side are left out.
+    assert m[8:12, 8:12].all() and m.sum() == 16
+
+
+def test_verify_names_missing_stage_and_frames(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    with pytest.raises(LfusdError, match="frame 9 is not in the dataset"):
+        verify_dataset(ds, frames=[9])
+    ds.stage_path = None
+    with pytest.raises(LfusdError, match="--stage"):
+        verify_dataset(ds)
+    assert set(THRESHOLDS) >= {"depth", "flow_fwd", "scene_flow"}
+
+
+class RawDataset(FakeDataset):
+    """A dataset holding raw passes only (as render-video writes them), with write()."""
+
+    def __init__(self, sc, stage_path, drop=()):
+        super().__init__(sc, stage_path)
+        self.raw = {}
+        for f in self.frames:
+            r = sc.raw(f, exact=True)
+            self.raw[f] = {k: getattr(r, k) for k in ("depth", "vector", "position", "instance", "next_position", "prev_position") if k not in drop}
+        self.data = {f: dict(self.raw[f]) for f in self.frames}
+
+    def read(self, frame, view, key):
+        if key not in self.data[frame]:
+            raise KeyError(f"{key}: no such pass in frame_{frame:04d}/view_00_00.exr")
+        return self.data[frame][key]
+
+    def write(self, frame, view, key, array):
+        self.data[frame][key] = array
+
+
+def test_flow_then_verify_commands(tmp_path, monkeypatch, capsys):
+    import lfusd.commands.flow as cmd_flow
+    import lfusd.commands.verify as cmd_verify
+    from lfusd.cli import main
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = RawDataset(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(cmd_flow, "open_dataset", lambda p: ds)
+    monkeypatch.setattr(cmd_verify, "open_dataset", lambda p: ds)
+    assert main(["flow", "OUT"]) == 0
+    assert {"flow_fwd", "scene_flow", "occlusion_bwd"} <= set(ds.data[2])
+    assert main(["verify", "OUT", "--frames", "1-3", "--views", "0,0"]) == 0
+    assert "all checks passed" in capsys.readouterr().out
+    for f in ds.frames:
+        ds.data[f]["depth"] = ds.data[f]["depth"] * np.float32(1.01)
+    assert main(["verify", "OUT"]) == 1
+    assert "FAIL depth of view 0,0" in capsys.readouterr().out
+
+
+def test_flow_command_names_a_missing_vector_pass(tmp_path, monkeypatch, capsys):
+    import lfusd.commands.flow as cmd_flow
+    from lfusd.cli import main
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(cmd_flow, "open_dataset", lambda p: RawDataset(sc, tmp_path / "s.usda", drop=("vector",)))
+    assert main(["flow", "OUT"]) == 2
+    err = capsys.readouterr().err
+    assert "frame 1 view 0,0 has no vector pass" in err and "view_00_00.exr" in err
+
+
+def _load_script(name):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "flow" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"flow_{name}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_stats_script_reports_motion_and_disparity_ranges(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    ds.views = [(0, 0), (0, 8)]  # the same images under two column indices: a span of 8 steps
+    s = _load_script("stats").dataset_stats(ds)
+    depth = np.concatenate([ds.data[f]["depth"][np.isfinite(ds.data[f]["depth"])] for f in ds.frames])
+    f_b = sc.K[0, 0] * sc.baseline
+    assert s["disparity"]["p100"] == pytest.approx(f_b / depth.min(), rel=1e-5)
+    assert s["disparity"]["p1"] >= f_b / depth.max() * (1 - 1e-5)
+    assert s["rig"]["rig_span_px"] == pytest.approx(8 * f_b / depth.min(), rel=1e-5)
+    flows = np.concatenate([np.linalg.norm(ds.data[f]["flow_fwd"], axis=-1)[ds.data[f]["valid_fwd"]] for f in ds.frames])
+    assert s["flow_fwd"]["p100"] == pytest.approx(flows.max(), rel=1e-6) and s["flow_fwd"]["count"] == 2 * flows.size
+    assert 0 < s["fractions_of_foreground"]["occlusion_fwd"] < 0.5
+
+
+def test_verify_report_script_writes_json_and_markdown(tmp_path, monkeypatch):
+    import json
+
+    import lfusd.commands.flow as cmd_flow
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(cmd_flow, "open_dataset", lambda p: FakeDataset(sc, tmp_path / "s.usda"))
+    rc = _load_script("verify_report").main(["OUT", "--frames", "2", "--json", str(tmp_path / "r.json"), "--markdown", str(tmp_path / "r.md")])
+    assert rc == 0
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["ok"] and {r["key"] for r in data["rows"]} >= {"flow_fwd", "scene_flow", "depth"}
+    assert "| flow_fwd | block |" in (tmp_path / "r.md").read_text()
