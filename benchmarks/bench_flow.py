@@ -6,6 +6,9 @@ Writes a synthetic Blender-style multilayer EXR (depth, vector, position, object
 next/previous position AOVs, float32, the channel names Blender uses) with OpenEXR, times reading
 it back (the inputs of one frame of one view), times deriving every motion key of one view from
 three such frames in memory, and prints Mpixel/s of both and the ratio derive / read (goal <= 0.5).
+Wall time is the figure of merit; "cpu ms" is process CPU time summed over all threads (numba's
+parallel workers included, so it also counts their spin-waiting). NUMBA_NUM_THREADS=1 gives the
+single-core cost.
 """
 
 from __future__ import annotations

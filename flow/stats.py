@@ -19,9 +19,11 @@ def _pcts(x: np.ndarray) -> dict:
 
 
 def _read(ds, f, v, key):
+    from lfusd.errors import LfusdError
+
     try:
         return ds.read(f, v, key)
-    except (KeyError, FileNotFoundError):
+    except (KeyError, FileNotFoundError, LfusdError):
         return None
 
 
@@ -77,20 +79,31 @@ def dataset_stats(ds, frames=None, views=None, baseline: float | None = None) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lfusd.commands.flow import open_dataset, parse_frames, parse_views
+    from lfusd.commands.flow import open_datasets, parse_frames, parse_views
     from lfusd.errors import LfusdError
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("out", help="dataset folder")
     ap.add_argument("--frames", help="e.g. 1-10,15 (default: all)")
     ap.add_argument("--views", nargs="+", metavar="R,C")
-    ap.add_argument("--json", help="write the statistics as JSON here")
+    ap.add_argument("--rig", help="rig (default: every rig of the dataset)")
+    ap.add_argument("--json", help="write the statistics as JSON here (one entry per rig)")
     a = ap.parse_args(argv)
     try:
-        s = dataset_stats(open_dataset(a.out), parse_frames(a.frames), parse_views(a.views))
+        per_rig = {getattr(ds, "rig_name", "rig"): dataset_stats(ds, parse_frames(a.frames), parse_views(a.views)) for ds in open_datasets(a.out, a.rig)}
     except LfusdError as e:
         print(f"stats: error: {e}", file=sys.stderr)
         return 2
+    for name, s in per_rig.items():
+        print(f"rig {name}:")
+        _print(s)
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(per_rig, f, indent=1)
+    return 0
+
+
+def _print(s: dict) -> None:
     for key in ("flow_fwd", "flow_bwd", "scene_flow", "disparity_change", "disparity"):
         st = s[key]
         unit = "m" if key == "scene_flow" else "px"
@@ -101,10 +114,6 @@ def main(argv: list[str] | None = None) -> int:
     if r["disparity_max_per_step"] is not None:
         print(f"rig: {r['views']} views, column span {r['column_span_steps']} steps, max disparity {r['disparity_max_per_step']:.3g} px/step, "
               f"max shift between outermost views {r['rig_span_px']:.3g} px")
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump(s, f, indent=1)
-    return 0
 
 
 if __name__ == "__main__":

@@ -23,20 +23,23 @@ def to_markdown(report) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lfusd.commands.flow import open_dataset, parse_frames, parse_views
+    from lfusd.commands.flow import open_datasets, parse_frames, parse_views
     from lfusd.errors import LfusdError
-    from lfusd.verify import verify_dataset
+    from lfusd.verify import VerifyReport, verify_dataset
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("out", help="dataset folder")
     ap.add_argument("--stage", help="stage the dataset was rendered from (default: the one it records)")
     ap.add_argument("--frames", help="e.g. 1-10,15 (default: all)")
     ap.add_argument("--views", nargs="+", metavar="R,C")
+    ap.add_argument("--rig", help="rig (default: every rig of the dataset)")
     ap.add_argument("--json", help="write every row (frame, view, key, class) as JSON here")
     ap.add_argument("--markdown", help="write the summary table as Markdown here")
     a = ap.parse_args(argv)
     try:
-        report = verify_dataset(open_dataset(a.out), a.stage, parse_frames(a.frames), parse_views(a.views))
+        report = VerifyReport()
+        for ds in open_datasets(a.out, a.rig):
+            report.rows += verify_dataset(ds, a.stage, parse_frames(a.frames), parse_views(a.views)).rows
     except LfusdError as e:
         print(f"verify_report: error: {e}", file=sys.stderr)
         return 2

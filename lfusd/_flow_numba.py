@@ -1,4 +1,7 @@
-"""Compiled per-point occlusion tests of :mod:`lfusd.flow` (numba); mirrors ``_visibility_numpy``.
+"""Compiled derivation of :mod:`lfusd.flow` (numba): one fused pass per pixel and direction.
+
+Mirrors the NumPy reference (``lfusd.flow._direction`` / ``_visibility_numpy``) test by test,
+plus a fast path that is provably equivalent (see ``_point``); tests compare the two backends.
 
 Kept apart so that ``lfusd.flow`` imports without numba (it then uses the NumPy reference).
 """
@@ -82,6 +85,33 @@ def _point(xj, yj, flu, flv, ze, ex, me, inst_other, inv_other, inv3, back, fb_a
     y0 = min(max(int(math.floor(yc)), 0), max(h - 2, 0))
     inv_exp = 1.0 / ze if ex else math.nan
     slack = fb_abs + fb_rel * math.sqrt(flu * flu + flv * flv)
+    # Fast path, exactly equivalent: with all four corners on the point's instance and the
+    # point inside the cell, the bilinear interpolation lies within the envelopes, so a bilinear
+    # value that passes a test means every corner passes it (all four agree).
+    ax = xc - x0
+    ay = yc - y0
+    if ax >= 0 and ax <= 1 and ay >= 0 and ay <= 1:
+        if inst_other[y0, x0] == me and inst_other[y0, x0 + 1] == me and inst_other[y0 + 1, x0] == me and inst_other[y0 + 1, x0 + 1] == me:
+            w00, w01, w10, w11 = (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay
+            bu = w00 * back[y0, x0, 0] + w01 * back[y0, x0 + 1, 0] + w10 * back[y0 + 1, x0, 0] + w11 * back[y0 + 1, x0 + 1, 0]
+            bv = w00 * back[y0, x0, 1] + w01 * back[y0, x0 + 1, 1] + w10 * back[y0 + 1, x0, 1] + w11 * back[y0 + 1, x0 + 1, 1]
+            ok = abs(bu + flu) <= slack and abs(bv + flv) <= slack
+            if ok and ex:
+                bi = w00 * inv_other[y0, x0] + w01 * inv_other[y0, x0 + 1] + w10 * inv_other[y0 + 1, x0] + w11 * inv_other[y0 + 1, x0 + 1]
+                ok = abs(bi - inv_exp) <= depth_rel * inv_exp
+            if ok:
+                if ex:
+                    return inside, False, inv_exp
+                all_lo = math.inf
+                all_hi = -math.inf
+                for k in range(4):
+                    xk = x0 + (k & 1)
+                    yk = y0 + (k >> 1)
+                    elo, ehi = _extrapolate(inv3, 0, inst_other, inv_other, yk, xk, xc - xk, yc - yk, edge_rel)
+                    all_lo = min(all_lo, elo)
+                    all_hi = max(all_hi, ehi)
+                inv_vec = 0.5 * (all_lo + all_hi)
+                return inside, inside and (all_hi - all_lo) <= depth_rel * inv_vec, inv_vec
     # Envelopes over the same-instance corners (inverse depth, backward flow u and v).
     e0lo = e1lo = e2lo = math.inf
     e0hi = e1hi = e2hi = -math.inf
@@ -103,37 +133,6 @@ def _point(xj, yj, flu, flv, ze, ex, me, inst_other, inv_other, inv3, back, fb_a
             b0, b1 = back[yk, xk, 0], back[yk, xk, 1]
             e1lo, e1hi = min(e1lo, b0), max(e1hi, b0)
             e2lo, e2hi = min(e2lo, b1), max(e2hi, b1)
-    # Fast path, exactly equivalent: with all four corners on the point's instance and the
-    # point inside the cell, the bilinear interpolation lies within the envelopes, so a bilinear
-    # value that passes a test means every corner passes it (all four agree).
-    ax = xc - x0
-    ay = yc - y0
-    if ax >= 0 and ax <= 1 and ay >= 0 and ay <= 1:
-        n_same = 0
-        for k in range(4):
-            if inst_other[y0 + (k >> 1), x0 + (k & 1)] == me:
-                n_same += 1
-        if n_same == 4:
-            w00, w01, w10, w11 = (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay
-            bu = w00 * back[y0, x0, 0] + w01 * back[y0, x0 + 1, 0] + w10 * back[y0 + 1, x0, 0] + w11 * back[y0 + 1, x0 + 1, 0]
-            bv = w00 * back[y0, x0, 1] + w01 * back[y0, x0 + 1, 1] + w10 * back[y0 + 1, x0, 1] + w11 * back[y0 + 1, x0 + 1, 1]
-            ok = abs(bu + flu) <= slack and abs(bv + flv) <= slack
-            if ok and ex:
-                bi = w00 * inv_other[y0, x0] + w01 * inv_other[y0, x0 + 1] + w10 * inv_other[y0 + 1, x0] + w11 * inv_other[y0 + 1, x0 + 1]
-                ok = abs(bi - inv_exp) <= depth_rel * inv_exp
-            if ok:
-                if ex:
-                    return inside, False, inv_exp
-                all_lo = math.inf
-                all_hi = -math.inf
-                for k in range(4):
-                    xk = x0 + (k & 1)
-                    yk = y0 + (k >> 1)
-                    elo, ehi = _extrapolate(inv3, 0, inst_other, inv_other, yk, xk, xc - xk, yc - yk, edge_rel)
-                    all_lo = min(all_lo, elo)
-                    all_hi = max(all_hi, ehi)
-                inv_vec = 0.5 * (all_lo + all_hi)
-                return inside, inside and (all_hi - all_lo) <= depth_rel * inv_vec, inv_vec
     n_agree = 0
     all_lo = math.inf
     all_hi = -math.inf
@@ -162,24 +161,6 @@ def _point(xj, yj, flu, flv, ze, ex, me, inst_other, inv_other, inv3, back, fb_a
     vis = inside and (near_same or behind) and n_agree > 0
     sharp = n_agree == 4 and (all_hi - all_lo) <= depth_rel * inv_vec
     return vis, (not ex) and vis and sharp, ip
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def visibility(x, y, fl, z_exp, exact, inst_cur, inst_other, inv_other, back, fb_abs, fb_rel, depth_rel, edge_rel):
-    """Per-point occlusion tests for points (x, y): (visible, vector_ok, inv_pt) arrays."""
-    n = x.shape[0]
-    h, w = inv_other.shape
-    inv3 = inv_other.reshape(h, w, 1)
-    visible = np.zeros(n, np.bool_)
-    vector_ok = np.zeros(n, np.bool_)
-    inv_pt = np.empty(n, np.float32)
-    for j in prange(n):
-        v, o, ip = _point(x[j], y[j], fl[j, 0], fl[j, 1], z_exp[j], exact[j], inst_cur[j], inst_other, inv_other, inv3, back,
-                          fb_abs, fb_rel, depth_rel, edge_rel)
-        visible[j] = v
-        vector_ok[j] = o
-        inv_pt[j] = ip
-    return visible, vector_ok, inv_pt
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

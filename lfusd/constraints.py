@@ -310,6 +310,7 @@ class Checker:
                 if not tp:
                     raise LfusdError(f"{r.prim_path}: rule 'inside' names prim {target}, which does not exist; fix the target")
         self.bounds = self._bounds()
+        self.unusable: dict[str, Violation] = {}  # gprims lfusd cannot mesh, with the reason
 
     def _bounds(self):
         prim = self.stage.GetDefaultPrim()
@@ -351,7 +352,13 @@ class Checker:
                     m = np.array(xf.GetLocalToWorldTransform(g), dtype=np.float64)
                     parts.append((local @ m[:3, :3] + m[3, :3], tris))
                     continue
-                wm = self.geometry.mesh(g, frame)
+                if str(g.GetPath()) in self.unusable:
+                    continue
+                try:
+                    wm = self.geometry.mesh(g, frame)
+                except LfusdError as e:  # e.g. a Sphere: report it, check everything else
+                    self.unusable[str(g.GetPath())] = Violation(str(g.GetPath()), "geometry", frame, str(e))
+                    continue
                 parts.append((wm.vertices, wm.triangles))
                 if first and o.dynamic and self._rigid(g):
                     m = np.array(xf.GetLocalToWorldTransform(g), dtype=np.float64)
@@ -391,6 +398,8 @@ class Checker:
             for r in self.rules:
                 i = self.index[r.prim_path]
                 o = self.objs[i]
+                if not len(o.tris):
+                    continue  # no geometry lfusd can read (reported as a geometry problem)
                 for kind in ("on", "not_on", "floats_on", "inside", "in_bounds"):
                     if kind not in r.rules or (r.prim_path, kind) in found:
                         continue
@@ -403,6 +412,8 @@ class Checker:
                 found.setdefault((v.prim_path, v.rule), v)
             if progress:
                 progress(frame)
+        for path, v in self.unusable.items():
+            found[(path, "geometry")] = v
         return sorted(found.values(), key=lambda v: (v.frame, v.prim_path, v.rule))
 
     def _may_change(self, o: _Obj, kind: str, r: ObjectRules) -> bool:
@@ -549,13 +560,14 @@ class Checker:
 
     # -- interpenetration ------------------------------------------------------------------------
     def _interpenetration(self, scene, owner, frame, is_first) -> list[Violation]:
-        subjects = {self.index[r.prim_path]: set(r.rules["no_interpenetration"]) for r in self.rules if "no_interpenetration" in r.rules}
+        subjects = {self.index[r.prim_path]: set(r.rules["no_interpenetration"]) for r in self.rules
+                    if "no_interpenetration" in r.rules and len(self.objs[self.index[r.prim_path]].tris)}
         if not subjects:
             return []
 
         def targets_of(i):
             classes = subjects[i]
-            return {j for j, x in enumerate(self.objs) if j != i and x.label and x.label not in SURFACES
+            return {j for j, x in enumerate(self.objs) if j != i and x.label and x.label not in SURFACES and len(x.tris)
                     and (ANY in classes or x.label in classes)}
 
         pairs = set()

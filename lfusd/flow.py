@@ -292,7 +292,7 @@ def _visibility_numpy(x, y, fl, z_exp, exact, inst_cur, inst_other, inv_other, b
     return visible, vector_ok, inv_pt.astype(np.float32)
 
 
-def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position, forward: bool, backend: str):
+def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position, forward: bool):
     """Flow towards ``other``, the point's depth there where knowable, occlusion and masks.
 
     Returns (flow (H,W,2), z_other (N,), exact (N,), visible (N,), vector_ok (N,), idx (N,), (x, y)),
@@ -321,8 +321,7 @@ def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position,
     inv_other = _inv_depth(other.depth)
     # Forward-backward consistency against the other frame's vector pass pointing back to t.
     back = _backward_vector(other.vector) if forward else _forward_vector(other.vector)
-    kernel = _visibility_numba if backend == "numba" else _visibility_numpy
-    visible, vector_ok, inv_pt = kernel(
+    visible, vector_ok, inv_pt = _visibility_numpy(
         x.astype(np.float32), y.astype(np.float32), fl, z_exp, exact, inst_cur.astype(np.int32),
         np.ascontiguousarray(inst_other, dtype=np.int32), inv_other, np.ascontiguousarray(back),
     )
@@ -333,17 +332,10 @@ def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position,
 
 try:  # the compiled kernels (same algorithm as the NumPy code, one pass per pixel)
     from . import _flow_numba
-    from ._flow_numba import visibility as _visibility_numba_kernel
-
-    def _visibility_numba(x, y, fl, z_exp, exact, inst_cur, inst_other, inv_other, back):
-        return _visibility_numba_kernel(
-            x, y, np.ascontiguousarray(fl, np.float32), z_exp, exact, inst_cur, inst_other, inv_other, back,
-            FB_ABS, FB_REL, DEPTH_REL, EDGE_REL,
-        )
 
     BACKEND = "numba"
 except ImportError:  # pragma: no cover - numba is optional
-    _visibility_numba = None
+    _flow_numba = None
     BACKEND = "numpy"
 
 
@@ -362,8 +354,8 @@ def derive_motion(
     ``backend``: 'numba' (compiled, default when numba is installed) or 'numpy' (reference).
     """
     backend = backend or BACKEND
-    if backend not in ("numba", "numpy") or (backend == "numba" and _visibility_numba is None):
-        raise LfusdError(f"flow backend {backend!r} is not available; use 'numpy'" + ("" if _visibility_numba else " or install numba"))
+    if backend not in ("numba", "numpy") or (backend == "numba" and _flow_numba is None):
+        raise LfusdError(f"flow backend {backend!r} is not available; use 'numpy'" + ("" if _flow_numba else " or install numba"))
     hw = _check(cur, "frame t")
     if nxt is not None:
         _check(nxt, "frame t+1", hw)
@@ -389,7 +381,7 @@ def derive_motion(
         return out
     pos_t = world_position(cur, fg)
     if nxt is not None:
-        flow, z1, exact, visible, route, idx, (x, y) = _direction(cur, nxt, fg, cur.next_position, True, backend)
+        flow, z1, exact, visible, route, idx, (x, y) = _direction(cur, nxt, fg, cur.next_position, True)
         out["flow_fwd"] = flow
         P0 = pos_t.reshape(-1, 3)[idx]
         P1 = np.zeros_like(P0)
@@ -407,7 +399,7 @@ def derive_motion(
         out["valid_fwd"].ravel()[idx] = known
         out["occlusion_fwd"].ravel()[idx] = ~visible
     if prv is not None:
-        flow, _, exact, visible, _, idx, _ = _direction(cur, prv, fg, cur.prev_position, False, backend)
+        flow, _, exact, visible, _, idx, _ = _direction(cur, prv, fg, cur.prev_position, False)
         out["flow_bwd"] = flow
         out["valid_bwd"].ravel()[idx] = True
         out["occlusion_bwd"].ravel()[idx] = ~visible
@@ -455,15 +447,18 @@ RAW_KEYS = ("depth", "vector", "position", "instance", "next_position", "prev_po
 def read_raw(ds, frame: int, view: tuple[int, int]) -> RawPasses:
     """The raw passes of one view and frame from a dataset reader (``lfusd.Dataset`` or alike).
 
-    Needs ``ds.read(frame, view, key)`` for 'depth' and 'vector' (raising KeyError or
-    FileNotFoundError when absent), and optionally 'position', 'instance', 'next_position',
+    Uses ``ds.raw_passes(frame, view)`` when the reader has it; otherwise ``ds.read(frame, view,
+    key)`` for 'depth' and 'vector' (raising KeyError, FileNotFoundError or LfusdError when
+    absent), and optionally 'position', 'instance', 'next_position',
     'prev_position'; plus ``ds.intrinsics(view)`` and ``ds.cam_to_world(frame, view)``.
     """
+    if hasattr(ds, "raw_passes"):  # lfusd.Dataset builds RawPasses itself (and names missing files)
+        return ds.raw_passes(frame, view)
     got: dict[str, np.ndarray | None] = {}
     for key in RAW_KEYS:
         try:
             got[key] = ds.read(frame, view, key)
-        except (KeyError, FileNotFoundError) as e:
+        except (KeyError, FileNotFoundError, LfusdError) as e:
             if key in ("depth", "vector"):
                 raise LfusdError(
                     f"frame {frame} view {view[0]},{view[1]} has no {key} pass ({e}); re-render the dataset with its raw passes"

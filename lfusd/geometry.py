@@ -123,6 +123,10 @@ class StageGeometry:
         skel_xf = UsdGeom.Xformable(skel_query.GetPrim()).ComputeLocalToWorldTransform(t)
         return _to_world(skel_pts, skel_xf, self.meters_per_unit)
 
+    def visible(self, prim: Usd.Prim, time: float) -> bool:
+        """False when the gprim (or an ancestor) is authored invisible at ``time``: Blender does not render it."""
+        return UsdGeom.Imageable(prim).ComputeVisibility(Usd.TimeCode(time)) != UsdGeom.Tokens.invisible
+
     def meshes(self, time: float) -> list[WorldMesh]:
         """Every renderable gprim at ``time``."""
         return [self.mesh(p, time) for p in self.gprims]

@@ -55,8 +55,8 @@ class TracedScene:
         self.meshes = geometry.meshes(time)
         self.scene = o3d.t.geometry.RaycastingScene()
         self.geom_ids: list[int] = []
-        for m in self.meshes:
-            if len(m.triangles) == 0:
+        for prim, m in zip(geometry.gprims, self.meshes):
+            if len(m.triangles) == 0 or not geometry.visible(prim, time):
                 self.geom_ids.append(-1)
                 continue
             gid = self.scene.add_triangles(
@@ -380,8 +380,17 @@ KEYS = ("depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_ch
 def _read_optional(ds, frame, view, key):
     try:
         return ds.read(frame, view, key)
-    except (KeyError, FileNotFoundError):
+    except (KeyError, FileNotFoundError, LfusdError):
         return None
+
+
+def dataset_stage_path(ds) -> str | None:
+    """The stage a dataset was rendered from: ``ds.stage_path``, else its manifest's stage path."""
+    path = getattr(ds, "stage_path", None)
+    if path:
+        return str(path)
+    manifest = getattr(ds, "manifest", None) or {}
+    return (manifest.get("stage") or {}).get("path")
 
 
 def verify_dataset(
@@ -397,13 +406,13 @@ def verify_dataset(
 
     ``ds`` needs ``frames``, ``views``, ``intrinsics(view)``, ``cam_to_world(frame, view)``,
     ``read(frame, view, key)`` and ``objects`` ({id: obj with .prim_path, .label}); the stage
-    comes from ``stage_path`` or ``ds.stage_path``; ``baseline`` (or ``ds.baseline``) enables
+    comes from ``stage_path``, ``ds.stage_path`` or ``ds.manifest['stage']['path']``; ``baseline`` (or ``ds.baseline``) enables
     the disparity-change check. ``progress(frame, view)`` is called before each view.
     """
     from .geometry import StageGeometry
     from .stageio import open_stage
 
-    stage_path = stage_path or getattr(ds, "stage_path", None)
+    stage_path = stage_path or dataset_stage_path(ds)
     if not stage_path:
         raise LfusdError("verify needs the stage the dataset was rendered from; pass --stage PATH")
     geo = StageGeometry(open_stage(stage_path))

@@ -304,6 +304,18 @@ def test_label_less_stage_still_checks_prim_rules(tmp_path, capsys):
     assert out == ["/World/Box/geo: inside broken at frame 1: outside '/World/Zone'"]
 
 
+def test_implicit_shape_is_reported_and_the_rest_checked(tmp_path, capsys):
+    s = world(tmp_path / "s.usda")
+    ball = UsdGeom.Sphere.Define(s, "/World/Ball")
+    UsdSemantics.LabelsAPI.Apply(ball.GetPrim(), "class").CreateLabelsAttr(["person"])
+    labelled_box(s, "/World/Car", "car", (1, -1, 0.001), (4, 1, 1.4))  # on grass: still found
+    s.Save()
+    code, out, _ = run_check(capsys, tmp_path / "s.usda")
+    assert code == 1
+    assert any(ln.startswith("/World/Ball: geometry broken at frame 1") and "convert it to a Mesh" in ln for ln in out), out
+    assert any(ln.startswith("/World/Car: on broken at frame 1") for ln in out), out
+
+
 def test_static_stage_is_evaluated_once(tmp_path):
     s = world(tmp_path / "s.usda", frames=500)
     person(s, "/World/Walker", -3.0)

@@ -78,8 +78,9 @@ def quat(axis, a):
     return Gf.Quatf(math.cos(a / 2), *(s * np.asarray(axis, float)))
 
 
-def skinned_stage():
-    stage = new_stage(None, 1, 3)
+def skinned_stage(stage=None, half=0.1):
+    """A two-joint limb (root at (1, 2, 0), elbow 1 m up) of square section 2*half, frames 1..3."""
+    stage = stage or new_stage(None, 1, 3)
     root = UsdSkel.Root.Define(stage, "/World/Arm")
     root.AddTranslateOp().Set(Gf.Vec3d(1.0, 2.0, 0.0))
     skel = UsdSkel.Skeleton.Define(stage, "/World/Arm/Skel")
@@ -96,7 +97,7 @@ def skinned_stage():
     UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPath()])
     mesh = UsdGeom.Mesh.Define(stage, "/World/Arm/Limb")
     zs = np.linspace(0.0, 2.0, 5)
-    pts = np.array([[x, y, z] for z in zs for (x, y) in ((-0.1, -0.1), (0.1, -0.1), (0.1, 0.1), (-0.1, 0.1))])
+    pts = np.array([[x, y, z] for z in zs for (x, y) in ((-half, -half), (half, -half), (half, half), (-half, half))])
     mesh.CreatePointsAttr([Gf.Vec3f(*p) for p in pts])
     faces = [[4 * i + k, 4 * i + (k + 1) % 4, 4 * (i + 1) + (k + 1) % 4, 4 * (i + 1) + k] for i in range(4) for k in range(4)]
     mesh.CreateFaceVertexCountsAttr([4] * len(faces))
@@ -139,3 +140,13 @@ def test_implicit_sphere_is_refused_with_a_fix():
     UsdGeom.Sphere.Define(stage, Sdf.Path("/World/Ball"))
     with pytest.raises(LfusdError, match="/World/Ball.*Mesh"):
         StageGeometry(stage).meshes(1)
+
+
+def test_visibility_follows_authored_invisible_over_time():
+    stage = cube_stage()
+    vis = UsdGeom.Imageable(stage.GetPrimAtPath("/World/Box")).CreateVisibilityAttr()
+    vis.Set(UsdGeom.Tokens.inherited, 1)
+    vis.Set(UsdGeom.Tokens.invisible, 2)
+    geo = StageGeometry(stage)
+    prim = geo.gprims[0]
+    assert geo.visible(prim, 1) and not geo.visible(prim, 2)

@@ -200,11 +200,14 @@ def test_full_disk_is_one_line_and_loses_nothing(video, tmp_path, monkeypatch, c
     assert_one_line_error(code, err, "No space left on device", "rerun")
     done = [p for p in (out / "main").glob("f*/??_??") if p.is_dir()]
     assert len(done) == 4
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["complete"] == {"main": []}  # 4 of 9 views of frame 1: no frame complete yet
     assert not list((out / "main").glob("f*/.*.tmp*"))
     monkeypatch.setattr(ex, "commit_view", real)
     code, _, err = run_cli(capsys, "render-video", stage, "-o", out, "--frames", "1-2", "--samples", "1", "--quiet", "--device", "cpu")
     assert code == 0, err
     assert len(Dataset(out).frames) == 2
+    assert json.loads((out / "manifest.json").read_text())["complete"] == {"main": [1, 2]}
 
 
 def test_render_video_bad_input(video, tmp_path, capsys):

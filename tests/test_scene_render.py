@@ -37,7 +37,9 @@ IMPORT_SCRIPT = textwrap.dedent(
                 if not imgs:
                     out["untextured"].append(o.name)
         if o.type == "LIGHT":
-            out["lights"].append([o.data.type, getattr(o.data, "shape", ""), o.data.energy, bool(o.data.normalize)])
+            d = o.matrix_world.to_3x3() @ __import__("mathutils").Vector((0.0, 0.0, -1.0))
+            out["lights"].append([o.data.type, getattr(o.data, "shape", ""), o.data.energy, bool(o.data.normalize),
+                                  getattr(o.data, "spot_size", 0.0), list(d.normalized())])
     for im in bpy.data.images:
         if im.filepath:
             im.pixels[0]  # forces loading from disk
@@ -78,9 +80,27 @@ def test_blender_imports_materials_textures_and_lights(tmp_path, template):
             intensity = UsdLux.LightAPI(p).GetIntensityAttr().Get()
             # measured bpy 5.0 conversion: sun strength = 4 x intensity, other lights W = pi x intensity
             energy = intensity * (4.0 if kind == "DistantLight" else np.pi)
-            expected.append([*BLENDER_TYPE[kind], pytest.approx(energy, rel=1e-4), True])
-    key = lambda v: (v[0], v[1], float(v[2]))  # noqa: E731
-    assert sorted(got["lights"], key=key) == sorted(expected, key=lambda v: (v[0], v[1], v[2].expected))
+            m = np.array(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(0), float)
+            aim = -m[2, :3] / np.linalg.norm(m[2, :3])  # local -Z in world (USD row vectors)
+            btype, shape = BLENDER_TYPE[kind]
+            spot = 0.0
+            if p.HasAPI(UsdLux.ShapingAPI):  # a shaped sphere light comes in as a spot, cone doubled
+                btype, spot = "SPOT", np.radians(2 * UsdLux.ShapingAPI(p).GetShapingConeAngleAttr().Get())
+            expected.append((btype, shape, energy, spot, aim))
+    assert len(got["lights"]) == len(expected)
+    types = {}
+    for t, shape, energy, normalize, spot, aim in got["lights"]:
+        assert normalize is True
+        types[t] = types.get(t, 0) + 1
+        match = [e for e in expected if e[0] == t and e[1] == shape and abs(e[2] - energy) < 1e-3 * e[2]
+                 and abs(e[3] - (spot if t == "SPOT" else 0.0)) < 1e-5]
+        assert match, (t, shape, energy)
+        if t in ("SUN", "SPOT", "AREA"):  # aimed lights keep their direction
+            assert any(np.allclose(e[4], aim, atol=1e-5) for e in match), (t, aim)
+    assert {"SUN"} <= set(types) and len(set(types)) >= 2
+    if template == "room":  # every kind: sun, point, spot, area (rect and disk), and the dome world
+        assert set(types) == {"SUN", "POINT", "SPOT", "AREA"}
+        assert {shape for t, shape, *_ in got["lights"] if t == "AREA"} == {"RECTANGLE", "DISK"}
     dome = UsdLux.DomeLight(stage.GetPrimAtPath("/World/Lights/Sky"))
     assert got["world"][0] == pytest.approx(list(dome.GetColorAttr().Get()), abs=1e-6)
     assert got["world"][1] == pytest.approx(dome.GetIntensityAttr().Get(), rel=1e-6)

@@ -184,8 +184,8 @@ def test_flow_then_verify_commands(tmp_path, monkeypatch, capsys):
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
     ds = RawDataset(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(cmd_flow, "open_dataset", lambda p: ds)
-    monkeypatch.setattr(cmd_verify, "open_dataset", lambda p: ds)
+    monkeypatch.setattr(cmd_flow, "open_datasets", lambda p, rig=None: [ds])
+    monkeypatch.setattr(cmd_verify, "open_datasets", lambda p, rig=None: [ds])
     assert main(["flow", "OUT"]) == 0
     assert {"flow_fwd", "scene_flow", "occlusion_bwd"} <= set(ds.data[2])
     assert main(["verify", "OUT", "--frames", "1-3", "--views", "0,0"]) == 0
@@ -202,7 +202,7 @@ def test_flow_command_names_a_missing_vector_pass(tmp_path, monkeypatch, capsys)
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(cmd_flow, "open_dataset", lambda p: RawDataset(sc, tmp_path / "s.usda", drop=("vector",)))
+    monkeypatch.setattr(cmd_flow, "open_datasets", lambda p, rig=None: [RawDataset(sc, tmp_path / "s.usda", drop=("vector",))])
     assert main(["flow", "OUT"]) == 2
     err = capsys.readouterr().err
     assert "frame 1 view 0,0 has no vector pass" in err and "view_00_00.exr" in err
@@ -242,9 +242,94 @@ def test_verify_report_script_writes_json_and_markdown(tmp_path, monkeypatch):
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(cmd_flow, "open_dataset", lambda p: FakeDataset(sc, tmp_path / "s.usda"))
+    monkeypatch.setattr(cmd_flow, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
     rc = _load_script("verify_report").main(["OUT", "--frames", "2", "--json", str(tmp_path / "r.json"), "--markdown", str(tmp_path / "r.md")])
     assert rc == 0
     data = json.loads((tmp_path / "r.json").read_text())
     assert data["ok"] and {r["key"] for r in data["rows"]} >= {"flow_fwd", "scene_flow", "depth"}
     assert "| flow_fwd | block |" in (tmp_path / "r.md").read_text()
+
+
+def test_trace_motion_moves_skinned_points_with_their_joint():
+    """The limb's lower part is bound to the root joint alone: traced scene flow = the root's rotation."""
+    from test_geometry import ANGLES, rot_z, skinned_stage
+
+    from lfusd.rig import look_at_pose
+
+    stage, _, _ = skinned_stage()
+    n = 48
+    K = intrinsics(n * 2.0, n, n)
+    cam = look_at_pose(np.array([1.0, -2.0, 0.25]), np.array([1.0, 2.0, 0.25]))
+    tr = trace_motion(stage, 2, K, cam, cam, n, n, step=1)
+    pos = tr["position"]
+    lower = np.isfinite(tr["depth"]) & (pos[..., 2] < 0.45)  # elbow weight 0 below z = 0.5
+    assert lower.sum() > 50
+    T = np.array([1.0, 2.0, 0.0])
+    R = rot_z(ANGLES[3][0]) @ rot_z(ANGLES[2][0]).T
+    expect = (pos[lower] - T) @ R.T + T - pos[lower]
+    # pxr skins in float32: a few micrometres.
+    np.testing.assert_allclose(tr["scene_flow"][lower], expect, atol=5e-6)
+    assert np.abs(expect).max() > 0.05
+
+
+def test_invisible_prims_are_not_traced(tmp_path):
+    sc = scene(cam_motion=False)
+    stage = stage_of(sc, tmp_path / "s.usda")
+    UsdGeom.Imageable(stage.GetPrimAtPath("/World/Cube")).CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+    tr = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[3], N, N)
+    assert set(np.unique(tr["mesh"])) == {0}  # only the wall (mesh 0) is hit
+
+
+@pytest.mark.render
+def test_verify_passes_on_a_blender_render_of_rigid_skinned_and_rig_motion(tmp_path):
+    """Real Blender data: translating box, spinning box, bending skinned limb, moving 2x2 rig."""
+    import subprocess
+    import sys
+
+    from test_geometry import skinned_stage
+
+    from lfusd import Dataset
+    from lfusd.rig import RigSpec
+    from lfusd.usdrig import add_rig
+
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 3)
+    wall = UsdGeom.Cube.Define(stage, "/World/Wall")
+    wall.AddTranslateOp().Set(Gf.Vec3d(0, 4, 1.5))
+    wall.AddScaleOp().Set(Gf.Vec3f(5, 0.05, 3))
+    set_class_label(wall.GetPrim(), "wall")
+    for name, label in (("Slider", "box"), ("Spinner", "spinner")):
+        cube = UsdGeom.Cube.Define(stage, f"/World/{name}")
+        cube.CreateSizeAttr(0.7)
+        t, r = cube.AddTranslateOp(), cube.AddRotateZOp()
+        for f in (1, 2, 3):
+            t.Set(Gf.Vec3d(-1.4 + 0.12 * f, 0.8, 2.2) if name == "Slider" else Gf.Vec3d(-0.9, 1.2, 0.6), f)
+            r.Set(15.0 + (20.0 * f if name == "Spinner" else 0.0), f)
+        set_class_label(cube.GetPrim(), label)
+    skinned_stage(stage, half=0.25)
+    set_class_label(stage.GetPrimAtPath("/World/Arm"), "limb")
+    rig = add_rig(stage, RigSpec(name="main", rows=2, cols=2, baseline=0.1, width=80, height=80, at=(0, -4.5, 1.2), look_at=(0, 0, 1.2)))
+    op = UsdGeom.Xformable(rig).GetOrderedXformOps()[0]
+    m0 = np.array(op.Get(), float)
+    for f in (1, 2, 3):  # the whole rig moves 4 cm right and 2 cm up per frame
+        m = m0.copy()
+        m[3, :3] += (f - 2) * np.array([0.04, 0.0, 0.02])
+        op.Set(Gf.Matrix4d(*m.ravel().tolist()), f)
+    stage.Save()
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "lfusd", "render-video", str(tmp_path / "s.usda"), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu"]
+    assert subprocess.run(cmd, capture_output=True, text=True).returncode == 0
+    report = verify_dataset(Dataset(out))
+    assert report.ok, report.failures()
+    rows = {(e["key"], e["label"]): e for e in report.summary()}
+    for label in ("(all)", "box", "spinner", "limb", "wall"):
+        assert rows[("flow_fwd", label)]["count"] > 20, label
+        assert rows[("flow_fwd", label)]["median"] < 0.01 and rows[("flow_fwd", label)]["p99"] < 0.05, label
+        assert rows[("scene_flow", label)]["median"] < 5e-4, label
+    assert rows[("occlusion_fwd", "(all)")]["p99"] < 0.01 and rows[("occlusion_bwd", "(all)")]["p99"] < 0.01
+    # The limb really bends and the rig really moves: motion is far above the thresholds.
+    ds = Dataset(out)
+    sf = ds.read(2, (0, 0), "scene_flow")
+    inst = ds.read(2, (0, 0), "instance")
+    limb = [i for i, o in ds.objects.items() if o.label == "limb"][0]
+    assert np.linalg.norm(sf[inst == limb], axis=-1).max() > 0.3
+    assert np.abs(ds.cam_to_world(3, (0, 0))[:3, 3] - ds.cam_to_world(2, (0, 0))[:3, 3]).max() > 0.03

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
 from ..errors import LfusdError
 
@@ -35,14 +37,35 @@ def parse_views(items: list[str] | None) -> list[tuple[int, int]] | None:
     return out
 
 
-def open_dataset(path: str):
-    from pathlib import Path
-
+def open_datasets(path: str, rig: str | None = None) -> list:
+    """The dataset of each rig ``rig`` names in the folder (None or 'all': every rig)."""
     if not Path(path).exists():
-        raise LfusdError(f"dataset {path} does not exist; give the folder 'lfusd render' wrote")
+        raise LfusdError(f"dataset {path} does not exist; give the folder 'lfusd render-video' wrote")
     from lfusd import Dataset  # lazy: pulls in OpenEXR
 
-    return Dataset(path)
+    if rig not in (None, "all"):
+        return [Dataset(path, rig=rig)]
+    manifest = Path(path) / "manifest.json"
+    if not manifest.is_file():
+        return [Dataset(path)]  # raises the reader's own error naming the folder
+    return [Dataset(path, rig=r) for r in json.loads(manifest.read_text())["rigs"]]
+
+
+def select(ds, frames: list[int] | None, views: list[tuple[int, int]] | None, out: str):
+    """Frames and views to process, checked against the dataset (LfusdError naming the bad one)."""
+    known = [int(f) for f in ds.frames]
+    if not known:
+        raise LfusdError(f"dataset {out} has no completely rendered frame; finish the render first")
+    frames = frames or known
+    for f in frames:
+        if f not in known:
+            raise LfusdError(f"frame {f} is not rendered in dataset {out} (frames {known[0]}-{known[-1]}); pick one of its frames")
+    all_views = [tuple(v) for v in ds.views]
+    views = views or all_views
+    for v in views:
+        if tuple(v) not in all_views:
+            raise LfusdError(f"view {v[0]},{v[1]} is not in dataset {out}; its views are rows and cols of the rig grid")
+    return frames, views
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -50,27 +73,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("out", help="dataset folder")
     p.add_argument("--frames", help="frames to derive, e.g. 1-10,15 (default: all)")
     p.add_argument("--views", nargs="+", metavar="R,C", help="views to derive (default: all)")
+    p.add_argument("--rig", help="rig to derive (default: every rig of the dataset)")
     p.set_defaults(func=handler)
 
 
 def handler(args) -> int:
-    from ..flow import MOTION_KEYS, derive_dataset_view
-
-    ds = open_dataset(args.out)
-    frames = parse_frames(args.frames) or [int(f) for f in ds.frames]
-    views = parse_views(args.views) or [tuple(v) for v in ds.views]
-    known = [int(f) for f in ds.frames]
-    for f in frames:
-        if f not in known:
-            raise LfusdError(f"frame {f} is not in dataset {args.out} (frames {known[0]}-{known[-1]}); pick one of its frames")
-    baseline = getattr(ds, "baseline", None)
     n = 0
-    for view in views:
-        cache: dict = {}
-        for f in sorted(frames):
-            motion = derive_dataset_view(ds, f, view, baseline=baseline, cache=cache)
-            for key in MOTION_KEYS:
-                ds.write(f, view, key, motion[key])
-            n += 1
-    print(f"derived motion for {n} view-frames of {args.out}")
+    for ds in open_datasets(args.out, getattr(args, "rig", None)):
+        frames, views = select(ds, parse_frames(args.frames), parse_views(args.views), args.out)
+        for view in views:
+            for f in sorted(frames):
+                write_view(ds, f, view)
+                n += 1
+    print(f"lfusd: {args.out}: motion derived for {n} views")
     return 0
+
+
+def write_view(ds, frame: int, view: tuple[int, int]) -> None:
+    """Derive and store one view's motion keys: the reader's own writer, or lfusd.derive's motion.npz."""
+    if hasattr(ds, "write"):
+        from ..flow import MOTION_KEYS, derive_dataset_view
+
+        motion = derive_dataset_view(ds, frame, view, baseline=getattr(ds, "baseline", None))
+        for key in MOTION_KEYS:
+            ds.write(frame, view, key, motion[key])
+        return
+    from ..derive import write_motion
+
+    write_motion(ds, frame, view)

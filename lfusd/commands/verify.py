@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .flow import open_dataset, parse_frames, parse_views
+from .flow import open_datasets, parse_frames, parse_views, select
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -13,25 +13,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("out", help="dataset folder")
     p.add_argument("--frames", help="frames to verify, e.g. 1-3 (default: all)")
     p.add_argument("--views", nargs="+", metavar="R,C", help="views to verify (default: all)")
-    p.add_argument("--stage", help="the stage the dataset was rendered from (default: the one it records)")
+    p.add_argument("--stage", help="the stage the dataset was rendered from (default: the one its manifest records)")
+    p.add_argument("--rig", help="rig to verify (default: every rig of the dataset)")
     p.set_defaults(func=handler)
 
 
 def handler(args) -> int:
     from ..verify import verify_dataset
 
-    ds = open_dataset(args.out)
-    report = verify_dataset(
-        ds,
-        stage_path=args.stage,
-        frames=parse_frames(args.frames),
-        views=parse_views(args.views),
-        progress=lambda f, v: print(f"verifying frame {f} view {v[0]},{v[1]}", file=sys.stderr),
-    )
-    print(report.table())
-    if report.ok:
+    ok = True
+    for ds in open_datasets(args.out, getattr(args, "rig", None)):
+        frames, views = select(ds, parse_frames(args.frames), parse_views(args.views), args.out)
+        report = verify_dataset(
+            ds, stage_path=args.stage, frames=frames, views=views,
+            progress=lambda f, v: print(f"verifying frame {f} view {v[0]},{v[1]}", file=sys.stderr),
+        )
+        name = getattr(ds, "rig_name", None)
+        if name:
+            print(f"rig {name}:")
+        print(report.table())
+        for line in report.failures():
+            print(f"FAIL {line}")
+        ok &= report.ok
+    if ok:
         print("verify: all checks passed")
-        return 0
-    for line in report.failures():
-        print(f"FAIL {line}")
-    return 1
+    return 0 if ok else 1

@@ -17,7 +17,7 @@ import threading
 from pathlib import Path
 
 from PIL import Image
-from pxr import Usd
+from pxr import Usd, UsdLux
 
 from ..errors import LfusdError
 from ..labels import object_table
@@ -60,6 +60,7 @@ def plan_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan:
     """Work units covering every missing (rig, frame, view)."""
     objects, _ = object_table(stage)
     instances = {mesh: o.instance_id for o in objects for mesh in o.mesh_paths}
+    has_dome = any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse())
     by_name = {r.spec.name: r for r in rigs}
     units = []
     for rig_name in sorted({k[0] for k in plan.todo}):
@@ -91,6 +92,7 @@ def plan_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan:
                             # Locally, workers share the cores; on Ray, Blender takes what the node has.
                             "threads": max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
                             "motion": req.motion,
+                            "has_dome": has_dome,
                             "stage_range": list(frame_range(stage)),
                         }
                     )

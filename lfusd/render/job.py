@@ -16,6 +16,7 @@ missing.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -34,6 +35,7 @@ from .. import __version__
 from ..errors import LfusdError
 from ..labels import object_table
 from ..stageio import check_frames, file_hash, frame_range, open_stage
+from ..rig import RigSpec
 from ..usdrig import StageRig, select_rigs
 
 FORMAT = "lfusd-dataset"
@@ -183,6 +185,12 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
         "frames": all_frames,
         "settings": {**settings, "rigs": rig_specs},
         "device": device or (previous or {}).get("device"),
+        # Finished units: frames whose every view folder is complete, per rig (the folders,
+        # written atomically, are the ground truth; this is the summary a reader can trust).
+        "complete": {
+            name: [f for f in all_frames if all((frame_dir(req.out, name, f) / view_key(v)).is_dir() for v in RigSpec.from_dict(spec).views)]
+            for name, spec in sorted(rig_specs.items())
+        },
         "software": _software(),
         "layout": "OUT/<rig>/f<frame:06d>/<row:02d>_<col:02d>/{rgb.png,rgb.exr,passes.exr}; OUT/<rig>/f<frame:06d>/frame.json",
     }
@@ -257,6 +265,11 @@ def render(req: RenderRequest, progress=None) -> dict:
             report = progress or _Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:
                 device = run_units(req, stage, rigs, plan, report)
+            except BaseException:
+                # Record what did finish; a second failure here (a full disk) must not hide the first.
+                with contextlib.suppress(OSError):
+                    _write_manifest(req, settings, json.loads((req.out / "manifest.json").read_text()), rigs, frames, None)
+                raise
             finally:
                 report.close()
         _write_manifest(req, settings, json.loads((req.out / "manifest.json").read_text()), rigs, frames, device)

@@ -52,9 +52,11 @@ def _objects_of(prim_path: str) -> list:
     return [i for i in PRIM_MAP.get(prim_path, []) if isinstance(i, bpy.types.Object)]
 
 
-def import_stage(path: str) -> None:
+def import_stage(path: str, has_dome: bool = False) -> None:
     bpy.utils.register_class(_PrimMapHook)
     bpy.ops.wm.read_factory_settings(use_empty=True)
+    if has_dome:  # the importer turns a DomeLight into the world only if a world already exists
+        bpy.context.scene.world = bpy.data.worlds.new("World")
     result = bpy.ops.wm.usd_import(
         filepath=path,
         import_skeletons=True,
@@ -283,7 +285,7 @@ def main() -> int:
     job = json.loads(sys.stdin.read())
     try:
         t0 = time.time()
-        import_stage(job["stage"])
+        import_stage(job["stage"], job.get("has_dome", False))
         scene, suffixes = setup_scene(job)
         device = select_device(scene, job.get("device", "auto"))
         motion = MotionAttributes(scene, *job["stage_range"]) if job.get("motion") else None

@@ -221,15 +221,29 @@ class Builder:
         _aim(light, np.zeros(3), -to_sun)
         return light
 
-    def sphere_light(self, name: str, position, radius: float, intensity: float, color=(1.0, 0.85, 0.65)) -> UsdLux.SphereLight:
+    def _sphere(self, name: str, radius: float, intensity: float, color) -> UsdLux.SphereLight:
         light = UsdLux.SphereLight.Define(self.stage, f"/World/Lights/{name}")
         light.CreateIntensityAttr(float(intensity))
-        # normalize = true: intensity is the light's total output, independent of its size or
-        # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
-        light.CreateNormalizeAttr(True)
+        light.CreateNormalizeAttr(True)  # see sun(): intensity independent of the light's size
         light.CreateRadiusAttr(float(radius))
         light.CreateColorAttr(Gf.Vec3f(*color))
+        return light
+
+    def sphere_light(self, name: str, position, radius: float, intensity: float, color=(1.0, 0.85, 0.65)) -> UsdLux.SphereLight:
+        """A point-like SphereLight at ``position`` (Blender: a POINT light of radius ``radius``)."""
+        light = self._sphere(name, radius, intensity, color)
         light.AddTranslateOp().Set(Gf.Vec3d(*[float(v) for v in position]))
+        return light
+
+    def spot_light(self, name: str, position, target, radius: float, intensity: float, cone_deg: float,
+                   softness: float = 0.2, color=(1.0, 0.92, 0.8)) -> UsdLux.SphereLight:
+        """A spot: a SphereLight with UsdLux.ShapingAPI, its cone (half-angle ``cone_deg``) about
+        local -Z aimed at ``target`` (Blender imports it as a SPOT light)."""
+        light = self._sphere(name, radius, intensity, color)
+        shaping = UsdLux.ShapingAPI.Apply(light.GetPrim())
+        shaping.CreateShapingConeAngleAttr(float(cone_deg))
+        shaping.CreateShapingConeSoftnessAttr(float(softness))
+        _aim(light, np.asarray(position, float), np.asarray(target, float) - np.asarray(position, float))
         return light
 
     def rect_light(self, name: str, position, target, width: float, height: float, intensity: float,

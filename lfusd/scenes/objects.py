@@ -122,3 +122,30 @@ def _merge(parts):
     from .build import merge
 
     return merge(*parts)
+
+
+def moving_car(rng: np.random.Generator) -> tuple[Parts, list[tuple[str, tuple[float, float, float], MeshData]], float]:
+    """A car whose wheels are separate parts: (body parts, [(wheel name, hub in car frame, wheel mesh
+    centred on its hub with the axle along Y)], wheel radius). Lowest point at z = 0, facing +x."""
+    length, width = rng.uniform(3.8, 4.6), rng.uniform(1.7, 1.9)
+    paint = PAINTS[int(rng.integers(len(PAINTS)))]
+    r, w = 0.32, 0.22
+    body = box((length, width, 0.6), (0.0, 0.0, 0.25 + 0.3), tile=2.0)
+    cabin = box((length * 0.5, width * 0.9, 0.5), (-0.1 * length, 0.0, 0.85 + 0.25), tile=2.0)
+    tyre = cylinder(r, -w / 2, w / 2, 12, axis="y")
+    wheels = [(f"wheel_{'F' if sx > 0 else 'R'}{'L' if sy > 0 else 'R'}", (sx * length * 0.32, sy * (width / 2 - w / 2), r), tyre)
+              for sx in (-1, 1) for sy in (-1, 1)]
+    return [("body", body, paint), ("cabin", cabin, "paint_dark")], wheels, r
+
+
+def cabinet_doors(width: float, depth: float, height: float, gap: float = 0.003, thickness: float = 0.02
+                  ) -> list[tuple[str, tuple[float, float, float], float, MeshData]]:
+    """Two doors on the front (+x) face of a ``cabinet`` carcass: [(name, hinge in cabinet frame,
+    opening sign, panel mesh in the hinge frame)]. A door turning by sign * (0..100 degrees) about
+    its hinge stays in front of the carcass and clear of the other door."""
+    half = width / 2 - gap
+    z0, z1 = 0.02, height - 0.02
+    left = box((thickness, half, z1 - z0), (thickness / 2, half / 2, (z0 + z1) / 2), tile=1.0)
+    right = box((thickness, half, z1 - z0), (thickness / 2, -half / 2, (z0 + z1) / 2), tile=1.0)
+    return [("door_L", (depth / 2 + gap, -width / 2, 0.0), -1.0, left),
+            ("door_R", (depth / 2 + gap, width / 2, 0.0), 1.0, right)]

@@ -81,7 +81,9 @@ def build(scene: Scene) -> dict:
             scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
 
     b.rect_light("Ceiling", (0.0, 0.0, H + 0.3), (0.0, 0.0, 0.0), 1.2, 0.6, float(rng.uniform(40, 100)))
-    b.disk_light("Spot", (tx, ty, H + 0.2), (tx, ty, 0.0), 0.15, float(rng.uniform(30, 90)))
+    b.disk_light("Downlight", (tx + 0.8, ty, H + 0.2), (tx + 0.8, ty, 0.0), 0.15, float(rng.uniform(30, 90)))
+    b.spot_light("Spot", (tx - 0.5, ty - 0.5, H + 0.2), (tx, ty, top_h), 0.05, float(rng.uniform(60, 150)),
+                 float(rng.uniform(20, 35)))
     b.sun(float(rng.uniform(0, 360)), float(rng.uniform(45, 75)), float(rng.uniform(0.4, 1.0)))
     b.dome(float(rng.uniform(0.2, 0.5)), color=(0.9, 0.9, 1.0))
 

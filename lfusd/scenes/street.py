@@ -64,8 +64,12 @@ def build(scene: Scene) -> dict:
         if scene.free(lo, hi, margin=0.2):
             scene.add(scene.name("StreetLight"), "street_light", parts, (lx, y, curb + GAP), yaw)
             th = np.radians(yaw)
-            b.sphere_light(f"Lamp_{k:02d}", (lx + 1.1 * np.cos(th), y + 1.1 * np.sin(th), curb + GAP + lamp_h),
-                           0.12, float(rng.uniform(150, 400)))
+            head = (lx + 1.1 * np.cos(th), y + 1.1 * np.sin(th), curb + GAP + lamp_h)
+            if k % 2 == 0:  # alternate point lamps and downward spots
+                b.sphere_light(f"Lamp_{k:02d}", head, 0.12, float(rng.uniform(150, 400)))
+            else:
+                b.spot_light(f"Lamp_{k:02d}", head, (head[0], head[1], 0.0), 0.1, float(rng.uniform(300, 700)),
+                             float(rng.uniform(35, 60)))
         lx += float(rng.uniform(10, 16))
         k += 1
 
