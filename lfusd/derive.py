@@ -20,12 +20,16 @@ from .rig import View
 
 def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
     """All motion keys of one view at one frame, from its raw passes and its neighbours'."""
+    from .errors import LfusdError
     from .flow import derive_motion
 
     frames = set(ds.manifest["frames"])
-    nxt = ds.raw_passes(frame + 1, view) if frame + 1 in frames else None
-    prv = ds.raw_passes(frame - 1, view) if frame - 1 in frames else None
-    return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline)
+    try:
+        nxt = ds.raw_passes(frame + 1, view) if frame + 1 in frames else None
+        prv = ds.raw_passes(frame - 1, view) if frame - 1 in frames else None
+        return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline)
+    except LfusdError as e:
+        raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
 
 
 def write_motion(ds: Dataset, frame: int, view: View) -> Path:

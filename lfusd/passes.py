@@ -58,7 +58,9 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     position = np.where(surface[..., None], stack("Position", "XYZ"), nan)
     instance = np.rint(_channel(ch, "Object Index.X", path)).astype(np.int32)
     instance[~surface] = 0
-    raw = {"depth": depth, "normal": normal, "position": position, "instance": instance, "vector": stack("Vector", "XYZW")}
+    raw = {"depth": depth, "normal": normal, "position": position, "instance": instance}
+    if any(n.endswith(".Vector.X") or n == "Vector.X" for n in ch):  # Dataset.raw_passes names its absence
+        raw["vector"] = stack("Vector", "XYZW")
     for aov in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
         arr = next((a for n, a in ch.items() if n.endswith("." + aov)), None)
         if arr is not None:

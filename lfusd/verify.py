@@ -264,12 +264,16 @@ class VerifyReport:
 
     def failures(self) -> list[str]:
         """One line per failing row, naming the key, class, frame and view."""
-        return [
-            f"{r.key} of view {r.view[0]},{r.view[1]} at frame {r.frame} ({r.label or 'unlabelled'}): "
-            f"p99 error {r.p99:.3g} {UNITS.get(r.key, '')} > {r.threshold:g} over {r.count} px"
-            for r in self.rows
-            if not r.ok
-        ]
+        out = []
+        for r in self.rows:
+            if r.ok:
+                continue
+            where = f"{r.key} of view {r.view[0]},{r.view[1]} at frame {r.frame} ({r.label or 'unlabelled'}): "
+            if UNITS.get(r.key) == "frac":
+                out.append(where + f"disagrees on {100 * r.p99:.3g} % of {r.count} px > {100 * r.threshold:g} %")
+            else:
+                out.append(where + f"p99 error {r.p99:.3g} {UNITS[r.key]} > {r.threshold:g} over {r.count} px")
+        return out
 
     def summary(self) -> list[dict]:
         """Per key and class over all frames and views: pixel count, median of medians, worst p99 and max."""

@@ -213,3 +213,26 @@ def test_unknown_backend_is_refused():
     scene = plane_scene(CASES["right"])
     with pytest.raises(LfusdError, match="backend 'cuda'"):
         derive_motion(scene.raw(2), scene.raw(3), None, backend="cuda")
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_points_leaving_the_image_are_occluded_and_keep_their_motion(backend):
+    """A plate sliding right by 3 px per frame: the last three columns leave the image at t+1."""
+    scene = plane_scene((3 * (Z0 - THIN) / F, 0.0, 0.0))
+    m = derive(scene, exact=True, backend=backend)
+    du, _, _, _ = closed_form_flow((3 * (Z0 - THIN) / F, 0.0, 0.0))
+    leaving = np.arange(W)[None, :] + du > W - 0.5
+    assert leaving[:, -3:].all() and not leaving[:, :-4].any()
+    np.testing.assert_array_equal(m["occlusion_fwd"], np.broadcast_to(leaving, (H, W)))
+    assert m["valid_fwd"].all()  # the exact route knows where they go
+    np.testing.assert_allclose(m["flow_fwd"][..., 0], du, atol=2e-3)
+    np.testing.assert_array_equal(m["occlusion_bwd"][:, :3], True)  # came in from the left
+    assert not m["occlusion_bwd"][:, 4:].any()
+
+
+def test_a_one_pixel_wide_view_is_refused():
+    scene = plane_scene(CASES["right"])
+    raw = scene.raw(2)
+    thin = RawPasses(raw.depth[:, :1], raw.vector[:, :1], raw.camera)
+    with pytest.raises(LfusdError, match="at least 2x2"):
+        derive_motion(thin, thin, None)

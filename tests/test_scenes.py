@@ -229,7 +229,72 @@ def test_committed_stage_passes_check_and_regenerates_byte_for_byte(tmp_path, pa
     # (the seed -> stage mapping is stable across runs and machines).
     world = stage.GetDefaultPrim()
     template, seed = world.GetCustomDataByKey("lfusd:template"), world.GetCustomDataByKey("lfusd:seed")
-    generate(template, tmp_path / path.name, seed, frames=int(stage.GetEndTimeCode()))
+    found = rigs(stage)
+    spec = found["rig_00"].spec
+    generate(template, tmp_path / path.name, seed, frames=int(stage.GetEndTimeCode()), rigs=len(found),
+             grid=(spec.rows, spec.cols), resolution=(spec.width, spec.height),
+             dynamic=bool(world.GetCustomDataByKey("lfusd:dynamic")))
     assert (tmp_path / path.name).read_bytes() == path.read_bytes()
     for png in (tmp_path / "textures").iterdir():
         assert png.read_bytes() == (STAGES / "textures" / png.name).read_bytes()
+
+
+# -- dynamic variants (issue 6) ----------------------------------------------------------------------
+DYN = dict(frames=48, rigs=2, grid=(3, 3), resolution=(64, 64), dynamic=True)
+MOVERS = {"street": {"person", "car"}, "river": {"person", "boat"}, "mixed": {"person", "car", "boat"},
+          "room": {"cabinet"}}
+
+
+def _moving(stage):
+    from lfusd.constraints import _time_varying
+
+    return [o for o in object_table(stage)[0] if _time_varying(stage.GetPrimAtPath(o.prim_path))]
+
+
+@pytest.mark.parametrize("template", TEMPLATES)
+def test_dynamic_scenes_move_and_pass_check(tmp_path, template):
+    from pxr import UsdSkel
+
+    for seed in (0, 1):
+        stage = generate(template, tmp_path / f"{template}_{seed}.usda", seed, **DYN)
+        assert [v.line() for v in Checker(stage).check()] + usd_validation(stage) == [], (template, seed)
+        moving = _moving(stage)
+        assert MOVERS[template] <= {o.label for o in moving}, (template, seed, [o.prim_path for o in moving])
+        for o in moving:
+            prim = stage.GetPrimAtPath(o.prim_path)
+            if o.label == "person":  # an animated UsdSkel person, not a static blocky one
+                assert prim.IsA(UsdSkel.Root)
+            else:  # rigid movers: one world pose per frame that changes over the clip
+                mats = [np.array(UsdGeom.Xformable(d).ComputeLocalToWorldTransform(f)) for d in Usd.PrimRange(prim)
+                        if d.IsA(UsdGeom.Mesh) for f in (1, 48)]
+                assert any(not np.allclose(a, b) for a, b in zip(mats[::2], mats[1::2])), o.prim_path
+        # the blocky static people are gone: every person is animated
+        assert all(stage.GetPrimAtPath(o.prim_path).IsA(UsdSkel.Root) for o in object_table(stage)[0] if o.label == "person")
+        assert stage.GetDefaultPrim().GetCustomDataByKey("lfusd:dynamic") is True
+
+
+def test_dynamic_seed_to_stage_is_byte_stable_and_keeps_the_static_scene(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    generate("river", tmp_path / "a" / "s.usda", 3, **DYN)
+    generate("river", tmp_path / "b" / "s.usda", 3, **DYN)
+    generate("river", tmp_path / "c.usda", 4, **DYN)
+    assert (tmp_path / "a" / "s.usda").read_bytes() == (tmp_path / "b" / "s.usda").read_bytes()
+    assert (tmp_path / "a" / "s.usda").read_bytes() != (tmp_path / "c.usda").read_bytes()
+    # the dynamic variant is the static scene plus movers: its surfaces are authored identically
+    static = generate("river", tmp_path / "static.usda", 3, **{**DYN, "dynamic": False})
+    dyn = Usd.Stage.Open(str(tmp_path / "a" / "s.usda"))
+    for path in ("/World/River", "/World/Bank_N", "/World/Bridge", "/World/Lights/Sun"):
+        a, b = static.GetPrimAtPath(path), dyn.GetPrimAtPath(path)
+        assert a and b
+        for attr in a.GetAttributes():
+            assert b.GetAttribute(attr.GetName()).Get() == attr.Get(), (path, attr.GetName())
+
+
+def test_stage_new_dynamic_cli(tmp_path, capsys):
+    out = tmp_path / "d.usda"
+    code = cli.main(["stage", "new", "street", "-o", str(out), "--seed", "2", "--frames", "24", "--rigs", "1",
+                     "--grid", "2x2", "--resolution", "32x32", "--dynamic"])
+    assert code == 0 and "dynamic" in capsys.readouterr().out
+    stage = Usd.Stage.Open(str(out))
+    assert {"person", "car"} <= {o.label for o in _moving(stage)}

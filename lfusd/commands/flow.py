@@ -90,14 +90,7 @@ def handler(args) -> int:
 
 
 def write_view(ds, frame: int, view: tuple[int, int]) -> None:
-    """Derive and store one view's motion keys: the reader's own writer, or lfusd.derive's motion.npz."""
-    if hasattr(ds, "write"):
-        from ..flow import MOTION_KEYS, derive_dataset_view
-
-        motion = derive_dataset_view(ds, frame, view, baseline=getattr(ds, "baseline", None))
-        for key in MOTION_KEYS:
-            ds.write(frame, view, key, motion[key])
-        return
+    """Derive and store one view's motion keys (motion.npz beside its raw passes)."""
     from ..derive import write_motion
 
     write_motion(ds, frame, view)

@@ -31,6 +31,8 @@ def register(sub) -> None:
     n.add_argument("--rigs", type=int, default=10, help="rig placements rig_00.. (0-10, default 10)")
     n.add_argument("--grid", default="9x9", help="views per rig, ROWSxCOLS (default 9x9)")
     n.add_argument("--resolution", default="1024x1024", help="image size WIDTHxHEIGHT (default 1024x1024)")
+    n.add_argument("--dynamic", action="store_true",
+                   help="add walking/running people, drifting boats, driving cars, swinging doors over the frames")
     n.set_defaults(func=new_handler)
     t = ssub.add_parser("templates", help="list the templates")
     t.set_defaults(func=lambda args: print("\n".join(TEMPLATES)) or 0)
@@ -45,7 +47,9 @@ def new_handler(args) -> int:
     res = _pair(args.resolution, "--resolution")
     if not str(args.output).endswith((".usda", ".usdc", ".usd")):
         raise LfusdError(f"output {args.output} must end in .usda, .usdc or .usd")
-    generate(args.template, args.output, args.seed, frames=args.frames, rigs=args.rigs, grid=grid, resolution=res)
-    print(f"wrote {args.output} ({args.template}, seed {args.seed}, frames 1-{args.frames}, {args.rigs} rigs) "
+    generate(args.template, args.output, args.seed, frames=args.frames, rigs=args.rigs, grid=grid, resolution=res,
+             dynamic=args.dynamic)
+    kind = ", dynamic" if args.dynamic else ""
+    print(f"wrote {args.output} ({args.template}{kind}, seed {args.seed}, frames 1-{args.frames}, {args.rigs} rigs) "
           f"in {time.perf_counter() - t0:.2f} s")
     return 0

@@ -15,17 +15,36 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", nargs="+", metavar="R,C", help="views to verify (default: all)")
     p.add_argument("--stage", help="the stage the dataset was rendered from (default: the one its manifest records)")
     p.add_argument("--rig", help="rig to verify (default: every rig of the dataset)")
+    p.add_argument("--threshold", nargs="+", metavar="KEY=VALUE", help="override limits, e.g. occlusion_fwd=0.02 flow_fwd=0.1")
     p.set_defaults(func=handler)
+
+
+def parse_thresholds(items: list[str] | None) -> dict[str, float]:
+    """['flow_fwd=0.1'] -> {'flow_fwd': 0.1}; keys are those of lfusd.verify.THRESHOLDS."""
+    from ..errors import LfusdError
+    from ..verify import THRESHOLDS
+
+    out = {}
+    for it in items or []:
+        key, _, value = it.partition("=")
+        if key not in THRESHOLDS:
+            raise LfusdError(f"unknown threshold {key!r}; use one of {', '.join(THRESHOLDS)}")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            raise LfusdError(f"threshold {it!r} is not KEY=NUMBER") from None
+    return out
 
 
 def handler(args) -> int:
     from ..verify import verify_dataset
 
+    thresholds = parse_thresholds(getattr(args, "threshold", None))
     ok = True
     for ds in open_datasets(args.out, getattr(args, "rig", None)):
         frames, views = select(ds, parse_frames(args.frames), parse_views(args.views), args.out)
         report = verify_dataset(
-            ds, stage_path=args.stage, frames=frames, views=views,
+            ds, stage_path=args.stage, frames=frames, views=views, thresholds=thresholds,
             progress=lambda f, v: print(f"verifying frame {f} view {v[0]},{v[1]}", file=sys.stderr),
         )
         name = getattr(ds, "rig_name", None)

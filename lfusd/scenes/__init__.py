@@ -151,8 +151,10 @@ def add_rigs(scene: Scene, count: int, sample_position, look_at, spec_kwargs: di
 
 
 def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs: int = 10,
-             grid: tuple[int, int] = (9, 9), resolution: tuple[int, int] = (1024, 1024)) -> Usd.Stage:
-    """Write the stage of ``template`` with ``seed`` to ``path`` (textures into ``path``'s textures/)."""
+             grid: tuple[int, int] = (9, 9), resolution: tuple[int, int] = (1024, 1024), dynamic: bool = False) -> Usd.Stage:
+    """Write the stage of ``template`` with ``seed`` to ``path`` (textures into ``path``'s textures/).
+
+    ``dynamic``: add walking people and movers over the frame range (lfusd.scenes.dynamic)."""
     if template not in TEMPLATES:
         raise LfusdError(f"unknown template {template!r}; choose one of: {', '.join(TEMPLATES)}")
     if frames < 1:
@@ -173,6 +175,10 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
 
     module = {"street": street, "river": river, "room": room, "mixed": mixed}[template]
     info = module.build(scene)
+    if dynamic:
+        from .dynamic import populate
+
+        info.update(populate(scene, template, info, seed, TEMPLATES.index(template)))
     author_rules(stage, TEMPLATE_RULES)
     (bx0, by0), (bx1, by1) = scene.bounds
     world = stage.GetDefaultPrim()
@@ -180,6 +186,8 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         [Gf.Vec3d(bx0, by0, -100.0), Gf.Vec3d(bx1, by1, 100.0)])
     world.SetCustomDataByKey("lfusd:template", template)
     world.SetCustomDataByKey("lfusd:seed", int(seed))
+    if dynamic:
+        world.SetCustomDataByKey("lfusd:dynamic", True)
     spec_kwargs = dict(rows=grid[0], cols=grid[1], width=resolution[0], height=resolution[1])
     add_rigs(scene, rigs, info["rig_position"], info["look_at"], spec_kwargs)
     stage.GetRootLayer().Save()

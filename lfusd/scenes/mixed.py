@@ -64,7 +64,8 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return ((px0 + px1) / 2 + r.uniform(-8, 8), (py0 + py1) / 2 + r.uniform(-6, 2), r.uniform(0.0, 1.5))
 
-    return {"rig_position": rig_position, "look_at": look_at}
+    return {"rig_position": rig_position, "look_at": look_at, "S": S, "road": (ry0, ry1), "pond": ((px0, py0), (px1, py1)),
+            "level": level, "north": north}
 
 
 def _overlaps(pose, parts, lo, hi) -> bool:

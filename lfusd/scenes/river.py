@@ -83,4 +83,5 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return (bx + r.uniform(-12, 12), r.uniform(-half, half), r.uniform(level, 1.5))
 
-    return {"rig_position": rig_position, "look_at": look_at}
+    return {"rig_position": rig_position, "look_at": look_at, "length": L, "half": half, "level": level, "bank": bank,
+            "bx": bx, "bw": bw, "span": span, "deck_z": deck_z + GAP}

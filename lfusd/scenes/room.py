@@ -93,4 +93,4 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return (tx + r.uniform(-0.5, 0.5), ty + r.uniform(-0.5, 0.5), top_h + r.uniform(-0.3, 0.3))
 
-    return {"rig_position": rig_position, "look_at": look_at}
+    return {"rig_position": rig_position, "look_at": look_at, "hx": hx, "hy": hy, "table": (tx, ty)}

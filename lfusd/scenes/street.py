@@ -98,4 +98,4 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return (r.uniform(-10, 10), r.uniform(-road_w - walk_w, road_w + walk_w), r.uniform(0.8, 2.0))
 
-    return {"rig_position": rig_position, "look_at": look_at}
+    return {"rig_position": rig_position, "look_at": look_at, "length": L, "road_w": road_w, "walk_w": walk_w, "curb": curb}
