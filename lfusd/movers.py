@@ -223,18 +223,21 @@ def drive_motion(frames, fps: float, start, yaw_deg: float, speed: float, z: flo
     return RigidMotion(frames, translate, np.tile([0.0, 0.0, yaw_deg], (len(t), 1)))
 
 
-def add_wheel(stage: Usd.Stage, path: str, hub, radius: float) -> Usd.Prim:
-    """An Xform for one wheel of a car at its hub (car-local); its mesh goes below it, centred on
-    the origin with the axle along Y. :func:`drive_car` turns it."""
-    x = UsdGeom.Xform.Define(stage, path)
-    x.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*[float(v) for v in hub]))
-    x.GetPrim().CreateAttribute(WHEEL_RADIUS_ATTR, Sdf.ValueTypeNames.Double, custom=True).Set(float(radius))
-    return x.GetPrim()
+def make_wheel(prim: Usd.Prim, hub, radius: float) -> Usd.Prim:
+    """Mark ``prim`` (a child of a car named ``wheel*``: its mesh centred on its origin, axle along
+    Y) as a wheel of ``radius`` at ``hub`` (car frame); :func:`drive_car` turns it.
+
+    Put the transform on the wheel's mesh itself rather than on an Xform above a single mesh:
+    Blender's USD import merges such an Xform into its mesh, and the merged object is then known
+    by the Xform's prim path only."""
+    UsdGeom.Xformable(prim).AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*[float(v) for v in hub]))
+    prim.CreateAttribute(WHEEL_RADIUS_ATTR, Sdf.ValueTypeNames.Double, custom=True).Set(float(radius))
+    return prim
 
 
 def drive_car(stage: Usd.Stage, prim_path: str, speed: float, delay: float = 0.0) -> RigidMotion:
     """Drive the car at ``prim_path`` straight along its heading (its rotateZ) at ``speed`` m/s;
-    its ``wheel*`` children (see :func:`add_wheel`) roll without slipping. Returns the body motion."""
+    its ``wheel*`` children (see :func:`make_wheel`) roll without slipping. Returns the body motion."""
     prim = stage.GetPrimAtPath(prim_path)
     if not prim:
         raise LfusdError(f"no prim {prim_path} on the stage; give the path of a car")

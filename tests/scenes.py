@@ -46,12 +46,19 @@ def write_box_stage(path, rigs: list[RigSpec], labelled_ground: bool = True) -> 
     if labelled_ground:
         set_class_label(g.GetPrim(), "ground")
     for name, (t, r, size, label) in BOXES.items():
-        cube = UsdGeom.Cube.Define(stage, f"/World/{name}")
+        if name == "BoxA":
+            # A labelled Xform with one geometry child: Blender merges the two into one object
+            # that its prim map knows by the Xform's path only.
+            xf = UsdGeom.Xform.Define(stage, f"/World/{name}")
+            cube = UsdGeom.Cube.Define(stage, f"/World/{name}/Geom")
+            placed = xf
+        else:
+            cube = placed = UsdGeom.Cube.Define(stage, f"/World/{name}")
         cube.CreateSizeAttr(size)
-        api = UsdGeom.XformCommonAPI(cube)
+        api = UsdGeom.XformCommonAPI(placed)
         api.SetTranslate(Gf.Vec3d(*t))
         api.SetRotate(Gf.Vec3f(*r), UsdGeom.XformCommonAPI.RotationOrderXYZ)
-        set_class_label(cube.GetPrim(), label)
+        set_class_label(placed.GetPrim(), label)
     sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
     sun.CreateIntensityAttr(1.0)
     sun.CreateNormalizeAttr(True)

@@ -124,8 +124,7 @@ def _street(tmp_path, road_len=60.0, frames=FRAMES):
     parts, wheels, radius = kit.moving_car(np.random.default_rng(2))
     _parts(b, "/World/Car", "car", parts, (-20.0, -2.0, 0.001), 0.0)
     for name, hub, mesh in wheels:
-        movers.add_wheel(stage, f"/World/Car/{name}", hub, radius)
-        b.mesh(f"/World/Car/{name}/tyre", mesh, "paint_dark")
+        movers.make_wheel(b.mesh(f"/World/Car/{name}", mesh, "paint_dark").GetPrim(), hub, radius)
     return stage, wheels, radius
 
 
@@ -135,6 +134,13 @@ def test_car_drives_on_the_road_with_rolling_wheels(tmp_path):
     motion = movers.drive_car(stage, "/World/Car", speed)
     assert Checker(stage).check() == []
     _assert_pxr_equals(stage, "/World/Car", motion)
+    # Rendering needs: each wheel is a mesh carrying its own transform (Blender merges an Xform
+    # holding a single mesh, hiding the mesh's path), and no tyre face is coplanar with the body.
+    body = _world_points(stage, "/World/Car/body", [1])[0]
+    for name, _, _ in wheels:
+        assert stage.GetPrimAtPath(f"/World/Car/{name}").IsA(UsdGeom.Mesh)
+        tyre = _world_points(stage, f"/World/Car/{name}", [1])[0]
+        assert np.abs(tyre[:, 1] + 2.0).max() > np.abs(body[:, 1] + 2.0).max() + 0.01
     xf = UsdGeom.XformCache()
     for f in (1, 10, 30, FRAMES):
         xf.SetTime(Usd.TimeCode(f))
@@ -177,8 +183,7 @@ def test_cabinet_doors_swing_and_a_chair_slides_cleanly(tmp_path):
     _parts(b, "/World/Cabinet", "cabinet", parts, (-2.0, 0.5, 0.001), 30.0)
     motions = {}
     for name, hinge, sign, panel in kit.cabinet_doors(width, depth, height):
-        b.obj(f"/World/Cabinet/{name}", None, hinge)
-        b.mesh(f"/World/Cabinet/{name}/panel", panel, "wood")
+        b.mesh(f"/World/Cabinet/{name}", panel, "wood").AddTranslateOp().Set(tuple(float(v) for v in hinge))
         motions[name] = movers.swing(stage, f"/World/Cabinet/{name}", sign * 95.0, 0.2, 1.0, duration=0.6)
     chair = kit.chair(rng)
     _parts(b, "/World/Chair", "chair", chair, (1.0, 1.0, 0.001), 180.0)

@@ -31,6 +31,7 @@ PRIM_MAP: dict[str, list] = {}
 # test suite measures the residual from the position pass.
 SAMPLE_OFFSET_PX = (0.000486, 0.000474)
 VIEW_PREFIX = "lfusd_view"
+NON_GEOMETRY = ("EMPTY", "CAMERA", "LIGHT", "ARMATURE")
 
 
 def emit(kind: str, **data) -> None:
@@ -97,7 +98,14 @@ def setup_scene(job: dict) -> tuple[object, list[str]]:
     scene = bpy.context.scene
     # Identity comes from prim paths (never Blender names): object index = instance id.
     for prim_path, instance_id in job["instances"].items():
-        for obj in _objects_of(prim_path):
+        objs = [o for o in _objects_of(prim_path) if o.type not in NON_GEOMETRY]
+        if not objs:
+            # The importer merges an Xform with a single gprim child into one object, which
+            # the prim map knows by the Xform's path only.
+            objs = [o for o in _objects_of(prim_path.rsplit("/", 1)[0]) if o.type not in NON_GEOMETRY]
+        if not objs:
+            print(f"lfusd: warning: {prim_path} has no Blender object; its pixels get instance 0", file=sys.stderr)
+        for obj in objs:
             obj.pass_index = int(instance_id)
     # Rename the rig's cameras so multiview finds each by its suffix.
     suffixes = []

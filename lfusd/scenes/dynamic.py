@@ -188,8 +188,7 @@ def _traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: 
         path = scene.name("Car")
         scene.add(path, "car", parts, (cx, lane_y, GAP), 0.0 if heading > 0 else 180.0, track=False)
         for name, hub, mesh in wheels:
-            movers.add_wheel(ctx.stage, f"{path}/{name}", hub, radius)
-            scene.builder.mesh(f"{path}/{name}/tyre", mesh, "paint_dark")
+            movers.make_wheel(scene.builder.mesh(f"{path}/{name}", mesh, "paint_dark").GetPrim(), hub, radius)
         movers.drive_car(ctx.stage, path, speed)
         width = float(np.ptp(parts[0][1].points[:, 1]))
         end = cx + heading * speed * ctx.duration
@@ -321,8 +320,9 @@ def _room(ctx: Ctx, info: dict) -> dict:
             if not ctx.occ.free(lo, hi, ignore=(o.prim_path,)):
                 continue
             for name, hinge, sign, panel in kit.cabinet_doors(width, depth, height):
-                scene.builder.obj(f"{o.prim_path}/{name}", None, hinge)
-                scene.builder.mesh(f"{o.prim_path}/{name}/panel", panel, "wood")
+                # the hinge transform on the panel mesh itself (see lfusd.movers.make_wheel for why)
+                door = scene.builder.mesh(f"{o.prim_path}/{name}", panel, "wood")
+                door.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(tuple(float(v) for v in hinge))
                 t_open = float(rng.uniform(0.05, 0.4)) * T
                 dur = float(rng.uniform(0.8, 1.4))
                 t_close = t_open + dur + float(rng.uniform(0.5, 2.0))

@@ -133,7 +133,9 @@ def moving_car(rng: np.random.Generator) -> tuple[Parts, list[tuple[str, tuple[f
     body = box((length, width, 0.6), (0.0, 0.0, 0.25 + 0.3), tile=2.0)
     cabin = box((length * 0.5, width * 0.9, 0.5), (-0.1 * length, 0.0, 0.85 + 0.25), tile=2.0)
     tyre = cylinder(r, -w / 2, w / 2, 12, axis="y")
-    wheels = [(f"wheel_{'F' if sx > 0 else 'R'}{'L' if sy > 0 else 'R'}", (sx * length * 0.32, sy * (width / 2 - w / 2), r), tyre)
+    # The tyres stand 2 cm proud of the body's sides: a tyre cap coplanar with the body would be
+    # a surface that spins and one that does not in one plane (ambiguous hits, wrong flow).
+    wheels = [(f"wheel_{'F' if sx > 0 else 'R'}{'L' if sy > 0 else 'R'}", (sx * length * 0.32, sy * (width / 2 - w / 2 + 0.02), r), tyre)
               for sx in (-1, 1) for sy in (-1, 1)]
     return [("body", body, paint), ("cabin", cabin, "paint_dark")], wheels, r
 
