@@ -2,13 +2,16 @@
 VENV := .venv
 LFUSD := $(VENV)/bin/lfusd
 DEMO_OUT ?= out/default
+# The bundled default scene: a 150-frame street with walking people and driving cars, rendered
+# as a 3x3 light-field video at a preview size, with every ground-truth key.
+DEMO_STAGE ?= stages/street_dynamic_00.usda
 
 .PHONY: setup demo test clean
 setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(LFUSD) render stages/default.usda -o $(DEMO_OUT) --samples 16
+	$(LFUSD) render-video $(DEMO_STAGE) -o $(DEMO_OUT) --rig rig_00 --resolution 128x128 --samples 8
 	@echo "dataset written to $(DEMO_OUT); read it with: from lfusd import Dataset; Dataset('$(DEMO_OUT)')"
 
 test: setup

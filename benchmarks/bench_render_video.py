@@ -55,13 +55,13 @@ print("BARE", time.time() - t0)
 
 
 def make_stage(path: Path, frames: int, grid: tuple[int, int], resolution: tuple[int, int]) -> None:
-    """The bundled default stage, with its crate sliding and turning over ``frames`` frames."""
+    """The bundled static box stage, with its crate sliding and turning over ``frames`` frames."""
     from pxr import Gf, Usd, UsdGeom
 
     from lfusd.rig import RigSpec
     from lfusd.usdrig import add_rig
 
-    shutil.copy(ROOT / "stages" / "default.usda", path)
+    shutil.copy(ROOT / "stages" / "static_boxes.usda", path)
     stage = Usd.Stage.Open(str(path))
     stage.SetEndTimeCode(frames)
     crate = UsdGeom.Xformable(stage.GetPrimAtPath("/World/Crate"))
@@ -118,7 +118,7 @@ def main() -> None:
         stage = tmp / "bench.usda"
         make_stage(stage, args.frames, args.grid, args.resolution)
         views = args.grid[0] * args.grid[1] * args.frames
-        print(f"stage: default scene, crate moving; {args.grid[0]}x{args.grid[1]} views, {args.resolution[0]}x{args.resolution[1]}, {args.frames} frames, {args.samples} samples, CPU")
+        print(f"stage: static_boxes scene, crate moving; {args.grid[0]}x{args.grid[1]} views, {args.resolution[0]}x{args.resolution[1]}, {args.frames} frames, {args.samples} samples, CPU")
         bare = run_bare(stage, tmp / "bare", args.samples, args.frames, args.resolution)
         wall, _, _ = run_lfusd(stage, tmp / "lfusd", args.samples, args.frames)
         print(f"bare Blender multiview (beauty only): {bare:7.2f} s  {views / bare:6.2f} views/s")

@@ -218,7 +218,7 @@ def test_stage_new_cli_and_errors(tmp_path, capsys):
 
 
 STAGES = Path(__file__).resolve().parents[1] / "stages"
-COMMITTED = sorted(p for p in STAGES.glob("*.usda") if p.name != "default.usda")
+COMMITTED = sorted(p for p in STAGES.glob("*.usda") if p.name != "static_boxes.usda")
 
 
 @pytest.mark.parametrize("path", COMMITTED, ids=lambda p: p.name)

@@ -1,4 +1,4 @@
-"""Regenerate stages/default.usda, the small scene `make demo` renders: `python stages/make_default.py`."""
+"""Regenerate stages/static_boxes.usda, the small static scene of the benchmarks: `python stages/make_static_boxes.py`."""
 
 from pathlib import Path
 
@@ -20,7 +20,7 @@ def material(stage, name, rgb, roughness=0.6):
     return mat
 
 
-def main(path=Path(__file__).with_name("default.usda")):
+def main(path=Path(__file__).with_name("static_boxes.usda")):
     stage = new_stage(str(path))
     ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
     ground.CreatePointsAttr([(-30, -30, 0), (30, -30, 0), (30, 30, 0), (-30, 30, 0)])
