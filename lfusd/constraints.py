@@ -184,7 +184,13 @@ def set_constraint(prim: Usd.Prim, kind: str, value) -> None:
     name = f"lfusd:constraint:{kind}"
     if kind == "inside":
         prim.CreateRelationship(name, custom=True).SetTargets([Sdf.Path(p) for p in ([value] if isinstance(value, str) else value)])
-    elif kind == "in_bounds":
+    else:
+        _write_rule(prim, name, kind, value)
+
+
+def _write_rule(prim: Usd.Prim, name: str, kind: str, value) -> None:
+    """One rule value as an attribute of the type its kind takes."""
+    if kind == "in_bounds":
         prim.CreateAttribute(name, Sdf.ValueTypeNames.Bool, custom=True).Set(bool(value))
     elif kind == "draft":
         prim.CreateAttribute(name, Sdf.ValueTypeNames.Float2, custom=True).Set(tuple(float(v) for v in value))
@@ -200,15 +206,7 @@ def set_class_rule(stage: Usd.Stage, cls: str, kind: str, value) -> None:
     prim = stage.GetDefaultPrim()
     if not prim:
         raise LfusdError("the stage has no default prim to hold class rules; set one")
-    name = f"lfusd:rule:{cls}:{kind}"
-    if kind == "in_bounds":
-        prim.CreateAttribute(name, Sdf.ValueTypeNames.Bool, custom=True).Set(bool(value))
-    elif kind == "draft":
-        prim.CreateAttribute(name, Sdf.ValueTypeNames.Float2, custom=True).Set(tuple(float(v) for v in value))
-    elif kind == "tolerance":
-        prim.CreateAttribute(name, Sdf.ValueTypeNames.Float, custom=True).Set(float(value))
-    else:
-        prim.CreateAttribute(name, Sdf.ValueTypeNames.TokenArray, custom=True).Set([value] if isinstance(value, str) else list(value))
+    _write_rule(prim, f"lfusd:rule:{cls}:{kind}", kind, value)
 
 
 def resolve_rules(stage: Usd.Stage, objects, dynamic: dict[str, bool], file_rules: dict | None = None) -> list[ObjectRules]:
