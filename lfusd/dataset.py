@@ -8,7 +8,6 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from . import passes
 from .errors import LfusdError
@@ -113,7 +112,9 @@ class Dataset:
         """One ground-truth array (see CONVENTIONS.md for keys, shapes and meanings)."""
         d = self.view_dir(frame, view)
         if key == "rgb":
-            return np.asarray(Image.open(d / "rgb.png").convert("RGB"))
+            from .formats import read_png
+
+            return read_png(d / "rgb.png")
         if key == "rgb_linear":
             return passes.read_rgb_linear(d / "rgb.exr")
         if key in RAW_KEYS:

@@ -57,8 +57,9 @@ def derive_dataset(root: str | Path, rigs: list[str], frames: list[int], workers
     todo = []
     for rig in rigs:
         ds = Dataset(root, rig=rig)
-        for f in frames:
-            for v in ds.views:
+        # View-major: consecutive tasks share frames t+/-1 of one view in the raw-pass cache.
+        for v in ds.views:
+            for f in frames:
                 if overwrite or not (ds.view_dir(f, v) / MOTION_FILE).is_file():
                     todo.append((str(root), rig, f, v))
     if workers <= 1 or len(todo) <= 1:

@@ -35,6 +35,11 @@ def _cv2():
     return cv2
 
 
+def _imwrite(path, image: np.ndarray) -> None:
+    if not _cv2().imwrite(str(path), image):
+        raise LfusdError(f"could not write {path}; check that its folder exists and is writable")
+
+
 def _need(path: Path) -> Path:
     path = Path(path)
     if not path.is_file():
@@ -120,8 +125,7 @@ def write_kitti_flow(path, flow, valid=None) -> None:
     out = np.zeros(f.shape[:2] + (3,), np.uint16)
     out[..., 2], out[..., 1], out[..., 0] = enc[..., 0], enc[..., 1], ok  # BGR in memory: R = u, G = v, B = valid
     out[~ok] = 0
-    if not _cv2().imwrite(str(path), out):
-        raise LfusdError(f"could not write {path}; check that its folder exists and is writable")
+    _imwrite(path, out)
 
 
 def read_kitti_flow(path) -> tuple[np.ndarray, np.ndarray]:
@@ -150,8 +154,7 @@ def write_kitti_disparity(path, disparity, valid=None) -> None:
         ok &= np.asarray(valid, bool)
     enc = np.clip(np.round(np.nan_to_num(d) * KITTI_DISP_SCALE), 1, 2**16 - 1).astype(np.uint16)
     enc[~ok] = 0
-    if not _cv2().imwrite(str(path), enc):
-        raise LfusdError(f"could not write {path}; check that its folder exists and is writable")
+    _imwrite(path, enc)
 
 
 def read_kitti_disparity(path) -> tuple[np.ndarray, np.ndarray]:
@@ -173,8 +176,7 @@ def write_png(path, rgb) -> None:
         raise LfusdError(f"PNG images must be uint8 or uint16, got {a.dtype}")
     if a.ndim == 3:
         a = a[..., ::-1]  # RGB -> OpenCV's BGR
-    if not _cv2().imwrite(str(path), np.ascontiguousarray(a)):
-        raise LfusdError(f"could not write {path}; check that its folder exists and is writable")
+    _imwrite(path, np.ascontiguousarray(a))
 
 
 def read_png(path) -> np.ndarray:

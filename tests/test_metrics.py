@@ -299,7 +299,6 @@ def test_eval_bad_predictions_are_one_line_errors(fake_cli, tmp_path, capsys):
     from lfusd import formats
     from lfusd.cli import main
 
-    ds = fake_cli
     pred = tmp_path / "p"
     pred.mkdir()
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 from analytic import cast, project
-from scenes import BOXES, GROUND_HALF, PLANE_RIG, SPHERE_RIG, box_matrix, boxes_world
+from scenes import BOXES, GROUND_HALF, PLANE_RIG, SPHERE_RIG, boxes_world
 
 from lfusd import Dataset
 from lfusd.stageio import open_stage

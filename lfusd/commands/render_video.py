@@ -39,9 +39,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..render.job import RenderRequest, render
     from ..rig import parse_resolution
     from ..stageio import frame_range, open_stage
-    from ..render.job import RenderRequest, render
+    from ..usdrig import select_rigs
 
     if args.workers < 1:
         raise LfusdError(f"--workers must be a positive integer, got {args.workers}")
@@ -58,8 +59,8 @@ def run(args) -> int:
     manifest = render(req)
     from ..derive import derive_dataset
 
-    rigs = [r for r in manifest["rigs"] if r in manifest["settings"]["rigs"]] if args.rig == "all" else None
-    names = rigs or ([args.rig] if args.rig else manifest["rigs"])
+    # The rigs of this request only: the folder may also hold rigs rendered earlier.
+    names = [r.spec.name for r in select_rigs(stage, args.rig, args.stage)]
     n = derive_dataset(req.out, names, req.frames, workers=args.workers)
     print(f"lfusd: {args.out}: rig {', '.join(names)}, frames {first}-{last}, device {manifest['device']}, motion derived for {n} views")
     if args.verify:
@@ -67,5 +68,6 @@ def run(args) -> int:
 
         from .verify import handler
 
-        return handler(argparse.Namespace(out=args.out, frames=None, views=None, stage=None))
+        rig = names[0] if len(names) == 1 else "all"
+        return handler(argparse.Namespace(out=args.out, rig=rig, frames=f"{first}-{last}", views=None, stage=None))
     return 0

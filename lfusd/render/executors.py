@@ -16,11 +16,11 @@ import sys
 import threading
 from pathlib import Path
 
-from PIL import Image
 from pxr import Usd, UsdLux
 
 from ..errors import LfusdError
-from ..labels import object_table
+from ..formats import write_png
+from ..labels import ObjectEntry
 from ..passes import linear_to_srgb8, read_rgb_linear
 from ..stageio import frame_range
 from ..usdrig import StageRig
@@ -40,7 +40,7 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> Non
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
         shutil.move(str(src), tmp / f"{name}.exr")
-    Image.fromarray(linear_to_srgb8(read_rgb_linear(tmp / "rgb.exr"))).save(tmp / "rgb.png", compress_level=3)
+    write_png(tmp / "rgb.png", linear_to_srgb8(read_rgb_linear(tmp / "rgb.exr")))
     os.rename(tmp, final)
 
 
@@ -56,9 +56,8 @@ def chunks(items: list, n: int) -> list[list]:
     return out
 
 
-def plan_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan) -> list[dict]:
+def plan_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, objects: list[ObjectEntry]) -> list[dict]:
     """Work units covering every missing (rig, frame, view)."""
-    objects, _ = object_table(stage)
     instances = {mesh: o.instance_id for o in objects for mesh in o.mesh_paths}
     has_dome = any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse())
     by_name = {r.spec.name: r for r in rigs}
@@ -230,7 +229,7 @@ def run_ray(units: list[dict], req: RenderRequest, report) -> str:
     return device
 
 
-def run_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, report) -> str:
+def run_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, objects: list[ObjectEntry], report) -> str:
     """Render every missing view of ``plan`` with the requested executor; return the device used."""
-    units = plan_units(req, stage, rigs, plan)
+    units = plan_units(req, stage, rigs, plan, objects)
     return (run_ray if req.executor == "ray" else run_local)(units, req, report)

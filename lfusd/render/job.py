@@ -33,7 +33,7 @@ from pxr import Usd, UsdGeom
 
 from .. import __version__
 from ..errors import LfusdError
-from ..labels import object_table
+from ..labels import ObjectEntry, object_table
 from ..stageio import check_frames, file_hash, frame_range, open_stage
 from ..rig import RigSpec
 from ..usdrig import StageRig, select_rigs
@@ -197,8 +197,7 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
     atomic_write_text(req.out / "manifest.json", json.dumps(manifest, indent=1))
 
 
-def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int]) -> None:
-    objects, classes = object_table(stage)
+def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int], objects: list[ObjectEntry], classes: list[str]) -> None:
     table = {
         "classes": classes,
         "objects": [
@@ -256,7 +255,8 @@ def render(req: RenderRequest, progress=None) -> dict:
     _clean_stale(req.out)
     try:
         _write_manifest(req, settings, previous, rigs, frames, None)
-        _write_static_metadata(req, stage, rigs, frames)
+        objects, classes = object_table(stage)
+        _write_static_metadata(req, stage, rigs, frames, objects, classes)
         plan = _Plan(req.out, rigs, frames)
         device = None
         if plan.remaining:
@@ -264,7 +264,7 @@ def render(req: RenderRequest, progress=None) -> dict:
 
             report = progress or _Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:
-                device = run_units(req, stage, rigs, plan, report)
+                device = run_units(req, stage, rigs, plan, objects, report)
             except BaseException:
                 # Record what did finish; a second failure here (a full disk) must not hide the first.
                 with contextlib.suppress(OSError):

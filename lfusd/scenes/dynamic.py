@@ -304,7 +304,7 @@ def _mixed(ctx: Ctx, info: dict) -> dict:
 
 
 def _room(ctx: Ctx, info: dict) -> dict:
-    hx, hy, (tx, ty) = info["hx"], info["hy"], info["table"]
+    hx, hy = info["hx"], info["hy"]
     scene, rng, T = ctx.scene, ctx.rng, ctx.duration
     objs = object_table(ctx.stage)[0]
     for o in objs:
