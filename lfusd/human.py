@@ -18,6 +18,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 from .errors import LfusdError
 from .labels import set_class_label
+from .stageio import round_values
 
 # (name, parent name) in parent-before-child order; UsdSkel joint paths are built from these.
 _JOINTS = [
@@ -301,6 +302,9 @@ def skin_weights(spec: HumanSpec, points: np.ndarray, parts: list[str], counts: 
             np.add.at(acc, e[:, 0], raw[e[:, 1]])
             np.add.at(acc, e[:, 1], raw[e[:, 0]])
             raw = acc / (1.0 + deg)[:, None]
+    # Rank rounded weights: weights equal in exact arithmetic differ in their last bit from CPU to
+    # CPU, and the stable sort then breaks such ties by joint index, the same on every machine.
+    raw = round_values(raw)
     order = np.argsort(-raw, axis=1, kind="stable")[:, :influences]
     w = np.take_along_axis(raw, order, axis=1)
     w /= w.sum(axis=1, keepdims=True)

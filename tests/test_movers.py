@@ -192,7 +192,7 @@ def test_cabinet_doors_swing_and_a_chair_slides_cleanly(tmp_path):
     for name, m in motions.items():
         _assert_pxr_equals(stage, f"/World/Cabinet/{name}", _compose(stage, "/World/Cabinet", m))
         yaw = m.rotate[:, 2]
-        assert yaw[0] == 0.0 and abs(abs(yaw).max() - 95.0) < 1e-9 and yaw[-1] == pytest.approx(0.0, abs=1e-12)
+        assert yaw[0] == pytest.approx(0.0, abs=1e-12) and abs(abs(yaw).max() - 95.0) < 1e-9 and yaw[-1] == pytest.approx(0.0, abs=1e-12)
         # C2 easing: the first and last frames of each swing barely move
         steps = np.abs(np.diff(yaw))
         assert steps[steps > 0][0] < 0.01 and steps.max() < 95.0 * 1.875 / (0.6 * 24) + 1e-9

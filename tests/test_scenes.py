@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Gf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from lfusd import cli
 from lfusd.constraints import Checker, usd_validation
+from lfusd.formats import read_png
 from lfusd.geometry import triangulate
 from lfusd.labels import class_label, object_table
 from lfusd.scenes import TEMPLATES, generate
@@ -221,22 +222,142 @@ STAGES = Path(__file__).resolve().parents[1] / "stages"
 COMMITTED = sorted(p for p in STAGES.glob("*.usda") if p.name != "static_boxes.usda")
 
 
+def _regenerate(stage: Usd.Stage, out: Path) -> None:
+    """Regenerate a committed stage from the template, seed and sizes it records."""
+    world = stage.GetDefaultPrim()
+    template, seed = world.GetCustomDataByKey("lfusd:template"), world.GetCustomDataByKey("lfusd:seed")
+    found = rigs(stage)
+    spec = found["rig_00"].spec
+    generate(template, out, seed, frames=int(stage.GetEndTimeCode()), rigs=len(found),
+             grid=(spec.rows, spec.cols), resolution=(spec.width, spec.height),
+             dynamic=bool(world.GetCustomDataByKey("lfusd:dynamic")))
+
+
 @pytest.mark.parametrize("path", COMMITTED, ids=lambda p: p.name)
 def test_committed_stage_passes_check_and_regenerates_byte_for_byte(tmp_path, path):
     stage = Usd.Stage.Open(str(path))
     assert [v.line() for v in Checker(stage).check()] + usd_validation(stage) == []
     # The stage records its template and seed; regenerating them here must give the same bytes
-    # (the seed -> stage mapping is stable across runs and machines).
-    world = stage.GetDefaultPrim()
-    template, seed = world.GetCustomDataByKey("lfusd:template"), world.GetCustomDataByKey("lfusd:seed")
-    found = rigs(stage)
-    spec = found["rig_00"].spec
-    generate(template, tmp_path / path.name, seed, frames=int(stage.GetEndTimeCode()), rigs=len(found),
-             grid=(spec.rows, spec.cols), resolution=(spec.width, spec.height),
-             dynamic=bool(world.GetCustomDataByKey("lfusd:dynamic")))
+    # on any CPU: every double is written rounded (stageio.round_layer).
+    _regenerate(stage, tmp_path / path.name)
     assert (tmp_path / path.name).read_bytes() == path.read_bytes()
-    for png in (tmp_path / "textures").iterdir():
-        assert png.read_bytes() == (STAGES / "textures" / png.name).read_bytes()
+    # Textures are uint8 pixels (rounded by the code); their PNG bytes depend on the zlib build.
+    pngs = sorted((tmp_path / "textures").iterdir())
+    assert pngs
+    for png in pngs:
+        assert np.array_equal(read_png(png), read_png(STAGES / "textures" / png.name)), png.name
+
+
+def _nudged(x, direction):
+    """``x`` moved by one ulp towards ``direction``: what another CPU's SIMD path may return."""
+    return np.nextafter(np.asarray(x, np.float64), direction)
+
+
+def _double_values(layer):
+    """[(spec, time code or None)] for every double-precision value authored in ``layer`` (a
+    float's value already is float32: a float64 ulp does not move it)."""
+    from lfusd.stageio import _FLOAT_TYPES
+
+    specs = []
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: specs.append(layer.GetObjectAtPath(p)))
+    out = []
+    for spec in specs:
+        name = spec.typeName.scalarType.cppTypeName if isinstance(spec, Sdf.AttributeSpec) else ""
+        if name in _FLOAT_TYPES and (name == "double" or name.endswith("d")) and "Quat" not in name:
+            out += [(spec, None)] if spec.HasDefaultValue() else []
+            out += [(spec, t) for t in layer.ListTimeSamplesForPath(spec.path)]
+    return out
+
+
+def _retyped(spec, arr):
+    cls = spec.typeName.type.pythonClass
+    if cls is None:  # double
+        return float(arr)
+    if spec.typeName.isArray:
+        return cls.FromNumpy(arr)
+    return cls(arr.tolist()) if arr.ndim == 2 else cls(*arr.tolist())
+
+
+@pytest.mark.parametrize("direction", [np.inf, -np.inf], ids=["up", "down"])
+def test_last_bit_of_the_inputs_to_rounding_does_not_change_the_stage(tmp_path, monkeypatch, direction):
+    import lfusd.scenes as scenes
+    from lfusd.stageio import round_layer
+
+    args = dict(frames=6, rigs=3, grid=(3, 3), resolution=(64, 64), dynamic=True)
+    generate("street", tmp_path / "plain.usda", 5, **args)
+    nudged = 0
+
+    def nudge_then_round(layer):
+        # every double the generator authored moves by one ulp, then is rounded as usual
+        nonlocal nudged
+        for spec, t in _double_values(layer):
+            value = np.array(spec.default if t is None else layer.QueryTimeSample(spec.path, t), np.float64)
+            nudged += value.size
+            new = _retyped(spec, _nudged(value, direction))
+            if t is None:
+                spec.default = new
+            else:
+                layer.SetTimeSample(spec.path, t, new)
+        return round_layer(layer)
+
+    monkeypatch.setattr(scenes, "round_layer", nudge_then_round)
+    generate("street", tmp_path / "nudged.usda", 5, **args)
+    assert nudged > 1000  # rig cameras, object transforms, skeletons and animation samples
+    assert (tmp_path / "nudged.usda").read_bytes() == (tmp_path / "plain.usda").read_bytes()
+
+
+def test_round_layer_rounds_every_floating_point_value(tmp_path):
+    from lfusd.stageio import round_layer
+
+    stage = Usd.Stage.CreateInMemory()
+    prim = stage.DefinePrim("/P")
+    third = 1.0 / 3.0
+    prim.CreateAttribute("d", Sdf.ValueTypeNames.Double).Set(third)
+    prim.CreateAttribute("m", Sdf.ValueTypeNames.Matrix4d).Set(Gf.Matrix4d(1.0).SetTranslate(Gf.Vec3d(third, -0.0, 1.0)))
+    prim.CreateAttribute("v", Sdf.ValueTypeNames.Double3Array).Set([Gf.Vec3d(third, -1e-17, 2.0)])
+    prim.CreateAttribute("q", Sdf.ValueTypeNames.Quatd).Set(Gf.Quatd(third, Gf.Vec3d(0.0, third, 0.0)))
+    prim.CreateAttribute("f", Sdf.ValueTypeNames.Float3Array).Set([Gf.Vec3f(third, 5.5e-17, 20.1)])
+    prim.CreateAttribute("t", Sdf.ValueTypeNames.Double3).Set(Gf.Vec3d(third, 0, 0), 2.0)
+    assert round_layer(stage.GetRootLayer()) == 6
+    r = 0.333333333
+    assert prim.GetAttribute("d").Get() == r
+    m = prim.GetAttribute("m").Get()
+    assert m[3][0] == r and m[0][0] == 1.0
+    v = prim.GetAttribute("v").Get()[0]
+    assert (v[0], v[2]) == (r, 2.0)
+    assert prim.GetAttribute("q").Get() == Gf.Quatd(r, Gf.Vec3d(0.0, r, 0.0))
+    assert prim.GetAttribute("t").Get(2.0)[0] == r
+    # float32: a residue of cancellation becomes 0; otherwise the float's own (coarser) step remains
+    f = prim.GetAttribute("f").Get()[0]
+    assert (f[1], f[2]) == (0.0, np.float32(20.1)) and f[0] == np.float32(r)
+    text = stage.GetRootLayer().ExportToString()
+    assert "-0" not in text.replace("e-0", "") and "e-17" not in text  # no negative zeros, no residues
+
+
+@pytest.mark.parametrize("direction", [np.inf, -np.inf], ids=["up", "down"])
+def test_a_cpu_whose_math_rounds_the_other_way_writes_the_same_stage(tmp_path, monkeypatch, direction):
+    # Emulate another CPU: NumPy's transcendental functions and norms return their neighbour
+    # in the last bit (SVML against libm, FMA against none). The stage file must not change.
+    args = dict(frames=6, rigs=3, grid=(3, 3), resolution=(64, 64), dynamic=True)
+    for template in TEMPLATES:
+        generate(template, tmp_path / f"{template}_plain.usda", 1, **args)
+    calls = 0
+
+    def wrap(fn):
+        def nudged(*a, **kw):
+            nonlocal calls
+            calls += 1
+            out = fn(*a, **kw)
+            return _nudged(out, direction) if np.issubdtype(np.asarray(out).dtype, np.floating) else out
+        return nudged
+
+    for name in ("sin", "cos", "exp", "arctan2", "sqrt", "hypot", "radians", "degrees"):
+        monkeypatch.setattr(np, name, wrap(getattr(np, name)))
+    monkeypatch.setattr(np.linalg, "norm", wrap(np.linalg.norm))
+    for template in TEMPLATES:
+        generate(template, tmp_path / f"{template}_nudged.usda", 1, **args)
+        assert (tmp_path / f"{template}_nudged.usda").read_bytes() == (tmp_path / f"{template}_plain.usda").read_bytes(), template
+    assert calls > 1000
 
 
 # -- dynamic variants (issue 6) ----------------------------------------------------------------------

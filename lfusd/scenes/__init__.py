@@ -4,7 +4,8 @@
 stage's rules by construction: objects are sampled only where their support surface lies
 (the surface's height is known analytically) and where their footprint is free, never moved
 after a failed check. Randomness comes from one ``numpy.random.Generator`` seeded with
-(seed, template index), so the mapping seed -> stage is the same on every run and machine.
+(seed, template index), and every double is written rounded to 1e-9 (``stageio.round_layer``), so
+the mapping seed -> stage file is byte-identical on every run and CPU.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ..errors import LfusdError
 from ..rig import RigSpec
-from ..stageio import new_stage
+from ..stageio import new_stage, round_layer
 from ..usdrig import add_rig
 from .build import Builder, MeshData
 
@@ -190,5 +191,6 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         world.SetCustomDataByKey("lfusd:dynamic", True)
     spec_kwargs = dict(rows=grid[0], cols=grid[1], width=resolution[0], height=resolution[1])
     add_rigs(scene, rigs, info["rig_position"], info["look_at"], spec_kwargs)
+    round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
     return stage
