@@ -7,8 +7,8 @@ import sys, tempfile
 from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import numpy as np
-from analytic import cast, project
-from scenes import PLANE_RIG, SPHERE_RIG, GROUND_HALF, boxes_world, write_box_stage
+from support.analytic import cast, project
+from support.scenes import PLANE_RIG, SPHERE_RIG, GROUND_HALF, boxes_world, write_box_stage
 from lfusd import Dataset
 from lfusd.render.job import RenderRequest, render
 tmp = Path(tempfile.mkdtemp())

@@ -1,4 +1,4 @@
-"""Throughput of lfusd.flow.derive_motion against reading the raw passes from a multilayer EXR.
+"""Throughput of lfusd.truth.motion.derive_motion against reading the raw passes from a multilayer EXR.
 
 Usage: .venv/bin/python benchmarks/bench_flow.py [--size 1024] [--repeat 3] [--codec zip|none|piz|dwaa]
 
@@ -23,7 +23,7 @@ import numpy as np
 import OpenEXR
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from lfusd.flow import BACKEND, Camera, RawPasses, backproject, derive_motion, pixel_grid, project  # noqa: E402
+from lfusd.truth.motion import BACKEND, Camera, RawPasses, backproject, derive_motion, pixel_grid, project  # noqa: E402
 
 CODECS = {"zip": OpenEXR.ZIP_COMPRESSION, "none": OpenEXR.NO_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "dwaa": OpenEXR.DWAA_COMPRESSION}
 

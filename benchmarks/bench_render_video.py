@@ -57,8 +57,8 @@ def make_stage(path: Path, frames: int, grid: tuple[int, int], resolution: tuple
     """The bundled static box stage, with its crate sliding and turning over ``frames`` frames."""
     from pxr import Gf, Usd, UsdGeom
 
-    from lfusd.rig import RigSpec
-    from lfusd.usdrig import add_rig
+    from lfusd.camera import RigSpec
+    from lfusd.author.rigs import add_rig
 
     shutil.copy(ROOT / "stages" / "static_boxes.usda", path)
     stage = Usd.Stage.Open(str(path))

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from pxr import Usd
 
-from lfusd.constraints import Checker, usd_validation
-from lfusd.scenes import TEMPLATES, generate
+from lfusd.author.rules import Checker, usd_validation
+from lfusd.author.scenes import TEMPLATES, generate
 
 
 def main() -> int:

@@ -25,7 +25,7 @@ def to_markdown(report) -> str:
 def main(argv: list[str] | None = None) -> int:
     from lfusd.commands.flow import open_datasets, parse_frames, parse_views
     from lfusd.errors import LfusdError
-    from lfusd.verify import VerifyReport, verify_dataset
+    from lfusd.truth.verify import VerifyReport, verify_dataset
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("out", help="dataset folder")

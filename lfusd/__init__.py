@@ -9,7 +9,7 @@ from .errors import LfusdError
 def __getattr__(name):
     # Dataset pulls in OpenEXR; keep `import lfusd` light for the CLI and authoring code.
     if name == "Dataset":
-        from .dataset import Dataset
+        from .data.dataset import Dataset
 
         return Dataset
     raise AttributeError(name)

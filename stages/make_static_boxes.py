@@ -4,10 +4,10 @@ from pathlib import Path
 
 from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdShade
 
-from lfusd.labels import set_class_label
-from lfusd.rig import RigSpec
-from lfusd.stageio import new_stage
-from lfusd.usdrig import add_rig
+from lfusd.author.labels import set_class_label
+from lfusd.camera import RigSpec
+from lfusd.author.stage import new_stage
+from lfusd.author.rigs import add_rig
 
 
 def material(stage, name, rgb, roughness=0.6):

@@ -10,8 +10,8 @@ from pathlib import Path
 
 from pxr import Usd
 
-from lfusd.scenes import generate
-from lfusd.usdrig import rigs
+from lfusd.author.scenes import generate
+from lfusd.author.rigs import rigs
 
 HERE = Path(__file__).resolve().parent
 

@@ -9,7 +9,7 @@ sys.path.insert(0, str(Path(__file__).parent))  # tests/analytic.py, tests/scene
 @pytest.fixture(scope="session")
 def box_dataset(tmp_path_factory):
     """A stage with two rigs (plane 3x3 at 64x48, sphere 2x3 at 40x40), rendered once."""
-    from scenes import PLANE_RIG, SPHERE_RIG, write_box_stage
+    from support.scenes import PLANE_RIG, SPHERE_RIG, write_box_stage
 
     from lfusd.render.job import RenderRequest, render
 

@@ -8,27 +8,13 @@ import re
 import shutil
 
 import pytest
-from scenes import write_box_stage
+from support.scenes import write_box_stage
 
 from lfusd.cli import main
-from lfusd.rig import RigSpec
-from lfusd.stageio import open_stage
-from lfusd.usdrig import rigs
-
-
-def run_cli(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
-
-
-def assert_one_line_error(code: int, err: str, *needles: str) -> None:
-    assert code != 0
-    # --quiet progress logs ("lfusd: 3/9 views, ...") may precede the error line
-    lines = [ln for ln in err.splitlines() if ln.strip() and not re.match(r"lfusd: \d+/\d+ views", ln)]
-    assert len(lines) == 1 and lines[0].startswith("lfusd: error: "), err
-    for n in needles:
-        assert n in lines[0], lines[0]
+from support.cli import assert_one_line_error, run_cli
+from lfusd.camera import RigSpec
+from lfusd.author.stage import open_stage
+from lfusd.author.rigs import rigs
 
 
 @pytest.fixture

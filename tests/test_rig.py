@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from lfusd.errors import LfusdError
-from lfusd.rig import RigSpec, grid_offset, parse_grid, parse_point, parse_resolution
-from lfusd.stageio import new_stage
-from lfusd.usdrig import FLIP_YZ, add_rig, rigs, select_rigs
+from lfusd.camera import RigSpec, grid_offset, parse_grid, parse_point, parse_resolution
+from lfusd.author.stage import new_stage
+from lfusd.author.rigs import FLIP_YZ, add_rig, rigs, select_rigs
 
 
 @pytest.mark.parametrize(

@@ -40,8 +40,8 @@ def register(sub) -> None:
 
 
 def run_write_cycles(args) -> int:
-    from ..gait import write_cycle_library
-    from ..human import HumanSpec
+    from ..author.gait import write_cycle_library
+    from ..author.human import HumanSpec
 
     for path in write_cycle_library(args.out, HumanSpec(args.height, args.build)):
         print(f"wrote {path}")
@@ -49,9 +49,9 @@ def run_write_cycles(args) -> int:
 
 
 def run_add_person(args) -> int:
-    from ..animate import add_person, parse_points
-    from ..human import HumanSpec
-    from ..stageio import open_stage
+    from ..author.people import add_person, parse_points
+    from ..author.human import HumanSpec
+    from ..author.stage import open_stage
 
     points = parse_points(args.path)
     speed = args.speed if args.speed is not None else (1.3 if args.gait == "walk" else 3.5)

@@ -17,8 +17,8 @@ def register(sub) -> None:
 
 
 def handler(args) -> int:
-    from ..constraints import Checker, load_rules_file, usd_validation
-    from ..stageio import frame_range, open_stage
+    from ..author.rules import Checker, load_rules_file, usd_validation
+    from ..author.stage import frame_range, open_stage
 
     t0 = time.perf_counter()
     stage = open_stage(args.stage)

@@ -42,7 +42,7 @@ def register(subparsers) -> None:
 
 
 def _load(path: Path, what: str) -> np.ndarray:
-    from .. import formats
+    from ..data import formats
 
     ext = path.suffix.lower()
     try:
@@ -85,8 +85,8 @@ def _companion(path: Path, suffix: str, exts) -> Path | None:
 
 def evaluate(ds, pred_dir, task: str) -> list[dict]:
     """Score every prediction file in ``pred_dir``; one row per (frame, view) with its metrics."""
-    from .. import metrics
-    from ..export import scene_name
+    from ..evaluation import metrics
+    from ..data.export import scene_name
 
     if task not in TASKS:
         raise LfusdError(f"unknown task {task!r}; use one of {', '.join(TASKS)}")
@@ -166,7 +166,7 @@ def print_table(rows: list[dict], task: str) -> None:
 
 
 def run(args) -> int:
-    from ..export import open_dataset
+    from ..data.export import open_dataset
 
     ds = open_dataset(args.gt, args.rig)
     rows = evaluate(ds, args.pred, args.task)

@@ -31,7 +31,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from .. import export as ex
+    from ..data import export as ex
 
     ds = ex.open_dataset(args.out, args.rig)
     kw = {}

@@ -91,6 +91,6 @@ def handler(args) -> int:
 
 def write_view(ds, frame: int, view: tuple[int, int]) -> None:
     """Derive and store one view's motion keys (motion.npz beside its raw passes)."""
-    from ..derive import write_motion
+    from ..truth.derive import write_motion
 
     write_motion(ds, frame, view)

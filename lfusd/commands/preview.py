@@ -17,8 +17,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..export import open_dataset
-    from ..preview import preview
+    from ..data.export import open_dataset
+    from ..evaluation.preview import preview
 
     ds = open_dataset(args.out, args.rig)
     dest = Path(args.dest) if args.dest else Path(args.out) / "preview"

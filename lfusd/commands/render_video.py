@@ -40,9 +40,9 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..render.job import RenderRequest, render
-    from ..rig import parse_resolution
-    from ..stageio import frame_range, open_stage
-    from ..usdrig import select_rigs
+    from ..camera import parse_resolution
+    from ..author.stage import frame_range, open_stage
+    from ..author.rigs import select_rigs
 
     if args.workers < 1:
         raise LfusdError(f"--workers must be a positive integer, got {args.workers}")
@@ -57,7 +57,7 @@ def run(args) -> int:
         overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address, motion=True,
     )
     manifest = render(req)
-    from ..derive import derive_dataset
+    from ..truth.derive import derive_dataset
 
     # The rigs of this request only: the folder may also hold rigs rendered earlier.
     names = [r.spec.name for r in select_rigs(stage, args.rig, args.stage)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import LfusdError
-from ..rig import AXES, LAYOUTS, SPACINGS, RigSpec, parse_grid, parse_point, parse_resolution
+from ..camera import AXES, LAYOUTS, SPACINGS, RigSpec, parse_grid, parse_point, parse_resolution
 
 
 def register(sub) -> None:
@@ -30,8 +30,8 @@ def register(sub) -> None:
 
 
 def run_add(args) -> int:
-    from ..stageio import open_stage
-    from ..usdrig import add_rig
+    from ..author.stage import open_stage
+    from ..author.rigs import add_rig
 
     rows, cols = parse_grid(args.grid)
     width, height = parse_resolution(args.resolution)

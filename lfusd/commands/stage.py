@@ -18,7 +18,7 @@ def _pair(text: str, what: str) -> tuple[int, int]:
 
 
 def register(sub) -> None:
-    from ..scenes import TEMPLATES
+    from ..author.scenes import TEMPLATES
 
     p = sub.add_parser("stage", help="generate scene stages from templates")
     ssub = p.add_subparsers(dest="stage_command", metavar="ACTION")
@@ -40,7 +40,7 @@ def register(sub) -> None:
 
 
 def new_handler(args) -> int:
-    from ..scenes import generate
+    from ..author.scenes import generate
 
     t0 = time.perf_counter()
     grid = _pair(args.grid, "--grid")

@@ -20,9 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def parse_thresholds(items: list[str] | None) -> dict[str, float]:
-    """['flow_fwd=0.1'] -> {'flow_fwd': 0.1}; keys are those of lfusd.verify.THRESHOLDS."""
+    """['flow_fwd=0.1'] -> {'flow_fwd': 0.1}; keys are those of lfusd.truth.verify.THRESHOLDS."""
     from ..errors import LfusdError
-    from ..verify import THRESHOLDS
+    from ..truth.verify import THRESHOLDS
 
     out = {}
     for it in items or []:
@@ -37,7 +37,7 @@ def parse_thresholds(items: list[str] | None) -> dict[str, float]:
 
 
 def handler(args) -> int:
-    from ..verify import verify_dataset
+    from ..truth.verify import verify_dataset
 
     thresholds = parse_thresholds(getattr(args, "threshold", None))
     ok = True

@@ -19,11 +19,11 @@ from pathlib import Path
 from pxr import Usd, UsdLux
 
 from ..errors import LfusdError
-from ..formats import write_png
-from ..labels import ObjectEntry
-from ..passes import linear_to_srgb8, read_rgb_linear
-from ..stageio import frame_range
-from ..usdrig import StageRig
+from ..data.formats import write_png
+from ..author.labels import ObjectEntry
+from ..data.passes import linear_to_srgb8, read_rgb_linear
+from ..author.stage import frame_range
+from ..author.rigs import StageRig
 from .job import RenderRequest, _Plan, frame_dir, view_key
 
 

@@ -33,10 +33,10 @@ from pxr import Usd, UsdGeom
 
 from .. import __version__
 from ..errors import LfusdError
-from ..labels import ObjectEntry, object_table
-from ..stageio import check_frames, file_hash, frame_range, open_stage
-from ..rig import RigSpec
-from ..usdrig import StageRig, select_rigs
+from ..author.labels import ObjectEntry, object_table
+from ..author.stage import check_frames, file_hash, frame_range, open_stage
+from ..camera import RigSpec
+from ..author.rigs import StageRig, select_rigs
 
 FORMAT = "lfusd-dataset"
 FORMAT_VERSION = 1

@@ -1,0 +1,1 @@
+"""Stage authoring with pxr: stages, vocabulary, labels, rigs, rules, people, scenes."""

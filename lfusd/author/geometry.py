@@ -1,0 +1,142 @@
+"""World-space triangle meshes of a stage at a time code, built with pxr alone (no Blender).
+
+This is the independent geometry that constraint checks and ground-truth verification use:
+mesh points (skinned with UsdSkel where bound to a skeleton) transformed to world space in
+metres and triangulated. Cubes are meshed exactly; other implicit shapes are refused, since
+Blender tessellates them in its own way (author them as meshes).
+
+Skinning follows UsdSkel's linear blend skinning: ``UsdSkel.SkinningQuery.ComputeSkinnedPoints``
+gives points in the skeleton's space (the mesh's geomBindTransform already applied, the mesh's
+own transform ignored), and the skeleton's local-to-world transform takes them to world space.
+Rigidly deformed meshes (constant joint influences) use ``ComputeSkinnedTransform``. Blend
+shapes are not applied (lfusd refuses meshes that have them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pxr import Usd, UsdGeom, UsdSkel, Vt
+
+from ..errors import LfusdError
+from .labels import renderable_gprims
+
+_CUBE_FACES = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
+
+
+@dataclass
+class WorldMesh:
+    """One gprim at one time: world-space vertices (N,3, metres) and triangles (M,3) into them."""
+
+    prim_path: str
+    vertices: np.ndarray
+    triangles: np.ndarray
+
+
+def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """Fan-triangulate polygons given USD faceVertexCounts / faceVertexIndices."""
+    counts = np.asarray(counts, dtype=np.int64)
+    indices = np.asarray(indices, dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    tris = []
+    for k in range(1, int(counts.max(initial=0)) - 1):
+        sel = counts > k + 1
+        s = starts[sel]
+        tris.append(np.stack([indices[s], indices[s + k], indices[s + k + 1]], axis=1))
+    if not tris:
+        return np.zeros((0, 3), dtype=np.int64)
+    # Keep each polygon's triangles together, in face order, for stable triangle ids.
+    tri = np.concatenate(tris)
+    face = np.concatenate([np.nonzero(counts > k + 1)[0] for k in range(1, int(counts.max()) - 1)])
+    return tri[np.argsort(face, kind="stable")]
+
+
+def _to_world(points: np.ndarray, matrix, scale: float = 1.0) -> np.ndarray:
+    m = np.array(matrix, dtype=np.float64)  # USD: row vectors, p_world = p @ M
+    return (points @ m[:3, :3] + m[3, :3]) * scale
+
+
+class StageGeometry:
+    """Evaluates every renderable gprim of a stage at any time code (caches skeleton bindings)."""
+
+    def __init__(self, stage: Usd.Stage):
+        self.stage = stage
+        self.meters_per_unit = float(UsdGeom.GetStageMetersPerUnit(stage))
+        self.gprims = renderable_gprims(stage)
+        self._skel_cache = UsdSkel.Cache()
+        self._skinning: dict[str, tuple[UsdSkel.SkinningQuery, UsdSkel.SkeletonQuery]] = {}
+        for root in (p for p in stage.Traverse() if p.IsA(UsdSkel.Root)):
+            self._skel_cache.Populate(UsdSkel.Root(root), Usd.TraverseInstanceProxies())
+            for binding in self._skel_cache.ComputeSkelBindings(UsdSkel.Root(root), Usd.TraverseInstanceProxies()):
+                skel_query = self._skel_cache.GetSkelQuery(binding.GetSkeleton())
+                for target in binding.GetSkinningTargets():
+                    self._skinning[str(target.GetPrim().GetPath())] = (target, skel_query)
+
+    def is_skinned(self, prim_path: str) -> bool:
+        """True when the gprim is deformed by a UsdSkel skeleton."""
+        return prim_path in self._skinning
+
+    def mesh(self, prim: Usd.Prim, time: float) -> WorldMesh:
+        """World-space mesh of one gprim at ``time``."""
+        t = Usd.TimeCode(time)
+        path = str(prim.GetPath())
+        mpu = self.meters_per_unit
+        xf = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t)
+        if prim.IsA(UsdGeom.Mesh):
+            mesh = UsdGeom.Mesh(prim)
+            pts = mesh.GetPointsAttr().Get(t)
+            if pts is None:
+                raise LfusdError(f"mesh {path} has no points; author its points attribute")
+            pts = np.array(pts, dtype=np.float64)
+            tris = triangulate(mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t))
+            if path in self._skinning:
+                return WorldMesh(path, self._skinned(path, pts, t, time), tris)
+            return WorldMesh(path, _to_world(pts, xf, mpu), tris)
+        if prim.IsA(UsdGeom.Cube):
+            size = UsdGeom.Cube(prim).GetSizeAttr().Get(t)
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * (size / 2.0)
+            tris = triangulate(np.full(6, 4), _CUBE_FACES.ravel())
+            return WorldMesh(path, _to_world(corners, xf, mpu), tris)
+        raise LfusdError(
+            f"prim {path} is a {prim.GetTypeName()}; lfusd needs Mesh or Cube geometry (Blender tessellates other "
+            "implicit shapes its own way): convert it to a Mesh"
+        )
+
+    def _skinned(self, path: str, pts: np.ndarray, t: Usd.TimeCode, time: float) -> np.ndarray:
+        skin, skel_query = self._skinning[path]
+        if skin.HasBlendShapes():
+            raise LfusdError(f"mesh {path} has UsdSkel blend shapes, which lfusd does not evaluate; bake them into its points")
+        xforms = skel_query.ComputeSkinningTransforms(t)
+        if skin.IsRigidlyDeformed():
+            # Constant influences: one rigid skel-space transform for the whole mesh.
+            m = skin.ComputeSkinnedTransform(xforms, t)
+            if m is None:
+                raise LfusdError(f"UsdSkel could not skin {path} at frame {time:g}; check its joint indices and weights")
+            skel_pts = _to_world(pts, m)
+        else:
+            points = Vt.Vec3fArray.FromNumpy(pts.astype(np.float32))
+            if not skin.ComputeSkinnedPoints(xforms, points, t):
+                raise LfusdError(f"UsdSkel could not skin {path} at frame {time:g}; check its joint indices and weights")
+            skel_pts = np.array(points, dtype=np.float64)
+        # Skinned points are in the skeleton's space; the skeleton's world transform applies.
+        skel_xf = UsdGeom.Xformable(skel_query.GetPrim()).ComputeLocalToWorldTransform(t)
+        return _to_world(skel_pts, skel_xf, self.meters_per_unit)
+
+    def visible(self, prim: Usd.Prim, time: float) -> bool:
+        """False when the gprim (or an ancestor) is authored invisible at ``time``: Blender does not render it."""
+        return UsdGeom.Imageable(prim).ComputeVisibility(Usd.TimeCode(time)) != UsdGeom.Tokens.invisible
+
+    def meshes(self, time: float) -> list[WorldMesh]:
+        """Every renderable gprim at ``time``."""
+        return [self.mesh(p, time) for p in self.gprims]
+
+
+def local_to_world(stage: Usd.Stage, prim_path: str, time: float) -> np.ndarray:
+    """4x4 column-vector local-to-world matrix of a prim at ``time``, translation in metres."""
+    m = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(prim_path)).ComputeLocalToWorldTransform(Usd.TimeCode(time)), float).T
+    m[:3, 3] *= float(UsdGeom.GetStageMetersPerUnit(stage))
+    return m
+
+
+__all__ = ["StageGeometry", "WorldMesh", "triangulate", "local_to_world"]

@@ -1,0 +1,375 @@
+"""Putting people on a stage: a walking or running person along a path over supporting surfaces.
+
+The path (X,Y points in stage units) has its corners rounded with circular fillets, so the
+person turns smoothly; the person's root follows the path from ``start``, speeding up from rest
+to the given speed and slowing to a stop at the path's end (standing at the first point before,
+at the last point after); its height is the supporting surface under it found by ray casting
+down (Open3D) onto labelled support surfaces (lfusd.author.geometry.StageGeometry meshes), and its
+limbs come from lfusd.author.gait with feet planted on those surfaces. Support and water classes come
+from the rulebook's ``person`` rule (lfusd.author.rules). A path whose person would be over
+water, or over no support at all, at some frame is refused naming that frame; the finished
+person is checked with the rulebook at every frame.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdSkel
+
+from . import gait as _gait
+from . import human as _human
+from ..errors import LfusdError
+from .geometry import StageGeometry
+from .labels import class_label, labelled_ancestor, set_class_label
+from .stage import frame_range, meters_per_unit
+
+# Classes a person may stand on and classes that are water, when no rulebook is available.
+SUPPORT_CLASSES = ("road", "pavement", "sidewalk", "ground", "grass", "floor", "bridge", "stairs", "terrain", "dirt")
+WATER_CLASSES = ("water", "river", "lake", "sea")
+PEOPLE_SCOPE = "/World/People"
+FILLET_RADIUS = 1.0  # metres: how tight a person turns at a path corner
+
+
+def parse_points(texts: list[str]) -> np.ndarray:
+    """Parse ``['X,Y', ...]`` into an (N, 2) array; refuses fewer than two points."""
+    pts = []
+    for t in texts:
+        parts = t.replace(" ", "").split(",")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            pts.append((float(parts[0]), float(parts[1])))
+        except ValueError:
+            raise LfusdError(f"path point {t!r} is not X,Y; write points like 0,0 4.5,2") from None
+    return check_points(pts)
+
+
+def check_points(points) -> np.ndarray:
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2) if len(points) else np.zeros((0, 2))
+    if len(pts) < 2:
+        raise LfusdError(f"a path needs at least two points, got {len(pts)}; give --path X,Y X,Y ...")
+    if not np.all(np.isfinite(pts)):
+        raise LfusdError("path points must be finite numbers; fix the --path values")
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-6])
+    pts = pts[keep]
+    if len(pts) < 2:
+        raise LfusdError("the path's points are all the same; give at least two distinct points")
+    return pts
+
+
+class SmoothPath:
+    """A polyline with corners rounded by circular fillets, parametrised by arc length."""
+
+    def __init__(self, points: np.ndarray, radius: float = FILLET_RADIUS, step: float = 0.02):
+        pts = np.asarray(points, float)
+        dense = [pts[0]]
+        for i in range(1, len(pts) - 1):
+            a, b, c = pts[i - 1], pts[i], pts[i + 1]
+            d1, d2 = (b - a) / np.linalg.norm(b - a), (c - b) / np.linalg.norm(c - b)
+            turn = np.arctan2(d1[0] * d2[1] - d1[1] * d2[0], d1 @ d2)
+            if abs(turn) < 1e-6:
+                dense.append(b)
+                continue
+            t = min(radius * np.tan(abs(turn) / 2), 0.5 * np.linalg.norm(b - a), 0.5 * np.linalg.norm(c - b))
+            r = t / np.tan(abs(turn) / 2)
+            p0 = b - d1 * t
+            normal = np.array([-d1[1], d1[0]]) * np.sign(turn)  # towards the arc's centre
+            centre = p0 + normal * r
+            a0 = np.arctan2(*(p0 - centre)[::-1])
+            n = max(2, int(np.ceil(abs(turn) * r / step)) + 1)
+            ang = a0 + np.sign(turn) * np.linspace(0, abs(turn), n)
+            dense.extend(centre + r * np.column_stack([np.cos(ang), np.sin(ang)]))
+        dense.append(pts[-1])
+        dense = np.array(dense)
+        # Resample straight runs too, so headings interpolate smoothly everywhere.
+        seg = np.linalg.norm(np.diff(dense, axis=0), axis=1)
+        keep = np.concatenate([[True], seg > 1e-9])
+        dense = dense[keep]
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+        self.length = float(s[-1])
+        self.s = np.linspace(0.0, self.length, max(2, int(np.ceil(self.length / step)) + 1))
+        self.xy = np.column_stack([np.interp(self.s, s, dense[:, 0]), np.interp(self.s, s, dense[:, 1])])
+        d = np.gradient(self.xy, self.s, axis=0)
+        self.heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+
+    def at(self, s) -> tuple[np.ndarray, np.ndarray]:
+        """(xy (N, 2), heading (N,)) at arc lengths ``s``; straight-line extrapolation beyond the ends."""
+        s = np.atleast_1d(np.asarray(s, float))
+        xy = np.column_stack([np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])])
+        h = np.interp(s, self.s, self.heading)
+        for mask, s0, hh in ((s < 0, 0.0, self.heading[0]), (s > self.length, self.length, self.heading[-1])):
+            if mask.any():
+                xy[mask] += np.outer(s[mask] - s0, [np.cos(hh), np.sin(hh)])
+        return xy, h
+
+
+class SupportSurfaces:
+    """Ray casting down onto a stage's labelled support and water surfaces at one time."""
+
+    def __init__(self, stage: Usd.Stage, time: float, support=SUPPORT_CLASSES, water=WATER_CLASSES,
+                 geometry: StageGeometry | None = None):
+        import open3d as o3d
+
+        geometry = geometry or StageGeometry(stage)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.info: list[tuple[str, str]] = []
+        self.top = -np.inf
+        wanted = set(support) | set(water)
+        self.water = set(water)
+        for prim in geometry.gprims:
+            owner = labelled_ancestor(prim)
+            label = class_label(owner) if owner else ""
+            if label not in wanted:
+                continue
+            m = geometry.mesh(prim, time)
+            if len(m.triangles) == 0:
+                continue
+            self.scene.add_triangles(m.vertices.astype(np.float32), m.triangles.astype(np.uint32))
+            self.info.append((str(owner.GetPath()), label))
+            self.top = max(self.top, float(m.vertices[:, 2].max()))
+        if not self.info:
+            raise LfusdError(
+                "the stage has no surfaces labelled as support (" + ", ".join(support) + "); "
+                "label its ground prims with lfusd.author.labels.set_class_label"
+            )
+
+    def cast(self, xy: np.ndarray) -> tuple[np.ndarray, list[tuple[str, str] | None]]:
+        """Height of the topmost support/water surface under each (x, y), NaN where none, and its owner."""
+        import open3d as o3d
+
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        rays = np.zeros((len(xy), 6), np.float32)
+        rays[:, :2] = xy
+        rays[:, 2] = self.top + 1.0
+        rays[:, 5] = -1.0
+        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        t = ans["t_hit"].numpy().astype(np.float64)
+        gid = ans["geometry_ids"].numpy()
+        z = np.where(np.isfinite(t), self.top + 1.0 - t, np.nan)
+        owners = [self.info[g] if np.isfinite(tt) else None for g, tt in zip(gid, t)]
+        return z, owners
+
+    def ground(self, xy: np.ndarray) -> np.ndarray:
+        """Surface height under each point; where there is none, the nearest point's that has one."""
+        z, _ = self.cast(xy)
+        bad = ~np.isfinite(z)
+        if bad.all():
+            return np.zeros(len(z))
+        if bad.any():
+            good = np.nonzero(~bad)[0]
+            nearest = good[np.argmin(np.abs(np.nonzero(bad)[0][:, None] - good[None]), axis=1)]
+            z[bad] = z[nearest]
+        return z
+
+
+def person_surfaces(stage: Usd.Stage) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(classes a person stands on, classes it must never stand on): the rulebook's ``person``
+    rule (default rulebook, overridden by the stage's class rules), else lfusd's defaults."""
+    try:
+        from . import rules as constraints
+    except ImportError:  # the rulebook is optional for placement
+        return SUPPORT_CLASSES, WATER_CLASSES
+    rules = dict(constraints.DEFAULT_RULES.get("person", {}))
+    rules.update(constraints.stage_class_rules(stage).get("person", {}))
+    return tuple(rules.get("on") or SUPPORT_CLASSES), tuple(rules.get("not_on") or WATER_CLASSES)
+
+
+def _flight_gap(stage: Usd.Stage, prim: Usd.Prim, frames: np.ndarray, surfaces: "SupportSurfaces") -> float:
+    """Largest height of the person's lowest point above the surface under it (a run's flight)."""
+    geo = StageGeometry(stage)
+    mine = [g for g in geo.gprims if g.GetPath().HasPrefix(prim.GetPath())]
+    gap = 0.0
+    for f in frames:
+        v = np.concatenate([geo.mesh(g, float(f)).vertices for g in mine])
+        low = v[np.argmin(v[:, 2])]
+        z, _ = surfaces.cast(low[None, :2])
+        if np.isfinite(z[0]):
+            gap = max(gap, float(low[2] - z[0]))
+    return gap
+
+
+def _rulebook_violations(stage: Usd.Stage, prim: Usd.Prim) -> list[str]:
+    """Lines of the rulebook's violations (every frame) that concern ``prim``; [] without a rulebook."""
+    try:
+        from .rules import Checker
+    except ImportError:
+        return []
+    me = str(prim.GetPath())
+    return [v.line() for v in Checker(stage).check() if v.prim_path == me or me in v.detail]
+
+
+def _character_transform(char_stage: Usd.Stage, skel: UsdSkel.Skeleton, root: Usd.Prim, target_mpu: float):
+    """(K, C): K maps the character file's world into the character frame (Z up, +Y forward,
+    target units); C maps the skeleton's space into the character frame."""
+    scale = meters_per_unit(char_stage) / target_mpu
+    K = np.diag([scale, scale, scale, 1.0])
+    if UsdGeom.GetStageUpAxis(char_stage) == UsdGeom.Tokens.y:
+        K = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]]) @ K  # +Y up -> +Z up
+    cache = UsdGeom.XformCache()
+    parent_world = np.array(cache.GetParentToWorldTransform(root)).T
+    skel_world = np.array(cache.GetLocalToWorldTransform(skel.GetPrim())).T
+    C = K @ np.linalg.inv(parent_world) @ skel_world
+    # Face +Y: the character's forward is where its toes point (or, without toes, +Y).
+    rig = _gait.rig_from_skeleton(skel, C)
+    fwd = np.zeros(2)
+    for side in "lr":
+        if f"{side}_toe" in rig.roles:
+            fwd += (rig.pos(f"{side}_toe") - rig.pos(f"{side}_ankle"))[:2]
+    if np.linalg.norm(fwd) > 1e-9:
+        yaw = np.pi / 2 - np.arctan2(fwd[1], fwd[0])
+        Rz = np.eye(4)
+        Rz[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+        K, C = Rz @ K, Rz @ C
+    return K, C
+
+
+def _open_character(character: str | Path):
+    """(stage, skeleton, SkelRoot prim) of a user's character file, or a one-line LfusdError."""
+    cpath = Path(character)
+    if not cpath.is_file():
+        raise LfusdError(f"character {cpath} does not exist; give the path of a UsdSkel .usd/.usda/.usdc file")
+    try:
+        cstage = Usd.Stage.Open(str(cpath.resolve()))
+    except Exception:
+        cstage = None
+    if cstage is None:
+        raise LfusdError(f"character {cpath} is not a readable USD file; fix or re-export it")
+    skels = [p for p in cstage.Traverse() if p.IsA(UsdSkel.Skeleton)]
+    if not skels:
+        raise LfusdError(f"character {cpath} has no UsdSkel Skeleton; give a file with a SkelRoot, a Skeleton and a skinned mesh")
+    skel = UsdSkel.Skeleton(skels[0])
+    root = UsdSkel.Root.Find(skel.GetPrim())
+    if not root:
+        raise LfusdError(f"character {cpath}'s skeleton {skel.GetPath()} is not under a SkelRoot; wrap it in one")
+    return cstage, skel, root.GetPrim()
+
+
+def _load_character(stage: Usd.Stage, prim: Usd.Prim, character: str | Path):
+    """Reference a user's UsdSkel character at ``prim``; return (rig, skeleton path, K @ root local)."""
+    cpath = Path(character)
+    cstage, skel, root = _open_character(character)
+    K, C = _character_transform(cstage, skel, root, meters_per_unit(stage))
+    rig = _gait.rig_from_skeleton(skel, C)
+    asset = str(cpath.resolve())
+    layer_path = stage.GetRootLayer().realPath
+    if layer_path:  # relative, so the stage and its character can move together
+        asset = os.path.relpath(asset, os.path.dirname(layer_path))
+        asset = asset if asset.startswith(".") else "./" + asset
+    prim.GetReferences().AddReference(asset, root.GetPath())
+    root_local = np.array(UsdGeom.Xformable(root).GetLocalTransformation(Usd.TimeCode.Default())).T
+    rel = skel.GetPath().MakeRelativePath(root.GetPath())
+    return rig, prim.GetPath().AppendPath(rel), K @ root_local
+
+
+def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
+    i = 0
+    while stage.GetPrimAtPath(f"{PEOPLE_SCOPE}/Person_{i:02d}"):
+        i += 1
+    return Sdf.Path(f"{PEOPLE_SCOPE}/Person_{i:02d}")
+
+
+def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3, start: int | None = None,
+               character: str | Path | None = None, spec: _human.HumanSpec = _human.HumanSpec(),
+               path: str | None = None, support=None, water=None, check: bool = True) -> Usd.Prim:
+    """Add a person walking/running along ``points`` (X,Y) from frame ``start``; returns its prim.
+
+    ``gait="idle"`` makes a person who stands (breathing, shifting weight) at the first point,
+    facing the second.
+
+    Refuses (LfusdError) a path with fewer than two points, a speed <= 0, a start frame outside
+    the stage's range, a character without a skeleton, and a path on which the person would be
+    over water or over no support at some frame (naming the first such frame). Support and water
+    classes default to the rulebook's ``person`` rule. With ``check``, the finished person is
+    checked with the rulebook (lfusd.author.rules) at every frame and removed again if it breaks
+    a rule; a run's flight phase is allowed by authoring the person's support ``tolerance``.
+    """
+    default_support, default_water = person_surfaces(stage)
+    support = tuple(support) if support is not None else default_support
+    water = tuple(water) if water is not None else default_water
+    pts = check_points(points)
+    if abs(meters_per_unit(stage) - 1.0) > 1e-9:
+        raise LfusdError(
+            f"the stage's metersPerUnit is {meters_per_unit(stage):g}; lfusd animate needs a stage in metres "
+            "(metersPerUnit = 1): convert it or reference it from a metre stage"
+        )
+    first, last = frame_range(stage)
+    start = first if start is None else int(start)
+    if not first <= start <= last:
+        raise LfusdError(f"start frame {start} is outside the stage's range {first}-{last}; pick a frame in {first}-{last}")
+    if gait not in ("walk", "run", "idle"):
+        raise LfusdError(f"unknown gait {gait!r}; use walk, run or idle")
+    if gait != "idle" and not speed > 0:
+        raise LfusdError(f"speed {speed:g} m/s is not positive; give a {gait} speed > 0 m/s")
+    if character is not None:
+        _open_character(character)  # refuse a bad character file before any other work
+    fps = stage.GetTimeCodesPerSecond() or _gait.FPS
+    frames = np.arange(first, last + 1)
+
+    route = SmoothPath(pts)
+    surfaces = SupportSurfaces(stage, float(start), support, water)
+    if gait == "walk" and speed > _gait._SPEED_LIMITS["walk"] or speed > _gait._SPEED_LIMITS["run"]:
+        _gait.gait_params(gait, speed)  # raises the one-line error for too high a speed
+    if gait == "idle":  # standing at the first point, facing along the path
+        dist = np.zeros(len(frames))
+    else:
+        dist, _, _ = _gait.journey(gait, speed, route.length, spec.height, frames, start, fps)
+    # Refuse before authoring anything: the person's root must be over support at every frame.
+    z, owners = surfaces.cast(route.at(dist)[0])
+    for f, zz, own in zip(frames, z, owners):
+        if own is None:
+            x, y = route.at(dist[frames == f])[0][0]
+            raise LfusdError(
+                f"person path leaves the supporting surfaces at frame {f} (nothing labelled "
+                f"{'/'.join(support[:4])}... under {x:.2f},{y:.2f}); keep the path on the ground"
+            )
+        if own[1] in surfaces.water:
+            raise LfusdError(
+                f"person path crosses water ({own[0]}, class {own[1]}) at frame {f}; route the path over a bridge or around it"
+            )
+
+    prim_path = Sdf.Path(path) if path else _next_person_path(stage)
+    if not stage.GetPrimAtPath(PEOPLE_SCOPE) and str(prim_path).startswith(PEOPLE_SCOPE + "/"):
+        UsdGeom.Scope.Define(stage, PEOPLE_SCOPE)
+    if character is not None:
+        prim = stage.DefinePrim(prim_path)
+        rig, skel_path, post = _load_character(stage, prim, character)
+        set_class_label(prim, "person")
+    else:
+        prim = _human.define_human(stage, prim_path, spec).GetPrim()
+        rig, skel_path, post = _gait.human_rig(spec), prim_path.AppendChild(_human.SKELETON_NAME), None
+
+    params = _gait.gait_params(gait, speed, rig.height)
+    table = None
+    if gait != "idle":
+        dist, table, _ = _gait.journey(gait, speed, route.length, rig.height, frames, start, fps)
+    traj = _gait.Trajectory(frames, dist, route.at, surfaces.ground, table)
+    motion = _gait.bake(rig, params, traj, fps)
+    _gait.write_motion(stage, skel_path, rig, motion, prim, post)
+    try:
+        from .rules import DEFAULT_TOLERANCE, set_constraint
+    except ImportError:
+        DEFAULT_TOLERANCE, set_constraint = None, None
+    if set_constraint is not None and gait == "run":
+        gap = _flight_gap(stage, prim, frames, surfaces)
+        if gap > DEFAULT_TOLERANCE:
+            # Both feet leave the ground in a run: allow that height, rounded up to a centimetre.
+            set_constraint(prim, "tolerance", float(np.ceil(gap * 100 + 1) / 100))
+    if check:
+        bad = _rulebook_violations(stage, prim)
+        if bad:
+            stage.RemovePrim(prim.GetPath())
+            raise LfusdError(f"the person would break the stage's rules ({bad[0]}); change the path or start frame")
+    return prim
+
+
+def add_person_to_file(stage_path: str | Path, points, **kwargs) -> str:
+    """Open ``stage_path``, add a person (see add_person), save; returns the person's prim path."""
+    from .stage import open_stage
+
+    stage = open_stage(stage_path)
+    prim = add_person(stage, points, **kwargs)
+    stage.GetRootLayer().Save()
+    return str(prim.GetPath())

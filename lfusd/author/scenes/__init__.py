@@ -1,0 +1,196 @@
+"""The scene library: deterministic, constraint-aware stage templates (street, river, room, mixed).
+
+``generate(template, path, seed)`` writes a stage whose every labelled object satisfies the
+stage's rules by construction: objects are sampled only where their support surface lies
+(the surface's height is known analytically) and where their footprint is free, never moved
+after a failed check. Randomness comes from one ``numpy.random.Generator`` seeded with
+(seed, template index), and every double is written rounded to 1e-9 (``stageio.round_layer``), so
+the mapping seed -> stage file is byte-identical on every run and CPU.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom
+
+from ...errors import LfusdError
+from ...camera import RigSpec
+from ..stage import new_stage, round_layer
+from ..rigs import add_rig
+from .build import Builder, MeshData
+
+TEMPLATES = ("street", "river", "room", "mixed")
+
+# Rules the templates add to the default rulebook (stored in each stage as lfusd:rule:* attributes).
+TEMPLATE_RULES: dict[str, dict[str, list[str]]] = {
+    "building": {"on": ["grass", "ground", "sidewalk", "pavement", "dirt"]},
+    "tree": {"on": ["grass", "ground", "dirt"]},
+    "street_light": {"on": ["sidewalk", "pavement"]},
+    "bench": {"on": ["grass", "ground", "sidewalk", "pavement", "dirt"]},
+    "table": {"on": ["floor"]},
+    "chair": {"on": ["floor"]},
+    "cabinet": {"on": ["floor"]},
+    "lamp": {"on": ["floor", "table"]},
+    "bowl": {"on": ["table"]},
+    "wall": {"on": ["floor"]},
+    # Static things must not interpenetrate either (the default rulebook only covers dynamic ones).
+    "any": {"no_interpenetration": ["any"]},
+}
+
+GAP = 0.001  # objects rest 1 mm above their support: no coplanar contact faces
+
+
+@dataclass
+class Placed:
+    """An authored object's world axis-aligned box, for free-space tests."""
+
+    path: str
+    lo: np.ndarray
+    hi: np.ndarray
+
+
+@dataclass
+class Scene:
+    """The state of one template run: builder, random generator, occupancy, camera targets."""
+
+    builder: Builder
+    rng: np.random.Generator
+    placed: list[Placed] = field(default_factory=list)
+    counters: dict[str, int] = field(default_factory=dict)
+    bounds: tuple[tuple[float, float], tuple[float, float]] = ((-30.0, -30.0), (30.0, 30.0))
+
+    @property
+    def stage(self) -> Usd.Stage:
+        return self.builder.stage
+
+    def name(self, base: str) -> str:
+        """``/World/<Base>_NN`` numbered in creation order (deterministic)."""
+        n = self.counters.get(base, 0)
+        self.counters[base] = n + 1
+        return f"/World/{base}_{n:02d}"
+
+    def add(self, path: str, label: str | None, parts: list[tuple[str, MeshData, str]], pos=(0.0, 0.0, 0.0),
+            yaw_deg: float = 0.0, roughness: dict | None = None, track: bool = True) -> str:
+        """Author an object from named mesh parts (local coordinates) at ``pos`` turned ``yaw_deg``."""
+        self.builder.obj(path, label, pos, yaw_deg)
+        for part, data, texture in parts:
+            r = (roughness or {}).get(part, 0.7)
+            self.builder.mesh(f"{path}/{part}", data, texture, roughness=r, metallic=0.6 if part == "body" and label == "car" else 0.0)
+        if track:
+            lo, hi = world_box([d for _, d, _ in parts], pos, yaw_deg)
+            self.placed.append(Placed(path, lo, hi))
+        return path
+
+    def free(self, lo, hi, margin: float = 0.05, ignore: tuple[str, ...] = ()) -> bool:
+        """True when the box [lo, hi] (grown by ``margin``) meets no placed object's box."""
+        lo, hi = np.asarray(lo) - margin, np.asarray(hi) + margin
+        for p in self.placed:
+            if p.path in ignore:
+                continue
+            if np.all(lo < p.hi) and np.all(hi > p.lo):
+                return False
+        return True
+
+    def place(self, parts: list[tuple[str, MeshData, str]], region, z: float, yaw_choices=None, tries: int = 60,
+              margin: float = 0.1, ignore: tuple[str, ...] = ()) -> tuple[tuple[float, float, float], float] | None:
+        """Sample a pose whose footprint lies inside ``region`` ((x0, y0), (x1, y1)) at base height ``z``
+        and meets no placed object; None when none of ``tries`` samples is free."""
+        datas = [d for _, d, _ in parts]
+        (x0, y0), (x1, y1) = region
+        for _ in range(tries):
+            yaw = float(self.rng.choice(yaw_choices)) if yaw_choices is not None else float(self.rng.uniform(0, 360))
+            lo, hi = world_box(datas, (0.0, 0.0, z), yaw)
+            if hi[0] - lo[0] > x1 - x0 or hi[1] - lo[1] > y1 - y0:
+                continue
+            # sample the object's origin so that its whole footprint stays inside the region
+            x = float(self.rng.uniform(x0 - lo[0], x1 - hi[0]))
+            y = float(self.rng.uniform(y0 - lo[1], y1 - hi[1]))
+            if self.free(lo + [x, y, 0], hi + [x, y, 0], margin, ignore):
+                return (x, y, z), yaw
+        return None
+
+
+def world_box(datas: list[MeshData], pos, yaw_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """World axis-aligned bounds of mesh parts under translate(pos) * rotateZ(yaw)."""
+    pts = np.concatenate([np.asarray(d.points, float) for d in datas])
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    w = pts @ rot.T + np.asarray(pos, float)
+    return w.min(0), w.max(0)
+
+
+def author_rules(stage: Usd.Stage, rules: dict[str, dict[str, list[str]]]) -> None:
+    """Store class rules on the default prim as ``lfusd:rule:<class>:<kind>`` token arrays."""
+    prim = stage.GetDefaultPrim()
+    for cls in sorted(rules):
+        for kind in sorted(rules[cls]):
+            prim.CreateAttribute(f"lfusd:rule:{cls}:{kind}", Sdf.ValueTypeNames.TokenArray, custom=True).Set(list(rules[cls][kind]))
+
+
+def add_rigs(scene: Scene, count: int, sample_position, look_at, spec_kwargs: dict, tries: int = 200) -> None:
+    """Add ``rig_00``... placements: each at a sampled free position looking at ``look_at(rng)``."""
+    half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
+    for i in range(count):
+        for _ in range(tries):
+            at = np.asarray(sample_position(scene.rng), float)
+            target = np.asarray(look_at(scene.rng), float)
+            dist = float(np.linalg.norm(target - at))
+            if dist < 2.0:
+                continue
+            # the rig's own box is free, and so is the first 2.5 m of its line of sight
+            ahead = [at + (target - at) * (s / dist) for s in np.arange(half, min(2.5, dist - 1.2), 0.25)]
+            if scene.free(at - half, at + half, margin=0.0) and all(scene.free(p - 0.3, p + 0.3, margin=0.0) for p in ahead):
+                break
+        else:
+            raise LfusdError(f"found no free spot for rig_{i:02d}; use fewer --rigs")
+        add_rig(scene.stage, RigSpec(name=f"rig_{i:02d}", at=tuple(float(v) for v in at),
+                                     look_at=tuple(float(v) for v in target), **spec_kwargs))
+
+
+def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs: int = 10,
+             grid: tuple[int, int] = (9, 9), resolution: tuple[int, int] = (1024, 1024), dynamic: bool = False) -> Usd.Stage:
+    """Write the stage of ``template`` with ``seed`` to ``path`` (textures into ``path``'s textures/).
+
+    ``dynamic``: add walking people and movers over the frame range (lfusd.author.scenes.dynamic)."""
+    if template not in TEMPLATES:
+        raise LfusdError(f"unknown template {template!r}; choose one of: {', '.join(TEMPLATES)}")
+    if frames < 1:
+        raise LfusdError(f"--frames must be at least 1, got {frames}")
+    if not 0 <= rigs <= 10:
+        raise LfusdError(f"--rigs must be between 0 and 10 (rig_00..rig_09), got {rigs}")
+    if seed < 0:
+        raise LfusdError(f"--seed must be a non-negative integer, got {seed}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.exists():
+        path.unlink()  # CreateNew refuses an existing file; regenerating is the intent
+    stage = new_stage(path, 1, frames)
+    UsdGeom.Scope.Define(stage, "/World/Looks")
+    UsdGeom.Xform.Define(stage, "/World/Lights")
+    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), TEMPLATES.index(template)]))
+    from . import mixed, river, room, street  # imported late: they import this module
+
+    module = {"street": street, "river": river, "room": room, "mixed": mixed}[template]
+    info = module.build(scene)
+    if dynamic:
+        from .dynamic import populate
+
+        info.update(populate(scene, template, info, seed, TEMPLATES.index(template)))
+    author_rules(stage, TEMPLATE_RULES)
+    (bx0, by0), (bx1, by1) = scene.bounds
+    world = stage.GetDefaultPrim()
+    world.CreateAttribute("lfusd:bounds", Sdf.ValueTypeNames.Double3Array, custom=True).Set(
+        [Gf.Vec3d(bx0, by0, -100.0), Gf.Vec3d(bx1, by1, 100.0)])
+    world.SetCustomDataByKey("lfusd:template", template)
+    world.SetCustomDataByKey("lfusd:seed", int(seed))
+    if dynamic:
+        world.SetCustomDataByKey("lfusd:dynamic", True)
+    spec_kwargs = dict(rows=grid[0], cols=grid[1], width=resolution[0], height=resolution[1])
+    add_rigs(scene, rigs, info["rig_position"], info["look_at"], spec_kwargs)
+    round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
+    stage.GetRootLayer().Save()
+    return stage

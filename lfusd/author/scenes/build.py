@@ -1,0 +1,296 @@
+"""Authoring helpers shared by the scene templates: meshes, textured materials, lights, objects.
+
+All geometry is UsdGeom.Mesh (boxes, cylinders, tapered shapes) with a face-varying ``st``
+primvar, ``subdivisionScheme = none`` and exact extents, so Blender imports exactly the
+triangles that lfusd's own geometry (lfusd.author.geometry) sees. Materials are UsdPreviewSurface
+with a UsdUVTexture on diffuseColor reading a PNG by a path relative to the stage file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+
+from ..labels import set_class_label
+from .textures import ensure_texture
+
+TEXTURE_DIR = "textures"
+
+
+# -- mesh data ----------------------------------------------------------------------------
+@dataclass
+class MeshData:
+    """Polygons in local coordinates with per-face-vertex UVs (in texture repeats)."""
+
+    points: np.ndarray
+    counts: list[int]
+    indices: list[int]
+    uvs: np.ndarray  # (len(indices), 2)
+
+
+def box(size, centre=(0.0, 0.0, 0.0), tile: float = 1.0) -> MeshData:
+    """Axis-aligned box with outward quads; UVs in metres / ``tile`` so textures keep their scale."""
+    sx, sy, sz = (float(s) / 2 for s in size)
+    c = np.asarray(centre, float)
+    pts = np.array([[x, y, z] for x in (-sx, sx) for y in (-sy, sy) for z in (-sz, sz)]) + c
+    # Faces as (corner indices, u axis, v axis); corner index = 4*ix + 2*iy + iz; every face is
+    # counter-clockwise seen from outside (USD's rightHanded orientation: normals point out).
+    faces = [
+        ([0, 1, 3, 2], 1, 2),  # -x
+        ([4, 6, 7, 5], 1, 2),  # +x
+        ([0, 4, 5, 1], 0, 2),  # -y
+        ([2, 3, 7, 6], 0, 2),  # +y
+        ([0, 2, 6, 4], 0, 1),  # -z
+        ([1, 5, 7, 3], 0, 1),  # +z
+    ]
+    indices, uvs = [], []
+    for corners, u, v in faces:
+        indices += corners
+        uvs += [[pts[k][u] / tile, pts[k][v] / tile] for k in corners]
+    return MeshData(pts, [4] * 6, indices, np.array(uvs))
+
+
+def prism(outline, z0: float, z1: float, tile: float = 1.0) -> MeshData:
+    """Vertical prism over a counter-clockwise polygon ``outline`` [(x, y), ...] from z0 to z1."""
+    ring = np.asarray(outline, float)
+    n = len(ring)
+    pts = np.concatenate([np.c_[ring, np.full(n, z0)], np.c_[ring, np.full(n, z1)]])
+    counts, indices, uvs = [], [], []
+    perim = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.roll(ring, -1, 0) - ring, axis=1))])
+    for i in range(n):
+        j = (i + 1) % n
+        counts.append(4)
+        indices += [i, j, n + j, n + i]
+        uvs += [[perim[i] / tile, z0 / tile], [perim[i + 1] / tile, z0 / tile], [perim[i + 1] / tile, z1 / tile], [perim[i] / tile, z1 / tile]]
+    counts += [n, n]
+    indices += list(range(n - 1, -1, -1)) + list(range(n, 2 * n))
+    uvs += [[ring[k][0] / tile, ring[k][1] / tile] for k in range(n - 1, -1, -1)]
+    uvs += [[ring[k][0] / tile, ring[k][1] / tile] for k in range(n)]
+    return MeshData(pts, counts, indices, np.array(uvs))
+
+
+def cylinder(radius: float, z0: float, z1: float, segments: int = 16, centre=(0.0, 0.0), axis: str = "z",
+             radius_top: float | None = None, tile: float = 1.0) -> MeshData:
+    """Closed (optionally tapered) cylinder as a polygon mesh; ``axis`` 'x' or 'y' lays it down."""
+    r1 = radius if radius_top is None else radius_top
+    a = np.arange(segments) * 2 * np.pi / segments
+    ring0 = np.c_[radius * np.cos(a), radius * np.sin(a), np.full(segments, z0)]
+    ring1 = np.c_[r1 * np.cos(a), r1 * np.sin(a), np.full(segments, z1)]
+    pts = np.concatenate([ring0, ring1])
+    counts, indices, uvs = [], [], []
+    for i in range(segments):
+        j = (i + 1) % segments
+        counts.append(4)
+        indices += [i, j, segments + j, segments + i]
+        u0, u1 = i / segments * 2 * np.pi * radius / tile, (i + 1) / segments * 2 * np.pi * radius / tile
+        uvs += [[u0, z0 / tile], [u1, z0 / tile], [u1, z1 / tile], [u0, z1 / tile]]
+    counts += [segments, segments]
+    indices += list(range(segments - 1, -1, -1)) + list(range(segments, 2 * segments))
+    uvs += [[pts[k][0] / tile, pts[k][1] / tile] for k in range(segments - 1, -1, -1)]
+    uvs += [[pts[k][0] / tile, pts[k][1] / tile] for k in range(segments, 2 * segments)]
+    pts = pts + np.array([centre[0], centre[1], 0.0])
+    # Proper rotations (determinant +1) keep the outward winding.
+    if axis == "x":  # (x, y, z) -> (z, y, -x): the cylinder's axis becomes +x
+        pts = np.c_[pts[:, 2], pts[:, 1], -pts[:, 0]]
+    elif axis == "y":  # (x, y, z) -> (x, -z, y): the axis becomes -y
+        pts = np.c_[pts[:, 0], -pts[:, 2], pts[:, 1]]
+    return MeshData(pts, counts, indices, np.array(uvs))
+
+
+def moved(data: MeshData, offset) -> MeshData:
+    """``data`` translated by ``offset``."""
+    return MeshData(np.asarray(data.points, float) + np.asarray(offset, float), data.counts, data.indices, data.uvs)
+
+
+def bowl(radius: float, height: float, segments: int = 16, rings: int = 4, thickness: float = 0.008) -> MeshData:
+    """Open bowl (a closed shell: outer and inner surfaces joined at the rim), flat foot at z = 0."""
+    t = np.linspace(0.0, 1.0, rings + 1)
+    r_out = radius * (0.45 + 0.55 * np.sin(t * np.pi / 2))
+    z_out = height * t
+    r_in = np.maximum(r_out - thickness, 0.0)
+    z_in = np.maximum(z_out, thickness)
+    a = np.arange(segments) * 2 * np.pi / segments
+    profile = list(zip(r_out, z_out)) + list(zip(r_in[::-1], z_in[::-1]))
+    pts = np.array([[r * np.cos(ang), r * np.sin(ang), z] for r, z in profile for ang in a])
+    counts, indices, uvs = [], [], []
+    n = len(profile)
+    for p in range(n - 1):
+        for i in range(segments):
+            j = (i + 1) % segments
+            counts.append(4)
+            indices += [p * segments + i, p * segments + j, (p + 1) * segments + j, (p + 1) * segments + i]
+            uvs += [[i / segments, p / n], [(i + 1) / segments, p / n], [(i + 1) / segments, (p + 1) / n], [i / segments, (p + 1) / n]]
+    # bottom caps: outer foot (facing down) and inner floor (facing up)
+    counts += [segments, segments]
+    indices += list(range(segments - 1, -1, -1)) + list(range((n - 1) * segments, n * segments))
+    uvs += [[0.5 + 0.5 * np.cos(x), 0.5 + 0.5 * np.sin(x)] for x in a[::-1]] + [[0.5 + 0.5 * np.cos(x), 0.5 + 0.5 * np.sin(x)] for x in a]
+    return MeshData(pts, counts, indices, np.array(uvs))
+
+
+def merge(*parts: MeshData) -> MeshData:
+    """One mesh from several (disjoint) parts."""
+    pts, counts, indices, uvs, off = [], [], [], [], 0
+    for p in parts:
+        pts.append(p.points)
+        counts += list(p.counts)
+        indices += [i + off for i in p.indices]
+        uvs.append(p.uvs)
+        off += len(p.points)
+    return MeshData(np.concatenate(pts), counts, indices, np.concatenate(uvs))
+
+
+# -- stage authoring -----------------------------------------------------------------------
+@dataclass
+class Builder:
+    """Authors one scene: materials by texture name (shared), objects, lights."""
+
+    stage: Usd.Stage
+    stage_path: Path
+    materials: dict[str, UsdShade.Material] = field(default_factory=dict)
+
+    def material(self, texture: str, roughness: float = 0.7, metallic: float = 0.0) -> UsdShade.Material:
+        """A UsdPreviewSurface material whose diffuse colour is ``textures/<texture>.png``."""
+        key = f"{texture}_{roughness:g}_{metallic:g}".replace(".", "p")
+        if key in self.materials:
+            return self.materials[key]
+        ensure_texture(self.stage_path.parent / TEXTURE_DIR, texture)
+        path = Sdf.Path("/World/Looks").AppendChild(key)
+        mat = UsdShade.Material.Define(self.stage, path)
+        shader = UsdShade.Shader.Define(self.stage, path.AppendChild("Surface"))
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
+        shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(metallic))
+        reader = UsdShade.Shader.Define(self.stage, path.AppendChild("StReader"))
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        tex = UsdShade.Shader.Define(self.stage, path.AppendChild("Diffuse"))
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{TEXTURE_DIR}/{texture}.png"))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+        mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        self.materials[key] = mat
+        return mat
+
+    def obj(self, path: str, label: str | None, translate=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> UsdGeom.Xform:
+        """An object Xform (class-labelled when ``label``) at ``translate``, turned ``yaw_deg`` about Z."""
+        x = UsdGeom.Xform.Define(self.stage, path)
+        x.AddTranslateOp().Set(Gf.Vec3d(*[float(v) for v in translate]))
+        if yaw_deg:
+            x.AddRotateZOp().Set(float(yaw_deg))
+        if label:
+            set_class_label(x.GetPrim(), label)
+        return x
+
+    def mesh(self, path: str, data: MeshData, texture: str, roughness: float = 0.7, metallic: float = 0.0) -> UsdGeom.Mesh:
+        """A textured polygon mesh at ``path``."""
+        m = UsdGeom.Mesh.Define(self.stage, path)
+        pts = np.asarray(data.points, float)
+        m.CreatePointsAttr([Gf.Vec3f(*p) for p in pts.tolist()])
+        m.CreateFaceVertexCountsAttr([int(c) for c in data.counts])
+        m.CreateFaceVertexIndicesAttr([int(i) for i in data.indices])
+        m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        m.CreateExtentAttr([Gf.Vec3f(*pts.min(0).tolist()), Gf.Vec3f(*pts.max(0).tolist())])
+        st = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+        st.Set([Gf.Vec2f(*uv) for uv in np.asarray(data.uvs, float).tolist()])
+        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(self.material(texture, roughness, metallic))
+        return m
+
+    # -- lights ----------------------------------------------------------------------------
+    def sun(self, azimuth_deg: float, elevation_deg: float, intensity: float, angle: float = 0.53,
+            color=(1.0, 0.97, 0.92)) -> UsdLux.DistantLight:
+        """A DistantLight shining from ``azimuth``/``elevation`` (degrees; azimuth from +x towards +y)."""
+        light = UsdLux.DistantLight.Define(self.stage, "/World/Lights/Sun")
+        light.CreateIntensityAttr(float(intensity))
+        # normalize = true: intensity is the light's total output, independent of its size or
+        # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
+        light.CreateNormalizeAttr(True)
+        light.CreateAngleAttr(float(angle))
+        light.CreateColorAttr(Gf.Vec3f(*color))
+        # A DistantLight shines along its local -Z; aim -Z at minus the direction to the sun.
+        az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+        to_sun = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+        _aim(light, np.zeros(3), -to_sun)
+        return light
+
+    def _sphere(self, name: str, radius: float, intensity: float, color) -> UsdLux.SphereLight:
+        light = UsdLux.SphereLight.Define(self.stage, f"/World/Lights/{name}")
+        light.CreateIntensityAttr(float(intensity))
+        light.CreateNormalizeAttr(True)  # see sun(): intensity independent of the light's size
+        light.CreateRadiusAttr(float(radius))
+        light.CreateColorAttr(Gf.Vec3f(*color))
+        return light
+
+    def sphere_light(self, name: str, position, radius: float, intensity: float, color=(1.0, 0.85, 0.65)) -> UsdLux.SphereLight:
+        """A point-like SphereLight at ``position`` (Blender: a POINT light of radius ``radius``)."""
+        light = self._sphere(name, radius, intensity, color)
+        light.AddTranslateOp().Set(Gf.Vec3d(*[float(v) for v in position]))
+        return light
+
+    def spot_light(self, name: str, position, target, radius: float, intensity: float, cone_deg: float,
+                   softness: float = 0.2, color=(1.0, 0.92, 0.8)) -> UsdLux.SphereLight:
+        """A spot: a SphereLight with UsdLux.ShapingAPI, its cone (half-angle ``cone_deg``) about
+        local -Z aimed at ``target`` (Blender imports it as a SPOT light)."""
+        light = self._sphere(name, radius, intensity, color)
+        shaping = UsdLux.ShapingAPI.Apply(light.GetPrim())
+        shaping.CreateShapingConeAngleAttr(float(cone_deg))
+        shaping.CreateShapingConeSoftnessAttr(float(softness))
+        _aim(light, np.asarray(position, float), np.asarray(target, float) - np.asarray(position, float))
+        return light
+
+    def rect_light(self, name: str, position, target, width: float, height: float, intensity: float,
+                   color=(1.0, 1.0, 1.0)) -> UsdLux.RectLight:
+        """A RectLight at ``position`` whose emitting side (local -Z) faces ``target``."""
+        light = UsdLux.RectLight.Define(self.stage, f"/World/Lights/{name}")
+        light.CreateIntensityAttr(float(intensity))
+        # normalize = true: intensity is the light's total output, independent of its size or
+        # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
+        light.CreateNormalizeAttr(True)
+        light.CreateWidthAttr(float(width))
+        light.CreateHeightAttr(float(height))
+        light.CreateColorAttr(Gf.Vec3f(*color))
+        _aim(light, np.asarray(position, float), np.asarray(target, float) - np.asarray(position, float))
+        return light
+
+    def disk_light(self, name: str, position, target, radius: float, intensity: float, color=(1.0, 0.9, 0.8)) -> UsdLux.DiskLight:
+        """A DiskLight (a spot-like area light) at ``position`` facing ``target``."""
+        light = UsdLux.DiskLight.Define(self.stage, f"/World/Lights/{name}")
+        light.CreateIntensityAttr(float(intensity))
+        # normalize = true: intensity is the light's total output, independent of its size or
+        # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
+        light.CreateNormalizeAttr(True)
+        light.CreateRadiusAttr(float(radius))
+        light.CreateColorAttr(Gf.Vec3f(*color))
+        _aim(light, np.asarray(position, float), np.asarray(target, float) - np.asarray(position, float))
+        return light
+
+    def dome(self, intensity: float, color=(0.55, 0.65, 0.85)) -> UsdLux.DomeLight:
+        """A uniform-colour DomeLight (sky fill)."""
+        light = UsdLux.DomeLight.Define(self.stage, "/World/Lights/Sky")
+        light.CreateIntensityAttr(float(intensity))
+        # normalize = true: intensity is the light's total output, independent of its size or
+        # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
+        light.CreateNormalizeAttr(True)
+        light.CreateColorAttr(Gf.Vec3f(*color))
+        return light
+
+
+def _aim(light, position: np.ndarray, direction: np.ndarray) -> None:
+    """Place ``light`` at ``position`` with its local -Z along ``direction`` (one matrix op)."""
+    d = direction / np.linalg.norm(direction)
+    z = -d
+    up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[0, :3], m[1, :3], m[2, :3], m[3, :3] = x, y, z, position  # USD row-vector convention
+    light.AddTransformOp().Set(Gf.Matrix4d(*m.ravel().tolist()))

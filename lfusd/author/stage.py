@@ -1,0 +1,144 @@
+"""Opening stages with clear errors, and their frame range."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+
+from ..errors import LfusdError
+
+
+def open_stage(path: str | Path) -> Usd.Stage:
+    """Open a USD stage, or raise LfusdError naming the file and what is wrong with it."""
+    p = Path(path)
+    if not p.exists():
+        raise LfusdError(f"stage {p} does not exist; give the path of a .usda/.usdc/.usd file")
+    if p.is_dir():
+        raise LfusdError(f"stage {p} is a folder; give the path of a .usda/.usdc/.usd file")
+    try:
+        stage = Usd.Stage.Open(str(p))
+    except Tf.ErrorException as e:
+        first = str(e).strip().splitlines()
+        reason = next((ln.strip() for ln in first if ln.strip().startswith(("Error", "Failed", "syntax", "unexpected"))), "")
+        raise LfusdError(f"stage {p} is not a readable USD file ({reason or 'parse error'}); fix or regenerate it") from None
+    if stage is None:
+        raise LfusdError(f"stage {p} is not a readable USD file; fix or regenerate it")
+    return stage
+
+
+def frame_range(stage: Usd.Stage) -> tuple[int, int]:
+    """(first, last) frame, inclusive; a stage with no authored time range is one static frame, 1."""
+    if not stage.HasAuthoredTimeCodeRange():
+        return 1, 1
+    return int(round(stage.GetStartTimeCode())), int(round(stage.GetEndTimeCode()))
+
+
+def check_frames(stage: Usd.Stage, frames: list[int], stage_path: str | Path) -> None:
+    """Raise LfusdError when any frame lies outside the stage's range."""
+    first, last = frame_range(stage)
+    bad = [f for f in frames if not first <= f <= last]
+    if bad:
+        raise LfusdError(
+            f"frame {bad[0]} is outside stage {stage_path}'s range {first}-{last}; pick frames in {first}-{last}"
+        )
+
+
+def file_hash(path: str | Path) -> str:
+    """sha256 of the stage's root layer file (what the dataset was rendered from)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def new_stage(path: str | Path, first: int = 1, last: int = 1) -> Usd.Stage:
+    """A new stage with the project's conventions: metres, Z up, 24 time codes per second."""
+    stage = Usd.Stage.CreateNew(str(path)) if path else Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(24)
+    stage.SetFramesPerSecond(24)
+    stage.SetStartTimeCode(first)
+    stage.SetEndTimeCode(last)
+    world = UsdGeom.Xform.Define(stage, Sdf.Path("/World"))
+    stage.SetDefaultPrim(world.GetPrim())
+    return stage
+
+
+def meters_per_unit(stage: Usd.Stage) -> float:
+    return float(UsdGeom.GetStageMetersPerUnit(stage))
+
+
+#: Decimal places to which generated stages store every floating-point value: 1e-9 of a unit
+#: (1 nm on lfusd's metre stages; 1e-9 of a rotation-matrix entry, a UV or a degree).
+STAGE_DECIMALS = 9
+
+# Floating-point scalar types, by their C++ name (scalar and array forms share it).
+_FLOAT_TYPES = {
+    f"{base}{suffix}"
+    for suffix in ("d", "f", "h")
+    for base in ("GfVec2", "GfVec3", "GfVec4", "GfMatrix2", "GfMatrix3", "GfMatrix4", "GfQuat")
+    if not (base.startswith("GfMatrix") and suffix != "d")
+} | {"double", "float", "GfHalf"}
+
+
+def round_values(values, decimals: int = STAGE_DECIMALS) -> np.ndarray:
+    """``values`` as float64 rounded to ``decimals`` places, with -0 written as 0.
+
+    NumPy, BLAS and libm results differ in the last bit between CPUs (SIMD paths, FMA), and
+    cancellations leave CPU-dependent residues such as 1e-17 where the value is 0; rounded to a
+    grid far coarser than both, a generator's values are portable (a value changes only if it
+    lies within one ulp of a grid midpoint)."""
+    return np.round(np.asarray(values, np.float64), decimals) + 0.0
+
+
+def _quat(q, cls):
+    return cls(float(q[0]), *(float(v) for v in q[1:]))
+
+
+def _rounded(value, type_name: Sdf.ValueTypeName, decimals: int):
+    cls = type_name.type.pythonClass
+    if cls is None:  # double, float, half: a Python float
+        return float(round_values(value, decimals))
+    if "Quat" in type_name.scalarType.cppTypeName:
+        quat = getattr(Gf, type_name.scalarType.cppTypeName[2:])
+        quats = value if type_name.isArray else [value]
+        rounded = [_quat(round_values([q.GetReal(), *q.GetImaginary()], decimals), quat) for q in quats]
+        return cls(rounded) if type_name.isArray else rounded[0]
+    arr = round_values(np.array(value), decimals)
+    if type_name.isArray:
+        return cls.FromNumpy(arr.astype(np.array(value).dtype))
+    return cls(arr.tolist()) if arr.ndim == 2 else cls(*arr.tolist())
+
+
+def round_layer(layer: Sdf.Layer, decimals: int = STAGE_DECIMALS) -> int:
+    """Round every floating-point attribute value of ``layer`` (defaults and time samples) to
+    ``decimals`` places, so that one seed writes the same bytes on every CPU; returns the
+    number of values rounded. Float and half values are rounded in float64, then stored in
+    their own precision (for a float above ~0.02 its own step is coarser than the grid)."""
+    specs: list[Sdf.AttributeSpec] = []
+
+    def visit(path: Sdf.Path) -> None:
+        spec = layer.GetObjectAtPath(path)
+        if isinstance(spec, Sdf.AttributeSpec) and spec.typeName.scalarType.cppTypeName in _FLOAT_TYPES:
+            specs.append(spec)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    count = 0
+    # Values are cleared before they are set: Sdf ignores a set to an equal value, and -0 == 0.
+    for spec in specs:
+        if spec.HasDefaultValue() and spec.default is not None:
+            value = _rounded(spec.default, spec.typeName, decimals)
+            spec.ClearDefaultValue()
+            spec.default = value
+            count += 1
+        for t in layer.ListTimeSamplesForPath(spec.path):
+            value = _rounded(layer.QueryTimeSample(spec.path, t), spec.typeName, decimals)
+            layer.EraseTimeSample(spec.path, t)
+            layer.SetTimeSample(spec.path, t, value)
+            count += 1
+    return count

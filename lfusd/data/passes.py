@@ -1,0 +1,95 @@
+"""Raw render passes (Blender's EXRs) and the ground-truth keys derived from them, in NumPy.
+
+Raw files per view (written by the renderer):
+- ``rgb.exr``: linear RGB (half float), the beauty render;
+- ``passes.exr``: Blender's multilayer EXR of the exact data render (1 sample at each pixel
+  centre): Depth.Z, Normal.XYZ, Position.XYZ, Vector.XYZW, Object Index.X, and with
+  render-video the AOVs next_position / prev_position;
+- ``motion.npz``: the motion keys derived by lfusd.truth.motion (render-video, ``lfusd flow``).
+
+Everything here follows ../shared/CONVENTIONS.md; Blender's own conventions are converted in
+this one place (background depth 1e10 -> inf; object index float -> int32 instance id).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from ..errors import LfusdError
+
+BACKGROUND_DEPTH = 1.0e9  # Blender writes 1e10 where no surface is hit
+# AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
+MOTION_AOVS = ("next_position", "prev_position")
+
+
+def read_exr(path: str | Path) -> dict[str, np.ndarray]:
+    """Every channel of an EXR (all parts), by channel name, rows top to bottom."""
+    try:
+        f = OpenEXR.File(str(path))
+    except Exception as e:  # OpenEXR raises plain exceptions for missing or corrupt files
+        raise LfusdError(f"cannot read EXR {path} ({e}); re-render this view") from None
+    out: dict[str, np.ndarray] = {}
+    for part in f.parts:
+        for name, ch in part.channels.items():
+            out[name] = ch.pixels
+    return out
+
+
+def _channel(channels: dict[str, np.ndarray], suffix: str, path) -> np.ndarray:
+    for name, arr in channels.items():
+        if name == suffix or name.endswith("." + suffix):
+            return arr
+    raise LfusdError(f"{path} has no {suffix} channel; re-render this view")
+
+
+def read_raw(path: str | Path) -> dict[str, np.ndarray]:
+    """The data passes of one view, converted to the conventions: depth, normal, position,
+    instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see lfusd.truth.motion)."""
+    ch = read_exr(path)
+    depth = _channel(ch, "Depth.Z", path).astype(np.float32)
+    surface = depth < BACKGROUND_DEPTH
+    depth = np.where(surface, depth, np.float32(np.inf))
+    stack = lambda name, comps: np.stack([_channel(ch, f"{name}.{c}", path) for c in comps], axis=-1).astype(np.float32)
+    nan = np.float32(np.nan)
+    normal = np.where(surface[..., None], stack("Normal", "XYZ"), nan)
+    position = np.where(surface[..., None], stack("Position", "XYZ"), nan)
+    instance = np.rint(_channel(ch, "Object Index.X", path)).astype(np.int32)
+    instance[~surface] = 0
+    raw = {"depth": depth, "normal": normal, "position": position, "instance": instance}
+    if any(n.endswith(".Vector.X") or n == "Vector.X" for n in ch):  # Dataset.raw_passes names its absence
+        raw["vector"] = stack("Vector", "XYZW")
+    for aov in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
+        arr = next((a for n, a in ch.items() if n.endswith("." + aov)), None)
+        if arr is not None:
+            raw[aov] = np.where(surface[..., None], arr[..., :3].astype(np.float32), nan)
+    return raw
+
+
+def read_rgb_linear(path: str | Path) -> np.ndarray:
+    """Linear RGB float32 (H,W,3) of the beauty render."""
+    ch = read_exr(path)
+    if "RGB" in ch:  # OpenEXR's Python API groups R, G, B into one (H,W,3) array
+        return ch["RGB"].astype(np.float32)
+    return np.stack([_channel(ch, c, path) for c in "RGB"], axis=-1).astype(np.float32)
+
+
+def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB (IEC 61966-2-1 transfer function, clipped, rounded)."""
+    x = np.clip(rgb, 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.rint(s * 255.0).astype(np.uint8)
+
+
+def disparity(depth: np.ndarray, focal_px: float, baseline: float) -> np.ndarray:
+    """d = f_px * b / z in pixels per baseline step; 0 where there is no surface."""
+    with np.errstate(divide="ignore"):
+        d = np.float32(focal_px * baseline) / depth
+    return np.where(np.isfinite(depth), d, np.float32(0.0)).astype(np.float32)
+
+
+def semantic(instance: np.ndarray, class_of_instance: np.ndarray) -> np.ndarray:
+    """Class id per pixel from the instance ids (``class_of_instance[id]``, 0 = background)."""
+    return class_of_instance[instance].astype(np.int32)

@@ -1,0 +1,251 @@
+"""Compiled derivation of :mod:`lfusd.truth.motion` (numba): one fused pass per pixel and direction.
+
+Mirrors the NumPy reference (``lfusd.truth.motion._direction`` / ``_visibility_numpy``) test by test,
+plus a fast path that is provably equivalent (see ``_point``); tests compare the two backends.
+
+Kept apart so that ``lfusd.truth.motion`` imports without numba (it then uses the NumPy reference).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+from numba import config, njit, prange
+
+if "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ and "NUMBA_THREADING_LAYER" not in os.environ:
+    # Some wheels beside us (open3d, bpy) bring an old TBB that numba refuses with a warning:
+    # prefer OpenMP, then numba's own work queue.
+    config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _smooth(inst, inv, y0, x0, y1, x1, edge_rel):
+    # Neighbours on one surface: same instance and no large inverse-depth jump.
+    if inst[y0, x0] != inst[y1, x1]:
+        return False
+    a, b = inv[y0, x0], inv[y1, x1]
+    return abs(b - a) <= edge_rel * min(a, b)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _slopes(img, c, inst, inv, yk, xk, axis, edge_rel):
+    """Lower/upper one-sided slope of img[..., c] at (yk, xk) along axis (1 = x, 0 = y)."""
+    h, w = inv.shape
+    has_b = False
+    has_f = False
+    db = 0.0
+    df = 0.0
+    if axis == 1:
+        if xk - 1 >= 0 and _smooth(inst, inv, yk, xk - 1, yk, xk, edge_rel):
+            has_b = True
+            db = img[yk, xk, c] - img[yk, xk - 1, c]
+        if xk + 1 < w and _smooth(inst, inv, yk, xk, yk, xk + 1, edge_rel):
+            has_f = True
+            df = img[yk, xk + 1, c] - img[yk, xk, c]
+    else:
+        if yk - 1 >= 0 and _smooth(inst, inv, yk - 1, xk, yk, xk, edge_rel):
+            has_b = True
+            db = img[yk, xk, c] - img[yk - 1, xk, c]
+        if yk + 1 < h and _smooth(inst, inv, yk, xk, yk + 1, xk, edge_rel):
+            has_f = True
+            df = img[yk + 1, xk, c] - img[yk, xk, c]
+    if has_b and not has_f:
+        df = db
+    elif has_f and not has_b:
+        db = df
+    return min(db, df), max(db, df)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _extrapolate(img, c, inst, inv, yk, xk, dx, dy, edge_rel):
+    v = img[yk, xk, c]
+    lo = v
+    hi = v
+    glo, ghi = _slopes(img, c, inst, inv, yk, xk, 1, edge_rel)
+    a, b = glo * dx, ghi * dx
+    lo += min(a, b)
+    hi += max(a, b)
+    glo, ghi = _slopes(img, c, inst, inv, yk, xk, 0, edge_rel)
+    a, b = glo * dy, ghi * dy
+    lo += min(a, b)
+    hi += max(a, b)
+    return lo, hi
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _point(xj, yj, flu, flv, ze, ex, me, inst_other, inv_other, inv3, back, fb_abs, fb_rel, depth_rel, edge_rel):
+    """Occlusion tests of one point at (xj, yj) in the other frame: (visible, vector_ok, inv_pt)."""
+    h, w = inv_other.shape
+    inside = xj >= -0.5 and xj <= w - 0.5 and yj >= -0.5 and yj <= h - 0.5 and not (ze <= 0)
+    xc = min(max(xj, -1.0), float(w))
+    yc = min(max(yj, -1.0), float(h))
+    x0 = min(max(int(math.floor(xc)), 0), max(w - 2, 0))
+    y0 = min(max(int(math.floor(yc)), 0), max(h - 2, 0))
+    inv_exp = 1.0 / ze if ex else math.nan
+    slack = fb_abs + fb_rel * math.sqrt(flu * flu + flv * flv)
+    # Fast path, exactly equivalent: with all four corners on the point's instance and the
+    # point inside the cell, the bilinear interpolation lies within the envelopes, so a bilinear
+    # value that passes a test means every corner passes it (all four agree).
+    ax = xc - x0
+    ay = yc - y0
+    if ax >= 0 and ax <= 1 and ay >= 0 and ay <= 1:
+        if inst_other[y0, x0] == me and inst_other[y0, x0 + 1] == me and inst_other[y0 + 1, x0] == me and inst_other[y0 + 1, x0 + 1] == me:
+            w00, w01, w10, w11 = (1 - ax) * (1 - ay), ax * (1 - ay), (1 - ax) * ay, ax * ay
+            bu = w00 * back[y0, x0, 0] + w01 * back[y0, x0 + 1, 0] + w10 * back[y0 + 1, x0, 0] + w11 * back[y0 + 1, x0 + 1, 0]
+            bv = w00 * back[y0, x0, 1] + w01 * back[y0, x0 + 1, 1] + w10 * back[y0 + 1, x0, 1] + w11 * back[y0 + 1, x0 + 1, 1]
+            ok = abs(bu + flu) <= slack and abs(bv + flv) <= slack
+            if ok and ex:
+                bi = w00 * inv_other[y0, x0] + w01 * inv_other[y0, x0 + 1] + w10 * inv_other[y0 + 1, x0] + w11 * inv_other[y0 + 1, x0 + 1]
+                ok = abs(bi - inv_exp) <= depth_rel * inv_exp
+            if ok:
+                if ex:
+                    return inside, False, inv_exp
+                all_lo = math.inf
+                all_hi = -math.inf
+                for k in range(4):
+                    xk = x0 + (k & 1)
+                    yk = y0 + (k >> 1)
+                    elo, ehi = _extrapolate(inv3, 0, inst_other, inv_other, yk, xk, xc - xk, yc - yk, edge_rel)
+                    all_lo = min(all_lo, elo)
+                    all_hi = max(all_hi, ehi)
+                inv_vec = 0.5 * (all_lo + all_hi)
+                return inside, inside and (all_hi - all_lo) <= depth_rel * inv_vec, inv_vec
+    # Envelopes over the same-instance corners (inverse depth, backward flow u and v).
+    e0lo = e1lo = e2lo = math.inf
+    e0hi = e1hi = e2hi = -math.inf
+    best_d = math.inf
+    near_same = False
+    near_inv = 0.0
+    for k in range(4):
+        xk = x0 + (k & 1)
+        yk = y0 + (k >> 1)
+        same = inst_other[yk, xk] == me
+        d2 = (xc - xk) ** 2 + (yc - yk) ** 2
+        if d2 < best_d:
+            best_d = d2
+            near_same = same
+            near_inv = inv_other[yk, xk]
+        if same:
+            vi = inv_other[yk, xk]
+            e0lo, e0hi = min(e0lo, vi), max(e0hi, vi)
+            b0, b1 = back[yk, xk, 0], back[yk, xk, 1]
+            e1lo, e1hi = min(e1lo, b0), max(e1hi, b0)
+            e2lo, e2hi = min(e2lo, b1), max(e2hi, b1)
+    n_agree = 0
+    all_lo = math.inf
+    all_hi = -math.inf
+    for k in range(4):
+        xk = x0 + (k & 1)
+        yk = y0 + (k >> 1)
+        dx = xc - xk
+        dy = yc - yk
+        elo, ehi = _extrapolate(inv3, 0, inst_other, inv_other, yk, xk, dx, dy, edge_rel)
+        all_lo = min(all_lo, elo)
+        all_hi = max(all_hi, ehi)
+        if inst_other[yk, xk] != me:
+            continue
+        lo, hi = _extrapolate(back, 0, inst_other, inv_other, yk, xk, dx, dy, edge_rel)
+        ok = -flu >= min(lo, e1lo) - slack and -flu <= max(hi, e1hi) + slack
+        lo, hi = _extrapolate(back, 1, inst_other, inv_other, yk, xk, dx, dy, edge_rel)
+        ok = ok and -flv >= min(lo, e2lo) - slack and -flv <= max(hi, e2hi) + slack
+        if ex:
+            tol = depth_rel * inv_exp
+            ok = ok and inv_exp >= min(elo, e0lo) - tol and inv_exp <= max(ehi, e0hi) + tol
+        if ok:
+            n_agree += 1
+    inv_vec = 0.5 * (all_lo + all_hi)
+    ip = inv_exp if ex else inv_vec
+    behind = near_inv < ip * (1 - depth_rel)
+    vis = inside and (near_same or behind) and n_agree > 0
+    sharp = n_agree == 4 and (all_hi - all_lo) <= depth_rel * inv_vec
+    return vis, (not ex) and vis and sharp, ip
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def inverse_depth_and_back(depth_o, vec_o, forward, bg):
+    """Other frame: inverse depth (0 on background) and its vector pass pointing back to frame t."""
+    h, w = depth_o.shape
+    inv = np.zeros((h, w), np.float32)
+    back = np.empty((h, w, 2), np.float32)
+    for i in prange(h):
+        for j in range(w):
+            d = depth_o[i, j]
+            if d > 0 and d < bg:
+                inv[i, j] = 1.0 / d
+            if forward:  # other = t+1: its backward flow (X, -Y)
+                back[i, j, 0] = vec_o[i, j, 0]
+                back[i, j, 1] = -vec_o[i, j, 1]
+            else:  # other = t-1: its forward flow (-Z, W)
+                back[i, j, 0] = -vec_o[i, j, 2]
+                back[i, j, 1] = vec_o[i, j, 3]
+    return inv, back
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, back_o, forward,
+              A_cur, C_cur, M_o, R2_o, C_o, A_o, fb, bg, fb_abs, fb_rel, depth_rel, edge_rel,
+              flow, scene_flow, dchange, valid, occl):
+    """Fused per-pixel derivation of one direction (see lfusd.truth.motion's module docstring).
+
+    Writes flow (H,W,2), and valid / occl masks; when forward also scene_flow and dchange.
+    Matrices: A_* maps (u, v, 1) * z to a world offset from the camera centre C_*; M_o = K R_o
+    (world offset -> homogeneous pixel) and R2_o its depth row, of the other frame's camera.
+    """
+    h, w = depth.shape
+    inv3 = inv_o.reshape(h, w, 1)
+    for i in prange(h):
+        for j in range(w):
+            z0 = depth[i, j]
+            if not (z0 > 0 and z0 < bg):
+                continue
+            # Flow: the exact route where the other-frame position AOV is finite, else the vector pass.
+            px = py = pz = 0.0
+            ex = False
+            ze = math.nan
+            if forward:
+                fu, fv = -vec[i, j, 2], vec[i, j, 3]
+            else:
+                fu, fv = vec[i, j, 0], -vec[i, j, 1]
+            if has_opos:
+                px, py, pz = opos[i, j, 0], opos[i, j, 1], opos[i, j, 2]
+                if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
+                    ex = True
+                    dx, dy, dz = px - C_o[0], py - C_o[1], pz - C_o[2]
+                    hx = M_o[0, 0] * dx + M_o[0, 1] * dy + M_o[0, 2] * dz
+                    hy = M_o[1, 0] * dx + M_o[1, 1] * dy + M_o[1, 2] * dz
+                    hz = M_o[2, 0] * dx + M_o[2, 1] * dy + M_o[2, 2] * dz
+                    fu, fv = hx / hz - j, hy / hz - i
+                    ze = R2_o[0] * dx + R2_o[1] * dy + R2_o[2] * dz
+            flow[i, j, 0] = fu
+            flow[i, j, 1] = fv
+            xj, yj = j + fu, i + fv
+            vis, vok, ip = _point(xj, yj, fu, fv, ze, ex, inst[i, j], inst_o, inv_o, inv3, back_o,
+                                  fb_abs, fb_rel, depth_rel, edge_rel)
+            occl[i, j] = not vis
+            if not forward:
+                valid[i, j] = True
+                continue
+            known = ex or vok
+            valid[i, j] = known
+            if not known:
+                continue
+            # Position at t: the position pass where finite, else the depth back-projected.
+            if has_pos and math.isfinite(pos[i, j, 0]) and math.isfinite(pos[i, j, 1]) and math.isfinite(pos[i, j, 2]):
+                p0x, p0y, p0z = pos[i, j, 0], pos[i, j, 1], pos[i, j, 2]
+            else:
+                p0x = C_cur[0] + (A_cur[0, 0] * j + A_cur[0, 1] * i + A_cur[0, 2]) * z0
+                p0y = C_cur[1] + (A_cur[1, 0] * j + A_cur[1, 1] * i + A_cur[1, 2]) * z0
+                p0z = C_cur[2] + (A_cur[2, 0] * j + A_cur[2, 1] * i + A_cur[2, 2]) * z0
+            if ex:
+                z1 = ze
+            else:
+                z1 = 1.0 / ip
+                px = C_o[0] + (A_o[0, 0] * xj + A_o[0, 1] * yj + A_o[0, 2]) * z1
+                py = C_o[1] + (A_o[1, 0] * xj + A_o[1, 1] * yj + A_o[1, 2]) * z1
+                pz = C_o[2] + (A_o[2, 0] * xj + A_o[2, 1] * yj + A_o[2, 2]) * z1
+            scene_flow[i, j, 0] = px - p0x
+            scene_flow[i, j, 1] = py - p0y
+            scene_flow[i, j, 2] = pz - p0z
+            dchange[i, j] = fb / z1 - fb / z0

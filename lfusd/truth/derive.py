@@ -1,0 +1,74 @@
+"""Derive the motion ground truth of a rendered dataset (raw passes -> motion.npz per view).
+
+Frame t's forward keys need frame t+1 rendered too (and backward keys t-1); at the ends of the
+rendered range they are masked invalid, as CONVENTIONS.md states.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from ..data.dataset import MOTION_FILE, Dataset
+from ..camera import View
+
+
+def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
+    """All motion keys of one view at one frame, from its raw passes and its neighbours'."""
+    from ..errors import LfusdError
+    from .motion import derive_motion
+
+    frames = set(ds.manifest["frames"])
+    try:
+        nxt = ds.raw_passes(frame + 1, view) if frame + 1 in frames else None
+        prv = ds.raw_passes(frame - 1, view) if frame - 1 in frames else None
+        return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline)
+    except LfusdError as e:
+        raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
+
+
+def write_motion(ds: Dataset, frame: int, view: View) -> Path:
+    """Derive and store ``motion.npz`` for one view, atomically."""
+    keys = derive_view(ds, frame, view)
+    d = ds.view_dir(frame, view)
+    fd, tmp = tempfile.mkstemp(dir=d, prefix=".motion.", suffix=".npz")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **keys)
+        os.replace(tmp, d / MOTION_FILE)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return d / MOTION_FILE
+
+
+def _derive_one(args: tuple[str, str, int, tuple[int, int]]) -> None:
+    root, rig, frame, view = args
+    write_motion(Dataset(root, rig=rig), frame, view)
+
+
+def derive_dataset(root: str | Path, rigs: list[str], frames: list[int], workers: int = 1, overwrite: bool = False, progress=None) -> int:
+    """Write motion.npz for every (rig, frame, view) that lacks one; returns how many were written."""
+    todo = []
+    for rig in rigs:
+        ds = Dataset(root, rig=rig)
+        # View-major: consecutive tasks share frames t+/-1 of one view in the raw-pass cache.
+        for v in ds.views:
+            for f in frames:
+                if overwrite or not (ds.view_dir(f, v) / MOTION_FILE).is_file():
+                    todo.append((str(root), rig, f, v))
+    if workers <= 1 or len(todo) <= 1:
+        for item in todo:
+            _derive_one(item)
+            progress and progress(1)
+    else:
+        # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            for _ in pool.map(_derive_one, todo, chunksize=4):
+                progress and progress(1)
+    return len(todo)

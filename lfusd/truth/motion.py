@@ -1,0 +1,440 @@
+"""Motion ground truth from raw render passes: optical flow, scene flow, disparity change, masks.
+
+No Blender. Inputs are the raw passes of one view at frames t, t+1 and t-1 (:class:`RawPasses`);
+outputs follow ../shared/CONVENTIONS.md exactly (:data:`MOTION_KEYS`). Two backends compute the
+same thing: a NumPy reference (vectorised) and, when numba is installed, a compiled one-pass
+kernel (``lfusd.truth._motion_numba``, the default): for a 1024x1024 view with both neighbours about
+1.4 s against 27 ms (2 threads) or 50 ms (1 thread); see benchmarks/bench_flow.py.
+
+Which route produces which key
+------------------------------
+*Exact route* (used at every pixel where ``next_position`` / ``prev_position`` is finite: an AOV
+holding the world position at t+1 / t-1 of the very surface point seen at t):
+
+- ``flow_fwd`` = projection of ``next_position`` with the camera at t+1, minus (u, v);
+- ``scene_flow`` = ``next_position`` - ``position`` (``position`` from the position pass, or the
+  depth back-projected when the pass is absent);
+- ``disparity_change`` = f*b/z(t+1) - f*b/z(t), z(t+1) the point's depth in the camera at t+1;
+- ``flow_bwd`` likewise from ``prev_position`` and the camera at t-1.
+These are defined for points that are hidden or off-image at t+1 too: ``valid_fwd`` covers every
+foreground pixel of a frame that has a next frame, and ``occlusion_fwd`` says which are hidden.
+
+*Vector-plus-depth route* (the baseline, where no position AOV is given):
+
+- ``flow_fwd`` = (-Z, +W) and ``flow_bwd`` = (X, -Y) of Blender's vector pass (channels X, Y =
+  previous - current, Z, W = current - next, raster pixels, y up). The vector pass is the motion
+  of the surface point itself, so these are exact for hidden points as well;
+- ``scene_flow`` and ``disparity_change`` need the point's depth at t+1, read from frame t+1's
+  depth at (u', v') = (u+du, v+dv): inverse depth extrapolated to (u', v') from each of the four
+  pixels around it with their one-sided slopes (1/z is affine in u, v on a plane, so on a planar
+  patch all four agree and the value is exact). It is defined only where the point is visible at
+  t+1, all four pixels show its instance and agree to ``DEPTH_REL`` (so not across a crease or an
+  edge): there ``valid_fwd`` is set. Elsewhere ``flow_fwd`` keeps the vector value and
+  ``scene_flow`` / ``disparity_change`` are 0. ``valid_bwd`` is foreground & a previous frame
+  exists (flow_bwd is the only backward key).
+
+Occlusion (both routes)
+-----------------------
+``occlusion_fwd`` is set on a foreground pixel unless its point at t+1, at (u', v'):
+
+1. projects inside the image (u' in [-0.5, W-0.5], v' in [-0.5, H-0.5]) and in front of the camera;
+2. the pixel of frame t+1 nearest (u', v') shows the point's instance, or a surface behind the
+   point (then the point sits on a silhouette in front of what that pixel centre sees);
+3. forward-backward consistency holds from at least one of the four pixels around (u', v') on
+   the point's instance: -flow_fwd lies within that pixel's backward flow (frame t+1's vector
+   pass) extrapolated to (u', v') with its two one-sided slopes, or within the range of the
+   same-instance pixels' backward flows, widened by ``FB_ABS`` + ``FB_REL`` * |flow_fwd|
+   (0.05 px + 1 %); and
+4. (exact route only, where z(t+1) is known) the depth test holds from that same pixel: 1/z(t+1)
+   lies within its extrapolated inverse depth, or the range of the same-instance pixels',
+   widened by ``DEPTH_REL`` (0.1 %). A surface nearer than the point (another object, or the
+   same one folding over it) breaks it.
+One-sided slopes ignore neighbours across an instance edge or an inverse-depth jump above
+``EDGE_REL`` (50 %). The tests are exact inside planar patches and decide within about half a
+pixel of edges; points on a face thinner than a pixel at t+1 (seen edge-on) are reported
+occluded, since no pixel of frame t+1 shows them. ``occlusion_bwd`` is the same test against
+frame t-1 (its forward vector and prev_position). On the last frame (no ``nxt``) every forward key
+is 0 and masked invalid, likewise backward keys on the first frame (no ``prv``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import LfusdError
+
+MOTION_KEYS = (
+    "flow_fwd",
+    "flow_bwd",
+    "scene_flow",
+    "disparity_change",
+    "valid_fwd",
+    "valid_bwd",
+    "occlusion_fwd",
+    "occlusion_bwd",
+)
+FB_ABS = 0.05  # px: forward-backward consistency slack
+FB_REL = 0.01  # fraction of the flow magnitude added to the slack
+DEPTH_REL = 1e-3  # relative inverse-depth slack of the depth test
+BACKGROUND_DEPTH = 1e9  # depths at or beyond this are background (Blender writes 1e10)
+EDGE_REL = 0.5  # a relative inverse-depth jump above this between neighbours is a depth edge
+
+
+@dataclass
+class Camera:
+    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world."""
+
+    K: np.ndarray
+    cam_to_world: np.ndarray
+
+    def world_to_cam(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R, C): camera-frame point = R @ (world point - C)."""
+        m = np.asarray(self.cam_to_world, dtype=np.float64)
+        return m[:3, :3].T, m[:3, 3]
+
+
+@dataclass
+class RawPasses:
+    """The raw passes of one view at one frame (see CONVENTIONS.md and BLENDER_FACTS.md).
+
+    depth (H,W) planar z in metres, inf (or >= 1e9) on background; vector (H,W,4) Blender's raw
+    vector pass; position (H,W,3) world position; instance (H,W) int, 0 = background;
+    next_position / prev_position (H,W,3) world position at t+1 / t-1 of the point seen at t,
+    NaN where unknown. Only depth, vector and camera are required.
+    """
+
+    depth: np.ndarray
+    vector: np.ndarray
+    camera: Camera
+    position: np.ndarray | None = None
+    instance: np.ndarray | None = None
+    next_position: np.ndarray | None = None
+    prev_position: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape[:2])
+
+
+def _check(p: RawPasses, what: str, shape: tuple[int, int] | None = None) -> tuple[int, int]:
+    if p.depth.ndim != 2:
+        raise LfusdError(f"{what}: depth has shape {p.depth.shape}; expected (H, W)")
+    hw = shape or p.shape
+    if min(hw) < 2:
+        raise LfusdError(f"{what}: the view is {hw[1]}x{hw[0]} pixels; motion needs at least 2x2")
+    want = {"depth": (), "vector": (4,), "position": (3,), "instance": (), "next_position": (3,), "prev_position": (3,)}
+    for key, tail in want.items():
+        a = getattr(p, key)
+        if a is not None and tuple(a.shape) != (*hw, *tail):
+            raise LfusdError(f"{what}: {key} has shape {tuple(a.shape)} but the view is {hw[1]}x{hw[0]}; expected {(*hw, *tail)} (re-render it)")
+    return hw
+
+
+_GRIDS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) float32 pixel-centre coordinates, u = column, v = row (cached, read-only)."""
+    if (h, w) not in _GRIDS:
+        v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+        u.setflags(write=False)
+        v.setflags(write=False)
+        _GRIDS[(h, w)] = (u, v)
+    return _GRIDS[(h, w)]
+
+
+def project(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, z) of world points (...,3) in ``cam``; z is planar depth (<= 0 behind the camera)."""
+    R, C = cam.world_to_cam()
+    K = np.asarray(cam.K, dtype=np.float64)
+    # Subtract the centre before rotating so float32 keeps precision far from the world origin.
+    d = points - C.astype(points.dtype)
+    M = (K @ R).astype(np.float32)
+    x = d @ M.T
+    z = d @ R[2].astype(np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], z
+
+
+def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam: Camera) -> np.ndarray:
+    """World points (...,3) at pixel coordinates (u, v) with planar depth z."""
+    R, C = cam.world_to_cam()
+    K = np.asarray(cam.K, dtype=np.float64)
+    A = (R.T @ np.linalg.inv(K)).astype(np.float32)  # camera ray (u, v, 1) -> world direction
+    x = np.stack([u, v, np.ones_like(u)], axis=-1) * z[..., None]
+    return x @ A.T + C.astype(np.float32)
+
+
+def foreground(depth: np.ndarray) -> np.ndarray:
+    """Pixels that see a surface."""
+    return np.isfinite(depth) & (depth > 0) & (depth < BACKGROUND_DEPTH)
+
+
+def world_position(p: RawPasses, fg: np.ndarray) -> np.ndarray:
+    """World position of every pixel at t: the position pass where finite, else back-projected depth."""
+    h, w = p.shape
+    u, v = pixel_grid(h, w)
+    z = np.where(fg, p.depth, 0).astype(np.float32)
+    back = backproject(u, v, z, p.camera)
+    if p.position is None:
+        return back
+    pos = np.asarray(p.position, dtype=np.float32)
+    return np.where(np.isfinite(pos), pos, back)
+
+
+def _inv_depth(depth: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        inv = np.where(foreground(depth), 1.0 / depth.astype(np.float32), 0.0)
+    return inv.astype(np.float32)
+
+
+def _forward_vector(vec: np.ndarray) -> np.ndarray:
+    return np.stack([-vec[..., 2], vec[..., 3]], axis=-1).astype(np.float32)
+
+
+def _backward_vector(vec: np.ndarray) -> np.ndarray:
+    return np.stack([vec[..., 0], -vec[..., 1]], axis=-1).astype(np.float32)
+
+
+def _slope_bounds(img: np.ndarray, smooth: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper per-pixel slope of ``img`` (H,W,C) along ``axis`` from its two one-sided differences.
+
+    ``smooth`` (H,W) minus one along ``axis``: whether neighbours lie on one surface (same
+    instance, no depth edge). Differences across an edge are ignored; with one usable side its
+    slope is both bounds, with none both are 0. At a crease the two sides differ and the bounds
+    span both slopes, so extrapolation from a pixel on either face covers the truth.
+    """
+    d = np.where(np.expand_dims(smooth, -1), np.diff(img, axis=axis), np.nan)
+    pad = [(0, 0)] * img.ndim
+    pad[axis] = (1, 0)
+    back = np.pad(d, pad, constant_values=np.nan)  # img[i] - img[i-1]
+    pad[axis] = (0, 1)
+    fwd = np.pad(d, pad, constant_values=np.nan)  # img[i+1] - img[i]
+    back = np.where(np.isnan(back), fwd, back)
+    fwd = np.where(np.isnan(fwd), back, fwd)
+    lo = np.nan_to_num(np.fmin(back, fwd), nan=0.0).astype(np.float32)
+    hi = np.nan_to_num(np.fmax(back, fwd), nan=0.0).astype(np.float32)
+    return lo, hi
+
+
+class _Target:
+    """The four pixels of another frame around sub-pixel points, with first-order extrapolation from each."""
+
+    def __init__(self, x, y, inst_self, inst_other: np.ndarray, inv_other: np.ndarray, h: int, w: int):
+        x0 = np.clip(np.floor(x), 0, max(w - 2, 0)).astype(np.int64)
+        y0 = np.clip(np.floor(y), 0, max(h - 2, 0)).astype(np.int64)
+        xs = np.stack([x0, x0 + 1, x0, x0 + 1])
+        ys = np.stack([y0, y0, y0 + 1, y0 + 1])
+        self.dx, self.dy = (x - xs).astype(np.float32), (y - ys).astype(np.float32)  # (4, N)
+        self.index = ys * w + xs
+        self.same = inst_other.ravel()[self.index] == inst_self  # (4, N)
+        nearest = np.argmin(self.dx**2 + self.dy**2, axis=0)
+        self.nearest = np.take_along_axis(self.index, nearest[None], 0)[0]
+        self.nearest_same = np.take_along_axis(self.same, nearest[None], 0)[0]
+        # Neighbour pairs on one surface (same instance, no inverse-depth jump), along x then y.
+        self.smooth = []
+        for lo_nb, hi_nb, axis in (
+            (inv_other[:, :-1], inv_other[:, 1:], 1),
+            (inv_other[:-1], inv_other[1:], 0),
+        ):
+            jump_ok = np.abs(hi_nb - lo_nb) <= EDGE_REL * np.minimum(lo_nb, hi_nb)
+            self.smooth.append((np.diff(inst_other, axis=axis) == 0) & jump_ok)
+
+    def interval(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Bounds of ``img`` (H,W,C) at the points as seen from each corner: (lo, hi, ext_lo, ext_hi), each (4,N,C).
+
+        ext_lo/ext_hi extrapolate the corner's value with its two one-sided slopes (equal on a
+        plane, so the bounds meet at the exact value there). lo/hi also reach to the values of
+        the other same-instance corners, so a point between pixels of two faces (a crease seen
+        edge-on, a face thinner than a pixel) is bracketed by them.
+        """
+        c = img.shape[-1]
+        i = self.index
+        vals = img.reshape(-1, c)[i]
+        ext_lo = ext_hi = vals
+        for axis, off in ((1, self.dx), (0, self.dy)):
+            glo, ghi = _slope_bounds(img, self.smooth[0 if axis == 1 else 1], axis)
+            a = glo.reshape(-1, c)[i] * off[..., None]
+            b = ghi.reshape(-1, c)[i] * off[..., None]
+            ext_lo, ext_hi = ext_lo + np.minimum(a, b), ext_hi + np.maximum(a, b)
+        same = self.same[..., None]
+        env_lo = np.where(same, vals, np.inf).min(axis=0)
+        env_hi = np.where(same, vals, -np.inf).max(axis=0)
+        return np.minimum(ext_lo, env_lo), np.maximum(ext_hi, env_hi), ext_lo, ext_hi
+
+
+def _visibility_numpy(x, y, fl, z_exp, exact, inst_cur, inst_other, inv_other, back):
+    """Occlusion tests of the module docstring for points (x, y) in the other frame (NumPy reference).
+
+    Returns (visible, vector_ok, inv_pt) per point: visible at the other frame, whether the
+    vector-plus-depth route may trust its depth there, and the point's inverse depth there.
+    """
+    h, w = inv_other.shape
+    inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & ~(z_exp <= 0)
+    tg = _Target(np.clip(x, -1, w), np.clip(y, -1, h), inst_cur, inst_other, inv_other, h, w)
+    slack = (FB_ABS + FB_REL * np.sqrt((fl**2).sum(axis=1)))[None, :, None]
+    lo, hi, _, _ = tg.interval(back)
+    fb_ok = ((-fl >= lo - slack) & (-fl <= hi + slack)).all(axis=2)  # (4, N)
+    lo, hi, ext_lo, ext_hi = (a[..., 0] for a in tg.interval(inv_other[..., None]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_exp = (1.0 / z_exp).astype(np.float32)
+        tol = DEPTH_REL * inv_exp
+        depth_ok = ((inv_exp >= lo - tol) & (inv_exp <= hi + tol)) | ~exact
+    agree = tg.same & fb_ok & depth_ok  # (4, N)
+    # Vector route: the point's inverse depth extrapolated from the four corners; on a planar
+    # patch every corner's two slopes meet at the exact value. Near a crease or an edge they
+    # disagree, and the route leaves the point undefined (not "sharp").
+    inv_vec = 0.5 * (ext_lo.min(axis=0) + ext_hi.max(axis=0))
+    sharp = agree.all(axis=0) & (ext_hi.max(axis=0) - ext_lo.min(axis=0) <= DEPTH_REL * inv_vec)
+    inv_pt = np.where(exact, inv_exp, inv_vec)
+    # The pixel nearest the point must show its instance, or a surface behind it (the point is
+    # then at a silhouette, in front of what the pixel centre sees); a nearer surface hides it.
+    behind = inv_other.ravel()[tg.nearest] < inv_pt * (1 - DEPTH_REL)
+    visible = inside & (tg.nearest_same | behind) & agree.any(axis=0)
+    # Vector route values are trusted only away from instance edges and creases.
+    vector_ok = ~exact & visible & sharp
+    return visible, vector_ok, inv_pt.astype(np.float32)
+
+
+def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position, forward: bool):
+    """Flow towards ``other``, the point's depth there where knowable, occlusion and masks.
+
+    Returns (flow (H,W,2), z_other (N,), exact (N,), visible (N,), vector_ok (N,), idx (N,), (x, y)),
+    all per foreground pixel (flat indices ``idx``).
+    """
+    h, w = cur.shape
+    u, v = pixel_grid(h, w)
+    idx = np.flatnonzero(fg)
+    flow = _forward_vector(cur.vector) if forward else _backward_vector(cur.vector)
+    flow[~fg] = 0
+    fl = flow.reshape(-1, 2)[idx]
+    z_exp = np.full(idx.size, np.nan, np.float32)
+    exact = np.zeros(idx.size, bool)
+    if other_position is not None:
+        P1 = np.asarray(other_position, dtype=np.float32).reshape(-1, 3)[idx]
+        exact = np.isfinite(P1).all(axis=1)
+        pu, pv, pz = project(P1[exact], other.camera)
+        uu, vv = u.ravel()[idx][exact], v.ravel()[idx][exact]
+        fl[exact, 0], fl[exact, 1] = pu - uu, pv - vv
+        z_exp[exact] = pz
+        flow.reshape(-1, 2)[idx] = fl
+    x = u.ravel()[idx] + fl[:, 0]
+    y = v.ravel()[idx] + fl[:, 1]
+    inst_cur = (cur.instance if cur.instance is not None else fg.astype(np.int32)).ravel()[idx]
+    inst_other = other.instance if other.instance is not None else foreground(other.depth).astype(np.int32)
+    inv_other = _inv_depth(other.depth)
+    # Forward-backward consistency against the other frame's vector pass pointing back to t.
+    back = _backward_vector(other.vector) if forward else _forward_vector(other.vector)
+    visible, vector_ok, inv_pt = _visibility_numpy(
+        x.astype(np.float32), y.astype(np.float32), fl, z_exp, exact, inst_cur.astype(np.int32),
+        np.ascontiguousarray(inst_other, dtype=np.int32), inv_other, np.ascontiguousarray(back),
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_exp[vector_ok] = 1.0 / inv_pt[vector_ok]
+    return flow, z_exp, exact, visible, vector_ok, idx, (x, y)
+
+
+try:  # the compiled kernels (same algorithm as the NumPy code, one pass per pixel)
+    from . import _motion_numba as _flow_numba
+
+    BACKEND = "numba"
+except ImportError:  # pragma: no cover - numba is optional
+    _flow_numba = None
+    BACKEND = "numpy"
+
+
+def derive_motion(
+    cur: RawPasses,
+    nxt: RawPasses | None = None,
+    prv: RawPasses | None = None,
+    baseline: float | None = None,
+    backend: str | None = None,
+) -> dict[str, np.ndarray]:
+    """All motion keys of CONVENTIONS.md for one view at frame t (see the module docstring).
+
+    ``nxt`` / ``prv``: the same view's raw passes at t+1 / t-1 (None on the last / first frame).
+    ``baseline``: the rig baseline b in metres for disparity d = f_px * b / z (K[0,0] is f_px);
+    without it ``disparity_change`` is 0 and only the other keys are meaningful.
+    ``backend``: 'numba' (compiled, default when numba is installed) or 'numpy' (reference).
+    """
+    backend = backend or BACKEND
+    if backend not in ("numba", "numpy") or (backend == "numba" and _flow_numba is None):
+        raise LfusdError(f"flow backend {backend!r} is not available; use 'numpy'" + ("" if _flow_numba else " or install numba"))
+    hw = _check(cur, "frame t")
+    if nxt is not None:
+        _check(nxt, "frame t+1", hw)
+    if prv is not None:
+        _check(prv, "frame t-1", hw)
+    h, w = hw
+    fg = foreground(cur.depth)
+    out: dict[str, np.ndarray] = {
+        "flow_fwd": np.zeros((h, w, 2), np.float32),
+        "flow_bwd": np.zeros((h, w, 2), np.float32),
+        "scene_flow": np.zeros((h, w, 3), np.float32),
+        "disparity_change": np.zeros((h, w), np.float32),
+        "valid_fwd": np.zeros((h, w), bool),
+        "valid_bwd": np.zeros((h, w), bool),
+        "occlusion_fwd": np.zeros((h, w), bool),
+        "occlusion_bwd": np.zeros((h, w), bool),
+    }
+    if nxt is None and prv is None:
+        return out
+    fb = float(cur.camera.K[0, 0]) * float(baseline) if baseline else 0.0
+    if backend == "numba":
+        _derive_numba(cur, nxt, prv, fb, out)
+        return out
+    pos_t = world_position(cur, fg)
+    if nxt is not None:
+        flow, z1, exact, visible, route, idx, (x, y) = _direction(cur, nxt, fg, cur.next_position, True)
+        out["flow_fwd"] = flow
+        P0 = pos_t.reshape(-1, 3)[idx]
+        P1 = np.zeros_like(P0)
+        if exact.any():
+            P1[exact] = np.asarray(cur.next_position, np.float32).reshape(-1, 3)[idx][exact]
+        if route.any():
+            P1[route] = backproject(x[route], y[route], z1[route], nxt.camera)
+        known = exact | route
+        sf = np.where(known[:, None], P1 - P0, 0).astype(np.float32)
+        out["scene_flow"].reshape(-1, 3)[idx] = sf
+        z0 = cur.depth.ravel()[idx].astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dc = np.where(known, fb / z1 - fb / z0, 0).astype(np.float32)
+        out["disparity_change"].ravel()[idx] = dc
+        out["valid_fwd"].ravel()[idx] = known
+        out["occlusion_fwd"].ravel()[idx] = ~visible
+    if prv is not None:
+        flow, _, exact, visible, _, idx, _ = _direction(cur, prv, fg, cur.prev_position, False)
+        out["flow_bwd"] = flow
+        out["valid_bwd"].ravel()[idx] = True
+        out["occlusion_bwd"].ravel()[idx] = ~visible
+    return out
+
+
+def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, out: dict) -> None:
+    """derive_motion's compiled path: one fused pass per direction, writing into ``out``."""
+    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+    depth = f32(cur.depth)
+    has_pos = cur.position is not None
+    pos = f32(cur.position) if has_pos else np.zeros((1, 1, 3), np.float32)
+    inst = np.ascontiguousarray(cur.instance if cur.instance is not None else foreground(depth), dtype=np.int32)
+    R, C = cur.camera.world_to_cam()
+    A_cur = R.T @ np.linalg.inv(np.asarray(cur.camera.K, np.float64))
+    for other, opos, forward in ((nxt, cur.next_position, True), (prv, cur.prev_position, False)):
+        if other is None:
+            continue
+        inv_o, back_o = _flow_numba.inverse_depth_and_back(f32(other.depth), f32(other.vector), forward, BACKGROUND_DEPTH)
+        inst_o = np.ascontiguousarray(other.instance if other.instance is not None else inv_o > 0, dtype=np.int32)
+        Ro, Co = other.camera.world_to_cam()
+        Ko = np.asarray(other.camera.K, np.float64)
+        has_opos = opos is not None
+        sfx = "fwd" if forward else "bwd"
+        _flow_numba.direction(
+            depth, f32(cur.vector), pos, has_pos, inst,
+            f32(opos) if has_opos else np.zeros((1, 1, 3), np.float32), has_opos,
+            inst_o, inv_o, back_o, forward,
+            A_cur, C, Ko @ Ro, Ro[2].copy(), Co, Ro.T @ np.linalg.inv(Ko), fb, BACKGROUND_DEPTH,
+            FB_ABS, FB_REL, DEPTH_REL, EDGE_REL,
+            out[f"flow_{sfx}"], out["scene_flow"], out["disparity_change"], out[f"valid_{sfx}"], out[f"occlusion_{sfx}"],
+        )

@@ -1,0 +1,454 @@
+"""Independent verification of a dataset's motion ground truth against the stage's own geometry.
+
+Every mesh of the stage is rebuilt with pxr (:class:`lfusd.author.geometry.StageGeometry`: UsdGeom
+points and transforms, UsdSkel skinning) at t and t+-1. A ray through every pixel centre (K and
+cam_to_world) is cast with Open3D's ``RaycastingScene``; the hit is recomputed in float64 on its
+triangle, moved with that triangle to the other frame (same barycentric coordinates on the same
+triangle), projected, and tested for visibility there with a second ray cast. That gives depth,
+instance, flow, scene flow, disparity change and occlusion independently of Blender and of
+:mod:`lfusd.truth.motion`; :func:`verify_dataset` compares a dataset with them.
+
+Default thresholds (:data:`THRESHOLDS`), applied to the 99th percentile of the error on
+*interior* pixels (foreground in both, at least ``EDGE_PX`` pixels from any instance edge or depth
+edge of the traced image) for every object class and for all classes together:
+flow 0.05 px, scene flow 1 mm, depth 1e-4 relative, disparity change 0.05 px; instance ids must
+agree on all but 0.1 % of interior pixels; occlusion masks must agree with ray-cast visibility on
+99 % of the pixels that are foreground in both (over the whole view; per-class rates are only
+reported, as a small object's disagreement at its edges is a large share of its pixels).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Iterable
+
+import numpy as np
+
+from ..errors import LfusdError
+
+THRESHOLDS: dict[str, float] = {
+    "depth": 1e-4,  # relative
+    "flow_fwd": 0.05,  # px
+    "flow_bwd": 0.05,  # px
+    "scene_flow": 1e-3,  # m
+    "disparity_change": 0.05,  # px
+    "instance": 1e-3,  # fraction of interior pixels with another id
+    "occlusion_fwd": 0.01,  # fraction of foreground pixels that disagree
+    "occlusion_bwd": 0.01,
+}
+UNITS = {"depth": "rel", "flow_fwd": "px", "flow_bwd": "px", "scene_flow": "m", "disparity_change": "px", "instance": "frac", "occlusion_fwd": "frac", "occlusion_bwd": "frac"}
+EDGE_PX = 2
+DEPTH_EDGE_REL = 0.02  # neighbours whose depths differ by more than this are across a depth edge
+VISIBLE_EPS = 1e-4  # relative slack of the visibility ray cast (hits nearer than 1-eps occlude)
+
+
+# -- tracing ---------------------------------------------------------------------------------
+
+
+class TracedScene:
+    """Open3D ray-casting scene of all stage meshes at one time, with float64 copies of them."""
+
+    def __init__(self, geometry, time: float):
+        import open3d as o3d
+
+        self.time = time
+        self.meshes = geometry.meshes(time)
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.geom_ids: list[int] = []
+        for prim, m in zip(geometry.gprims, self.meshes):
+            if len(m.triangles) == 0 or not geometry.visible(prim, time):
+                self.geom_ids.append(-1)
+                continue
+            gid = self.scene.add_triangles(
+                o3d.core.Tensor(m.vertices.astype(np.float32)), o3d.core.Tensor(m.triangles.astype(np.uint32))
+            )
+            self.geom_ids.append(int(gid))
+        self.by_gid = {g: i for i, g in enumerate(self.geom_ids) if g >= 0}
+
+    def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t_hit float32 in units of |dir|, mesh index (-1 none), triangle id) per ray."""
+        import open3d as o3d
+
+        rays = np.concatenate([origins, dirs], axis=-1).reshape(-1, 6).astype(np.float32)
+        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        t = ans["t_hit"].numpy()
+        gid = ans["geometry_ids"].numpy().astype(np.int64)
+        prim = ans["primitive_ids"].numpy().astype(np.int64)
+        lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
+        for g, i in self.by_gid.items():
+            lut[g] = i
+        mesh = np.where(np.isfinite(t), lut[np.clip(gid, 0, len(lut) - 1)], -1)
+        return t, mesh, prim
+
+
+def _rays(K: np.ndarray, cam_to_world: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
+    c2w = np.asarray(cam_to_world, np.float64)
+    d = pix @ np.linalg.inv(np.asarray(K, np.float64)).T @ c2w[:3, :3].T  # camera-z component 1
+    return np.broadcast_to(c2w[:3, 3], d.shape).copy(), d
+
+
+def _project(X: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray):
+    c2w = np.asarray(cam_to_world, np.float64)
+    c = (X - c2w[:3, 3]) @ c2w[:3, :3]
+    x = c @ np.asarray(K, np.float64).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], c[..., 2]
+
+
+def _hit_on_triangle(o, d, A, B, C):
+    """Ray-plane hit parameter and barycentric (b1, b2) on triangles ABC, in float64."""
+    e1, e2 = B - A, C - A
+    n = np.cross(e1, e2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = ((A - o) * n).sum(-1) / (d * n).sum(-1)
+        P = o + t[:, None] * d
+        # Barycentric coordinates of P by the standard dot-product solve.
+        w = P - A
+        d00, d01, d11 = (e1 * e1).sum(-1), (e1 * e2).sum(-1), (e2 * e2).sum(-1)
+        d20, d21 = (w * e1).sum(-1), (w * e2).sum(-1)
+        den = d00 * d11 - d01 * d01
+        b1 = (d11 * d20 - d01 * d21) / den
+        b2 = (d00 * d21 - d01 * d20) / den
+    return t, P, b1, b2
+
+
+def trace_motion(
+    stage_or_geometry,
+    frame: float,
+    K: np.ndarray,
+    cam_to_world_t: np.ndarray,
+    cam_to_world_t1: np.ndarray,
+    H: int,
+    W: int,
+    step: int = 1,
+    baseline: float | None = None,
+    scenes: dict | None = None,
+) -> dict[str, Any]:
+    """Independently traced ground truth of one view at ``frame`` towards ``frame + step``.
+
+    ``stage_or_geometry``: a Usd.Stage or a StageGeometry; ``cam_to_world_t1`` is the view's
+    pose at ``frame + step``. ``scenes`` (optional dict) caches TracedScene per time between calls.
+    Returns depth (H,W; inf on background), position (H,W,3), mesh (H,W int; index into
+    ``prim_paths``, -1 background), prim_paths, flow (H,W,2) to frame+step, scene_flow (H,W,3),
+    disparity_change (H,W; needs ``baseline``), occluded (H,W bool: hidden or outside the image
+    at frame+step) and valid (H,W bool: foreground whose mesh keeps its topology).
+    """
+    from ..author.geometry import StageGeometry
+
+    geo = stage_or_geometry if isinstance(stage_or_geometry, StageGeometry) else StageGeometry(stage_or_geometry)
+    scenes = {} if scenes is None else scenes
+    for t in (frame, frame + step):
+        if t not in scenes:
+            scenes[t] = TracedScene(geo, t)
+    s0, s1 = scenes[frame], scenes[frame + step]
+    o, d = _rays(K, cam_to_world_t, H, W)
+    o, d = o.reshape(-1, 3), d.reshape(-1, 3)
+    _, mesh, tri = s0.cast(o, d)
+    n = H * W
+    depth = np.full(n, np.inf)
+    pos = np.full((n, 3), np.nan)
+    pos1 = np.full((n, 3), np.nan)
+    valid = np.zeros(n, bool)
+    for i, (m0, m1) in enumerate(zip(s0.meshes, s1.meshes)):
+        sel = np.flatnonzero(mesh == i)
+        if sel.size == 0:
+            continue
+        tr = m0.triangles[tri[sel]]
+        t, P, b1, b2 = _hit_on_triangle(o[sel], d[sel], *(m0.vertices[tr[:, k]] for k in range(3)))
+        depth[sel] = t  # direction has camera-z 1, so the ray parameter is planar depth
+        pos[sel] = P
+        if m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles):
+            V = m1.vertices[tr]
+            pos1[sel] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
+            valid[sel] = True
+    u1, v1, z1 = _project(pos1, K, cam_to_world_t1)
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    flow = np.stack([u1 - u.ravel(), v1 - v.ravel()], -1)
+    inside = (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
+    # Visibility at frame+step: the first hit from the camera towards the moved point is the point.
+    C1 = np.asarray(cam_to_world_t1, np.float64)[:3, 3]
+    vis = np.zeros(n, bool)
+    idx = np.flatnonzero(valid & inside)
+    if idx.size:
+        t_hit, _, _ = s1.cast(np.broadcast_to(C1, (idx.size, 3)), pos1[idx] - C1)
+        vis[idx] = t_hit >= 1 - VISIBLE_EPS
+    fb = float(K[0, 0]) * float(baseline) if baseline else np.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dchange = fb / z1 - fb / depth
+    return {
+        "depth": depth.reshape(H, W),
+        "position": pos.reshape(H, W, 3),
+        "mesh": mesh.reshape(H, W),
+        "prim_paths": [m.prim_path for m in s0.meshes],
+        "flow": flow.reshape(H, W, 2),
+        "scene_flow": (pos1 - pos).reshape(H, W, 3),
+        "disparity_change": dchange.reshape(H, W),
+        "occluded": (valid & ~vis).reshape(H, W),
+        "valid": valid.reshape(H, W),
+    }
+
+
+# -- comparison ------------------------------------------------------------------------------
+
+
+def _dilate(mask: np.ndarray, r: int) -> np.ndarray:
+    out = mask.copy()
+    for _ in range(r):
+        m = out.copy()
+        m[1:] |= out[:-1]
+        m[:-1] |= out[1:]
+        m[:, 1:] |= out[:, :-1]
+        m[:, :-1] |= out[:, 1:]
+        out = m
+    return out
+
+
+def interior_mask(instance: np.ndarray, depth: np.ndarray, edge_px: int = EDGE_PX) -> np.ndarray:
+    """Foreground pixels more than ``edge_px`` pixels away from the pixels touching an instance or depth edge."""
+    fg = np.isfinite(depth) & (instance > 0)
+    edge = np.zeros_like(fg)
+    for axis in (0, 1):
+        a = [slice(None)] * 2
+        b = [slice(None)] * 2
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        da, db = depth[tuple(a)], depth[tuple(b)]
+        with np.errstate(invalid="ignore"):
+            jump = (instance[tuple(a)] != instance[tuple(b)]) | ~(np.abs(da - db) <= DEPTH_EDGE_REL * np.minimum(da, db))
+        edge[tuple(a)] |= jump
+        edge[tuple(b)] |= jump
+    return fg & ~_dilate(edge, edge_px)
+
+
+def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
+    """Instance id of each gprim path: the object whose prim is the gprim or its nearest ancestor."""
+    from pxr import Sdf
+
+    out = np.zeros(len(prim_paths) + 1, np.int64)  # last entry: background (-1 index)
+    owners = sorted(((Sdf.Path(o.prim_path), int(i)) for i, o in objects.items()), key=lambda x: -x[0].pathElementCount)
+    for k, p in enumerate(prim_paths):
+        sp = Sdf.Path(p)
+        out[k] = next((i for op, i in owners if sp.HasPrefix(op)), 0)
+    return out
+
+
+@dataclass
+class Row:
+    """Error statistics of one key and class in one view and frame."""
+
+    frame: int
+    view: tuple[int, int]
+    key: str
+    label: str
+    count: int
+    median: float
+    p99: float
+    max: float
+    threshold: float
+
+    @property
+    def ok(self) -> bool:
+        return self.count == 0 or self.p99 <= self.threshold
+
+
+@dataclass
+class VerifyReport:
+    """All rows of a verification; ``ok`` when no row exceeds its threshold."""
+
+    rows: list[Row] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return all(r.ok for r in self.rows)
+
+    def failures(self) -> list[str]:
+        """One line per failing row, naming the key, class, frame and view."""
+        out = []
+        for r in self.rows:
+            if r.ok:
+                continue
+            where = f"{r.key} of view {r.view[0]},{r.view[1]} at frame {r.frame} ({r.label or 'unlabelled'}): "
+            if UNITS.get(r.key) == "frac":
+                out.append(where + f"disagrees on {100 * r.p99:.3g} % of {r.count} px > {100 * r.threshold:g} %")
+            else:
+                out.append(where + f"p99 error {r.p99:.3g} {UNITS[r.key]} > {r.threshold:g} over {r.count} px")
+        return out
+
+    def summary(self) -> list[dict]:
+        """Per key and class over all frames and views: pixel count, median of medians, worst p99 and max."""
+        out: dict[tuple[str, str], dict] = {}
+        for r in self.rows:
+            e = out.setdefault((r.key, r.label), {"key": r.key, "label": r.label, "count": 0, "medians": [], "p99": 0.0, "max": 0.0, "threshold": r.threshold, "ok": True})
+            e["count"] += r.count
+            if r.count:
+                e["medians"].append(r.median)
+                e["p99"] = max(e["p99"], r.p99)
+                e["max"] = max(e["max"], r.max)
+            e["ok"] &= r.ok
+        for e in out.values():
+            e["median"] = float(np.median(e.pop("medians"))) if e["count"] else 0.0
+        return list(out.values())
+
+    def table(self) -> str:
+        """Plain-text table of :meth:`summary`."""
+        lines = [f"{'key':<17}{'class':<14}{'pixels':>9}{'median':>11}{'p99':>11}{'max':>11}{'limit':>9}  ok"]
+        for e in self.summary():
+            lines.append(
+                f"{e['key']:<17}{(e['label'] or 'unlabelled'):<14}{e['count']:>9}"
+                f"{e['median']:>11.3g}{e['p99']:>11.3g}{e['max']:>11.3g}{e['threshold']:>9.3g}  {'yes' if e['ok'] else 'NO'}"
+            )
+        return "\n".join(lines)
+
+
+ALL = "(all)"
+
+
+def _stats_rows(frame, view, key, err, classes, labels_of, threshold, rate=False) -> list[Row]:
+    """Rows for all classes and each class; ``rate``: err is 0/1 and every statistic is its mean."""
+    rows = []
+    for label in [ALL] + sorted(set(labels_of[classes].tolist())):
+        sel = np.ones(err.shape, bool) if label == ALL else labels_of[classes] == label
+        e = err[sel]
+        if e.size == 0:
+            rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, threshold))
+            continue
+        if rate:
+            # Occlusion disagreement lives on the edges of what is seen at t+-1: its limit is on
+            # the whole image, the per-class rates are reported for information only.
+            limit = np.inf if key.startswith("occlusion") and label != ALL else threshold
+            m = float(e.mean())
+            rows.append(Row(frame, view, key, label, int(e.size), m, m, m, limit))
+        else:
+            rows.append(Row(frame, view, key, label, int(e.size), float(np.median(e)), float(np.percentile(e, 99)), float(e.max()), threshold))
+    return rows
+
+
+def compare_view(
+    data: dict[str, np.ndarray | None],
+    fwd: dict | None,
+    bwd: dict | None,
+    objects: dict,
+    frame: int,
+    view: tuple[int, int],
+    thresholds: dict[str, float] | None = None,
+) -> list[Row]:
+    """Error rows of one view: ``data`` holds the dataset's arrays (missing keys None), ``fwd``/``bwd`` traces."""
+    thr = {**THRESHOLDS, **(thresholds or {})}
+    tr = fwd or bwd
+    if tr is None:
+        raise LfusdError(f"frame {frame} has neither a next nor a previous frame to verify motion against; verify a sequence of 2+ frames")
+    ids = object_ids_for(tr["prim_paths"], objects)
+    inst_tr = ids[tr["mesh"]]  # mesh -1 -> last entry 0
+    labels_of = np.array([""] + [str(objects[i].label) for i in sorted(objects)], dtype=object)
+    id_to_row = np.zeros(max([0] + list(objects)) + 1, np.int64)
+    for k, i in enumerate(sorted(objects)):
+        id_to_row[i] = k + 1
+    inst_ds = np.asarray(data["instance"]) if data.get("instance") is not None else inst_tr
+    depth_ds = np.asarray(data["depth"], np.float64)
+    interior = interior_mask(inst_tr, tr["depth"]) & np.isfinite(depth_ds) & (depth_ds < 1e9)
+    cls = id_to_row[np.clip(inst_tr, 0, len(id_to_row) - 1)]
+    rows: list[Row] = []
+
+    def add(key, err, sel, rate=False):
+        rows.extend(_stats_rows(frame, view, key, err[sel], cls[sel], labels_of, thr[key], rate))
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        add("depth", np.abs(depth_ds - tr["depth"]) / tr["depth"], interior)
+        if data.get("instance") is not None:
+            add("instance", (inst_ds != inst_tr).astype(float), interior, rate=True)
+        for name, trace, step in (("fwd", fwd, "valid_fwd"), ("bwd", bwd, "valid_bwd")):
+            if trace is None:
+                continue
+            ok = interior & trace["valid"]
+            if data.get(step) is not None:
+                ok &= np.asarray(data[step], bool)
+            if data.get(f"flow_{name}") is not None:
+                add(f"flow_{name}", np.linalg.norm(np.asarray(data[f"flow_{name}"], np.float64) - trace["flow"], axis=-1), ok)
+            if name == "fwd" and data.get("scene_flow") is not None:
+                add("scene_flow", np.linalg.norm(np.asarray(data["scene_flow"], np.float64) - trace["scene_flow"], axis=-1), ok)
+            if name == "fwd" and data.get("disparity_change") is not None and np.isfinite(trace["disparity_change"][ok]).all():
+                add("disparity_change", np.abs(np.asarray(data["disparity_change"], np.float64) - trace["disparity_change"]), ok)
+            occ = data.get(f"occlusion_{name}")
+            if occ is not None:
+                both = (inst_tr > 0) & np.isfinite(depth_ds) & (depth_ds < 1e9) & trace["valid"]
+                add(f"occlusion_{name}", (np.asarray(occ, bool) != trace["occluded"]).astype(float), both, rate=True)
+    return rows
+
+
+# -- datasets --------------------------------------------------------------------------------
+
+KEYS = ("depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change", "valid_fwd", "valid_bwd", "occlusion_fwd", "occlusion_bwd")
+
+
+def _read_optional(ds, frame, view, key):
+    try:
+        return ds.read(frame, view, key)
+    except (KeyError, FileNotFoundError, LfusdError):
+        return None
+
+
+def dataset_stage_path(ds) -> str | None:
+    """The stage a dataset was rendered from: ``ds.stage_path``, else its manifest's stage path."""
+    path = getattr(ds, "stage_path", None)
+    if path:
+        return str(path)
+    manifest = getattr(ds, "manifest", None) or {}
+    return (manifest.get("stage") or {}).get("path")
+
+
+def verify_dataset(
+    ds,
+    stage_path: str | None = None,
+    frames: Iterable[int] | None = None,
+    views: Iterable[tuple[int, int]] | None = None,
+    thresholds: dict[str, float] | None = None,
+    baseline: float | None = None,
+    progress=None,
+) -> VerifyReport:
+    """Verify a dataset reader against its stage (see the module docstring).
+
+    ``ds`` needs ``frames``, ``views``, ``intrinsics(view)``, ``cam_to_world(frame, view)``,
+    ``read(frame, view, key)`` and ``objects`` ({id: obj with .prim_path, .label}); the stage
+    comes from ``stage_path``, ``ds.stage_path`` or ``ds.manifest['stage']['path']``; ``baseline`` (or ``ds.baseline``) enables
+    the disparity-change check. ``progress(frame, view)`` is called before each view.
+    """
+    from ..author.geometry import StageGeometry
+    from ..author.stage import open_stage
+
+    stage_path = stage_path or dataset_stage_path(ds)
+    if not stage_path:
+        raise LfusdError("verify needs the stage the dataset was rendered from; pass --stage PATH")
+    geo = StageGeometry(open_stage(stage_path))
+    baseline = baseline if baseline is not None else getattr(ds, "baseline", None)
+    all_frames = [int(f) for f in ds.frames]
+    frames = all_frames if frames is None else [int(f) for f in frames]
+    views = list(ds.views) if views is None else [tuple(v) for v in views]
+    for f in frames:
+        if f not in all_frames:
+            raise LfusdError(f"frame {f} is not in the dataset (frames {all_frames[0]}-{all_frames[-1]}); pick one of its frames")
+    for v in views:
+        if tuple(v) not in [tuple(x) for x in ds.views]:
+            raise LfusdError(f"view {v[0]},{v[1]} is not in the dataset; pick one of its views")
+    objects = ds.objects
+    report = VerifyReport()
+    scenes: dict = {}
+    for f in frames:
+        for view in views:
+            if progress:
+                progress(f, view)
+            data = {k: _read_optional(ds, f, view, k) for k in KEYS}
+            if data["depth"] is None:
+                raise LfusdError(f"the dataset has no depth for frame {f} view {view[0]},{view[1]}; re-render it")
+            H, W = np.asarray(data["depth"]).shape[:2]
+            K = np.asarray(ds.intrinsics(view), np.float64)
+            c2w = np.asarray(ds.cam_to_world(f, view), np.float64)
+            fwd = bwd = None
+            if f + 1 in all_frames:
+                fwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f + 1, view), H, W, 1, baseline, scenes)
+            if f - 1 in all_frames:
+                bwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f - 1, view), H, W, -1, baseline, scenes)
+            report.rows.extend(compare_view(data, fwd, bwd, objects, f, tuple(view), thresholds))
+            for t in [t for t in scenes if t < f - 1]:
+                del scenes[t]  # frames are visited in order: free meshes no longer needed
+    return report

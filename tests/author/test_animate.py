@@ -1,0 +1,398 @@
+"""People on paths: terrain following, smooth turns, water refused, user characters, Blender skinning.
+
+Stages here are written with plain pxr and closed-form ground heights, so every expected height
+and frame is computed independently of lfusd.
+"""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+
+from lfusd.author.people import FILLET_RADIUS, add_person, parse_points
+from lfusd.errors import LfusdError
+from lfusd.author.geometry import StageGeometry
+from lfusd.author.human import HumanSpec, define_human
+from lfusd.author.labels import class_label, set_class_label
+from support.skel_measure import joint_world, planted_steps
+
+ROOT = Path(__file__).resolve().parents[2]
+PY = sys.executable
+
+
+def _quad(stage, path, label, x0, x1, y0, y1, z0, z1=None):
+    """A labelled quad from x0 to x1 whose height rises linearly from z0 to z1 along x."""
+    z1 = z0 if z1 is None else z1
+    set_class_label(UsdGeom.Xform.Define(stage, path).GetPrim(), label)
+    m = UsdGeom.Mesh.Define(stage, path + "/Mesh")
+    m.CreatePointsAttr([(x0, y0, z0), (x1, y0, z1), (x1, y1, z1), (x0, y1, z0)])
+    m.CreateFaceVertexCountsAttr([4])
+    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    m.CreateSubdivisionSchemeAttr("none")
+
+
+def _plain_stage(path, last):
+    """A stage written without lfusd: Z up, metres, 24 fps, frames 1..last."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(24)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(last)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    return stage
+
+
+def slope_stage(path, last=96):
+    """Flat ground for x < 0, a 10 % slope (z = 0.1 x) for x in 0..10."""
+    stage = _plain_stage(path, last)
+    _quad(stage, "/World/Flat", "ground", -10, 0, -10, 10, 0.0)
+    _quad(stage, "/World/Slope", "grass", 0, 10, -10, 10, 0.0, 1.0)
+    stage.Save()
+    return stage
+
+
+def slope_z(xy):
+    return np.where(xy[..., 0] < 0, 0.0, 0.1 * xy[..., 0])
+
+
+def river_stage(path, last=150, bridge=False):
+    """Ground (x < 3), a river (3 < x < 6, surface 0.3 m down), grass beyond; optionally a bridge."""
+    stage = _plain_stage(path, last)
+    _quad(stage, "/World/Ground", "ground", -10, 3, -10, 10, 0.0)
+    _quad(stage, "/World/River", "river", 3, 6, -10, 10, -0.3)
+    _quad(stage, "/World/Bank", "grass", 6, 12, -10, 10, 0.0)
+    if bridge:
+        _quad(stage, "/World/Bridge", "bridge", 2.5, 6.5, -1, 1, 0.05)
+    stage.Save()
+    return stage
+
+
+def _root_world(stage, prim_path, frames):
+    xf = UsdGeom.Xformable(stage.GetPrimAtPath(prim_path))
+    return np.array([np.array(xf.ComputeLocalToWorldTransform(Usd.TimeCode(float(f)))) for f in frames])
+
+
+def test_person_follows_terrain_and_plants_feet(tmp_path):
+    stage = slope_stage(tmp_path / "slope.usda")
+    frames = np.arange(1, 97)
+    prim = add_person(stage, [(-4.0, -1.0), (5.0, -1.0), (5.0, 6.0)], gait="walk", speed=1.4, start=5)
+    assert class_label(prim) == "person"
+    root = _root_world(stage, prim.GetPath(), frames)
+    # The root stands on the (closed-form) ground at every frame.
+    assert np.abs(root[:, 3, 2] - slope_z(root[:, 3, :2])).max() < 1e-4
+    assert root[-1, 3, 0] > 0.5 and root[-1, 3, 2] > 0.05  # it did climb the slope
+    names, pos = joint_world(stage, f"{prim.GetPath()}/Skeleton", frames)
+    ankle_h = 0.04 * 1.75
+    for side in "lr":
+        ankle = pos[:, names.index(f"{side}_ankle")]
+        steps = planted_steps(ankle, slope_z(ankle[:, :2]))
+        assert len(steps) >= 3
+        assert max(s for _, _, s in steps) < 0.03
+        # Flat on the ground when planted, also on the slope: the ankle and the ball of the foot
+        # are at their standing heights above the surface under them.
+        flat = np.concatenate([np.arange(i + (j - i) // 4, j + 1 - (j - i) // 4) for i, j, _ in steps])  # mid-stance
+        toe = pos[flat, names.index(f"{side}_toe")]
+        assert np.abs(ankle[flat, 2] - slope_z(ankle[flat, :2]) - ankle_h).max() < 0.005
+        assert np.abs(toe[:, 2] - slope_z(toe[:, :2]) - 0.012 * 1.75).max() < 0.005
+
+
+def test_person_turns_smoothly(tmp_path):
+    stage = slope_stage(tmp_path / "turn.usda", last=150)
+    speed = 1.4
+    prim = add_person(stage, [(-9.0, -6.0), (-4.0, -6.0), (-4.0, 4.0)], gait="walk", speed=speed)
+    frames = np.arange(1, 151)
+    root = _root_world(stage, prim.GetPath(), frames)
+    fwd = root[:, 1, :2]  # the character's +Y axis in the world (row-vector matrices)
+    heading = np.unwrap(np.arctan2(fwd[:, 1], fwd[:, 0]))
+    assert abs(heading[0] - 0.0) < 1e-6 and abs(heading[-1] - np.pi / 2) < 1e-3
+    # Turning at walking speed on a fillet of radius R: at most speed / R radians per second.
+    assert np.abs(np.diff(heading)).max() <= speed / FILLET_RADIUS / 24 * 1.05
+    # The position moves at the walking speed, without jumps.
+    step = np.linalg.norm(np.diff(root[:, 3, :2], axis=0), axis=1)
+    assert step.max() <= speed / 24 + 1e-6
+    names, pos = joint_world(stage, f"{prim.GetPath()}/Skeleton", frames)
+    for side in "lr":
+        ankle = pos[:, names.index(f"{side}_ankle")]
+        assert max(s for _, _, s in planted_steps(ankle, slope_z(ankle[:, :2]))) < 0.03
+    # The feet never cross over: the left ankle stays on the left of the body's line of travel.
+    left, right = pos[:, names.index("l_ankle"), :2], pos[:, names.index("r_ankle"), :2]
+    lateral = np.einsum("fi,fi->f", left - right, root[:, 0, :2])  # along the character's +X (right)
+    assert np.all(lateral < 0)
+
+
+@pytest.mark.parametrize("gait,speed,accel", [("walk", 1.3, 0.6), ("run", 3.5, 1.2)])
+def test_person_sets_off_and_stops_at_rest(tmp_path, gait, speed, accel):
+    stage = slope_stage(tmp_path / "trip.usda", last=120)
+    start, length = 10, 4.0 if gait == "walk" else 7.0
+    prim = add_person(stage, [(-8.0, 1.0), (-8.0 + length, 1.0)], gait=gait, speed=speed, start=start)
+    frames = np.arange(1, 121)
+    root = _root_world(stage, prim.GetPath(), frames)[:, 3, :3]
+    v = np.linalg.norm(np.diff(root, axis=0), axis=1) * 24  # m/s between frames
+    # Constant acceleration to the speed in ``accel`` seconds, cruising, and the mirror image to a stop.
+    t = (frames[1:] - 0.5 - start) / 24
+    expected = np.clip(np.minimum(t, (length / speed + accel) - t) * speed / accel, 0.0, speed)
+    assert np.abs(v - expected).max() < 0.15 * speed
+    assert np.allclose(root[0, :2], [-8.0, 1.0]) and np.allclose(root[-1, :2], [-8.0 + length, 1.0], atol=1e-6)
+    # Standing still before and after: both feet down and still, side by side within a step.
+    names, pos = joint_world(stage, f"{prim.GetPath()}/Skeleton", frames)
+    for sl in (slice(0, start), slice(-10, None)):
+        ankles = pos[sl][:, [names.index("l_ankle"), names.index("r_ankle")]]
+        assert np.ptp(ankles, axis=0).max() < 1e-6
+        assert np.allclose(ankles[0, :, 2], 0.04 * 1.75, atol=1e-3)
+        assert np.linalg.norm(ankles[0, 0, :2] - ankles[0, 1, :2]) < 0.6
+
+
+def test_idle_person_stands_in_place_breathing(tmp_path):
+    stage = slope_stage(tmp_path / "idle.usda", last=72)
+    prim = add_person(stage, [(-3.0, 2.0), (-3.0, 5.0)], gait="idle")
+    frames = np.arange(1, 73)
+    root = _root_world(stage, prim.GetPath(), frames)
+    assert np.allclose(root[:, 3, :3], [-3.0, 2.0, 0.0], atol=1e-9)
+    assert np.allclose(root[:, 1, :2], [0.0, 1.0], atol=1e-6)  # facing the second point (+Y)
+    names, pos = joint_world(stage, f"{prim.GetPath()}/Skeleton", frames)
+    ankles = pos[:, [names.index("l_ankle"), names.index("r_ankle")]]
+    assert np.ptp(ankles, axis=0).max() < 1e-6  # feet still
+    assert np.ptp(pos[:, names.index("head")], axis=0).max() > 0.005  # but the body moves
+
+
+def test_path_across_the_river_is_refused_naming_the_frame(tmp_path):
+    path = tmp_path / "river.usda"
+    river_stage(path)
+    before = path.read_bytes()
+    # Walking speeds up at a constant rate over 0.6 s, so from then on the person is 1.25 * 0.3 m
+    # behind a constant-speed walker: x(f) = -2.1 + 1.25 ((f - 5) / 24 - 0.3) first exceeds 3 at f = 111.
+    r = subprocess.run([PY, "-m", "lfusd", "animate", "add-person", str(path), "--path", "-2.1,0", "10,0",
+                        "--speed", "1.25", "--start", "5"], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "frame 111" in r.stderr and "/World/River" in r.stderr
+    assert path.read_bytes() == before  # nothing written
+
+
+def test_path_over_a_bridge_is_accepted(tmp_path):
+    stage = river_stage(tmp_path / "bridge.usda", last=120, bridge=True)
+    prim = add_person(stage, [(-1.0, 0.0), (8.0, 0.0)], gait="run", speed=3.0)
+    root = _root_world(stage, prim.GetPath(), np.arange(1, 121))
+    on_bridge = (root[:, 3, 0] > 3) & (root[:, 3, 0] < 6)
+    assert on_bridge.any()
+    assert np.allclose(root[on_bridge, 3, 2], 0.05, atol=1e-4)
+
+
+def test_cli_adds_people(tmp_path):
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=48)
+    for y in (-2, 2):
+        r = subprocess.run([PY, "-m", "lfusd", "animate", "add-person", str(path), "--path", f"-5,{y}", f"-1,{y}",
+                            "--gait", "run", "--speed", "3", "--start", "3"], capture_output=True, text=True, cwd=ROOT)
+        assert r.returncode == 0, r.stderr
+    stage = Usd.Stage.Open(str(path))
+    for i in range(2):
+        prim = stage.GetPrimAtPath(f"/World/People/Person_{i:02d}")
+        assert prim.IsA(UsdSkel.Root) and class_label(prim) == "person"
+    # The rulebook checks the result at every frame: a third person on the first one's path collides.
+    before = path.read_bytes()
+    r = subprocess.run([PY, "-m", "lfusd", "animate", "add-person", str(path), "--path", "-5,-2", "-1,-2",
+                        "--gait", "run", "--speed", "3", "--start", "3"], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "no_interpenetration" in r.stderr and "Person_02" in r.stderr and "frame 1" in r.stderr
+    assert path.read_bytes() == before
+
+
+def test_animated_stages_pass_the_rulebook(tmp_path):
+    """People stay on allowed surfaces at every frame: `lfusd check` passes (running flight included)."""
+    path = tmp_path / "bridge.usda"
+    stage = river_stage(path, last=96, bridge=True)
+    add_person(stage, [(-1.0, 0.0), (8.0, 0.0)], gait="run", speed=3.0, check=False)
+    add_person(stage, [(-6.0, -4.0), (1.0, -4.0), (1.0, 4.0)], gait="walk", speed=1.3, start=10, check=False)
+    stage.Save()
+    r = subprocess.run([PY, "-m", "lfusd", "check", str(path)], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "all constraints hold" in r.stdout
+
+
+def _mixamo_character(path):
+    """lfusd's human re-authored as a user file: Y up, centimetres, Mixamo joint names, mesh 'Skin'."""
+    names = {"pelvis": "Hips", "spine": "Spine", "chest": "Spine2", "neck": "Neck", "head": "Head",
+             "l_shoulder": "LeftArm", "l_elbow": "LeftForeArm", "l_wrist": "LeftHand",
+             "r_shoulder": "RightArm", "r_elbow": "RightForeArm", "r_wrist": "RightHand",
+             "l_hip": "LeftUpLeg", "l_knee": "LeftLeg", "l_ankle": "LeftFoot", "l_toe": "LeftToeBase",
+             "r_hip": "RightUpLeg", "r_knee": "RightLeg", "r_ankle": "RightFoot", "r_toe": "RightToeBase"}
+    src = Usd.Stage.CreateInMemory()
+    define_human(src, "/Char", HumanSpec(1.8, 0.3))
+    to_yup_cm = lambda v: Gf.Vec3d(100 * v[0], 100 * v[2], -100 * v[1])  # Z up m -> Y up cm
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    root = UsdSkel.Root.Define(stage, "/Character")
+    stage.SetDefaultPrim(root.GetPrim())
+    s_skel = UsdSkel.Skeleton(src.GetPrimAtPath("/Char/Skeleton"))
+    joints = ["/".join(names[p] for p in j.split("/")) for j in s_skel.GetJointsAttr().Get()]
+    skel = UsdSkel.Skeleton.Define(stage, "/Character/Rig")
+    skel.CreateJointsAttr(joints)
+    for get, create in ((s_skel.GetBindTransformsAttr, skel.CreateBindTransformsAttr),
+                        (s_skel.GetRestTransformsAttr, skel.CreateRestTransformsAttr)):
+        create(Vt.Matrix4dArray([Gf.Matrix4d(1).SetTranslate(to_yup_cm(m.ExtractTranslation())) for m in get().Get()]))
+    s_mesh = src.GetPrimAtPath("/Char/Body")
+    mesh = UsdGeom.Mesh.Define(stage, "/Character/Skin")
+    mesh.CreatePointsAttr([Gf.Vec3f(to_yup_cm(p)) for p in UsdGeom.Mesh(s_mesh).GetPointsAttr().Get()])
+    for a in ("faceVertexCounts", "faceVertexIndices", "subdivisionScheme"):
+        mesh.GetPrim().CreateAttribute(a, s_mesh.GetAttribute(a).GetTypeName()).Set(s_mesh.GetAttribute(a).Get())
+    s_bind, bind = UsdSkel.BindingAPI(s_mesh), UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    bind.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    bind.CreateJointIndicesPrimvar(False, 4).Set(s_bind.GetJointIndicesPrimvar().Get())
+    bind.CreateJointWeightsPrimvar(False, 4).Set(s_bind.GetJointWeightsPrimvar().Get())
+    bind.CreateGeomBindTransformAttr(Gf.Matrix4d(1))
+    stage.Save()
+
+
+def test_user_character_walks_upright_without_sliding(tmp_path):
+    char = tmp_path / "hero.usda"
+    _mixamo_character(char)
+    stage = slope_stage(tmp_path / "hero_stage.usda", last=72)
+    prim = add_person(stage, [(-6.0, 0.0), (2.0, 0.0)], gait="walk", speed=1.5, character=char)
+    assert class_label(prim) == "person"
+    frames = np.arange(1, 73)
+    names, pos = joint_world(stage, f"{prim.GetPath()}/Rig", frames)
+    for side in ("Left", "Right"):
+        ankle = pos[:, names.index(f"{side}Foot")]
+        steps = planted_steps(ankle, slope_z(ankle[:, :2]))
+        assert len(steps) >= 2 and max(s for _, _, s in steps) < 0.03
+    # Upright and life-size in the stage's metres: head well above the feet, soles on the ground.
+    geo = StageGeometry(stage)
+    skin = stage.GetPrimAtPath(f"{prim.GetPath()}/Skin")
+    for f in (1, 30, 60):
+        v = geo.mesh(skin, f).vertices
+        ground = slope_z(v[np.argmin(v[:, 2]), :2])
+        assert 1.6 < v[:, 2].max() - ground < 1.85
+        assert -0.03 < v[:, 2].min() - ground < 0.03
+    # Facing its direction of travel (+X): its left foot is on the +Y side.
+    assert np.all(pos[:, names.index("LeftFoot"), 1] > pos[:, names.index("RightFoot"), 1])
+
+
+def _rotated_frames_character(path, seed=0, mesh_name="Body"):
+    """lfusd's human with every joint's bind frame turned by a random rotation (as exported rigs
+    have): same bind-pose geometry, different joint orientations."""
+    rng = np.random.default_rng(seed)
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)  # USD's fallback is centimetres
+    root = define_human(stage, "/Character", HumanSpec())
+    stage.SetDefaultPrim(root.GetPrim())
+    skel = UsdSkel.Skeleton(stage.GetPrimAtPath("/Character/Skeleton"))
+    joints = [str(j) for j in skel.GetJointsAttr().Get()]
+    bind = []
+    for m in skel.GetBindTransformsAttr().Get():
+        q = rng.normal(size=4)
+        rot = Gf.Matrix4d(1).SetRotate(Gf.Quatd(*(q / np.linalg.norm(q)).tolist()))
+        bind.append(rot * m)  # row vectors: rotate the frame, keep the joint's position
+    parent = {j: "/".join(j.split("/")[:-1]) for j in joints}
+    index = {j: i for i, j in enumerate(joints)}
+    rest = [bind[i] * bind[index[parent[j]]].GetInverse() if parent[j] else bind[i] for i, j in enumerate(joints)]
+    skel.GetBindTransformsAttr().Set(Vt.Matrix4dArray(bind))
+    skel.GetRestTransformsAttr().Set(Vt.Matrix4dArray(rest))
+    if mesh_name != "Body":
+        layer = stage.GetRootLayer()
+        assert Sdf.CopySpec(layer, "/Character/Body", layer, f"/Character/{mesh_name}")
+        stage.RemovePrim("/Character/Body")
+    stage.Save()
+
+
+def test_character_with_rotated_joint_frames_moves_like_the_builtin_human(tmp_path):
+    """Retargeting works on world-space deltas: joint orientations must not change the motion."""
+    char = tmp_path / "turned.usda"
+    _rotated_frames_character(char)
+    stage = slope_stage(tmp_path / "two.usda", last=40)
+    route = [(-6.0, -3.0), (-2.0, -3.0), (-2.0, 2.0)]
+    mine = add_person(stage, route, gait="walk", speed=1.5, check=False)
+    theirs = add_person(stage, route, gait="walk", speed=1.5, character=char, check=False)
+    geo = StageGeometry(stage)
+    for f in (1, 13, 27, 40):
+        a = geo.mesh(stage.GetPrimAtPath(f"{mine.GetPath()}/Body"), f).vertices
+        b = geo.mesh(stage.GetPrimAtPath(f"{theirs.GetPath()}/Body"), f).vertices
+        assert np.abs(a - b).max() < 1e-4
+
+
+def test_blender_skinning_equals_pxr_skinning(tmp_path):
+    """Acceptance: Blender's evaluated skinned vertices = UsdSkel ComputeSkinnedPoints within 1e-4 m."""
+    char = tmp_path / "hero.usda"
+    _mixamo_character(char)
+    turned = tmp_path / "turned.usda"
+    _rotated_frames_character(turned, mesh_name="Turned")
+    path = tmp_path / "clip.usda"
+    stage = slope_stage(path, last=30)
+    add_person(stage, [(-3.0, -1.0), (1.0, -1.0), (1.0, 3.0)], gait="walk", speed=1.6, start=2, check=False)
+    add_person(stage, [(-3.0, 2.0), (2.0, 2.0)], gait="run", speed=3.5, character=char, check=False)
+    add_person(stage, [(-3.0, -5.0), (2.0, -5.0)], gait="walk", speed=1.2, character=turned, check=False)
+    stage.Save()
+    out = tmp_path / "blender.npz"
+    r = subprocess.run([PY, str(ROOT / "tests" / "support" / "blender_skin_probe.py"), str(path), "Body,Skin,Turned", "1", "30",
+                        str(out)], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    for name in ("Body", "Skin", "Turned"):
+        assert f"{name} modifiers: ['ARMATURE']" in r.stdout
+    blender = np.load(out)
+    geo = StageGeometry(stage)
+    for name, prim_path in (("Body", "/World/People/Person_00/Body"), ("Skin", "/World/People/Person_01/Skin"),
+                            ("Turned", "/World/People/Person_02/Turned")):
+        prim = stage.GetPrimAtPath(prim_path)
+        ref = np.array([geo.mesh(prim, f).vertices for f in range(1, 31)])
+        assert blender[name].shape == ref.shape
+        assert np.abs(blender[name] - ref).max() < 1e-4
+        # The clip really moves: vertices travel well beyond the tolerance.
+        assert np.abs(ref[-1] - ref[0]).max() > 0.5
+
+
+# --- bad input: one-line errors
+
+
+def _cli(*args):
+    return subprocess.run([PY, "-m", "lfusd", "animate", "add-person", *map(str, args)], capture_output=True,
+                          text=True, cwd=ROOT)
+
+
+@pytest.mark.parametrize("extra,needle", [
+    (["--path", "1,2"], "at least two points"),
+    (["--path", "1,2", "3,x"], "not X,Y"),
+    (["--path", "-4,0", "0,0", "--speed", "0"], "not positive"),
+    (["--path", "-4,0", "0,0", "--speed", "-1.5", "--gait", "run"], "not positive"),
+    (["--path", "-4,0", "0,0", "--start", "500"], "outside the stage's range 1-48"),
+    (["--path", "-4,0", "0,0", "--start", "0"], "outside the stage's range 1-48"),
+    # x = 9 + 2.4 ((f - 1) / 24 - 0.3) > 10 (the slope's end) from f = 19 (0.6 s to reach speed)
+    (["--path", "9,0", "14,0", "--speed", "2.4"], "leaves the supporting surfaces at frame 19"),
+])
+def test_bad_cli_input_is_a_one_line_error(tmp_path, extra, needle):
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=48)
+    r = _cli(path, *extra)
+    assert r.returncode == 2
+    assert r.stderr.startswith("lfusd: error:") and r.stderr.count("\n") == 1 and needle in r.stderr
+
+
+def test_character_without_skeleton_is_refused(tmp_path):
+    plain = Usd.Stage.CreateNew(str(tmp_path / "statue.usda"))
+    _quad(plain, "/Statue", "person", 0, 1, 0, 1, 0)
+    plain.Save()
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=24)
+    r = _cli(path, "--path", "-4,0", "0,0", "--character", tmp_path / "statue.usda")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "has no UsdSkel Skeleton" in r.stderr
+    with pytest.raises(LfusdError, match="does not exist"):
+        add_person(Usd.Stage.Open(str(path)), [(-4, 0), (0, 0)], character=tmp_path / "nope.usda")
+
+
+def test_stage_not_in_metres_is_refused(tmp_path):
+    stage = Usd.Stage.CreateInMemory()  # USD's fallback unit is the centimetre
+    _quad(stage, "/Ground", "ground", -500, 500, -500, 500, 0)
+    with pytest.raises(LfusdError, match="metersPerUnit is 0.01"):
+        add_person(stage, [(0, 0), (100, 0)])
+
+
+def test_parse_points_api():
+    assert parse_points(["-3,2", "4.5, -1"]).tolist() == [[-3.0, 2.0], [4.5, -1.0]]
+    with pytest.raises(LfusdError, match="at least two points"):
+        parse_points(["1,1"])
+    with pytest.raises(LfusdError, match="at least two points"):
+        add_person(Usd.Stage.CreateInMemory(), [(0, 0)])

@@ -1,0 +1,1 @@
+"""Helpers shared by the tests: analytic geometry, test stages, spec readers, fakes."""

@@ -1,0 +1,396 @@
+"""lfusd.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from support.motion_scenes import Box, Scene, intrinsics, pose, rot
+from pxr import Gf, UsdGeom
+
+from lfusd.errors import LfusdError
+from lfusd.truth.motion import derive_motion
+from lfusd.author.labels import set_class_label
+from lfusd.author.stage import new_stage
+from lfusd.truth.verify import THRESHOLDS, interior_mask, trace_motion, verify_dataset
+
+N = 64
+
+
+def scene(cam_motion=True):
+    K = intrinsics(N * 1.05, N, N)
+    back = Box((5, 5, 0.05), {f: pose(t=(0, 0, 6.0)) for f in (1, 2, 3)}, 1, "/World/Wall")
+    cube = Box((0.6, 0.5, 0.4), {f: pose(rot((0.3, 1, 0.2), 12.0 * f + 20), (0.1 + 0.1 * f, 0.0, 4.0)) for f in (1, 2, 3)}, 2, "/World/Cube")
+    cams = {f: pose(rot((0, 1, 0), 2.0 * (f - 2)), (0.2 * (f - 2), 0.05 * (f - 2), 0)) if cam_motion else np.eye(4) for f in (1, 2, 3)}
+    return Scene([back, cube], K, cams, N, N, baseline=0.2)
+
+
+def stage_of(sc, path):
+    """The same boxes as USD Cubes (size 2, scaled by their half extents), labelled."""
+    stage = new_stage(str(path), 1, 3)
+    for box, label in zip(sc.boxes, ("wall", "block")):
+        cube = UsdGeom.Cube.Define(stage, box.prim_path)
+        cube.CreateSizeAttr(2.0)
+        op = cube.AddTransformOp()
+        for f, P in box.poses.items():
+            m = P @ np.diag([*box.half, 1.0])
+            op.Set(Gf.Matrix4d(*m.T.ravel().tolist()), f)
+        set_class_label(cube.GetPrim(), label)
+    stage.Save()
+    return stage
+
+
+class FakeDataset:
+    """The reader interface lfusd.truth.verify needs, over arrays derived from closed-form raw passes."""
+
+    def __init__(self, sc, stage_path, exact=True):
+        self.sc, self.stage_path, self.baseline = sc, str(stage_path), sc.baseline
+        self.frames, self.views = [1, 2, 3], [(0, 0)]
+        self.objects = {b.instance: SimpleNamespace(prim_path=b.prim_path, label=lab) for b, lab in zip(sc.boxes, ("wall", "block"))}
+        self.data = {}
+        for f in self.frames:
+            raw = sc.raw(f, exact)
+            nxt = sc.raw(f + 1, exact) if f + 1 in sc.cams else None
+            prv = sc.raw(f - 1, exact) if f - 1 in sc.cams else None
+            d = derive_motion(raw, nxt, prv, baseline=sc.baseline)
+            d["depth"], d["instance"] = raw.depth, raw.instance
+            self.data[f] = d
+
+    def intrinsics(self, view):
+        return self.sc.K
+
+    def cam_to_world(self, frame, view):
+        return self.sc.cams[frame]
+
+    def read(self, frame, view, key):
+        return self.data[frame][key]
+
+
+def test_trace_motion_matches_closed_form_boxes(tmp_path):
+    sc = scene()
+    stage = stage_of(sc, tmp_path / "s.usda")
+    for step in (1, -1):
+        tr = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[2 + step], N, N, step=step, baseline=sc.baseline)
+        t = sc.truth(2)
+        fg = t["which"] >= 0
+        assert (np.isfinite(tr["depth"]) == fg).mean() > 0.995  # silhouettes may differ by float rounding
+        both = fg & np.isfinite(tr["depth"]) & (tr["mesh"] == t["which"])
+        assert both.mean() > 0.99
+        np.testing.assert_allclose(tr["depth"][both], t["depth"][both], rtol=1e-9)
+        X = t["next_position" if step > 0 else "prev_position"]
+        np.testing.assert_allclose(tr["scene_flow"][both], (X - t["position"])[both], atol=1e-9)
+        u1, v1, z1 = sc.project(X, 2 + step)
+        v, u = np.mgrid[0:N, 0:N]
+        np.testing.assert_allclose(tr["flow"][both], np.stack([u1 - u, v1 - v], -1)[both], atol=1e-7)
+        fb = sc.K[0, 0] * sc.baseline
+        np.testing.assert_allclose(tr["disparity_change"][both], (fb / z1 - fb / t["depth"])[both], rtol=1e-7, atol=1e-9)
+        hidden = fg & ~sc.visible_at(2, step)
+        assert hidden[both].sum() > 20
+        assert (tr["occluded"][both] == hidden[both]).mean() > 0.999
+
+
+def test_verify_passes_on_exact_data_and_prints_per_class_rows(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    report = verify_dataset(FakeDataset(sc, tmp_path / "s.usda"))
+    assert report.ok, report.failures()
+    keys = {r.key for r in report.rows}
+    assert keys >= {"depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change", "occlusion_fwd", "occlusion_bwd"}
+    labels = {r.label for r in report.rows}
+    assert {"(all)", "wall", "block"} <= labels
+    assert all(r.count > 100 for r in report.rows if r.key in ("flow_fwd", "depth") and r.label == "(all)")
+    table = report.table()
+    assert "scene_flow" in table and "block" in table
+
+
+def test_verify_passes_on_vector_plus_depth_route(tmp_path):
+    sc = scene(cam_motion=False)
+    stage_of(sc, tmp_path / "s.usda")
+    report = verify_dataset(FakeDataset(sc, tmp_path / "s.usda", exact=False))
+    assert report.ok, report.failures()
+
+
+@pytest.mark.parametrize(
+    "key,corrupt",
+    [
+        ("flow_fwd", lambda a: a * np.array([1.0, -1.0], np.float32)),  # sign flip of the v component
+        ("flow_bwd", lambda a: a * np.array([-1.0, 1.0], np.float32)),
+        ("depth", lambda a: a * np.float32(1.01)),  # depth shifted by 1 %
+        ("scene_flow", lambda a: a + np.float32(0.002)),
+        ("instance", lambda a: np.where(a == 1, 2, np.where(a == 2, 1, a))),
+    ],
+)
+def test_verify_fails_on_corrupted_data_naming_key_and_view(tmp_path, key, corrupt):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    ds.views = [(0, 0), (1, 0)]  # a second, untouched view: the failure must name the right one
+    clean = {f: dict(d) for f, d in ds.data.items()}
+    ds.read = lambda f, v, k: (ds.data if v == (1, 0) else clean)[f][k]
+    for f in ds.frames:
+        ds.data[f][key] = corrupt(ds.data[f][key])
+    report = verify_dataset(ds)
+    assert not report.ok
+    fails = report.failures()
+    assert any(line.startswith(f"{key} of view 1,0") for line in fails), fails
+    assert not any("view 0,0" in line for line in fails), fails
+
+
+def test_interior_mask_keeps_away_from_edges():
+    inst = np.zeros((20, 20), int)
+    inst[5:15, 5:15] = 1
+    depth = np.where(inst > 0, 2.0, np.inf)
+    m = interior_mask(inst, depth, 2)
+    # Pixels touching the edge (5 and 14) and two more on each side are left out.
+    assert m[8:12, 8:12].all() and m.sum() == 16
+
+
+def test_verify_names_missing_stage_and_frames(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    with pytest.raises(LfusdError, match="frame 9 is not in the dataset"):
+        verify_dataset(ds, frames=[9])
+    ds.stage_path = None
+    with pytest.raises(LfusdError, match="--stage"):
+        verify_dataset(ds)
+    assert set(THRESHOLDS) >= {"depth", "flow_fwd", "scene_flow"}
+
+
+def test_verify_command_passes_exact_motion_and_fails_corrupted_depth(tmp_path, monkeypatch, capsys):
+    import lfusd.commands.verify as cmd_verify
+    from lfusd.cli import main
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(cmd_verify, "open_datasets", lambda p, rig=None: [ds])
+    assert main(["verify", "OUT", "--frames", "1-3", "--views", "0,0"]) == 0
+    assert "all checks passed" in capsys.readouterr().out
+    for f in ds.frames:
+        ds.data[f]["depth"] = ds.data[f]["depth"] * np.float32(1.01)
+    assert main(["verify", "OUT"]) == 1
+    assert "FAIL depth of view 0,0" in capsys.readouterr().out
+
+
+@pytest.mark.render
+def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
+    """A dataset whose raw passes lack Blender's vector pass: one line naming the file."""
+    import OpenEXR
+    from support.scenes import write_box_stage
+
+    from lfusd.cli import main
+    from lfusd.camera import RigSpec
+
+    write_box_stage(tmp_path / "s.usda", [RigSpec(name="main", rows=1, cols=1, width=8, height=8, at=(0, -5, 1), look_at=(0, 0, 0.5))])
+    assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
+    exr = tmp_path / "out" / "main" / "f000001" / "00_00" / "passes.exr"
+    parts = [p for p in OpenEXR.File(str(exr)).parts if "Vector" not in p.name()]
+    OpenEXR.File([OpenEXR.Part(p.header, p.channels) for p in parts]).write(str(exr))
+    capsys.readouterr()
+    assert main(["flow", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("lfusd: error:") and "has no vector pass" in err and str(exr) in err and len(err.splitlines()) == 1
+
+
+def _load_script(name):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "flow" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"flow_{name}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_stats_script_reports_motion_and_disparity_ranges(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    ds.views = [(0, 0), (0, 8)]  # the same images under two column indices: a span of 8 steps
+    s = _load_script("stats").dataset_stats(ds)
+    depth = np.concatenate([ds.data[f]["depth"][np.isfinite(ds.data[f]["depth"])] for f in ds.frames])
+    f_b = sc.K[0, 0] * sc.baseline
+    assert s["disparity"]["p100"] == pytest.approx(f_b / depth.min(), rel=1e-5)
+    assert s["disparity"]["p1"] >= f_b / depth.max() * (1 - 1e-5)
+    assert s["rig"]["rig_span_px"] == pytest.approx(8 * f_b / depth.min(), rel=1e-5)
+    flows = np.concatenate([np.linalg.norm(ds.data[f]["flow_fwd"], axis=-1)[ds.data[f]["valid_fwd"]] for f in ds.frames])
+    assert s["flow_fwd"]["p100"] == pytest.approx(flows.max(), rel=1e-6) and s["flow_fwd"]["count"] == 2 * flows.size
+    assert 0 < s["fractions_of_foreground"]["occlusion_fwd"] < 0.5
+
+
+def test_verify_report_script_writes_json_and_markdown(tmp_path, monkeypatch):
+    import json
+
+    import lfusd.commands.flow as cmd_flow
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(cmd_flow, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
+    rc = _load_script("verify_report").main(["OUT", "--frames", "2", "--json", str(tmp_path / "r.json"), "--markdown", str(tmp_path / "r.md")])
+    assert rc == 0
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert data["ok"] and {r["key"] for r in data["rows"]} >= {"flow_fwd", "scene_flow", "depth"}
+    assert "| flow_fwd | block |" in (tmp_path / "r.md").read_text()
+
+
+def test_trace_motion_moves_skinned_points_with_their_joint():
+    """The limb's lower part is bound to the root joint alone: traced scene flow = the root's rotation."""
+    from test_geometry import ANGLES, rot_z, skinned_stage
+
+    from lfusd.camera import look_at_pose
+
+    stage, _, _ = skinned_stage()
+    n = 48
+    K = intrinsics(n * 2.0, n, n)
+    cam = look_at_pose(np.array([1.0, -2.0, 0.25]), np.array([1.0, 2.0, 0.25]))
+    tr = trace_motion(stage, 2, K, cam, cam, n, n, step=1)
+    pos = tr["position"]
+    lower = np.isfinite(tr["depth"]) & (pos[..., 2] < 0.45)  # elbow weight 0 below z = 0.5
+    assert lower.sum() > 50
+    T = np.array([1.0, 2.0, 0.0])
+    R = rot_z(ANGLES[3][0]) @ rot_z(ANGLES[2][0]).T
+    expect = (pos[lower] - T) @ R.T + T - pos[lower]
+    # pxr skins in float32: a few micrometres.
+    np.testing.assert_allclose(tr["scene_flow"][lower], expect, atol=5e-6)
+    assert np.abs(expect).max() > 0.05
+
+
+def test_invisible_prims_are_not_traced(tmp_path):
+    sc = scene(cam_motion=False)
+    stage = stage_of(sc, tmp_path / "s.usda")
+    UsdGeom.Imageable(stage.GetPrimAtPath("/World/Cube")).CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+    tr = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[3], N, N)
+    assert set(np.unique(tr["mesh"])) == {0}  # only the wall (mesh 0) is hit
+
+
+@pytest.fixture(scope="module")
+def blender_video(tmp_path_factory):
+    """Real Blender data: translating box, spinning box, bending skinned limb, moving 2x2 rig, frames 1-3."""
+    import subprocess
+    import sys
+
+    from test_geometry import skinned_stage
+
+    from lfusd.camera import RigSpec
+    from lfusd.author.rigs import add_rig
+
+    tmp_path = tmp_path_factory.mktemp("blender_video")
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 3)
+    wall = UsdGeom.Cube.Define(stage, "/World/Wall")
+    wall.AddTranslateOp().Set(Gf.Vec3d(0, 4, 1.5))
+    wall.AddScaleOp().Set(Gf.Vec3f(5, 0.05, 3))
+    set_class_label(wall.GetPrim(), "wall")
+    for name, label in (("Slider", "box"), ("Spinner", "spinner")):
+        cube = UsdGeom.Cube.Define(stage, f"/World/{name}")
+        cube.CreateSizeAttr(0.7)
+        t, r = cube.AddTranslateOp(), cube.AddRotateZOp()
+        for f in (1, 2, 3):
+            t.Set(Gf.Vec3d(-1.4 + 0.12 * f, 0.8, 2.2) if name == "Slider" else Gf.Vec3d(-0.9, 1.2, 0.6), f)
+            r.Set(15.0 + (20.0 * f if name == "Spinner" else 0.0), f)
+        set_class_label(cube.GetPrim(), label)
+    skinned_stage(stage, half=0.25)
+    set_class_label(stage.GetPrimAtPath("/World/Arm"), "limb")
+    rig = add_rig(stage, RigSpec(name="main", rows=2, cols=2, baseline=0.1, width=80, height=80, at=(0, -4.5, 1.2), look_at=(0, 0, 1.2)))
+    op = UsdGeom.Xformable(rig).GetOrderedXformOps()[0]
+    m0 = np.array(op.Get(), float)
+    for f in (1, 2, 3):  # the whole rig moves 4 cm right and 2 cm up per frame
+        m = m0.copy()
+        m[3, :3] += (f - 2) * np.array([0.04, 0.0, 0.02])
+        op.Set(Gf.Matrix4d(*m.ravel().tolist()), f)
+    stage.Save()
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "lfusd", "render-video", str(tmp_path / "s.usda"), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu"]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+# Raster occlusion decides an edge to about half a pixel: at 80x80 px with four objects the edge
+# band is 1-1.5 % of the pixels (0.6 % at 160 px, 0.3 % at 320 px), hence 2 % on these renders.
+TINY = {"occlusion_fwd": 0.02, "occlusion_bwd": 0.02}
+
+
+@pytest.mark.render
+def test_verify_passes_on_a_blender_render_of_rigid_skinned_and_rig_motion(blender_video):
+    from lfusd import Dataset
+
+    report = verify_dataset(Dataset(blender_video), thresholds=TINY)
+    assert report.ok, report.failures()
+    rows = {(e["key"], e["label"]): e for e in report.summary()}
+    for label in ("(all)", "box", "spinner", "limb", "wall"):
+        assert rows[("flow_fwd", label)]["count"] > 20, label
+        assert rows[("flow_fwd", label)]["median"] < 0.01 and rows[("flow_fwd", label)]["p99"] < 0.05, label
+        assert rows[("scene_flow", label)]["median"] < 5e-4, label
+    assert rows[("occlusion_fwd", "(all)")]["median"] < 0.01 and rows[("occlusion_bwd", "(all)")]["median"] < 0.01
+    # The limb really bends and the rig really moves: motion is far above the thresholds.
+    ds = Dataset(blender_video)
+    sf = ds.read(2, (0, 0), "scene_flow")
+    inst = ds.read(2, (0, 0), "instance")
+    limb = [i for i, o in ds.objects.items() if o.label == "limb"][0]
+    assert np.linalg.norm(sf[inst == limb], axis=-1).max() > 0.3
+    assert np.abs(ds.cam_to_world(3, (0, 0))[:3, 3] - ds.cam_to_world(2, (0, 0))[:3, 3]).max() > 0.03
+
+
+@pytest.mark.render
+def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_video, tmp_path, monkeypatch, capsys):
+    import shutil
+
+    import lfusd.truth.verify as verify_mod
+    from lfusd import Dataset
+    from lfusd.cli import main
+
+    out = tmp_path / "out"
+    shutil.copytree(blender_video, out)
+    monkeypatch.setattr(verify_mod, "THRESHOLDS", {**verify_mod.THRESHOLDS, **TINY})
+    assert main(["flow", str(out), "--frames", "2", "--views", "0,1"]) == 0  # re-derives in place
+    assert main(["verify", str(out), "--frames", "2"]) == 0
+    capsys.readouterr()
+    # Flip the sign of the v component of flow_fwd in one view's motion file.
+    path = Dataset(out).view_dir(2, (0, 1)) / "motion.npz"
+    z = dict(np.load(path))
+    z["flow_fwd"][..., 1] *= -1
+    np.savez(path, **z)
+    assert main(["verify", str(out), "--frames", "2"]) == 1
+    fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
+    assert fails and all(ln.startswith("FAIL flow_fwd of view 0,1 at frame 2") for ln in fails), fails
+    # Depth 1 % too far in another view (the reader serves the shifted array).
+    assert main(["flow", str(out), "--frames", "2", "--views", "0,1"]) == 0
+    real_read = Dataset.read
+
+    def shifted(self, f, v, k):
+        a = real_read(self, f, v, k)
+        return a * np.float32(1.01) if (k, tuple(v)) == ("depth", (1, 0)) else a
+
+    monkeypatch.setattr(Dataset, "read", shifted)
+    assert main(["verify", str(out), "--frames", "2"]) == 1
+    fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
+    assert fails and all(ln.startswith("FAIL depth of view 1,0 at frame 2") for ln in fails), fails
+
+
+@pytest.mark.render
+def test_lfusd_flow_names_a_missing_next_frame(blender_video, tmp_path, capsys):
+    import shutil
+
+    from lfusd import Dataset
+    from lfusd.cli import main
+
+    out = tmp_path / "out"
+    shutil.copytree(blender_video, out)
+    shutil.rmtree(Dataset(out).view_dir(3, (0, 1)))
+    assert main(["flow", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "frame 3" in err and str(out) in err
+
+
+def test_verify_command_threshold_overrides(tmp_path, monkeypatch, capsys):
+    import lfusd.commands.verify as cmd_verify
+    from lfusd.cli import main
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(cmd_verify, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
+    assert main(["verify", "OUT", "--frames", "2", "--threshold", "depth=1e-12"]) == 1
+    assert "FAIL depth of view 0,0 at frame 2" in capsys.readouterr().out
+    assert main(["verify", "OUT", "--threshold", "depth"]) == 2
+    assert "not KEY=NUMBER" in capsys.readouterr().err
