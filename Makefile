@@ -6,7 +6,7 @@ DEMO_OUT ?= out/default
 # as a 3x3 light-field video at a preview size, with every ground-truth key.
 DEMO_STAGE ?= stages/street_dynamic_00.usda
 
-.PHONY: setup demo test clean
+.PHONY: setup demo test test-fast clean
 setup:
 	@bash scripts/setup.sh
 
@@ -16,6 +16,10 @@ demo: setup
 
 test: setup
 	$(VENV)/bin/python -m pytest -q
+
+# The inner loop: everything that needs neither Blender nor a long run (make test stays the full suite).
+test-fast: setup
+	$(VENV)/bin/python -m pytest -q -m "not render and not slow"
 
 clean:
 	rm -rf out .pytest_cache

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import LfusdError
-from ..render.job import DEVICES, EXECUTORS
+from ..render.request import DEVICES, EXECUTORS
 
 
 def parse_frames(text: str) -> tuple[int, int]:
@@ -39,35 +39,28 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..render.job import RenderRequest, render
     from ..camera import parse_resolution
-    from ..author.stage import frame_range, open_stage
-    from ..author.rigs import select_rigs
+    from ..render.job import RenderRequest, render_video
 
-    if args.workers < 1:
-        raise LfusdError(f"--workers must be a positive integer, got {args.workers}")
-    if args.ray_address and args.executor != "ray":
-        raise LfusdError("--ray-address needs --executor ray")
-    stage = open_stage(args.stage)
-    first, last = parse_frames(args.frames) if args.frames else frame_range(stage)
+    frames = None
+    if args.frames:
+        first, last = parse_frames(args.frames)
+        frames = list(range(first, last + 1))
     req = RenderRequest(
-        stage=Path(args.stage), out=Path(args.out), rig=args.rig, frames=list(range(first, last + 1)),
+        stage=Path(args.stage), out=Path(args.out), rig=args.rig, frames=frames,
         samples=args.samples, device=args.device, workers=args.workers,
         resolution=parse_resolution(args.resolution) if args.resolution else None,
-        overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address, motion=True,
+        overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address,
     )
-    manifest = render(req)
-    from ..truth.derive import derive_dataset
-
-    # The rigs of this request only: the folder may also hold rigs rendered earlier.
-    names = [r.spec.name for r in select_rigs(stage, args.rig, args.stage)]
-    n = derive_dataset(req.out, names, req.frames, workers=args.workers)
-    print(f"lfusd: {args.out}: rig {', '.join(names)}, frames {first}-{last}, device {manifest['device']}, motion derived for {n} views")
+    result = render_video(req)
+    first, last = result.frames[0], result.frames[-1]
+    print(f"lfusd: {args.out}: rig {', '.join(result.rigs)}, frames {first}-{last}, device {result.manifest['device']}, "
+          f"motion derived for {result.derived} views")
     if args.verify:
         import argparse
 
         from .verify import handler
 
-        rig = names[0] if len(names) == 1 else "all"
+        rig = result.rigs[0] if len(result.rigs) == 1 else "all"
         return handler(argparse.Namespace(out=args.out, rig=rig, frames=f"{first}-{last}", views=None, stage=None))
     return 0

@@ -9,6 +9,7 @@ flight of each worker.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -16,15 +17,17 @@ import sys
 import threading
 from pathlib import Path
 
-from pxr import Usd, UsdLux
-
-from ..errors import LfusdError
 from ..data.formats import write_png
-from ..author.labels import ObjectEntry
 from ..data.passes import linear_to_srgb8, read_rgb_linear
-from ..author.stage import frame_range
-from ..author.rigs import StageRig
-from .job import RenderRequest, _Plan, frame_dir, view_key
+from ..errors import LfusdError
+from ..layout import frame_dir
+from .plan import WorkUnit
+from .request import RenderRequest
+
+log = logging.getLogger(__name__)
+
+# The Blender worker: a JSON WorkUnit on stdin, "LFUSD {json}" event lines on stdout.
+WORKER = [sys.executable, "-X", "faulthandler", "-m", "lfusd.render.worker"]
 
 
 def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> None:
@@ -44,80 +47,28 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> Non
     os.rename(tmp, final)
 
 
-def chunks(items: list, n: int) -> list[list]:
-    """Split into at most n contiguous, nearly equal runs (contiguous frames share t+/-1)."""
-    n = max(1, min(n, len(items)))
-    size, extra = divmod(len(items), n)
-    out, i = [], 0
-    for k in range(n):
-        j = i + size + (1 if k < extra else 0)
-        out.append(items[i:j])
-        i = j
-    return out
-
-
-def plan_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, objects: list[ObjectEntry]) -> list[dict]:
-    """Work units covering every missing (rig, frame, view)."""
-    instances = {mesh: o.instance_id for o in objects for mesh in o.mesh_paths}
-    has_dome = any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse())
-    by_name = {r.spec.name: r for r in rigs}
-    units = []
-    for rig_name in sorted({k[0] for k in plan.todo}):
-        rig = by_name[rig_name]
-        frames = sorted(f for (r, f) in plan.todo if r == rig_name)
-        views = sorted({v for (r, f), vs in plan.todo.items() if r == rig_name for v in vs})
-        view_chunks = chunks(views, req.workers)
-        # Fewer views than workers: split the frames too. Ray gets units of at most
-        # frames_per_unit frames, so retries and load balancing stay fine-grained.
-        n_frame_chunks = -(-req.workers // len(view_chunks))
-        if req.executor == "ray":
-            n_frame_chunks = max(n_frame_chunks, -(-len(frames) // req.frames_per_unit))
-        for fchunk in chunks(frames, n_frame_chunks):
-            for vchunk in view_chunks:
-                todo = [f for f in fchunk if any(v in plan.todo.get((rig_name, f), ()) for v in vchunk)]
-                if todo:
-                    units.append(
-                        {
-                            "unit": len(units),
-                            "rig": rig_name,
-                            "stage": str(Path(req.stage).resolve()),
-                            "cameras": {view_key(v): rig.cameras[v] for v in vchunk},
-                            "frames": todo,
-                            "width": rig.spec.width,
-                            "height": rig.spec.height,
-                            "samples": req.samples,
-                            "device": req.device,
-                            "instances": instances,
-                            # Locally, workers share the cores; on Ray, Blender takes what the node has.
-                            "threads": max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                            "motion": req.motion,
-                            "has_dome": has_dome,
-                            "stage_range": list(frame_range(stage)),
-                        }
-                    )
-    return units
-
-
 _LIVE: set[subprocess.Popen] = set()
 _LIVE_LOCK = threading.Lock()
 
 
-def run_unit(job: dict, out: Path, on_view=None) -> str:
-    """Run one Blender worker over a unit, committing views as frames finish; return the device used."""
-    scratch = out / ".scratch" / f"{job['rig']}-{job['unit']}-{os.getpid()}-{threading.get_ident()}"
+def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
+    """Run one Blender worker over a unit, committing views as frames finish; return the device used.
+
+    The worker's warnings are logged here (they reach the terminal); all its output goes to the log."""
+    scratch = out / ".scratch" / f"{unit.rig}-{unit.unit}-{os.getpid()}-{threading.get_ident()}"
     logs = out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
-    log_path = logs / f"{job['rig']}-unit{job['unit']:04d}.log"
+    log_path = logs / f"{unit.rig}-unit{unit.unit:04d}.log"
     device, error = "cpu", None
-    with open(log_path, "w") as log:
+    with open(log_path, "w") as log_file:
         proc = subprocess.Popen(
-            [sys.executable, "-X", "faulthandler", "-m", "lfusd.render.worker"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1,
+            WORKER,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1,
         )
         with _LIVE_LOCK:
             _LIVE.add(proc)
         try:
-            proc.stdin.write(json.dumps({**job, "scratch": str(scratch)}))
+            proc.stdin.write(json.dumps({**unit.to_json(), "scratch": str(scratch)}))
             proc.stdin.close()
             for line in proc.stdout:
                 if not line.startswith("LFUSD "):
@@ -127,10 +78,12 @@ def run_unit(job: dict, out: Path, on_view=None) -> str:
                     device = event["device"]
                 elif event["event"] == "frame":
                     for key in event["views"]:
-                        commit_view(out, job["rig"], event["frame"], key, Path(event["scratch"]))
+                        commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]))
                         if on_view:
                             on_view(1)
                     shutil.rmtree(event["scratch"], ignore_errors=True)
+                elif event["event"] == "warning":
+                    log.warning("%s (rig %s, log %s)", event["message"], unit.rig, log_path)
                 elif event["event"] == "error":
                     error = event["message"]
             code = proc.wait()
@@ -143,9 +96,9 @@ def run_unit(job: dict, out: Path, on_view=None) -> str:
             shutil.rmtree(scratch, ignore_errors=True)
     if error or code != 0:
         what = error or f"exited with code {code} (log: {log_path})"
-        frames = job["frames"]
+        frames = unit.frames
         raise LfusdError(
-            f"Blender worker for rig {job['rig']} (frames {frames[0]}-{frames[-1]}) failed: {what.splitlines()[0]}; "
+            f"Blender worker for rig {unit.rig} (frames {frames[0]}-{frames[-1]}) failed: {what.splitlines()[0]}; "
             "finished views are kept, rerun the same command to resume"
         )
     return device
@@ -158,7 +111,7 @@ def _kill_all() -> None:
                 proc.kill()
 
 
-def run_local(units: list[dict], req: RenderRequest, report) -> str:
+def run_local(units: list[WorkUnit], req: RenderRequest, report) -> str:
     """A pool of ``req.workers`` Blender processes on this machine; the first failure stops all."""
     from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 
@@ -176,8 +129,8 @@ def run_local(units: list[dict], req: RenderRequest, report) -> str:
     return devices[0] if devices else "cpu"
 
 
-def _ray_unit(job: dict, out: str) -> str:
-    return run_unit(job, Path(out))
+def _ray_unit(unit: WorkUnit, out: str) -> str:
+    return run_unit(unit, Path(out))
 
 
 def check_ray_address(address: str) -> None:
@@ -193,7 +146,7 @@ def check_ray_address(address: str) -> None:
         raise LfusdError(f"cannot reach the Ray cluster at {address} ({e.strerror or e}); check --ray-address, or leave it out to start a local Ray") from None
 
 
-def run_ray(units: list[dict], req: RenderRequest, report) -> str:
+def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path."""
     import ray
 
@@ -218,9 +171,9 @@ def run_ray(units: list[dict], req: RenderRequest, report) -> str:
                 device = ray.get(done[0])
             except ray.exceptions.RayTaskError as e:
                 cause = getattr(e, "cause", None)
-                msg = str(cause) if isinstance(cause, LfusdError) else f"a Ray task of rig {unit['rig']} failed after retries ({str(e).splitlines()[0]}); rerun to resume"
+                msg = str(cause) if isinstance(cause, LfusdError) else f"a Ray task of rig {unit.rig} failed after retries ({str(e).splitlines()[0]}); rerun to resume"
                 raise LfusdError(msg) from None
-            report.advance(len(unit["cameras"]) * len(unit["frames"]))
+            report.advance(len(unit.cameras) * len(unit.frames))
     finally:
         for r in refs:
             ray.cancel(r, force=True)
@@ -229,7 +182,6 @@ def run_ray(units: list[dict], req: RenderRequest, report) -> str:
     return device
 
 
-def run_units(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], plan: _Plan, objects: list[ObjectEntry], report) -> str:
-    """Render every missing view of ``plan`` with the requested executor; return the device used."""
-    units = plan_units(req, stage, rigs, plan, objects)
+def run_units(units: list[WorkUnit], req: RenderRequest, report) -> str:
+    """Run ``units`` with the requested executor; return the device used."""
     return (run_ray if req.executor == "ray" else run_local)(units, req, report)

@@ -21,56 +21,23 @@ import json
 import os
 import platform
 import shutil
-import sys
 import tempfile
-import threading
-import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Usd, UsdGeom, UsdLux
 
 from .. import __version__
-from ..errors import LfusdError
 from ..author.labels import ObjectEntry, object_table
+from ..author.rigs import StageRig, select_rigs
 from ..author.stage import check_frames, file_hash, frame_range, open_stage
 from ..camera import RigSpec
-from ..author.rigs import StageRig, select_rigs
-
-FORMAT = "lfusd-dataset"
-FORMAT_VERSION = 1
-DEVICES = ("auto", "cpu", "cuda", "optix")
-EXECUTORS = ("local", "ray")
-
-
-def view_key(view: tuple[int, int]) -> str:
-    return f"{view[0]:02d}_{view[1]:02d}"
-
-
-def frame_dir(root: Path, rig: str, frame: int) -> Path:
-    return root / rig / f"f{frame:06d}"
-
-
-@dataclass
-class RenderRequest:
-    """What `lfusd render` / `render-video` asks for."""
-
-    stage: Path
-    out: Path
-    rig: str | None = None
-    frames: list[int] | None = None
-    samples: int = 16
-    device: str = "auto"
-    workers: int = 1
-    resolution: tuple[int, int] | None = None
-    overwrite: bool = False
-    quiet: bool = False
-    executor: str = "local"
-    ray_address: str | None = None
-    frames_per_unit: int = 10
-    motion: bool = False  # also render the t+/-1 position AOVs (render-video)
-    extra_settings: dict = field(default_factory=dict)
+from ..errors import LfusdError
+from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
+from .plan import Plan, plan_units
+from .progress import Progress
+from .request import DEVICES, EXECUTORS, RenderRequest  # noqa: F401  (DEVICES, EXECUTORS: the commands' choices)
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -111,24 +78,6 @@ def object_poses(stage: Usd.Stage, prim_paths: list[str], frame: int) -> dict[st
         m[:3, 3] *= mpu
         out[path] = _matrix(m)
     return out
-
-
-class _Plan:
-    """The views still to render, per rig and frame."""
-
-    def __init__(self, out: Path, rigs: list[StageRig], frames: list[int]):
-        self.todo: dict[tuple[str, int], list[tuple[int, int]]] = {}
-        self.total = 0
-        for rig in rigs:
-            for f in frames:
-                self.total += len(rig.spec.views)
-                missing = [v for v in rig.spec.views if not (frame_dir(out, rig.spec.name, f) / view_key(v)).is_dir()]
-                if missing:
-                    self.todo[(rig.spec.name, f)] = missing
-
-    @property
-    def remaining(self) -> int:
-        return sum(len(v) for v in self.todo.values())
 
 
 def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict:
@@ -228,27 +177,28 @@ def _clean_stale(out: Path) -> None:
     shutil.rmtree(out / ".scratch", ignore_errors=True)
 
 
-def render(req: RenderRequest, progress=None) -> dict:
-    """Render every missing view of the requested rigs and frames; return the manifest dict."""
-    if req.samples is None or req.samples < 1:
-        raise LfusdError(f"--samples must be a positive integer, got {req.samples}")
-    if req.workers is None or req.workers < 1:
-        raise LfusdError(f"--workers must be a positive integer, got {req.workers}")
-    if req.executor not in EXECUTORS:
-        raise LfusdError(f"unknown executor {req.executor!r}; use one of {', '.join(EXECUTORS)}")
-    if req.device not in DEVICES:
-        raise LfusdError(f"unknown device {req.device!r}; use one of {', '.join(DEVICES)}")
-    if req.executor == "ray" and req.ray_address:
-        from .executors import check_ray_address
-
-        check_ray_address(req.ray_address)
-    stage = open_stage(req.stage)
+def _rigs_and_frames(req: RenderRequest, stage: Usd.Stage) -> tuple[list[StageRig], list[int]]:
     rigs = select_rigs(stage, req.rig, str(req.stage))
     if req.resolution:
         w, h = req.resolution
         rigs = [replace(r, spec=replace(r.spec, width=w, height=h)) for r in rigs]
     frames = req.frames if req.frames else [frame_range(stage)[0]]
     check_frames(stage, frames, req.stage)
+    return rigs, frames
+
+
+def render(req: RenderRequest, progress=None) -> dict:
+    """Render every missing view of the requested rigs and frames; return the manifest dict."""
+    return _render(req, open_stage(req.stage), progress)
+
+
+def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> dict:
+    req.check()
+    if req.executor == "ray" and req.ray_address:
+        from .executors import check_ray_address
+
+        check_ray_address(req.ray_address)
+    rigs, frames = _rigs_and_frames(req, stage)
     settings = _settings(req, file_hash(req.stage), rigs)
     previous = _prepare_output(req, settings)
     req.out.mkdir(parents=True, exist_ok=True)
@@ -257,14 +207,19 @@ def render(req: RenderRequest, progress=None) -> dict:
         _write_manifest(req, settings, previous, rigs, frames, None)
         objects, classes = object_table(stage)
         _write_static_metadata(req, stage, rigs, frames, objects, classes)
-        plan = _Plan(req.out, rigs, frames)
+        plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
         device = None
         if plan.remaining:
             from .executors import run_units
 
-            report = progress or _Progress(plan.total, plan.total - plan.remaining, req.quiet)
+            units = plan_units(
+                req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
+                {mesh: o.instance_id for o in objects for mesh in o.mesh_paths},
+                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage),
+            )
+            report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:
-                device = run_units(req, stage, rigs, plan, objects, report)
+                device = run_units(units, req, report)
             except BaseException:
                 # Record what did finish; a second failure here (a full disk) must not hide the first.
                 with contextlib.suppress(OSError):
@@ -280,40 +235,27 @@ def render(req: RenderRequest, progress=None) -> dict:
     return json.loads((req.out / "manifest.json").read_text())
 
 
-class _Progress:
-    """Views done, views per second and time left, as a rich progress bar or plain log lines."""
+@dataclass
+class VideoResult:
+    """What `render_video` did: the manifest, the rigs and frames it rendered, views derived."""
 
-    LOG_EVERY_S = 5.0  # log lines (--quiet, or no terminal): at most one per interval, and the last
+    manifest: dict
+    rigs: list[str]
+    frames: list[int]
+    derived: int
 
-    def __init__(self, total: int, done: int, quiet: bool):
-        self.quiet = quiet or not sys.stderr.isatty()
-        self.total, self.done, self.start, self.started_with = total, done, time.monotonic(), done
-        self.bar = None
-        self.last_log = -float("inf")
-        self.lock = threading.Lock()  # workers report from several threads
-        if not self.quiet:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-            self.bar = Progress(
-                TextColumn("rendering"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[rate]}"), TimeRemainingColumn()
-            )
-            self.task = self.bar.add_task("views", total=total, completed=done, rate="")
-            self.bar.start()
+def render_video(req: RenderRequest) -> VideoResult:
+    """Render a frame range (default: the stage's) with the motion AOVs, then derive the motion
+    keys of exactly the rigs and frames rendered (the folder may hold others)."""
+    from ..truth.derive import derive_dataset
 
-    def advance(self, n: int) -> None:
-        with self.lock:
-            self._advance(n)
-
-    def _advance(self, n: int) -> None:
-        self.done += n
-        rate = (self.done - self.started_with) / max(time.monotonic() - self.start, 1e-9)
-        if self.bar:
-            self.bar.update(self.task, advance=n, rate=f"{rate:.2f} views/s")
-        elif self.done == self.total or time.monotonic() - self.last_log >= self.LOG_EVERY_S:
-            self.last_log = time.monotonic()
-            left = (self.total - self.done) / rate if rate > 0 else float("inf")
-            print(f"lfusd: {self.done}/{self.total} views, {rate:.2f} views/s, {left:.0f} s left", file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.bar:
-            self.bar.stop()
+    stage = open_stage(req.stage)
+    if not req.frames:
+        first, last = frame_range(stage)
+        req = replace(req, frames=list(range(first, last + 1)))
+    req = replace(req, motion=True)
+    manifest = _render(req, stage)
+    names = [r.spec.name for r in select_rigs(stage, req.rig, str(req.stage))]
+    derived = derive_dataset(req.out, names, req.frames, workers=req.workers)
+    return VideoResult(manifest, names, list(req.frames), derived)

@@ -22,6 +22,8 @@ import traceback
 import bpy
 import numpy as np
 
+from lfusd.render.plan import WorkUnit
+
 bpy.utils.expose_bundled_modules()  # Blender's USD hooks hand out objects of its bundled pxr
 
 PRIM_MAP: dict[str, list] = {}
@@ -37,6 +39,12 @@ NON_GEOMETRY = ("EMPTY", "CAMERA", "LIGHT", "ARMATURE")
 def emit(kind: str, **data) -> None:
     sys.stdout.write("LFUSD " + json.dumps({"event": kind, **data}) + "\n")
     sys.stdout.flush()
+
+
+def warn(message: str) -> None:
+    """A warning for the user: into this worker's log, and to the parent, which shows it."""
+    print(f"lfusd: warning: {message}", file=sys.stderr)
+    emit("warning", message=message)
 
 
 class _PrimMapHook(bpy.types.USDHook):
@@ -94,22 +102,22 @@ def select_device(scene, device: str) -> str:
     return "cpu"
 
 
-def setup_scene(job: dict) -> tuple[object, list[str]]:
+def setup_scene(job: WorkUnit) -> tuple[object, list[str]]:
     scene = bpy.context.scene
     # Identity comes from prim paths (never Blender names): object index = instance id.
-    for prim_path, instance_id in job["instances"].items():
+    for prim_path, instance_id in job.instances.items():
         objs = [o for o in _objects_of(prim_path) if o.type not in NON_GEOMETRY]
         if not objs:
             # The importer merges an Xform with a single gprim child into one object, which
             # the prim map knows by the Xform's path only.
             objs = [o for o in _objects_of(prim_path.rsplit("/", 1)[0]) if o.type not in NON_GEOMETRY]
         if not objs:
-            print(f"lfusd: warning: {prim_path} has no Blender object; its pixels get instance 0", file=sys.stderr)
+            warn(f"{prim_path} has no Blender object; its pixels get instance 0")
         for obj in objs:
             obj.pass_index = int(instance_id)
     # Rename the rig's cameras so multiview finds each by its suffix.
     suffixes = []
-    for key, prim_path in job["cameras"].items():
+    for key, prim_path in job.cameras.items():
         cams = [o for o in _objects_of(prim_path) if o.type == "CAMERA"]
         if not cams:
             raise RuntimeError(f"camera {prim_path} did not import into Blender")
@@ -124,12 +132,12 @@ def setup_scene(job: dict) -> tuple[object, list[str]]:
 
     render = scene.render
     render.engine = "CYCLES"
-    render.resolution_x, render.resolution_y = job["width"], job["height"]
+    render.resolution_x, render.resolution_y = job.width, job.height
     render.resolution_percentage = 100
     render.pixel_aspect_x = render.pixel_aspect_y = 1.0
     render.use_motion_blur = False
     render.film_transparent = False
-    render.use_persistent_data = bool(job.get("persistent", False))
+    render.use_persistent_data = bool(job.persistent)
     render.use_multiview = True
     render.views_format = "MULTIVIEW"
     for v in render.views:
@@ -137,12 +145,12 @@ def setup_scene(job: dict) -> tuple[object, list[str]]:
     for s in suffixes:
         view = render.views.new(s)  # files are named <filepath><view name>.exr
         view.camera_suffix = s
-    if job.get("threads"):
+    if job.threads:
         render.threads_mode = "FIXED"
-        render.threads = int(job["threads"])
+        render.threads = int(job.threads)
     scene.view_settings.view_transform = "Standard"
     scene.view_settings.look = "None"
-    scene.cycles.seed = int(job.get("seed", 0))
+    scene.cycles.seed = int(job.seed)
     scene.cycles.use_denoising = False
     scene.cycles.use_adaptive_sampling = False
     return scene, suffixes
@@ -243,7 +251,7 @@ def _render(scene, filepath: str) -> None:
     bpy.ops.render.render(write_still=True)
 
 
-def render_frame(scene, job: dict, frame: int, scratch: str, motion: MotionAttributes | None) -> None:
+def render_frame(scene, job: WorkUnit, frame: int, scratch: str, motion: MotionAttributes | None) -> None:
     if motion is not None:
         motion.set_frame(frame)
     else:
@@ -256,10 +264,10 @@ def render_frame(scene, job: dict, frame: int, scratch: str, motion: MotionAttri
     vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = False
     vl.use_pass_vector = vl.use_pass_object_index = False
     vl.use_pass_combined = True
-    cyc.samples = job["samples"]
+    cyc.samples = job.samples
     cyc.pixel_filter_type = "BLACKMAN_HARRIS"
     cyc.filter_width = 1.5
-    cyc.max_bounces = job.get("max_bounces", 12)
+    cyc.max_bounces = job.max_bounces
     im.media_type = "IMAGE"
     im.file_format = "OPEN_EXR"
     im.color_mode = "RGB"
@@ -290,16 +298,16 @@ def _test_kill_hook(frame: int) -> None:
 
 
 def main() -> int:
-    job = json.loads(sys.stdin.read())
+    job = WorkUnit.from_json(json.loads(sys.stdin.read()))
     try:
         t0 = time.time()
-        import_stage(job["stage"], job.get("has_dome", False))
+        import_stage(job.stage, job.has_dome)
         scene, suffixes = setup_scene(job)
-        device = select_device(scene, job.get("device", "auto"))
-        motion = MotionAttributes(scene, *job["stage_range"]) if job.get("motion") else None
+        device = select_device(scene, job.device)
+        motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
         emit("ready", device=device, seconds=time.time() - t0)
-        for frame in job["frames"]:
-            scratch = os.path.join(job["scratch"], f"f{frame:06d}")
+        for frame in job.frames:
+            scratch = os.path.join(job.scratch, f"f{frame:06d}")
             os.makedirs(scratch, exist_ok=True)
             t = time.time()
             render_frame(scene, job, frame, scratch, motion)
