@@ -24,6 +24,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..errors import LfusdError
 from . import human as _human
+from .vocabulary import CYCLE_FRAMES, GAIT, SPEED, STRIDE
 
 FPS = 24.0
 GAITS = ("idle", "walk", "run")
@@ -674,8 +675,7 @@ def write_cycle(path, gait: str, speed: float = 1.3, spec: _human.HumanSpec = _h
     motion = bake(rig, params, straight_trajectory(frames, params.speed))
     write_motion(stage, root.GetPath().AppendChild(_human.SKELETON_NAME), rig, motion, root.GetPrim())
     stage.GetRootLayer().customLayerData = {
-        "lfusd:gait": gait, "lfusd:speed": float(params.speed), "lfusd:cycleFrames": n,
-        "lfusd:stride": float(params.stride),
+        GAIT: gait, SPEED: float(params.speed), CYCLE_FRAMES: n, STRIDE: float(params.stride),
     }
     return stage
 

@@ -30,8 +30,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ..errors import LfusdError
 from .stage import frame_range
-
-WHEEL_RADIUS_ATTR = "lfusd:wheelRadius"
+from .vocabulary import WHEEL_RADIUS, constraint_attr
 
 
 @dataclass
@@ -195,7 +194,7 @@ def drift_boat(stage: Usd.Stage, prim_path: str, velocity=(0.0, 0.0), level: flo
     if abs(pts[:, 2].min()) > 1e-6:
         raise LfusdError(f"boat {prim_path}'s lowest point is at local z = {pts[:, 2].min():g}, not 0; "
                          "put its origin at the bottom of its hull")
-    draft_attr = prim.GetAttribute("lfusd:constraint:draft")
+    draft_attr = prim.GetAttribute(constraint_attr("draft"))
     draft = float(np.mean(draft_attr.Get())) if draft_attr and draft_attr.HasAuthoredValue() else 0.3
     level = float(pos[2] + draft) if level is None else float(level)
     draft = level - float(pos[2])
@@ -231,7 +230,7 @@ def make_wheel(prim: Usd.Prim, hub, radius: float) -> Usd.Prim:
     Blender's USD import merges such an Xform into its mesh, and the merged object is then known
     by the Xform's prim path only."""
     UsdGeom.Xformable(prim).AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Vec3d(*[float(v) for v in hub]))
-    prim.CreateAttribute(WHEEL_RADIUS_ATTR, Sdf.ValueTypeNames.Double, custom=True).Set(float(radius))
+    prim.CreateAttribute(WHEEL_RADIUS, Sdf.ValueTypeNames.Double, custom=True).Set(float(radius))
     return prim
 
 
@@ -249,7 +248,7 @@ def drive_car(stage: Usd.Stage, prim_path: str, speed: float, delay: float = 0.0
     author(prim, motion)
     dist = np.linalg.norm(motion.translate[:, :2] - motion.translate[0, :2], axis=1)
     for child in prim.GetChildren():
-        attr = child.GetAttribute(WHEEL_RADIUS_ATTR)
+        attr = child.GetAttribute(WHEEL_RADIUS)
         if child.GetName().startswith("wheel") and attr and attr.HasAuthoredValue():
             hub, _ = start_pose(child)
             spin = np.degrees(dist / float(attr.Get()))  # about +Y: the bottom moves backwards

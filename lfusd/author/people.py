@@ -25,10 +25,8 @@ from ..errors import LfusdError
 from .geometry import StageGeometry
 from .labels import class_label, labelled_ancestor, set_class_label
 from .stage import frame_range, meters_per_unit
+from .vocabulary import GROUND, WATER
 
-# Classes a person may stand on and classes that are water, when no rulebook is available.
-SUPPORT_CLASSES = ("road", "pavement", "sidewalk", "ground", "grass", "floor", "bridge", "stairs", "terrain", "dirt")
-WATER_CLASSES = ("water", "river", "lake", "sea")
 PEOPLE_SCOPE = "/World/People"
 FILLET_RADIUS = 1.0  # metres: how tight a person turns at a path corner
 
@@ -109,7 +107,7 @@ class SmoothPath:
 class SupportSurfaces:
     """Ray casting down onto a stage's labelled support and water surfaces at one time."""
 
-    def __init__(self, stage: Usd.Stage, time: float, support=SUPPORT_CLASSES, water=WATER_CLASSES,
+    def __init__(self, stage: Usd.Stage, time: float, support=GROUND, water=WATER,
                  geometry: StageGeometry | None = None):
         import open3d as o3d
 
@@ -167,14 +165,12 @@ class SupportSurfaces:
 
 def person_surfaces(stage: Usd.Stage) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(classes a person stands on, classes it must never stand on): the rulebook's ``person``
-    rule (default rulebook, overridden by the stage's class rules), else lfusd's defaults."""
-    try:
-        from . import rules as constraints
-    except ImportError:  # the rulebook is optional for placement
-        return SUPPORT_CLASSES, WATER_CLASSES
+    rule (default rulebook, overridden by the stage's class rules); GROUND and WATER where it is off."""
+    from . import rules as constraints
+
     rules = dict(constraints.DEFAULT_RULES.get("person", {}))
     rules.update(constraints.stage_class_rules(stage).get("person", {}))
-    return tuple(rules.get("on") or SUPPORT_CLASSES), tuple(rules.get("not_on") or WATER_CLASSES)
+    return tuple(rules.get("on") or GROUND), tuple(rules.get("not_on") or WATER)
 
 
 def _flight_gap(stage: Usd.Stage, prim: Usd.Prim, frames: np.ndarray, surfaces: "SupportSurfaces") -> float:
@@ -192,11 +188,9 @@ def _flight_gap(stage: Usd.Stage, prim: Usd.Prim, frames: np.ndarray, surfaces: 
 
 
 def _rulebook_violations(stage: Usd.Stage, prim: Usd.Prim) -> list[str]:
-    """Lines of the rulebook's violations (every frame) that concern ``prim``; [] without a rulebook."""
-    try:
-        from .rules import Checker
-    except ImportError:
-        return []
+    """Lines of the rulebook's violations (every frame) that concern ``prim``."""
+    from .rules import Checker
+
     me = str(prim.GetPath())
     return [v.line() for v in Checker(stage).check() if v.prim_path == me or me in v.detail]
 

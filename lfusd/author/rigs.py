@@ -16,8 +16,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ..errors import LfusdError
 from ..camera import RigSpec, View
+from .vocabulary import RIG_VIEW, rig_attr
 
-NS = "lfusd:rig:"
 RIGS_ROOT = "/Rigs"
 # OpenCV camera axes -> USD/Blender camera axes (y up, looking down -z), both ways.
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -68,7 +68,7 @@ def add_rig(stage: Usd.Stage, spec: RigSpec, parent: str = RIGS_ROOT) -> Usd.Pri
         value = getattr(spec, key)
         if value is None:
             continue
-        prim.CreateAttribute(NS + key, vtype, custom=True).Set(Gf.Vec3d(*value) if vtype == Sdf.ValueTypeNames.Double3 else value)
+        prim.CreateAttribute(rig_attr(key), vtype, custom=True).Set(Gf.Vec3d(*value) if vtype == Sdf.ValueTypeNames.Double3 else value)
     lens = 1.0 / (100.0 * mpu)  # millimetres -> tenths of a scene unit
     for view in spec.views:
         cam = UsdGeom.Camera.Define(stage, rig.GetPath().AppendChild(camera_name(view)))
@@ -80,7 +80,7 @@ def add_rig(stage: Usd.Stage, spec: RigSpec, parent: str = RIGS_ROOT) -> Usd.Pri
         local = spec.view_in_rig(view) @ FLIP_YZ
         local[:3, 3] /= mpu
         cam.AddTransformOp().Set(_gf(local))
-        cam.GetPrim().CreateAttribute(NS + "view", Sdf.ValueTypeNames.Int2, custom=True).Set(Gf.Vec2i(*view))
+        cam.GetPrim().CreateAttribute(RIG_VIEW, Sdf.ValueTypeNames.Int2, custom=True).Set(Gf.Vec2i(*view))
     return prim
 
 
@@ -104,11 +104,11 @@ def rigs(stage: Usd.Stage) -> dict[str, StageRig]:
     """Every lfusd rig on the stage, by name."""
     out: dict[str, StageRig] = {}
     for prim in stage.Traverse():
-        if not prim.HasAttribute(NS + "rows"):
+        if not prim.HasAttribute(rig_attr("rows")):
             continue
         values = {}
         for key in _FIELDS:
-            attr = prim.GetAttribute(NS + key)
+            attr = prim.GetAttribute(rig_attr(key))
             if attr and attr.HasAuthoredValue():
                 v = attr.Get()
                 values[key] = tuple(float(x) for x in v) if key in ("at", "look_at") else v
@@ -118,7 +118,7 @@ def rigs(stage: Usd.Stage) -> dict[str, StageRig]:
             raise LfusdError(f"rig {prim.GetPath()} has malformed lfusd:rig attributes ({e}); re-add it with 'lfusd rig add'") from None
         cams: dict[View, str] = {}
         for child in prim.GetChildren():
-            attr = child.GetAttribute(NS + "view")
+            attr = child.GetAttribute(RIG_VIEW)
             if child.IsA(UsdGeom.Camera) and attr and attr.HasAuthoredValue():
                 v = attr.Get()
                 cams[(int(v[0]), int(v[1]))] = str(child.GetPath())

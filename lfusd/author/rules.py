@@ -13,6 +13,9 @@ Rules (``kind``: value):
 - ``in_bounds``: true: stay inside the stage's ``lfusd:bounds`` (default prim; min and max corner),
   or inside the x/y extent of its ground and water surfaces when the stage has none
 
+Each kind is a Checker method registered with ``@rule(kind)`` (:data:`RULES`); class names and
+property names come from lfusd.author.vocabulary.
+
 Where rules live (later ones override earlier ones, per object and kind):
 
 1. the default rulebook (``DEFAULT_RULES``),
@@ -40,6 +43,7 @@ from __future__ import annotations
 import contextlib
 import json
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,13 +54,8 @@ from ..errors import LfusdError
 from .geometry import StageGeometry
 from .labels import object_table
 from .stage import frame_range
+from .vocabulary import ANY, BOUNDS, CONSTRAINT, GROUND, RULE, SURFACES, WATER, constraint_attr, rule_attr
 
-GROUND = ("road", "pavement", "sidewalk", "ground", "grass", "floor", "bridge", "stairs")
-WATER = ("water", "river", "lake", "sea")
-SURFACES = frozenset(GROUND + WATER)
-ANY = "any"
-
-KINDS = ("on", "not_on", "floats_on", "no_interpenetration", "inside", "in_bounds")
 PARAMS = ("draft", "tolerance")
 
 DEFAULT_RULES: dict[str, dict] = {
@@ -95,10 +94,37 @@ class ObjectRules:
     source: dict = field(default_factory=dict)  # kind -> where it was set (for messages)
 
 
+# -- the rule kinds -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Rule:
+    """How one kind of rule is evaluated: ``check(checker, i, rules, scene, owner, frame)`` gives
+    object i's violation text or None; a ``pairwise`` rule's ``check(checker, scene, owner, frame,
+    is_first)`` gives the violations of every pair of objects at once."""
+
+    kind: str
+    check: Callable
+    pairwise: bool = False
+
+
+RULES: dict[str, Rule] = {}  # kind -> Rule, in registration order (filled by @rule on Checker's methods)
+
+
+def rule(kind: str, pairwise: bool = False):
+    """Decorator: register a Checker method as the evaluator of rule ``kind``."""
+
+    def register(fn):
+        if kind in RULES or kind in PARAMS:
+            raise LfusdError(f"rule kind {kind!r} is taken; register the new rule under another name")
+        RULES[kind] = Rule(kind, fn, pairwise)
+        return fn
+
+    return register
+
+
 # -- reading rules ---------------------------------------------------------------------------
 def _check_kind(kind: str, where: str) -> None:
-    if kind not in KINDS and kind not in PARAMS:
-        raise LfusdError(f"unknown rule {kind!r} in {where}; known rules: {', '.join(KINDS + PARAMS)}")
+    if kind not in RULES and kind not in PARAMS:
+        raise LfusdError(f"unknown rule {kind!r} in {where}; known rules: {', '.join((*RULES, *PARAMS))}")
 
 
 def _normalise(kind: str, value, where: str):
@@ -146,7 +172,7 @@ def stage_class_rules(stage: Usd.Stage) -> dict[str, dict]:
         return out
     for attr in prim.GetAttributes():
         name = attr.GetName()
-        if not name.startswith("lfusd:rule:"):
+        if not name.startswith(RULE):
             continue
         parts = name.split(":")
         if len(parts) != 4:
@@ -156,7 +182,7 @@ def stage_class_rules(stage: Usd.Stage) -> dict[str, dict]:
         out.setdefault(cls, {})[kind] = _normalise(kind, attr.Get(), f"{prim.GetPath()}.{name}")
     for rel in prim.GetRelationships():
         parts = rel.GetName().split(":")
-        if rel.GetName().startswith("lfusd:rule:") and len(parts) == 4:
+        if rel.GetName().startswith(RULE) and len(parts) == 4:
             _check_kind(parts[3], f"{prim.GetPath()}.{rel.GetName()}")
             out.setdefault(parts[2], {})[parts[3]] = tuple(str(t) for t in rel.GetTargets())
     return out
@@ -167,9 +193,9 @@ def prim_rules(prim: Usd.Prim) -> dict:
     out = {}
     for prop in prim.GetProperties():
         name = prop.GetName()
-        if not name.startswith("lfusd:constraint:"):
+        if not name.startswith(CONSTRAINT):
             continue
-        kind = name[len("lfusd:constraint:"):]
+        kind = name[len(CONSTRAINT):]
         _check_kind(kind, f"{prim.GetPath()}.{name}")
         if isinstance(prop, Usd.Relationship):
             out[kind] = tuple(str(t) for t in prop.GetTargets())
@@ -181,7 +207,7 @@ def prim_rules(prim: Usd.Prim) -> dict:
 def set_constraint(prim: Usd.Prim, kind: str, value) -> None:
     """Author one rule on ``prim`` (``inside``: prim paths as a relationship)."""
     _check_kind(kind, f"set_constraint on {prim.GetPath()}")
-    name = f"lfusd:constraint:{kind}"
+    name = constraint_attr(kind)
     if kind == "inside":
         prim.CreateRelationship(name, custom=True).SetTargets([Sdf.Path(p) for p in ([value] if isinstance(value, str) else value)])
     else:
@@ -206,7 +232,7 @@ def set_class_rule(stage: Usd.Stage, cls: str, kind: str, value) -> None:
     prim = stage.GetDefaultPrim()
     if not prim:
         raise LfusdError("the stage has no default prim to hold class rules; set one")
-    _write_rule(prim, f"lfusd:rule:{cls}:{kind}", kind, value)
+    _write_rule(prim, rule_attr(cls, kind), kind, value)
 
 
 def resolve_rules(stage: Usd.Stage, objects, dynamic: dict[str, bool], file_rules: dict | None = None) -> list[ObjectRules]:
@@ -240,7 +266,7 @@ def resolve_rules(stage: Usd.Stage, objects, dynamic: dict[str, bool], file_rule
             out.append(r)
     # Rules authored on a prim that is no object (e.g. on a mesh below a labelled Xform) would be ignored.
     for prim in stage.Traverse():
-        if str(prim.GetPath()) not in paths and any(n.startswith("lfusd:constraint:") for n in prim.GetPropertyNames()):
+        if str(prim.GetPath()) not in paths and any(n.startswith(CONSTRAINT) for n in prim.GetPropertyNames()):
             raise LfusdError(f"prim {prim.GetPath()} has lfusd:constraint rules but is not an object (a labelled prim "
                              "with geometry below it); move the rules to its labelled ancestor or label it")
     return out
@@ -312,7 +338,7 @@ class Checker:
 
     def _bounds(self):
         prim = self.stage.GetDefaultPrim()
-        attr = prim.GetAttribute("lfusd:bounds") if prim else None
+        attr = prim.GetAttribute(BOUNDS) if prim else None
         if attr and attr.HasAuthoredValue():
             v = np.array(attr.Get(), float)
             return v[0], v[1]
@@ -398,16 +424,18 @@ class Checker:
                 o = self.objs[i]
                 if not len(o.tris):
                     continue  # no geometry lfusd can read (reported as a geometry problem)
-                for kind in ("on", "not_on", "floats_on", "inside", "in_bounds"):
-                    if kind not in r.rules or (r.prim_path, kind) in found:
+                for kind, evaluator in RULES.items():
+                    if evaluator.pairwise or kind not in r.rules or (r.prim_path, kind) in found:
                         continue
                     if not is_first and not self._may_change(o, kind, r):
                         continue
-                    detail = getattr(self, f"_rule_{kind}")(i, r, scene, owner, frame)
+                    detail = evaluator.check(self, i, r, scene, owner, frame)
                     if detail:
                         found[(r.prim_path, kind)] = Violation(r.prim_path, kind, frame, detail)
-            for v in self._interpenetration(scene, owner, frame, is_first):
-                found.setdefault((v.prim_path, v.rule), v)
+            for evaluator in RULES.values():
+                if evaluator.pairwise:
+                    for v in evaluator.check(self, scene, owner, frame, is_first):
+                        found.setdefault((v.prim_path, v.rule), v)
             if progress:
                 progress(frame)
         for path, v in self.unusable.items():
@@ -476,6 +504,7 @@ class Checker:
                 out.append((self.objs[j].label, float(p[2] + up - t), p))
         return out
 
+    @rule("on")
     def _rule_on(self, i, r, scene, owner, frame):
         tol = r.rules.get("tolerance", DEFAULT_TOLERANCE)
         allowed = set(r.rules["on"])
@@ -493,6 +522,7 @@ class Checker:
             return f"supported by {_names(bad)}; it must rest on {_names(allowed)}"
         return None
 
+    @rule("not_on")
     def _rule_not_on(self, i, r, scene, owner, frame):
         tol = r.rules.get("tolerance", DEFAULT_TOLERANCE)
         banned = set(r.rules["not_on"])
@@ -502,6 +532,7 @@ class Checker:
         bad = sorted({lab for lab, h, p in sup if lab in banned})
         return f"supported by {_names(bad)}, which it must never stand on" if bad else None
 
+    @rule("floats_on")
     def _rule_floats_on(self, i, r, scene, owner, frame):
         tol = r.rules.get("tolerance", DEFAULT_TOLERANCE)
         lo, hi = r.rules.get("draft", DEFAULT_DRAFT)
@@ -525,38 +556,8 @@ class Checker:
             return f"draft {max(drafts):.2f} m outside {lo:g}..{hi:g} m: it must float on {_names(water)}"
         return None
 
-    # -- regions ---------------------------------------------------------------------------------
-    def _rule_inside(self, i, r, scene, owner, frame):
-        o = self.objs[i]
-        lo, hi = o.lo, o.hi
-        for target in r.rules["inside"]:
-            purposes = [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide]
-            cache = UsdGeom.BBoxCache(Usd.TimeCode(frame), purposes, useExtentsHint=False)
-            box = cache.ComputeWorldBound(self.stage.GetPrimAtPath(target)).ComputeAlignedRange()
-            if box.IsEmpty():
-                raise LfusdError(f"{r.prim_path}: region {target} of rule 'inside' has no extent; give it geometry or an extent")
-            blo, bhi = np.array(box.GetMin()), np.array(box.GetMax())
-            if np.all(lo >= blo - 1e-6) and np.all(hi <= bhi + 1e-6):
-                return None
-        return f"outside {_names(r.rules['inside'])}"
-
-    def _rule_in_bounds(self, i, r, scene, owner, frame):
-        o = self.objs[i]
-        if self.bounds is None:
-            surf = [x for x in self.objs if x.label in SURFACES and len(x.verts)]
-            if not surf:
-                return None
-            allv = np.concatenate([x.verts for x in surf])
-            blo, bhi = allv.min(0), allv.max(0)
-            blo[2], bhi[2] = -np.inf, np.inf
-        else:
-            blo, bhi = self.bounds
-        lo, hi = o.lo, o.hi
-        if np.all(lo >= blo - 1e-6) and np.all(hi <= bhi + 1e-6):
-            return None
-        return f"leaves the stage bounds {tuple(np.round(blo, 2))}..{tuple(np.round(bhi, 2))}"
-
     # -- interpenetration ------------------------------------------------------------------------
+    @rule("no_interpenetration", pairwise=True)
     def _interpenetration(self, scene, owner, frame, is_first) -> list[Violation]:
         subjects = {self.index[r.prim_path]: set(r.rules["no_interpenetration"]) for r in self.rules
                     if "no_interpenetration" in r.rules and len(self.objs[self.index[r.prim_path]].tris)}
@@ -619,6 +620,39 @@ class Checker:
         hits = scene.list_intersections(self.o3d.core.Tensor(ray))
         n = int(np.sum(owner[hits["geometry_ids"].numpy()] == b))
         return n % 2 == 1
+
+    # -- regions ---------------------------------------------------------------------------------
+    @rule("inside")
+    def _rule_inside(self, i, r, scene, owner, frame):
+        o = self.objs[i]
+        lo, hi = o.lo, o.hi
+        for target in r.rules["inside"]:
+            purposes = [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.proxy, UsdGeom.Tokens.guide]
+            cache = UsdGeom.BBoxCache(Usd.TimeCode(frame), purposes, useExtentsHint=False)
+            box = cache.ComputeWorldBound(self.stage.GetPrimAtPath(target)).ComputeAlignedRange()
+            if box.IsEmpty():
+                raise LfusdError(f"{r.prim_path}: region {target} of rule 'inside' has no extent; give it geometry or an extent")
+            blo, bhi = np.array(box.GetMin()), np.array(box.GetMax())
+            if np.all(lo >= blo - 1e-6) and np.all(hi <= bhi + 1e-6):
+                return None
+        return f"outside {_names(r.rules['inside'])}"
+
+    @rule("in_bounds")
+    def _rule_in_bounds(self, i, r, scene, owner, frame):
+        o = self.objs[i]
+        if self.bounds is None:
+            surf = [x for x in self.objs if x.label in SURFACES and len(x.verts)]
+            if not surf:
+                return None
+            allv = np.concatenate([x.verts for x in surf])
+            blo, bhi = allv.min(0), allv.max(0)
+            blo[2], bhi[2] = -np.inf, np.inf
+        else:
+            blo, bhi = self.bounds
+        lo, hi = o.lo, o.hi
+        if np.all(lo >= blo - 1e-6) and np.all(hi <= bhi + 1e-6):
+            return None
+        return f"leaves the stage bounds {tuple(np.round(blo, 2))}..{tuple(np.round(bhi, 2))}"
 
 
 def _names(classes) -> str:

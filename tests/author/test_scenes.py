@@ -92,14 +92,6 @@ def test_same_seed_same_bytes_other_seed_other_scene(tmp_path, template):
         assert digest(png) == digest(tmp_path / "b" / "textures" / png.name)
 
 
-REQUIRED = {
-    "street": {"road", "sidewalk", "grass", "building", "car", "street_light", "person"},
-    "river": {"water", "grass", "bridge", "boat", "person", "tree"},
-    "room": {"floor", "wall", "table", "chair", "bowl", "lamp"},
-    "mixed": {"road", "grass", "water", "building", "car", "tree", "person"},
-}
-
-
 @pytest.mark.parametrize("template", TEMPLATES)
 def test_template_content(tmp_path, template):
     stage = small(tmp_path, template, seed=3, rigs=3)
@@ -107,7 +99,8 @@ def test_template_content(tmp_path, template):
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode(), stage.GetTimeCodesPerSecond()) == (1, 3, 24)
     objects, classes = object_table(stage)
     labels = {o.label for o in objects}
-    assert REQUIRED[template] <= labels, REQUIRED[template] - labels
+    required = TEMPLATES[template].labels
+    assert required and required <= labels, required - labels
     assert all(o.label for o in objects)  # every piece of geometry belongs to a labelled object
     # Geometry is polygon meshes only (no implicit shapes that Blender would tessellate its own way).
     for prim in stage.Traverse():
@@ -147,7 +140,7 @@ def test_default_rig_spec_and_count(tmp_path):
 def test_generated_scenes_pass_check(tmp_path):
     # 12 scenes here (seeds 0..11 across the four templates); benchmarks/bench_stage_new.py runs 50.
     for k in range(12):
-        template = TEMPLATES[k % 4]
+        template = list(TEMPLATES)[k % len(TEMPLATES)]
         stage = generate(template, tmp_path / f"{template}_{k}.usda", k, **SMALL)
         problems = [v.line() for v in Checker(stage).check()] + usd_validation(stage)
         assert problems == [], (template, k, problems)
@@ -362,8 +355,6 @@ def test_a_cpu_whose_math_rounds_the_other_way_writes_the_same_stage(tmp_path, m
 
 # -- dynamic variants (issue 6) ----------------------------------------------------------------------
 DYN = dict(frames=48, rigs=2, grid=(3, 3), resolution=(64, 64), dynamic=True)
-MOVERS = {"street": {"person", "car"}, "river": {"person", "boat"}, "mixed": {"person", "car", "boat"},
-          "room": {"cabinet"}}
 
 
 def _moving(stage):
@@ -380,7 +371,8 @@ def test_dynamic_scenes_move_and_pass_check(tmp_path, template):
         stage = generate(template, tmp_path / f"{template}_{seed}.usda", seed, **DYN)
         assert [v.line() for v in Checker(stage).check()] + usd_validation(stage) == [], (template, seed)
         moving = _moving(stage)
-        assert MOVERS[template] <= {o.label for o in moving}, (template, seed, [o.prim_path for o in moving])
+        expected = TEMPLATES[template].movers
+        assert expected and expected <= {o.label for o in moving}, (template, seed, [o.prim_path for o in moving])
         for o in moving:
             prim = stage.GetPrimAtPath(o.prim_path)
             if o.label == "person":  # an animated UsdSkel person, not a static blocky one

@@ -4,13 +4,22 @@
 stage's rules by construction: objects are sampled only where their support surface lies
 (the surface's height is known analytically) and where their footprint is free, never moved
 after a failed check. Randomness comes from one ``numpy.random.Generator`` seeded with
-(seed, template index), and every double is written rounded to 1e-9 (``stageio.round_layer``), so
-the mapping seed -> stage file is byte-identical on every run and CPU.
+(seed, the template's seed key), and every double is written rounded to 1e-9
+(``stage.round_layer``), so the mapping seed -> stage file is byte-identical on every run and CPU.
+
+A template is one module of this package with a ``@template(name, seed_key=...)`` build function
+(``build(scene) -> Site``) and, for ``--dynamic``, a ``@<template>.dynamic`` function adding the
+movers; every module here is imported when the package is, so a new template touches only its
+own module. Its seed key is its own for good: the seed of a stage never depends on which other
+templates exist or in which order they were registered.
 """
 
 from __future__ import annotations
 
+import importlib
 import math
+import pkgutil
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,11 +30,12 @@ from ...errors import LfusdError
 from ...camera import RigSpec
 from ..stage import new_stage, round_layer
 from ..rigs import add_rig
+from ..rules import set_class_rule
+from ..vocabulary import BOUNDS, DYNAMIC, SEED, TEMPLATE
 from .build import Builder, MeshData
 
-TEMPLATES = ("street", "river", "room", "mixed")
-
-# Rules the templates add to the default rulebook (stored in each stage as lfusd:rule:* attributes).
+# Rules for the object kit's classes (lfusd.author.scenes.objects), which every generated stage
+# adds to the default rulebook (stored as lfusd:rule:* attributes); a template adds its own.
 TEMPLATE_RULES: dict[str, dict[str, list[str]]] = {
     "building": {"on": ["grass", "ground", "sidewalk", "pavement", "dirt"]},
     "tree": {"on": ["grass", "ground", "dirt"]},
@@ -124,11 +134,69 @@ def world_box(datas: list[MeshData], pos, yaw_deg: float) -> tuple[np.ndarray, n
 
 
 def author_rules(stage: Usd.Stage, rules: dict[str, dict[str, list[str]]]) -> None:
-    """Store class rules on the default prim as ``lfusd:rule:<class>:<kind>`` token arrays."""
-    prim = stage.GetDefaultPrim()
+    """Store class rules on the default prim (``lfusd:rule:<class>:<kind>``, sorted by class and kind)."""
     for cls in sorted(rules):
         for kind in sorted(rules[cls]):
-            prim.CreateAttribute(f"lfusd:rule:{cls}:{kind}", Sdf.ValueTypeNames.TokenArray, custom=True).Set(list(rules[cls][kind]))
+            set_class_rule(stage, cls, kind, rules[cls][kind])
+
+
+@dataclass(frozen=True)
+class Site:
+    """What a template's build returns: where rigs stand and what they look at, each drawn from
+    a generator; a template's subclass adds what its dynamic variant needs to know."""
+
+    rig_position: Callable[[np.random.Generator], tuple]
+    look_at: Callable[[np.random.Generator], tuple]
+
+
+@dataclass
+class Template:
+    """A registered template: its build function, its seed key, the classes every stage of it
+    contains (``labels``) and moves when dynamic (``movers``), and class rules of its own."""
+
+    name: str
+    seed_key: int
+    build: Callable[[Scene], Site]
+    labels: frozenset[str] = frozenset()
+    movers: frozenset[str] = frozenset()
+    rules: dict[str, dict[str, list[str]]] = field(default_factory=dict)
+    animate: Callable | None = None
+
+    def dynamic(self, fn: Callable) -> Callable:
+        """Decorator: ``fn(ctx, site) -> Site | None`` adds the movers of ``--dynamic`` stages
+        (lfusd.author.scenes.dynamic); a Site it returns replaces the rig samplers."""
+        self.animate = fn
+        return fn
+
+
+TEMPLATES: dict[str, Template] = {}  # name -> template, by seed key (the registry)
+
+
+def template(name: str, *, seed_key: int, labels=(), movers=(), rules: dict | None = None):
+    """Decorator: register ``build(scene) -> Site`` as template ``name``; returns the Template.
+
+    ``seed_key`` (a non-negative integer no other template has) seeds the template's generator
+    with (seed, seed_key): keep it once stages exist, as their bytes depend on it."""
+
+    def register(build: Callable[[Scene], Site]) -> Template:
+        if name in TEMPLATES:
+            raise LfusdError(f"template {name!r} is registered twice; give the new template another name")
+        if not (isinstance(seed_key, int) and seed_key >= 0):
+            raise LfusdError(f"template {name!r} has seed key {seed_key!r}; give a non-negative integer")
+        taken = {t.seed_key: t.name for t in TEMPLATES.values()}
+        if seed_key in taken:
+            raise LfusdError(f"template {name!r} has seed key {seed_key}, which template {taken[seed_key]!r} has; "
+                             "give it an unused one")
+        t = Template(name, seed_key, build, frozenset(labels), frozenset(movers), dict(rules or {}))
+        TEMPLATES[name] = t
+        return t
+
+    return register
+
+
+def stage_rules(t: Template) -> dict[str, dict[str, list[str]]]:
+    """The class rules a stage of ``t`` stores: TEMPLATE_RULES, with the template's own on top."""
+    return {cls: {**TEMPLATE_RULES.get(cls, {}), **t.rules.get(cls, {})} for cls in {**TEMPLATE_RULES, **t.rules}}
 
 
 def add_rigs(scene: Scene, count: int, sample_position, look_at, spec_kwargs: dict, tries: int = 200) -> None:
@@ -156,8 +224,11 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     """Write the stage of ``template`` with ``seed`` to ``path`` (textures into ``path``'s textures/).
 
     ``dynamic``: add walking people and movers over the frame range (lfusd.author.scenes.dynamic)."""
-    if template not in TEMPLATES:
+    t = TEMPLATES.get(template)
+    if t is None:
         raise LfusdError(f"unknown template {template!r}; choose one of: {', '.join(TEMPLATES)}")
+    if dynamic and t.animate is None:
+        raise LfusdError(f"template {template!r} has no dynamic variant; leave out --dynamic")
     if frames < 1:
         raise LfusdError(f"--frames must be at least 1, got {frames}")
     if not 0 <= rigs <= 10:
@@ -171,26 +242,37 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     stage = new_stage(path, 1, frames)
     UsdGeom.Scope.Define(stage, "/World/Looks")
     UsdGeom.Xform.Define(stage, "/World/Lights")
-    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), TEMPLATES.index(template)]))
-    from . import mixed, river, room, street  # imported late: they import this module
-
-    module = {"street": street, "river": river, "room": room, "mixed": mixed}[template]
-    info = module.build(scene)
+    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), t.seed_key]))
+    site = t.build(scene)
     if dynamic:
         from .dynamic import populate
 
-        info.update(populate(scene, template, info, seed, TEMPLATES.index(template)))
-    author_rules(stage, TEMPLATE_RULES)
+        site = populate(scene, t, site, seed)
+    author_rules(stage, stage_rules(t))
     (bx0, by0), (bx1, by1) = scene.bounds
     world = stage.GetDefaultPrim()
-    world.CreateAttribute("lfusd:bounds", Sdf.ValueTypeNames.Double3Array, custom=True).Set(
+    world.CreateAttribute(BOUNDS, Sdf.ValueTypeNames.Double3Array, custom=True).Set(
         [Gf.Vec3d(bx0, by0, -100.0), Gf.Vec3d(bx1, by1, 100.0)])
-    world.SetCustomDataByKey("lfusd:template", template)
-    world.SetCustomDataByKey("lfusd:seed", int(seed))
+    world.SetCustomDataByKey(TEMPLATE, template)
+    world.SetCustomDataByKey(SEED, int(seed))
     if dynamic:
-        world.SetCustomDataByKey("lfusd:dynamic", True)
+        world.SetCustomDataByKey(DYNAMIC, True)
     spec_kwargs = dict(rows=grid[0], cols=grid[1], width=resolution[0], height=resolution[1])
-    add_rigs(scene, rigs, info["rig_position"], info["look_at"], spec_kwargs)
+    add_rigs(scene, rigs, site.rig_position, site.look_at, spec_kwargs)
     round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
     return stage
+
+
+def _load_templates() -> None:
+    """Import every module of this package (each template registers itself), then order the
+    registry by seed key."""
+    for info in pkgutil.iter_modules(__path__):
+        if info.name != "dynamic":  # people and movers: heavy, imported when a dynamic stage is made
+            importlib.import_module(f"{__name__}.{info.name}")
+    ordered = sorted(TEMPLATES.values(), key=lambda t: t.seed_key)
+    TEMPLATES.clear()
+    TEMPLATES.update((t.name, t) for t in ordered)
+
+
+_load_templates()

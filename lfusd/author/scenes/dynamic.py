@@ -8,8 +8,12 @@ placements keep out of reserved boxes, so nothing meets. People are added with c
 rulebook pass (lfusd.author.rules.Checker) at the end checks every object at every frame, and a
 mover that still breaks a rule (which the reservations should prevent) is removed, so the
 written stage always passes ``lfusd check``. The static template's blocky people are replaced
-by animated ones. All randomness comes from a generator seeded with (seed, template, 1): the
-static part of the stage is the same as without --dynamic and the seed -> stage mapping is stable.
+by animated ones. All randomness comes from a generator seeded with (seed, the template's seed
+key, 1): the static part of the stage is the same as without --dynamic and the seed -> stage
+mapping is stable.
+
+This module holds the building blocks (walkers, traffic, drifting boats); each template's own
+``@<template>.dynamic`` function, in its module, decides where they go.
 """
 
 from __future__ import annotations
@@ -21,11 +25,12 @@ from pxr import Usd, UsdGeom
 
 from .. import movers
 from ..people import add_person
-from ..rules import SURFACES, Checker
+from ..rules import Checker
 from ...errors import LfusdError
 from ..human import HumanSpec
 from ..labels import object_table
-from . import GAP, Placed, Scene
+from ..vocabulary import SURFACES
+from . import GAP, Placed, Scene, Site, Template
 from . import objects as kit
 
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
@@ -84,19 +89,20 @@ class Ctx:
         return self.scene.stage
 
 
-def populate(scene: Scene, template: str, info: dict, seed: int, index: int) -> dict:
-    """Add people and movers to a freshly built template; returns rig sampler overrides (if any)."""
+def populate(scene: Scene, template: Template, site: Site, seed: int) -> Site:
+    """Add people and movers to a freshly built stage of ``template`` (its ``dynamic`` function);
+    returns the site, with the rig samplers that function replaced."""
     stage = scene.stage
     first, last = int(stage.GetStartTimeCode()), int(stage.GetEndTimeCode())
     for o in object_table(stage)[0]:  # the static blocky people make way for animated ones
         if o.label == "person":
             stage.RemovePrim(o.prim_path)
             scene.placed = [p for p in scene.placed if p.path != o.prim_path]
-    ctx = Ctx(scene, np.random.default_rng([int(seed), index, 1]), Occupancy.of(stage), last - first + 1,
+    ctx = Ctx(scene, np.random.default_rng([int(seed), template.seed_key, 1]), Occupancy.of(stage), last - first + 1,
               float(stage.GetTimeCodesPerSecond() or 24.0))
-    overrides = {"street": _street, "river": _river, "mixed": _mixed, "room": _room}[template](ctx, info) or {}
+    replaced = template.animate(ctx, site)
     settle(stage, ctx.movers, scene)
-    return overrides
+    return replaced or site
 
 
 def settle(stage: Usd.Stage, dynamic: list[str], scene: Scene | None = None, rounds: int = 4) -> None:
@@ -121,7 +127,7 @@ def settle(stage: Usd.Stage, dynamic: list[str], scene: Scene | None = None, rou
 
 
 # -- building blocks -------------------------------------------------------------------------------
-def _walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_len: float | None = None) -> bool:
+def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_len: float | None = None) -> bool:
     """A person walking/running straight from ``start`` along ``direction`` on a surface at height
     ``z``, if the box it sweeps over the clip is free; True when added."""
     start, d = np.asarray(start, float), np.asarray(direction, float) / np.linalg.norm(direction)
@@ -147,18 +153,18 @@ def _walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_l
     return True
 
 
-def _people(ctx: Ctx, count: int, sample, tries: int = 40) -> None:
+def walkers(ctx: Ctx, count: int, sample, tries: int = 40) -> None:
     """``count`` people from ``sample(rng) -> (start, direction, z, max_len or None)``."""
     for _ in range(count):
         for _ in range(tries):
             start, direction, z, max_len = sample(ctx.rng)
             run = ctx.rng.random() < 0.25
             speed = float(ctx.rng.uniform(2.5, 3.5) if run else ctx.rng.uniform(1.0, 1.6))
-            if _walker(ctx, start, direction, z, "run" if run else "walk", speed, max_len):
+            if walker(ctx, start, direction, z, "run" if run else "walk", speed, max_len):
                 break
 
 
-def _traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: int) -> None:
+def traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: int) -> None:
     """``cars`` cars in convoy along the lane y = ``lane_y`` heading +x (1) or -x (-1), kept
     inside x0..x1 over the clip; parked cars in the lane make way."""
     scene, rng = ctx.scene, ctx.rng
@@ -199,7 +205,7 @@ def _traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: 
         back += length + gaps[k]
 
 
-def _boats(ctx: Ctx, level: float, x0: float, x1: float, y0: float, y1: float, speeds=(0.3, 0.9)) -> None:
+def boats(ctx: Ctx, level: float, x0: float, x1: float, y0: float, y1: float, speeds=(0.3, 0.9)) -> None:
     """Make every boat drift along x (either way, slower if blocked, else bob in place) inside x0..x1."""
     scene, rng = ctx.scene, ctx.rng
     for o in object_table(ctx.stage)[0]:
@@ -220,137 +226,10 @@ def _boats(ctx: Ctx, level: float, x0: float, x1: float, y0: float, y1: float, s
                 break
 
 
-_AXES = [np.array(v, float) for v in ((1, 0), (0, 1), (-1, 0), (0, -1))]
+AXES = [np.array(v, float) for v in ((1, 0), (0, 1), (-1, 0), (0, -1))]
 
 
-def _run_inside(start, d, lo, hi) -> float:
+def run_inside(start, d, lo, hi) -> float:
     """How far one can go from ``start`` along the axis direction ``d`` inside the box lo..hi."""
     k = int(np.argmax(np.abs(d)))
     return float((hi[k] - start[k]) if d[k] > 0 else (start[k] - lo[k]))
-
-
-# -- templates ---------------------------------------------------------------------------------------
-def _street(ctx: Ctx, info: dict) -> dict:
-    L, road_w, walk_w, curb = info["length"], info["road_w"], info["walk_w"], info["curb"]
-    rng = ctx.rng
-    _traffic(ctx, -road_w / 2, 1, -L / 2, L / 2, int(rng.integers(1, 3)))
-    if rng.random() < 0.6:
-        _traffic(ctx, road_w / 2, -1, -L / 2, L / 2, int(rng.integers(1, 3)))
-
-    def on_pavement(r):
-        s = 1 if r.random() < 0.5 else -1
-        lo, hi = road_w + 1.0, max(road_w + 1.0, road_w + walk_w - 0.6)
-        y = s * float(r.uniform(lo, hi))
-        d = 1 if r.random() < 0.5 else -1
-        x = float(r.uniform(-L / 2 + 1, L / 2 - 1))
-        return (x, y), (d, 0.0), curb + GAP, (L / 2 - 1 - d * x)
-
-    _people(ctx, int(rng.integers(3, 6)), on_pavement)
-
-    def rig_position(r):  # high on the pavement edge, looking down at the traffic
-        s = 1 if r.random() < 0.5 else -1
-        return (r.uniform(-L / 2 + 8, L / 2 - 8), s * (road_w + r.uniform(0.3, walk_w - 0.3)), r.uniform(2.6, 3.6))
-
-    def look_at(r):
-        return (r.uniform(-10, 10), r.uniform(-road_w - walk_w, road_w + walk_w), r.uniform(0.5, 1.5))
-
-    return {"rig_position": rig_position, "look_at": look_at}
-
-
-def _river(ctx: Ctx, info: dict) -> dict:
-    L, half, level, bank = info["length"], info["half"], info["level"], info["bank"]
-    bx, bw, span, deck = info["bx"], info["bw"], info["span"], info["deck_z"]
-    rng = ctx.rng
-    _boats(ctx, level, -L / 2 + 0.5, L / 2 - 0.5, -half + 0.1, half - 0.1)
-    if rng.random() < 0.7:  # someone crossing the bridge
-        for _ in range(20):
-            s = 1 if rng.random() < 0.5 else -1
-            x = bx + float(rng.uniform(-(bw / 2 - 0.7), bw / 2 - 0.7))
-            if _walker(ctx, (x, -s * (span - 0.6)), (0.0, s), deck, "walk", float(rng.uniform(1.0, 1.5)), 2 * span - 1.2):
-                break
-    # the bridge (a surface, so not in the occupancy) is no place for bank walkers to pass under or climb
-    ctx.occ.boxes.append(("bridge", np.array([bx - bw / 2 - 0.4, -span - 0.6, -5.0]), np.array([bx + bw / 2 + 0.4, span + 0.6, 5.0])))
-
-    def on_bank(r):
-        s = 1 if r.random() < 0.5 else -1
-        y = s * float(r.uniform(half + 1.0, half + bank - 2.0))
-        d = 1 if r.random() < 0.5 else -1
-        x = float(r.uniform(-L / 2 + 1, L / 2 - 1))
-        return (x, y), (d, 0.0), GAP, (L / 2 - 1 - d * x)
-
-    _people(ctx, int(rng.integers(2, 5)), on_bank)
-    return {}
-
-
-def _mixed(ctx: Ctx, info: dict) -> dict:
-    S, (ry0, ry1), ((px0, py0), (px1, py1)), level = info["S"], info["road"], info["pond"], info["level"]
-    rng = ctx.rng
-    mid = (ry0 + ry1) / 2
-    _traffic(ctx, mid - 1.6, 1, -S, S, int(rng.integers(1, 3)))
-    if rng.random() < 0.5:
-        _traffic(ctx, mid + 1.6, -1, -S, S, 1)
-    _boats(ctx, level, px0 + 0.3, px1 - 0.3, py0 + 0.3, py1 - 0.3, speeds=(0.05, 0.2))
-    # keep walkers off the pond (the person rule refuses water; this keeps paths from trying)
-    ctx.occ.boxes.append(("pond", np.array([px0 - 0.3, py0 - 0.3, -5.0]), np.array([px1 + 0.3, py1 + 0.3, 5.0])))
-    (nx0, ny0), (nx1, ny1) = info["north"]
-
-    def on_grass(r):
-        d = _AXES[int(r.integers(4))]
-        start = np.array([r.uniform(nx0 + 1, nx1 - 1), r.uniform(ny0 + 1, ny1 - 1)])
-        return start, d, GAP, _run_inside(start, d, (nx0 + 1, ny0 + 1), (nx1 - 1, ny1 - 1))
-
-    _people(ctx, int(rng.integers(2, 5)), on_grass)
-    return {}
-
-
-def _room(ctx: Ctx, info: dict) -> dict:
-    hx, hy = info["hx"], info["hy"]
-    scene, rng, T = ctx.scene, ctx.rng, ctx.duration
-    objs = object_table(ctx.stage)[0]
-    for o in objs:
-        if o.label == "cabinet" and T >= 1.0:
-            prim = ctx.stage.GetPrimAtPath(o.prim_path)
-            pts = movers._local_points(prim)
-            depth, width, height = np.ptp(pts, axis=0)
-            pos, yaw = movers.start_pose(prim)
-            c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
-            corners = np.array([[x, y] for x in (depth / 2, depth / 2 + width / 2 + 0.05) for y in (-width / 2 - 0.05, width / 2 + 0.05)])
-            world = corners @ np.array([[c, s], [-s, c]]) + pos[:2]
-            lo, hi = np.r_[world.min(0), pos[2]], np.r_[world.max(0), pos[2] + height]
-            if not ctx.occ.free(lo, hi, ignore=(o.prim_path,)):
-                continue
-            for name, hinge, sign, panel in kit.cabinet_doors(width, depth, height):
-                # the hinge transform on the panel mesh itself (see lfusd.author.movers.make_wheel for why)
-                door = scene.builder.mesh(f"{o.prim_path}/{name}", panel, "wood")
-                door.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(tuple(float(v) for v in hinge))
-                t_open = float(rng.uniform(0.05, 0.4)) * T
-                dur = float(rng.uniform(0.8, 1.4))
-                t_close = t_open + dur + float(rng.uniform(0.5, 2.0))
-                movers.swing(ctx.stage, f"{o.prim_path}/{name}", sign * float(rng.uniform(70, 100)), t_open,
-                             t_close if t_close + dur < T else None, dur)
-            ctx.occ.boxes.append((o.prim_path + "#doors", lo, hi))
-            scene.placed.append(Placed(o.prim_path + "#doors", lo, hi))
-            ctx.movers.append(o.prim_path)
-    for o in objs:
-        if o.label == "chair" and T >= 1.0 and rng.random() < 0.6:
-            prim = ctx.stage.GetPrimAtPath(o.prim_path)
-            pos, yaw = movers.start_pose(prim)
-            back = -np.array([np.cos(np.radians(yaw)), np.sin(np.radians(yaw))]) * float(rng.uniform(0.2, 0.4))
-            box = next(p for p in scene.placed if p.path == o.prim_path)
-            lo = np.minimum(box.lo, box.lo + np.r_[back, 0.0])
-            hi = np.maximum(box.hi, box.hi + np.r_[back, 0.0])
-            inside = lo[0] > -hx + 0.05 and hi[0] < hx - 0.05 and lo[1] > -hy + 0.05 and hi[1] < hy - 0.05
-            if inside and ctx.occ.free(lo, hi, ignore=(o.prim_path,)):
-                t0, dur = float(rng.uniform(0.05, 0.4)) * T, float(rng.uniform(0.8, 1.5))
-                t_back = t0 + dur + float(rng.uniform(0.5, 2.0))
-                movers.slide(ctx.stage, o.prim_path, back, t0, dur, t_back if t_back + dur < T else None)
-                ctx.occ.reserve(scene, o.prim_path, lo, hi)
-                ctx.movers.append(o.prim_path)
-
-    def in_room(r):
-        d = _AXES[int(r.integers(4))]
-        start = np.array([r.uniform(-hx + 0.7, hx - 0.7), r.uniform(-hy + 0.7, hy - 0.7)])
-        return start, d, GAP, _run_inside(start, d, (-hx + 0.7, -hy + 0.7), (hx - 0.7, hy - 0.7))
-
-    _people(ctx, int(rng.integers(1, 3)), in_room)
-    return {}

@@ -3,14 +3,28 @@ trees, benches and people; sun, sky, a street lamp and a rect light over a house
 
 from __future__ import annotations
 
-from . import GAP, Scene
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import GAP, Scene, Site, template
 from . import objects as kit
 from .build import box
 
 S = 25.0  # half size of the square scene
 
 
-def build(scene: Scene) -> dict:
+@dataclass(frozen=True)
+class MixedSite(Site):
+    road: tuple[float, float]  # the road band (y0, y1)
+    pond: tuple[tuple[float, float], tuple[float, float]]  # the pond's (x0, y0), (x1, y1)
+    level: float  # the pond's water surface height
+    north: tuple[tuple[float, float], tuple[float, float]]  # the park north of the road
+
+
+@template("mixed", seed_key=3, labels={"road", "grass", "water", "building", "car", "tree", "person"},
+          movers={"person", "car", "boat"})
+def mixed(scene: Scene) -> MixedSite:
     rng, b = scene.rng, scene.builder
     scene.bounds = ((-S, -S), (S, S))
     ry0, ry1 = -S + 6.0, -S + 6.0 + float(rng.uniform(6.0, 8.0))  # road band (y)
@@ -64,8 +78,30 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return ((px0 + px1) / 2 + r.uniform(-8, 8), (py0 + py1) / 2 + r.uniform(-6, 2), r.uniform(0.0, 1.5))
 
-    return {"rig_position": rig_position, "look_at": look_at, "S": S, "road": (ry0, ry1), "pond": ((px0, py0), (px1, py1)),
-            "level": level, "north": north}
+    return MixedSite(rig_position, look_at, (ry0, ry1), ((px0, py0), (px1, py1)), level, north)
+
+
+@mixed.dynamic
+def _animate(ctx, site: MixedSite) -> None:
+    from .dynamic import AXES, boats, run_inside, traffic, walkers
+
+    (ry0, ry1), ((px0, py0), (px1, py1)), level = site.road, site.pond, site.level
+    rng = ctx.rng
+    mid = (ry0 + ry1) / 2
+    traffic(ctx, mid - 1.6, 1, -S, S, int(rng.integers(1, 3)))
+    if rng.random() < 0.5:
+        traffic(ctx, mid + 1.6, -1, -S, S, 1)
+    boats(ctx, level, px0 + 0.3, px1 - 0.3, py0 + 0.3, py1 - 0.3, speeds=(0.05, 0.2))
+    # keep walkers off the pond (the person rule refuses water; this keeps paths from trying)
+    ctx.occ.boxes.append(("pond", np.array([px0 - 0.3, py0 - 0.3, -5.0]), np.array([px1 + 0.3, py1 + 0.3, 5.0])))
+    (nx0, ny0), (nx1, ny1) = site.north
+
+    def on_grass(r):
+        d = AXES[int(r.integers(4))]
+        start = np.array([r.uniform(nx0 + 1, nx1 - 1), r.uniform(ny0 + 1, ny1 - 1)])
+        return start, d, GAP, run_inside(start, d, (nx0 + 1, ny0 + 1), (nx1 - 1, ny1 - 1))
+
+    walkers(ctx, int(rng.integers(2, 5)), on_grass)
 
 
 def _overlaps(pose, parts, lo, hi) -> bool:

@@ -4,14 +4,30 @@ with a disk light (a spot on the bridge)."""
 
 from __future__ import annotations
 
-from . import GAP, Scene
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import GAP, Scene, Site, template
 from . import objects as kit
 from .build import box, merge
 
 L = 60.0
 
 
-def build(scene: Scene) -> dict:
+@dataclass(frozen=True)
+class RiverSite(Site):
+    half: float  # river half width (y)
+    level: float  # water surface height
+    bank: float  # bank width
+    bx: float  # bridge centre (x)
+    bw: float  # bridge width
+    span: float  # half length of the bridge deck (y)
+    deck_z: float  # height of the deck's walking surface
+
+
+@template("river", seed_key=1, labels={"water", "grass", "bridge", "boat", "person", "tree"}, movers={"person", "boat"})
+def river(scene: Scene) -> RiverSite:
     rng, b = scene.rng, scene.builder
     half = float(rng.uniform(4.5, 7.0))  # river half width (y)
     level = -float(rng.uniform(0.4, 0.8))  # water surface height
@@ -83,5 +99,31 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return (bx + r.uniform(-12, 12), r.uniform(-half, half), r.uniform(level, 1.5))
 
-    return {"rig_position": rig_position, "look_at": look_at, "length": L, "half": half, "level": level, "bank": bank,
-            "bx": bx, "bw": bw, "span": span, "deck_z": deck_z + GAP}
+    return RiverSite(rig_position, look_at, half, level, bank, bx, bw, span, deck_z + GAP)
+
+
+@river.dynamic
+def _animate(ctx, site: RiverSite) -> None:
+    from .dynamic import boats, walker, walkers
+
+    half, level, bank = site.half, site.level, site.bank
+    bx, bw, span, deck = site.bx, site.bw, site.span, site.deck_z
+    rng = ctx.rng
+    boats(ctx, level, -L / 2 + 0.5, L / 2 - 0.5, -half + 0.1, half - 0.1)
+    if rng.random() < 0.7:  # someone crossing the bridge
+        for _ in range(20):
+            s = 1 if rng.random() < 0.5 else -1
+            x = bx + float(rng.uniform(-(bw / 2 - 0.7), bw / 2 - 0.7))
+            if walker(ctx, (x, -s * (span - 0.6)), (0.0, s), deck, "walk", float(rng.uniform(1.0, 1.5)), 2 * span - 1.2):
+                break
+    # the bridge (a surface, so not in the occupancy) is no place for bank walkers to pass under or climb
+    ctx.occ.boxes.append(("bridge", np.array([bx - bw / 2 - 0.4, -span - 0.6, -5.0]), np.array([bx + bw / 2 + 0.4, span + 0.6, 5.0])))
+
+    def on_bank(r):
+        s = 1 if r.random() < 0.5 else -1
+        y = s * float(r.uniform(half + 1.0, half + bank - 2.0))
+        d = 1 if r.random() < 0.5 else -1
+        x = float(r.uniform(-L / 2 + 1, L / 2 - 1))
+        return (x, y), (d, 0.0), GAP, (L / 2 - 1 - d * x)
+
+    walkers(ctx, int(rng.integers(2, 5)), on_bank)

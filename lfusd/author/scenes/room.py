@@ -5,8 +5,14 @@ spot and a dome fill."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
-from . import GAP, Scene
+import numpy as np
+from pxr import UsdGeom
+
+from .. import movers
+from ..labels import object_table
+from . import GAP, Placed, Scene, Site, template
 from . import objects as kit
 from .build import box
 
@@ -14,7 +20,14 @@ H = 2.7  # wall height
 T = 0.15  # wall thickness
 
 
-def build(scene: Scene) -> dict:
+@dataclass(frozen=True)
+class RoomSite(Site):
+    hx: float  # inner half sizes
+    hy: float
+
+
+@template("room", seed_key=2, labels={"floor", "wall", "table", "chair", "bowl", "lamp"}, movers={"cabinet"})
+def room(scene: Scene) -> RoomSite:
     rng, b = scene.rng, scene.builder
     hx, hy = float(rng.uniform(2.8, 4.0)), float(rng.uniform(2.4, 3.5))  # inner half sizes
     scene.bounds = ((-hx, -hy), (hx, hy))
@@ -93,4 +106,59 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return (tx + r.uniform(-0.5, 0.5), ty + r.uniform(-0.5, 0.5), top_h + r.uniform(-0.3, 0.3))
 
-    return {"rig_position": rig_position, "look_at": look_at, "hx": hx, "hy": hy, "table": (tx, ty)}
+    return RoomSite(rig_position, look_at, hx, hy)
+
+
+@room.dynamic
+def _animate(ctx, site: RoomSite) -> None:
+    from .dynamic import AXES, run_inside, walkers
+
+    hx, hy = site.hx, site.hy
+    scene, rng, clip = ctx.scene, ctx.rng, ctx.duration
+    objs = object_table(ctx.stage)[0]
+    for o in objs:
+        if o.label == "cabinet" and clip >= 1.0:
+            prim = ctx.stage.GetPrimAtPath(o.prim_path)
+            pts = movers._local_points(prim)
+            depth, width, height = np.ptp(pts, axis=0)
+            pos, yaw = movers.start_pose(prim)
+            c, s = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+            corners = np.array([[x, y] for x in (depth / 2, depth / 2 + width / 2 + 0.05) for y in (-width / 2 - 0.05, width / 2 + 0.05)])
+            world = corners @ np.array([[c, s], [-s, c]]) + pos[:2]
+            lo, hi = np.r_[world.min(0), pos[2]], np.r_[world.max(0), pos[2] + height]
+            if not ctx.occ.free(lo, hi, ignore=(o.prim_path,)):
+                continue
+            for name, hinge, sign, panel in kit.cabinet_doors(width, depth, height):
+                # the hinge transform on the panel mesh itself (see lfusd.author.movers.make_wheel for why)
+                door = scene.builder.mesh(f"{o.prim_path}/{name}", panel, "wood")
+                door.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).Set(tuple(float(v) for v in hinge))
+                t_open = float(rng.uniform(0.05, 0.4)) * clip
+                dur = float(rng.uniform(0.8, 1.4))
+                t_close = t_open + dur + float(rng.uniform(0.5, 2.0))
+                movers.swing(ctx.stage, f"{o.prim_path}/{name}", sign * float(rng.uniform(70, 100)), t_open,
+                             t_close if t_close + dur < clip else None, dur)
+            ctx.occ.boxes.append((o.prim_path + "#doors", lo, hi))
+            scene.placed.append(Placed(o.prim_path + "#doors", lo, hi))
+            ctx.movers.append(o.prim_path)
+    for o in objs:
+        if o.label == "chair" and clip >= 1.0 and rng.random() < 0.6:
+            prim = ctx.stage.GetPrimAtPath(o.prim_path)
+            pos, yaw = movers.start_pose(prim)
+            back = -np.array([np.cos(np.radians(yaw)), np.sin(np.radians(yaw))]) * float(rng.uniform(0.2, 0.4))
+            box = next(p for p in scene.placed if p.path == o.prim_path)
+            lo = np.minimum(box.lo, box.lo + np.r_[back, 0.0])
+            hi = np.maximum(box.hi, box.hi + np.r_[back, 0.0])
+            inside = lo[0] > -hx + 0.05 and hi[0] < hx - 0.05 and lo[1] > -hy + 0.05 and hi[1] < hy - 0.05
+            if inside and ctx.occ.free(lo, hi, ignore=(o.prim_path,)):
+                t0, dur = float(rng.uniform(0.05, 0.4)) * clip, float(rng.uniform(0.8, 1.5))
+                t_back = t0 + dur + float(rng.uniform(0.5, 2.0))
+                movers.slide(ctx.stage, o.prim_path, back, t0, dur, t_back if t_back + dur < clip else None)
+                ctx.occ.reserve(scene, o.prim_path, lo, hi)
+                ctx.movers.append(o.prim_path)
+
+    def in_room(r):
+        d = AXES[int(r.integers(4))]
+        start = np.array([r.uniform(-hx + 0.7, hx - 0.7), r.uniform(-hy + 0.7, hy - 0.7)])
+        return start, d, GAP, run_inside(start, d, (-hx + 0.7, -hy + 0.7), (hx - 0.7, hy - 0.7))
+
+    walkers(ctx, int(rng.integers(1, 3)), in_room)

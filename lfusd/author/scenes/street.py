@@ -3,16 +3,27 @@ cars, street lights (sphere lights), trees and people; sun and sky."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 
-from . import GAP, Scene, world_box
+from . import GAP, Scene, Site, template, world_box
 from . import objects as kit
 from .build import box, merge
 
 L = 60.0  # street length (x from -L/2 to L/2)
 
 
-def build(scene: Scene) -> dict:
+@dataclass(frozen=True)
+class StreetSite(Site):
+    road_w: float  # half width of the road
+    walk_w: float  # pavement width
+    curb: float  # pavement height
+
+
+@template("street", seed_key=0, labels={"road", "sidewalk", "grass", "building", "car", "street_light", "person"},
+          movers={"person", "car"})
+def street(scene: Scene) -> StreetSite:
     rng, b = scene.rng, scene.builder
     road_w = float(rng.uniform(3.2, 4.2))  # half width
     walk_w = float(rng.uniform(2.5, 3.5))
@@ -98,4 +109,34 @@ def build(scene: Scene) -> dict:
     def look_at(r):
         return (r.uniform(-10, 10), r.uniform(-road_w - walk_w, road_w + walk_w), r.uniform(0.8, 2.0))
 
-    return {"rig_position": rig_position, "look_at": look_at, "length": L, "road_w": road_w, "walk_w": walk_w, "curb": curb}
+    return StreetSite(rig_position, look_at, road_w, walk_w, curb)
+
+
+@street.dynamic
+def _animate(ctx, site: StreetSite) -> StreetSite:
+    from .dynamic import traffic, walkers
+
+    road_w, walk_w, curb = site.road_w, site.walk_w, site.curb
+    rng = ctx.rng
+    traffic(ctx, -road_w / 2, 1, -L / 2, L / 2, int(rng.integers(1, 3)))
+    if rng.random() < 0.6:
+        traffic(ctx, road_w / 2, -1, -L / 2, L / 2, int(rng.integers(1, 3)))
+
+    def on_pavement(r):
+        s = 1 if r.random() < 0.5 else -1
+        lo, hi = road_w + 1.0, max(road_w + 1.0, road_w + walk_w - 0.6)
+        y = s * float(r.uniform(lo, hi))
+        d = 1 if r.random() < 0.5 else -1
+        x = float(r.uniform(-L / 2 + 1, L / 2 - 1))
+        return (x, y), (d, 0.0), curb + GAP, (L / 2 - 1 - d * x)
+
+    walkers(ctx, int(rng.integers(3, 6)), on_pavement)
+
+    def rig_position(r):  # high on the pavement edge, looking down at the traffic
+        s = 1 if r.random() < 0.5 else -1
+        return (r.uniform(-L / 2 + 8, L / 2 - 8), s * (road_w + r.uniform(0.3, walk_w - 0.3)), r.uniform(2.6, 3.6))
+
+    def look_at(r):
+        return (r.uniform(-10, 10), r.uniform(-road_w - walk_w, road_w + walk_w), r.uniform(0.5, 1.5))
+
+    return replace(site, rig_position=rig_position, look_at=look_at)
