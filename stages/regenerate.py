@@ -10,6 +10,7 @@ from pathlib import Path
 
 from pxr import Usd
 
+from lfusd.author import vocabulary as vocab
 from lfusd.author.scenes import generate
 from lfusd.author.rigs import rigs
 
@@ -22,9 +23,9 @@ def recorded_arguments(path: Path) -> tuple[str, int, dict]:
     world = stage.GetDefaultPrim()
     found = rigs(stage)
     spec = found["rig_00"].spec
-    return (world.GetCustomDataByKey("lfusd:template"), int(world.GetCustomDataByKey("lfusd:seed")),
+    return (world.GetCustomDataByKey(vocab.TEMPLATE), int(world.GetCustomDataByKey(vocab.SEED)),
             dict(frames=int(stage.GetEndTimeCode()), rigs=len(found), grid=(spec.rows, spec.cols),
-                 resolution=(spec.width, spec.height), dynamic=bool(world.GetCustomDataByKey("lfusd:dynamic"))))
+                 resolution=(spec.width, spec.height), dynamic=bool(world.GetCustomDataByKey(vocab.DYNAMIC))))
 
 
 def committed_stages() -> list[Path]:
