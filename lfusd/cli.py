@@ -1,7 +1,8 @@
 """The `lfusd` command: a thin dispatcher over lfusd.commands.* modules.
 
-Each module in lfusd/commands defines ``register(subparsers)``, adding its subcommand with
-``set_defaults(func=...)``; ``func(args)`` returns an exit code.
+Each command module in lfusd/commands defines ``register(subparsers)``, adding its subcommand with
+``set_defaults(func=...)``; ``func(args)`` returns an exit code. Arguments are typed by
+:mod:`lfusd.commands.args`.
 """
 
 from __future__ import annotations
@@ -12,22 +13,18 @@ import pkgutil
 import sys
 
 from . import __version__, commands
+from .commands.args import Parser
 from .errors import LfusdError
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors on one line, like every other lfusd error."""
-
-    def error(self, message: str):
-        self.exit(2, f"lfusd: error: {message} (see '{self.prog} --help')\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="lfusd", description="Light-field datasets from USD stages.")
+    parser = Parser(prog="lfusd", description="Light-field datasets from USD stages.")
     parser.add_argument("--version", action="version", version=f"lfusd {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        importlib.import_module(f"{commands.__name__}.{info.name}").register(sub)
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        if hasattr(module, "register"):  # args.py is the shared argument layer, not a command
+            module.register(sub)
     return parser
 
 

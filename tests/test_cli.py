@@ -128,3 +128,12 @@ def test_rerun_resumes_only_missing_views_and_settings_change_is_refused(capsys,
     assert code == 0 and json.loads((out / "manifest.json").read_text())["settings"]["samples"] == 3
     assert not any(p.name.startswith(".") for p in frame.iterdir())
     assert os.listdir(out / "main") == ["f000001"]
+
+
+def test_rig_add_takes_negative_coordinates(capsys, bare_stage):
+    code, _, err = run_cli(capsys, "rig", "add", bare_stage, "--name", "neg", "--grid", "1x1", "--at", "-0.05,0.6,3",
+                           "--look-at", "-1,-2,0.5")
+    assert code == 0, err
+    spec = rigs(open_stage(bare_stage))["neg"].spec
+    assert spec.at == pytest.approx((-0.05, 0.6, 3.0)) and spec.look_at == pytest.approx((-1.0, -2.0, 0.5))
+

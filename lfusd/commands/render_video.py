@@ -6,18 +6,7 @@ from pathlib import Path
 
 from ..errors import LfusdError
 from ..render.job import DEVICES, EXECUTORS
-
-
-def parse_frames(text: str) -> tuple[int, int]:
-    """'1-150' -> (1, 150); a single number is a one-frame range."""
-    parts = str(text).split("-")
-    try:
-        a, b = (int(parts[0]), int(parts[-1])) if len(parts) in (1, 2) else (None, None)
-    except ValueError:
-        a = b = None
-    if a is None or b is None or b < a:
-        raise LfusdError(f"--frames {text!r} is not a range A-B with A <= B (e.g. 1-150)")
-    return a, b
+from . import args as argtypes
 
 
 def register(sub) -> None:
@@ -25,9 +14,9 @@ def register(sub) -> None:
     p.add_argument("stage", help="USD stage with a light-field rig")
     p.add_argument("-o", "--out", required=True, help="dataset folder (created; rerunning resumes)")
     p.add_argument("--rig", default=None, help="rig name, or 'all' (default: the stage's only rig)")
-    p.add_argument("--frames", default=None, help="inclusive range A-B (default: the stage's range)")
+    p.add_argument("--frames", type=argtypes.frame_range, default=None, help="inclusive range A-B (default: the stage's range)")
     p.add_argument("--samples", type=int, default=16, help="Cycles samples for the RGB images (default 16)")
-    p.add_argument("--resolution", default=None, help="override the rig's WIDTHxHEIGHT (e.g. a preview size)")
+    p.add_argument("--resolution", type=argtypes.resolution, default=None, help="override the rig's WIDTHxHEIGHT (e.g. a preview size)")
     p.add_argument("--workers", type=int, default=1, help="Blender worker processes / Ray task slots (default 1)")
     p.add_argument("--executor", default="local", choices=EXECUTORS, help="local process pool or Ray tasks")
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start a local Ray)")
@@ -40,7 +29,6 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from ..render.job import RenderRequest, render
-    from ..camera import parse_resolution
     from ..author.stage import frame_range, open_stage
     from ..author.rigs import select_rigs
 
@@ -49,11 +37,11 @@ def run(args) -> int:
     if args.ray_address and args.executor != "ray":
         raise LfusdError("--ray-address needs --executor ray")
     stage = open_stage(args.stage)
-    first, last = parse_frames(args.frames) if args.frames else frame_range(stage)
+    first, last = args.frames or frame_range(stage)
     req = RenderRequest(
         stage=Path(args.stage), out=Path(args.out), rig=args.rig, frames=list(range(first, last + 1)),
         samples=args.samples, device=args.device, workers=args.workers,
-        resolution=parse_resolution(args.resolution) if args.resolution else None,
+        resolution=args.resolution,
         overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address, motion=True,
     )
     manifest = render(req)
@@ -64,10 +52,8 @@ def run(args) -> int:
     n = derive_dataset(req.out, names, req.frames, workers=args.workers)
     print(f"lfusd: {args.out}: rig {', '.join(names)}, frames {first}-{last}, device {manifest['device']}, motion derived for {n} views")
     if args.verify:
-        import argparse
+        from ..truth.verify import verify
+        from .verify import progress, show
 
-        from .verify import handler
-
-        rig = names[0] if len(names) == 1 else "all"
-        return handler(argparse.Namespace(out=args.out, rig=rig, frames=f"{first}-{last}", views=None, stage=None))
+        return show(verify(args.out, rig=names[0] if len(names) == 1 else "all", frames=req.frames, progress=progress))
     return 0
