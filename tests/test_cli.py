@@ -187,3 +187,20 @@ def test_warnings_are_logged_on_one_line(capsys, monkeypatch):
     code, _, err = run_cli(capsys, "flow", "OUT", "-v")
     assert err == "lfusd: warning: something is off in OUT\nlfusd: info: detail\n"
 
+
+FACADE = ("Dataset", "render_frame", "render_video", "generate", "add_rig", "add_person", "derive", "verify", "export", "evaluate")
+
+
+@pytest.mark.parametrize("name", FACADE)
+def test_facade_names_resolve_to_library_callables(name):
+    import lfusd
+
+    if name == "render_video":
+        import lfusd.render.job
+
+        if not hasattr(lfusd.render.job, "render_video"):
+            pytest.skip("lfusd.render.job.render_video is not written yet")
+    obj = getattr(lfusd, name)
+    assert callable(obj) and obj.__module__.startswith("lfusd.") and name in lfusd.__all__
+    with pytest.raises(AttributeError):
+        lfusd.not_a_step
