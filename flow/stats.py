@@ -79,7 +79,8 @@ def dataset_stats(ds, frames=None, views=None, baseline: float | None = None) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lfusd.commands.flow import open_datasets, parse_frames, parse_views
+    from lfusd.camera import parse_frames, parse_view
+    from lfusd.data.export import open_datasets
     from lfusd.errors import LfusdError
 
     ap = argparse.ArgumentParser(description=__doc__)
@@ -90,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", help="write the statistics as JSON here (one entry per rig)")
     a = ap.parse_args(argv)
     try:
-        per_rig = {getattr(ds, "rig_name", "rig"): dataset_stats(ds, parse_frames(a.frames), parse_views(a.views)) for ds in open_datasets(a.out, a.rig)}
+        per_rig = {getattr(ds, "rig_name", "rig"): dataset_stats(ds, parse_frames(a.frames) if a.frames else None, [parse_view(v) for v in a.views] if a.views else None) for ds in open_datasets(a.out, a.rig)}
     except LfusdError as e:
         print(f"stats: error: {e}", file=sys.stderr)
         return 2

@@ -23,9 +23,9 @@ def to_markdown(report) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from lfusd.commands.flow import open_datasets, parse_frames, parse_views
+    from lfusd.camera import parse_frames, parse_view
     from lfusd.errors import LfusdError
-    from lfusd.truth.verify import VerifyReport, verify_dataset
+    from lfusd.truth.verify import VerifyReport, verify
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("out", help="dataset folder")
@@ -37,12 +37,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--markdown", help="write the summary table as Markdown here")
     a = ap.parse_args(argv)
     try:
-        report = VerifyReport()
-        for ds in open_datasets(a.out, a.rig):
-            report.rows += verify_dataset(ds, a.stage, parse_frames(a.frames), parse_views(a.views)).rows
+        frames = parse_frames(a.frames) if a.frames else None
+        views = [parse_view(v) for v in a.views] if a.views else None
+        reports = verify(a.out, stage=a.stage, rig=a.rig, frames=frames, views=views)
     except LfusdError as e:
         print(f"verify_report: error: {e}", file=sys.stderr)
         return 2
+    report = VerifyReport([row for r in reports.values() for row in r.rows])
     print(report.table())
     for line in report.failures():
         print(f"FAIL {line}")

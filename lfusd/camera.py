@@ -13,6 +13,7 @@ gap 1.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -224,3 +225,25 @@ def parse_point(text: str, what: str) -> tuple[float, float, float]:
     if not all(math.isfinite(v) for v in (x, y, z)):
         raise LfusdError(f"{what} {text!r} must be finite numbers")
     return x, y, z
+
+
+def parse_frames(text: str) -> list[int]:
+    """'1-5,8' -> [1, 2, 3, 4, 5, 8]: frames N, inclusive ranges A-B and comma lists of both, sorted."""
+    frames: set[int] = set()
+    for part in str(text).split(","):
+        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if not m:
+            raise LfusdError(f"frames {text!r} is not N, A-B or a list of them such as 1-5,8")
+        a, b = int(m[1]), int(m[2] or m[1])
+        if b < a:
+            raise LfusdError(f"frames {text!r}: range {a}-{b} is reversed; write A-B with A <= B ({b}-{a})")
+        frames.update(range(a, b + 1))
+    return sorted(frames)
+
+
+def parse_view(text: str) -> View:
+    """'4,4' or '4_4' -> (4, 4): a view's grid row and column."""
+    m = re.fullmatch(r"\s*(\d+)\s*[,_]\s*(\d+)\s*", str(text))
+    if not m:
+        raise LfusdError(f"view {text!r} is not ROW,COL or ROW_COL (two integers, e.g. 4,4)")
+    return int(m[1]), int(m[2])

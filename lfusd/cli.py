@@ -1,34 +1,88 @@
 """The `lfusd` command: a thin dispatcher over lfusd.commands.* modules.
 
-Each module in lfusd/commands defines ``register(subparsers)``, adding its subcommand with
-``set_defaults(func=...)``; ``func(args)`` returns an exit code.
+Each command module in lfusd/commands defines ``register(subparsers)``, adding its subcommand with
+``set_defaults(func=...)``; ``func(args)`` returns an exit code. Arguments are typed by
+:mod:`lfusd.commands.args`.
+
+Exit codes: 0 success; 1 ``check``/``verify`` found violations; 2 bad input (usage or an
+:class:`LfusdError`, one line); 3 an unexpected error, a bug (one line naming a file that holds the
+traceback); 130 interrupted. ``--traceback`` (anywhere on the command line) or ``LFUSD_DEBUG=1``
+prints the full chained traceback of an error, including causes hidden by ``raise ... from None``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import logging
+import os
 import pkgutil
 import sys
+import tempfile
+import traceback
 
 from . import __version__, commands
+from .commands.args import Parser
 from .errors import LfusdError
 
+EXIT_OK, EXIT_VIOLATIONS, EXIT_ERROR, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with usage errors on one line, like every other lfusd error."""
 
-    def error(self, message: str):
-        self.exit(2, f"lfusd: error: {message} (see '{self.prog} --help')\n")
+class _CliParser(Parser):
+    """Every lfusd (sub)command also takes the global options, anywhere on the command line."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # SUPPRESS: a subcommand that is not given the option leaves the top level's value alone.
+        self.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
+                          help="on an error, print the full traceback with its causes (or set LFUSD_DEBUG=1)")
+        self.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                          help="log informational messages (-vv: debugging messages)")
+
+
+class _StderrHandler(logging.Handler):
+    """One line per record on the current sys.stderr: ``lfusd: warning: ...``."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(f"lfusd: {record.levelname.lower()}: {record.getMessage()}\n")
+        except Exception:
+            self.handleError(record)
+
+
+def configure_logging(verbose: int = 0) -> None:
+    """Route the ``lfusd`` loggers to stderr: warnings and above, ``-v`` info, ``-vv`` debug."""
+    log = logging.getLogger("lfusd")
+    for h in [h for h in log.handlers if isinstance(h, _StderrHandler)]:
+        log.removeHandler(h)
+    log.addHandler(_StderrHandler())
+    log.setLevel(logging.DEBUG if verbose >= 2 else logging.INFO if verbose == 1 else logging.WARNING)
+    log.propagate = False  # one line per message, whatever the root logger does
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="lfusd", description="Light-field datasets from USD stages.")
+    parser = _CliParser(prog="lfusd", description="Light-field datasets from USD stages.",
+                        epilog="exit codes: 0 ok, 1 check/verify violations, 2 bad input, 3 internal error, 130 interrupted")
     parser.add_argument("--version", action="version", version=f"lfusd {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_CliParser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        importlib.import_module(f"{commands.__name__}.{info.name}").register(sub)
+        module = importlib.import_module(f"{commands.__name__}.{info.name}")
+        if hasattr(module, "register"):  # args.py is the shared argument layer, not a command
+            module.register(sub)
     return parser
+
+
+def full_traceback(e: BaseException) -> str:
+    """The traceback of ``e`` with every cause and context, also those hidden by ``raise ... from None``."""
+    seen, todo = set(), [e]
+    while todo:
+        x = todo.pop()
+        if x is None or id(x) in seen:
+            continue
+        seen.add(id(x))
+        x.__suppress_context__ = False
+        todo += [x.__cause__, x.__context__]
+    return "".join(traceback.format_exception(e))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,17 +91,30 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as e:  # usage errors and --help
         return int(e.code or 0)
+    configure_logging(getattr(args, "verbose", 0))
+    debug = getattr(args, "traceback", False) or os.environ.get("LFUSD_DEBUG", "") not in ("", "0")
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return EXIT_ERROR
     try:
         return int(args.func(args) or 0)
     except LfusdError as e:
+        if debug:
+            sys.stderr.write(full_traceback(e))
         print(f"lfusd: error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
     except KeyboardInterrupt:
         print("lfusd: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    except Exception as e:  # a bug: keep the message short, the traceback in a file for the report
+        text = full_traceback(e)
+        with tempfile.NamedTemporaryFile("w", prefix="lfusd-traceback-", suffix=".txt", delete=False) as f:
+            f.write(text)
+        if debug:
+            sys.stderr.write(text)
+        first = (str(e).splitlines() or [""])[0]
+        print(f"lfusd: internal error: {type(e).__name__}: {first}; the traceback is in {f.name} (please report it)", file=sys.stderr)
+        return EXIT_BUG
 
 
 if __name__ == "__main__":

@@ -128,3 +128,79 @@ def test_rerun_resumes_only_missing_views_and_settings_change_is_refused(capsys,
     assert code == 0 and json.loads((out / "manifest.json").read_text())["settings"]["samples"] == 3
     assert not any(p.name.startswith(".") for p in frame.iterdir())
     assert os.listdir(out / "main") == ["f000001"]
+
+
+def test_rig_add_takes_negative_coordinates(capsys, bare_stage):
+    code, _, err = run_cli(capsys, "rig", "add", bare_stage, "--name", "neg", "--grid", "1x1", "--at", "-0.05,0.6,3",
+                           "--look-at", "-1,-2,0.5")
+    assert code == 0, err
+    spec = rigs(open_stage(bare_stage))["neg"].spec
+    assert spec.at == pytest.approx((-0.05, 0.6, 3.0)) and spec.look_at == pytest.approx((-1.0, -2.0, 0.5))
+
+
+def test_errors_are_one_line_and_traceback_shows_the_hidden_cause(capsys, monkeypatch, tmp_path):
+    bad = tmp_path / "bad.usda"
+    bad.write_text("#usda 1.0\ndef Xform \"A\" {\n  float x = \n")
+    code, _, err = run_cli(capsys, "rig", "add", bad)
+    assert_one_line_error(code, err, "not a readable USD file")
+    assert "Traceback" not in err
+    # open_stage raises `from None`: the pxr parse error is only visible with --traceback.
+    for argv, env in ((["--traceback", "rig", "add", bad], None), (["rig", "add", bad, "--traceback"], None), (["rig", "add", bad], "1")):
+        if env:
+            monkeypatch.setenv("LFUSD_DEBUG", env)
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2 and "Traceback" in err and "ErrorException" in err
+        assert "During handling of the above exception, another exception occurred" in err
+        assert err.rstrip().splitlines()[-1].startswith("lfusd: error: stage")
+
+
+def test_an_unexpected_exception_is_a_summary_line_and_a_traceback_file(capsys, monkeypatch):
+    import lfusd.commands.flow as flow
+
+    def bug(args):
+        return {}["missing"]
+
+    monkeypatch.setattr(flow, "handler", bug)
+    code, _, err = run_cli(capsys, "flow", "OUT")
+    assert code == 3 and len(err.strip().splitlines()) == 1
+    m = re.match(r"lfusd: internal error: KeyError: 'missing'; the traceback is in (\S+) \(please report it\)$", err.strip())
+    assert m, err
+    text = open(m.group(1)).read()
+    os.unlink(m.group(1))
+    assert "Traceback" in text and "in bug" in text
+
+
+def test_warnings_are_logged_on_one_line(capsys, monkeypatch):
+    import logging
+
+    import lfusd.commands.flow as flow
+
+    def chatty(args):
+        log = logging.getLogger("lfusd.truth.derive")
+        log.warning("something is off in %s", args.out)
+        log.info("detail")
+        return 0
+
+    monkeypatch.setattr(flow, "handler", chatty)
+    code, _, err = run_cli(capsys, "flow", "OUT")
+    assert code == 0 and err == "lfusd: warning: something is off in OUT\n"
+    code, _, err = run_cli(capsys, "flow", "OUT", "-v")
+    assert err == "lfusd: warning: something is off in OUT\nlfusd: info: detail\n"
+
+
+FACADE = ("Dataset", "render_frame", "render_video", "generate", "add_rig", "add_person", "derive", "verify", "export", "evaluate")
+
+
+@pytest.mark.parametrize("name", FACADE)
+def test_facade_names_resolve_to_library_callables(name):
+    import lfusd
+
+    if name == "render_video":
+        import lfusd.render.job
+
+        if not hasattr(lfusd.render.job, "render_video"):
+            pytest.skip("lfusd.render.job.render_video is not written yet")
+    obj = getattr(lfusd, name)
+    assert callable(obj) and obj.__module__.startswith("lfusd.") and name in lfusd.__all__
+    with pytest.raises(AttributeError):
+        lfusd.not_a_step

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import time
 from pathlib import Path
 
@@ -19,8 +18,6 @@ def register(sub) -> None:
         "(road, pavement, ground, grass, floor, bridge, ...), following their height; refuses a path that "
         "would put the person over water, naming the frame.",
     )
-    # Let points with a negative X (-3,2) be values, not options (argparse's private hook, stable since 3.2).
-    add._negative_number_matcher = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d*,")
     add.add_argument("stage", help="the .usda/.usdc stage to edit in place")
     add.add_argument("--path", nargs="+", required=True, metavar="X,Y", help="path points in stage units (at least two)")
     add.add_argument("--gait", choices=("walk", "run", "idle"), default="walk",

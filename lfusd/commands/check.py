@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
+
+log = logging.getLogger(__name__)
 
 
 def register(sub) -> None:
@@ -25,8 +28,8 @@ def handler(args) -> int:
     file_rules = load_rules_file(args.rules) if args.rules else None
     checker = Checker(stage, file_rules)
     if not checker.labelled:
-        print(f"lfusd: warning: stage {args.stage} has no class labels (UsdSemantics LabelsAPI, taxonomy 'class'); "
-              "the label rulebook cannot apply, checking the rest", file=sys.stderr)
+        log.warning("stage %s has no class labels (UsdSemantics LabelsAPI, taxonomy 'class'); "
+                    "the label rulebook cannot apply, checking the rest", args.stage)
     violations = checker.check()
     lines = [v.line() for v in violations]
     if not args.no_usd_validation:

@@ -2,15 +2,7 @@
 
 from __future__ import annotations
 
-from ..errors import LfusdError
-
-
-def _view(text: str):
-    try:
-        r, c = (int(p) for p in str(text).split(","))
-    except ValueError:
-        raise LfusdError(f"view {text!r} is not ROW,COL (two integers, e.g. 4,4)") from None
-    return r, c
+from . import args as argtypes
 
 
 def register(subparsers) -> None:
@@ -23,7 +15,7 @@ def register(subparsers) -> None:
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
     p.add_argument("dest", help="new folder to write")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
-    p.add_argument("--view", default=None, help="ROW,COL view for flo/pfm (default: the centre view)")
+    p.add_argument("--view", type=argtypes.view, default=None, help="ROW,COL view for flo/pfm (default: the centre view)")
     p.add_argument("--all-views", action="store_true", help="flo/pfm: every view; hci: also per-view disparity PFMs")
     p.add_argument("--matlab", action="store_true", help="lfmat: write MATLAB v7.3 .mat files (LF is [U,V,H,W,3] in MATLAB)")
     p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
@@ -36,7 +28,7 @@ def run(args) -> int:
     ds = ex.open_dataset(args.out, args.rig)
     kw = {}
     if args.format in ("flo", "pfm"):
-        kw = {"view": _view(args.view) if args.view else None, "all_views": args.all_views}
+        kw = {"view": args.view, "all_views": args.all_views}
     elif args.format == "hci":
         kw = {"all_views": args.all_views}
     elif args.format == "lfmat":

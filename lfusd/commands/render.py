@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..render.job import DEVICES
+from ..render.request import DEVICES
 
 
 def register(sub) -> None:

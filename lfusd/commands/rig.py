@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import LfusdError
-from ..camera import AXES, LAYOUTS, SPACINGS, RigSpec, parse_grid, parse_point, parse_resolution
+from ..camera import AXES, LAYOUTS, SPACINGS, RigSpec
+from . import args as argtypes
 
 
 def register(sub) -> None:
@@ -15,13 +16,13 @@ def register(sub) -> None:
     d = RigSpec()
     add.add_argument("stage", help="the .usda/.usdc stage to edit in place")
     add.add_argument("--name", default="main", help="rig prim name (default: main)")
-    add.add_argument("--grid", default=f"{d.rows}x{d.cols}", help="views as ROWSxCOLS (default 9x9)")
+    add.add_argument("--grid", type=argtypes.grid, default=f"{d.rows}x{d.cols}", help="views as ROWSxCOLS (default 9x9)")
     add.add_argument("--baseline", type=float, default=d.baseline, help="metres between neighbouring cameras (default 0.125)")
     add.add_argument("--focal-length", type=float, default=d.focal_length_mm, help="lens in mm (default 39)")
     add.add_argument("--sensor", type=float, default=d.sensor_mm, help="sensor width in mm (default 36)")
-    add.add_argument("--resolution", default=f"{d.width}x{d.height}", help="WIDTHxHEIGHT pixels (default 1024x1024)")
-    add.add_argument("--at", default=",".join(map(str, d.at)), help="rig centre X,Y,Z in metres")
-    add.add_argument("--look-at", default=",".join(map(str, d.look_at)), help="point X,Y,Z the rig looks at")
+    add.add_argument("--resolution", type=argtypes.resolution, default=f"{d.width}x{d.height}", help="WIDTHxHEIGHT pixels (default 1024x1024)")
+    add.add_argument("--at", type=argtypes.point, default=",".join(map(str, d.at)), help="rig centre X,Y,Z in metres")
+    add.add_argument("--look-at", type=argtypes.point, default=",".join(map(str, d.look_at)), help="point X,Y,Z the rig looks at")
     add.add_argument("--spacing", default=d.spacing, help=f"{'|'.join(SPACINGS)} (default uniform)")
     add.add_argument("--layout", default=d.layout, help=f"{'|'.join(LAYOUTS)} (default plane)")
     add.add_argument("--radius", type=float, default=None, help="sphere radius in metres (default: distance to --look-at)")
@@ -33,14 +34,13 @@ def run_add(args) -> int:
     from ..author.stage import open_stage
     from ..author.rigs import add_rig
 
-    rows, cols = parse_grid(args.grid)
-    width, height = parse_resolution(args.resolution)
+    rows, cols = args.grid
+    width, height = args.resolution
     axes = args.axes or ("converge" if args.layout == "sphere" else "parallel")
     spec = RigSpec(
         name=args.name, rows=rows, cols=cols, baseline=args.baseline, focal_length_mm=args.focal_length,
-        sensor_mm=args.sensor, width=width, height=height, at=parse_point(args.at, "--at"),
-        look_at=parse_point(args.look_at, "--look-at"), spacing=args.spacing, layout=args.layout,
-        radius=args.radius, axes=axes,
+        sensor_mm=args.sensor, width=width, height=height, at=args.at, look_at=args.look_at, spacing=args.spacing,
+        layout=args.layout, radius=args.radius, axes=axes,
     )
     stage = open_stage(args.stage)
     add_rig(stage, spec)

@@ -5,16 +5,7 @@ from __future__ import annotations
 import time
 
 from ..errors import LfusdError
-
-
-def _pair(text: str, what: str) -> tuple[int, int]:
-    try:
-        a, b = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise LfusdError(f"{what} {text!r} is not AxB (e.g. 9x9); give two positive integers joined by x") from None
-    if a < 1 or b < 1:
-        raise LfusdError(f"{what} {text!r} must be positive on both sides")
-    return a, b
+from . import args as argtypes
 
 
 def register(sub) -> None:
@@ -29,8 +20,8 @@ def register(sub) -> None:
     n.add_argument("--seed", type=int, default=0, help="random seed (same seed, same stage, on every machine)")
     n.add_argument("--frames", type=int, default=150, help="stage range 1..N (default 150)")
     n.add_argument("--rigs", type=int, default=10, help="rig placements rig_00.. (0-10, default 10)")
-    n.add_argument("--grid", default="9x9", help="views per rig, ROWSxCOLS (default 9x9)")
-    n.add_argument("--resolution", default="1024x1024", help="image size WIDTHxHEIGHT (default 1024x1024)")
+    n.add_argument("--grid", type=argtypes.grid, default="9x9", help="views per rig, ROWSxCOLS (default 9x9)")
+    n.add_argument("--resolution", type=argtypes.resolution, default="1024x1024", help="image size WIDTHxHEIGHT (default 1024x1024)")
     n.add_argument("--dynamic", action="store_true",
                    help="add walking/running people, drifting boats, driving cars, swinging doors over the frames")
     n.set_defaults(func=new_handler)
@@ -43,11 +34,9 @@ def new_handler(args) -> int:
     from ..author.scenes import generate
 
     t0 = time.perf_counter()
-    grid = _pair(args.grid, "--grid")
-    res = _pair(args.resolution, "--resolution")
     if not str(args.output).endswith((".usda", ".usdc", ".usd")):
         raise LfusdError(f"output {args.output} must end in .usda, .usdc or .usd")
-    generate(args.template, args.output, args.seed, frames=args.frames, rigs=args.rigs, grid=grid, resolution=res,
+    generate(args.template, args.output, args.seed, frames=args.frames, rigs=args.rigs, grid=args.grid, resolution=args.resolution,
              dynamic=args.dynamic)
     kind = ", dynamic" if args.dynamic else ""
     print(f"wrote {args.output} ({args.template}{kind}, seed {args.seed}, frames 1-{args.frames}, {args.rigs} rigs) "

@@ -20,6 +20,7 @@ Per-view files are named ``<frame:04d>_<row:02d>_<col:02d>.<ext>`` (see :func:`s
 from __future__ import annotations
 
 import datetime
+import json
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,16 @@ def open_dataset(path, rig: str | None = None):
     from .. import Dataset
 
     return Dataset(p) if rig is None else Dataset(p, rig=rig)
+
+
+def open_datasets(path, rig: str | None = None) -> list:
+    """One reader per rig of the dataset in ``path``: just ``rig``, or every rig when it is None or 'all'."""
+    if rig not in (None, "all"):
+        return [open_dataset(path, rig)]
+    manifest = Path(path) / "manifest.json"
+    if not manifest.is_file():
+        return [open_dataset(path)]  # raises the reader's own error naming the folder
+    return [open_dataset(path, r) for r in json.loads(manifest.read_text())["rigs"]]
 
 
 def scene_name(ds) -> str:

@@ -52,16 +52,31 @@ def _derive_one(args: tuple[str, str, int, tuple[int, int]]) -> None:
     write_motion(Dataset(root, rig=rig), frame, view)
 
 
-def derive_dataset(root: str | Path, rigs: list[str], frames: list[int], workers: int = 1, overwrite: bool = False, progress=None) -> int:
-    """Write motion.npz for every (rig, frame, view) that lacks one; returns how many were written."""
+def derive_dataset(
+    root: str | Path,
+    rigs: list[str] | None = None,
+    frames: list[int] | None = None,
+    workers: int = 1,
+    overwrite: bool = False,
+    progress=None,
+    views: list[View] | None = None,
+) -> int:
+    """Write motion.npz for every (rig, frame, view) that lacks one (all of them with ``overwrite``).
+
+    ``rigs``, ``frames`` and ``views`` default to every rig, completely rendered frame and view of
+    the dataset. Returns how many views were written.
+    """
+    from ..data.export import open_datasets
+
     todo = []
-    for rig in rigs:
-        ds = Dataset(root, rig=rig)
+    for ds in open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs]:
+        rig_frames = ds.frames if frames is None else frames
         # View-major: consecutive tasks share frames t+/-1 of one view in the raw-pass cache.
-        for v in ds.views:
-            for f in frames:
-                if overwrite or not (ds.view_dir(f, v) / MOTION_FILE).is_file():
-                    todo.append((str(root), rig, f, v))
+        for v in ds.views if views is None else views:
+            for f in rig_frames:
+                d = ds.view_dir(f, v)  # raises naming a view or frame the dataset lacks
+                if overwrite or not (d / MOTION_FILE).is_file():
+                    todo.append((str(root), ds.rig_name, f, tuple(v)))
     if workers <= 1 or len(todo) <= 1:
         for item in todo:
             _derive_one(item)

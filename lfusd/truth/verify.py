@@ -452,3 +452,34 @@ def verify_dataset(
             for t in [t for t in scenes if t < f - 1]:
                 del scenes[t]  # frames are visited in order: free meshes no longer needed
     return report
+
+
+def verify(
+    out,
+    *,
+    stage: str | None = None,
+    rig: str | None = None,
+    frames: Iterable[int] | None = None,
+    views: Iterable[tuple[int, int]] | None = None,
+    thresholds: dict[str, float] | None = None,
+    progress=None,
+) -> dict[str | None, VerifyReport]:
+    """Verify the dataset in folder ``out`` against its stage: {rig name: report} for ``rig`` or every rig.
+
+    ``frames``/``views`` default to all rendered ones; ``thresholds`` overrides keys of
+    :data:`THRESHOLDS`; ``stage`` replaces the stage the manifest records; ``progress(frame, view)``
+    is called before each view. What `lfusd verify` and `lfusd render-video --verify` run.
+    """
+    from ..data import export
+
+    unknown = sorted(set(thresholds or {}) - set(THRESHOLDS))
+    if unknown:
+        raise LfusdError(f"unknown threshold {unknown[0]!r}; use one of {', '.join(THRESHOLDS)}")
+    reports = {}
+    for ds in export.open_datasets(out, rig):
+        if not ds.frames:
+            raise LfusdError(f"dataset {out} has no completely rendered frame; finish the render first")
+        reports[getattr(ds, "rig_name", None)] = verify_dataset(
+            ds, stage_path=stage, frames=frames, views=views, thresholds=thresholds, progress=progress
+        )
+    return reports

@@ -274,7 +274,7 @@ def test_eval_disparity_cli_writes_table_json_csv(fake_cli, tmp_path, capsys):
 
 def test_eval_flow_views_and_sceneflow(fake_cli, tmp_path):
     from lfusd.data import formats
-    from lfusd.commands.eval import evaluate
+    from lfusd.evaluation.score import evaluate
 
     ds = fake_cli
     pred = tmp_path / "p"

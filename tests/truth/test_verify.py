@@ -157,13 +157,13 @@ def test_verify_names_missing_stage_and_frames(tmp_path):
 
 
 def test_verify_command_passes_exact_motion_and_fails_corrupted_depth(tmp_path, monkeypatch, capsys):
-    import lfusd.commands.verify as cmd_verify
+    import lfusd.data.export
     from lfusd.cli import main
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
     ds = FakeDataset(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(cmd_verify, "open_datasets", lambda p, rig=None: [ds])
+    monkeypatch.setattr(lfusd.data.export, "open_datasets", lambda p, rig=None: [ds])
     assert main(["verify", "OUT", "--frames", "1-3", "--views", "0,0"]) == 0
     assert "all checks passed" in capsys.readouterr().out
     for f in ds.frames:
@@ -222,11 +222,11 @@ def test_stats_script_reports_motion_and_disparity_ranges(tmp_path):
 def test_verify_report_script_writes_json_and_markdown(tmp_path, monkeypatch):
     import json
 
-    import lfusd.commands.flow as cmd_flow
+    import lfusd.data.export
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(cmd_flow, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
+    monkeypatch.setattr(lfusd.data.export, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
     rc = _load_script("verify_report").main(["OUT", "--frames", "2", "--json", str(tmp_path / "r.json"), "--markdown", str(tmp_path / "r.md")])
     assert rc == 0
     data = json.loads((tmp_path / "r.json").read_text())
@@ -384,12 +384,12 @@ def test_lfusd_flow_names_a_missing_next_frame(blender_video, tmp_path, capsys):
 
 
 def test_verify_command_threshold_overrides(tmp_path, monkeypatch, capsys):
-    import lfusd.commands.verify as cmd_verify
+    import lfusd.data.export
     from lfusd.cli import main
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(cmd_verify, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
+    monkeypatch.setattr(lfusd.data.export, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
     assert main(["verify", "OUT", "--frames", "2", "--threshold", "depth=1e-12"]) == 1
     assert "FAIL depth of view 0,0 at frame 2" in capsys.readouterr().out
     assert main(["verify", "OUT", "--threshold", "depth"]) == 2

@@ -1,0 +1,76 @@
+"""The one argument layer of the `lfusd` CLI: the parser class and the value types every command uses.
+
+The grammars themselves are pure functions in :mod:`lfusd.camera` (``parse_frames``, ``parse_view``,
+``parse_point``, ``parse_grid``, ``parse_resolution``), shared with scripts that cannot import the
+CLI; this module turns them into argparse types, so a bad value is a one-line usage error naming
+the option before any work starts.
+
+- frames: ``N``, ``A-B`` and comma lists ``1-5,8`` (:data:`frames`); commands that need one
+  contiguous range use :data:`frame_range`, which says so;
+- views: ``R,C`` or ``R_C`` (:data:`view`);
+- points: ``X,Y,Z`` in metres, negative coordinates included (:data:`point`);
+- pairs: ``ROWSxCOLS`` (:data:`grid`), ``WIDTHxHEIGHT`` (:data:`resolution`);
+- thresholds: ``KEY=NUMBER`` (:data:`threshold`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+from ..camera import parse_frames, parse_grid, parse_point, parse_resolution, parse_view
+from ..errors import LfusdError
+
+# Values such as -3, -.5, -0.05,0.6,3 are numbers and coordinates, never options.
+NEGATIVE_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d*,")
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with usage errors on one line, like every other lfusd error, and negative values."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # argparse's own hook for telling negative numbers from options (stable since Python 3.2),
+        # widened to coordinate lists; set here so that every command and subcommand shares it.
+        self._negative_number_matcher = NEGATIVE_VALUE
+
+    def error(self, message: str):
+        self.exit(2, f"lfusd: error: {message} (see '{self.prog} --help')\n")
+
+
+def _argtype(parse, name: str):
+    """An argparse type from a parser raising LfusdError; argparse prefixes the option's name."""
+
+    def convert(text: str):
+        try:
+            return parse(text)
+        except LfusdError as e:
+            raise argparse.ArgumentTypeError(str(e)) from e
+
+    convert.__name__ = name
+    return convert
+
+
+def _frame_range(text: str) -> tuple[int, int]:
+    frames = parse_frames(text)
+    first, last = frames[0], frames[-1]
+    if len(frames) != last - first + 1:
+        raise LfusdError(f"frames {text!r} are not one contiguous range A-B; this command takes consecutive frames (e.g. {first}-{last})")
+    return first, last
+
+
+def _threshold(text: str) -> tuple[str, float]:
+    key, _, value = text.partition("=")
+    try:
+        return key, float(value)
+    except ValueError:
+        raise LfusdError(f"threshold {text!r} is not KEY=NUMBER (e.g. flow_fwd=0.1)") from None
+
+
+frames = _argtype(parse_frames, "frames")
+frame_range = _argtype(_frame_range, "frame range")
+view = _argtype(parse_view, "view")
+point = _argtype(lambda text: parse_point(text, "point"), "point")
+grid = _argtype(parse_grid, "grid")
+resolution = _argtype(parse_resolution, "resolution")
+threshold = _argtype(_threshold, "threshold")
