@@ -24,7 +24,8 @@ from ..author.labels import ObjectEntry
 from ..data.passes import linear_to_srgb8, read_rgb_linear
 from ..author.stage import frame_range
 from ..author.rigs import StageRig
-from .job import RenderRequest, _Plan, frame_dir, view_key
+from ..layout import frame_dir, view_key
+from .job import RenderRequest, _Plan
 
 
 def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> None:

@@ -37,19 +37,10 @@ from ..author.labels import ObjectEntry, object_table
 from ..author.stage import check_frames, file_hash, frame_range, open_stage
 from ..camera import RigSpec
 from ..author.rigs import StageRig, select_rigs
+from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
 
-FORMAT = "lfusd-dataset"
-FORMAT_VERSION = 1
 DEVICES = ("auto", "cpu", "cuda", "optix")
 EXECUTORS = ("local", "ray")
-
-
-def view_key(view: tuple[int, int]) -> str:
-    return f"{view[0]:02d}_{view[1]:02d}"
-
-
-def frame_dir(root: Path, rig: str, frame: int) -> Path:
-    return root / rig / f"f{frame:06d}"
 
 
 @dataclass
