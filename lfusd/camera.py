@@ -298,3 +298,8 @@ def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam: Camera) -> np.
     x = np.stack([u, v, np.ones_like(u)], axis=-1) * z[..., None]
     return x @ A.T + C.astype(dt)
 
+
+def ray_lengths(K: np.ndarray, h: int, w: int) -> np.ndarray:
+    """||K^-1 [u, v, 1]|| per pixel centre (float64, H x W): the ray length per metre of planar depth."""
+    u, v = pixel_grid(h, w, np.float64)
+    return np.linalg.norm(ray_directions(u, v, Camera(K, np.eye(4))), axis=-1)

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from support.analytic import cast, pixel_rays
+from support.scenes import GROUND_HALF, PLANE_RIG, boxes_world
 
 from lfusd import LfusdError, keys, layout
 from lfusd.data import passes
@@ -46,3 +48,21 @@ def test_unknown_key_is_a_one_line_error_listing_the_keys():
     with pytest.raises(ValueError):
         keys.names("derived")
 
+
+def test_depth_euclidean_is_the_distance_to_the_analytic_hit_point():
+    """depth_euclidean from planar depth and K equals |hit - camera centre| of closed-form ray casts."""
+    K = PLANE_RIG.intrinsics()
+    for view in [(0, 0), (1, 2)]:
+        c2w = PLANE_RIG.cam_to_world(view)
+        depth, hit = cast(K, c2w, PLANE_RIG.width, PLANE_RIG.height, boxes_world(), GROUND_HALF)
+        origin, dirs = pixel_rays(K, c2w, PLANE_RIG.width, PLANE_RIG.height)
+        points = origin + np.where(np.isfinite(depth), depth, 0)[..., None] * dirs
+        distance = np.where(np.isfinite(depth), np.linalg.norm(points - origin, axis=-1), np.inf)
+        got = passes.depth_euclidean(depth.astype(np.float32), K)
+        assert got.dtype == np.float32 and got.shape == depth.shape
+        fin = np.isfinite(depth)
+        assert fin.mean() > 0.5 and (hit[fin] != "ground").any()  # the boxes are in view, not only the ground
+        np.testing.assert_allclose(got[fin], distance[fin], rtol=1e-6)
+        assert np.all(np.isinf(got[~fin]))
+        # off-axis pixels are further along their ray than their planar depth
+        assert np.all(got[fin] >= depth[fin] * (1 - 1e-6)) and (got[fin] > depth[fin] * 1.001).any()

@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 import OpenEXR
 
+from ..camera import ray_lengths
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH
 # AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
@@ -97,6 +98,12 @@ def semantic(instance: np.ndarray, class_of_instance: np.ndarray) -> np.ndarray:
     return class_of_instance[instance].astype(np.int32)
 
 
+def depth_euclidean(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Distance from the camera centre along each pixel's ray, depth * ||K^-1 [u, v, 1]||; inf where depth is."""
+    h, w = depth.shape
+    return (depth * ray_lengths(K, h, w)).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class ViewInfo:
     """What a derived static key needs beside the raw passes: the view's K, the rig baseline, the class table."""
@@ -110,4 +117,5 @@ class ViewInfo:
 DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
     "semantic": lambda raw, info: semantic(raw["instance"], info.class_of_instance),
     "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
+    "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),
 }
