@@ -23,7 +23,8 @@ import numpy as np
 import OpenEXR
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-from lfusd.truth.motion import BACKEND, Camera, RawPasses, backproject, derive_motion, pixel_grid, project  # noqa: E402
+from lfusd.camera import Camera, backproject, pixel_grid, project  # noqa: E402
+from lfusd.truth.motion import BACKEND, RawPasses, derive_motion  # noqa: E402
 
 CODECS = {"zip": OpenEXR.ZIP_COMPRESSION, "none": OpenEXR.NO_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION, "dwaa": OpenEXR.DWAA_COMPRESSION}
 

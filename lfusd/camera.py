@@ -1,6 +1,8 @@
-"""Light-field rig geometry: a pure-NumPy model of a camera grid (no USD, no Blender).
+"""The camera model and light-field rig geometry, in pure NumPy (no USD, no Blender).
 
-Frames follow ../shared/CONVENTIONS.md: camera poses are OpenCV (x right, y down, z forward),
+:class:`Camera` (pinhole: OpenCV K and cam_to_world) with :func:`project`, :func:`backproject`,
+:func:`ray_directions` and :func:`pixel_grid` is the one camera model of lfusd; :class:`RigSpec`
+places a grid of such cameras. Frames follow docs/CONVENTIONS.md: camera poses are OpenCV (x right, y down, z forward),
 world is Z up, views are (row, col) row-major with (0, 0) top-left seen from behind the rig.
 
 Spacings (offsets of a view from the centre, in units of the baseline ``b``): counting the
@@ -247,3 +249,80 @@ def parse_view(text: str) -> View:
     if not m:
         raise LfusdError(f"view {text!r} is not ROW,COL or ROW_COL (two integers, e.g. 4,4)")
     return int(m[1]), int(m[2])
+
+
+# -- the pinhole camera model ---------------------------------------------------------------
+
+
+@dataclass
+class Camera:
+    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world."""
+
+    K: np.ndarray
+    cam_to_world: np.ndarray
+
+    def world_to_cam(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R, C): camera-frame point = R @ (world point - C)."""
+        m = np.asarray(self.cam_to_world, dtype=np.float64)
+        return m[:3, :3].T, m[:3, 3]
+
+    def _pixel_to_world(self, dtype) -> np.ndarray:
+        """3x3 map of homogeneous pixel coordinates (u, v, 1) to world ray directions with camera-frame z = 1."""
+        R, _ = self.world_to_cam()
+        return (R.T @ np.linalg.inv(np.asarray(self.K, dtype=np.float64))).astype(dtype)
+
+
+_GRIDS: dict[tuple[int, int, str], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def pixel_grid(h: int, w: int, dtype=np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """(u, v) pixel-centre coordinates, u = column, v = row (cached, read-only)."""
+    key = (h, w, np.dtype(dtype).name)
+    if key not in _GRIDS:
+        v, u = np.mgrid[0:h, 0:w].astype(dtype)
+        u.setflags(write=False)
+        v.setflags(write=False)
+        _GRIDS[key] = (u, v)
+    return _GRIDS[key]
+
+
+def _float_dtype(a: np.ndarray):
+    return a.dtype if np.issubdtype(a.dtype, np.floating) else np.float64
+
+
+def project(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, z) of world points (...,3) in ``cam``, in the points' float precision; z is planar depth (<= 0 behind the camera)."""
+    points = np.asarray(points)
+    dt = _float_dtype(points)
+    R, C = cam.world_to_cam()
+    K = np.asarray(cam.K, dtype=np.float64)
+    # Subtract the centre before rotating so float32 keeps precision far from the world origin.
+    d = points - C.astype(dt)
+    M = (K @ R).astype(dt)
+    x = d @ M.T
+    z = d @ R[2].astype(dt)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], z
+
+
+def ray_directions(u: np.ndarray, v: np.ndarray, cam: Camera) -> np.ndarray:
+    """World directions (...,3) of the rays through pixel coordinates (u, v), scaled to camera-frame z = 1 (a ray parameter is then planar depth)."""
+    u = np.asarray(u)
+    A = cam._pixel_to_world(_float_dtype(u))
+    return np.stack([u, v, np.ones_like(u)], axis=-1) @ A.T
+
+
+def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam: Camera) -> np.ndarray:
+    """World points (...,3) at pixel coordinates (u, v) with planar depth z."""
+    u = np.asarray(u)
+    dt = _float_dtype(u)
+    A = cam._pixel_to_world(dt)
+    _, C = cam.world_to_cam()
+    x = np.stack([u, v, np.ones_like(u)], axis=-1) * z[..., None]
+    return x @ A.T + C.astype(dt)
+
+
+def ray_lengths(K: np.ndarray, h: int, w: int) -> np.ndarray:
+    """||K^-1 [u, v, 1]|| per pixel centre (float64, H x W): the ray length per metre of planar depth."""
+    u, v = pixel_grid(h, w, np.float64)
+    return np.linalg.norm(ray_directions(u, v, Camera(K, np.eye(4))), axis=-1)

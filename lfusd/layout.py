@@ -1,16 +1,40 @@
-"""File and folder naming of a dataset: the one place that says where each file lives."""
+"""File and folder names of an lfusd dataset: the one place that spells them.
+
+    OUT/manifest.json                 stage path and hash, rigs, frames, complete frames, settings, versions
+    OUT/logs/                         Blender's output of each worker
+    OUT/objects.json                  class table and instance table (id -> prim path, label)
+    OUT/<rig>/f000001/frame.json      per-view cam_to_world and per-object world poses
+    OUT/<rig>/f000001/00_00/          one folder per view (row 00, col 00):
+        rgb.png, rgb.exr, passes.exr  the renderer's files
+        motion.npz                    the motion keys (render-video, ``lfusd flow``)
+
+Which key lives in which file is in :mod:`lfusd.keys`.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-FORMAT = "lfusd-dataset"
+FORMAT = "lfusd-dataset"  # manifest["format"]
 FORMAT_VERSION = 1
+
+MANIFEST = "manifest.json"
+OBJECTS = "objects.json"
+FRAME_META = "frame.json"
+
+# Per-view files.
+RGB_PNG = "rgb.png"
+RGB_EXR = "rgb.exr"
+PASSES_EXR = "passes.exr"
+MOTION_FILE = "motion.npz"
+VIEW_FILES = (RGB_PNG, RGB_EXR, PASSES_EXR, MOTION_FILE)
 
 
 def view_key(view: tuple[int, int]) -> str:
+    """The folder name of a view and its key in frame.json: ``04_04`` for (row 4, col 4)."""
     return f"{view[0]:02d}_{view[1]:02d}"
 
 
 def frame_dir(root: Path, rig: str, frame: int) -> Path:
-    return root / rig / f"f{frame:06d}"
+    """The folder of one frame of one rig: ``OUT/<rig>/f000001``."""
+    return Path(root) / rig / f"f{frame:06d}"

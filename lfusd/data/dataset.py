@@ -1,24 +1,22 @@
-"""`Dataset`: read an lfusd dataset folder as NumPy arrays in the conventions of CONVENTIONS.md."""
+"""`Dataset`: read an lfusd dataset folder as NumPy arrays in the conventions of docs/CONVENTIONS.md.
+
+Imports neither pxr, bpy nor torch: ``from lfusd import Dataset`` stays light.
+"""
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from . import passes
-from ..errors import LfusdError
-from ..render.job import FORMAT, frame_dir, view_key
+from .. import layout
 from ..camera import RigSpec, View
-
-# Keys derived from the data passes; motion keys come from the flow module's files.
-RAW_KEYS = ("depth", "normal", "position", "instance", "vector", "next_position", "prev_position")
-DERIVED_KEYS = ("semantic", "disparity")
-IMAGE_KEYS = ("rgb", "rgb_linear")
-MOTION_FILE = "motion.npz"
+from ..errors import LfusdError
+from ..keys import IMAGE, RAW, STATIC, get
+from ..layout import FORMAT, frame_dir, view_key
 
 
 @dataclass
@@ -33,17 +31,31 @@ class DatasetObject:
 
 
 class Dataset:
-    """A rendered light-field dataset: ``Dataset(OUT)``, or ``Dataset(OUT, rig=NAME)`` when it holds several rigs."""
+    """A rendered light-field dataset: ``Dataset(OUT)``, or ``Dataset(OUT, rig=NAME)`` when it holds several rigs.
+
+    The manifest, the object table and the list of complete frames are read once, when the
+    dataset is opened; :meth:`refresh` reads them again (for a dataset that is still rendering).
+    """
 
     def __init__(self, root: str | Path, rig: str | None = None):
         self.root = Path(root)
-        path = self.root / "manifest.json"
+        self._rig_arg = rig
+        self.refresh(scan=False)
+
+    def refresh(self, scan: bool = True) -> None:
+        """Read the manifest and object table again and drop every cached array.
+
+        ``scan``: find the complete frames by listing the view folders rather than trusting the
+        manifest's record (which a render updates only when it ends).
+        """
+        path = self.root / layout.MANIFEST
         if not path.is_file():
-            raise LfusdError(f"{self.root} holds no lfusd dataset (no manifest.json); render one with 'lfusd render'")
+            raise LfusdError(f"{self.root} holds no lfusd dataset (no {layout.MANIFEST}); render one with 'lfusd render'")
         self.manifest = json.loads(path.read_text())
         if self.manifest.get("format") != FORMAT:
             raise LfusdError(f"{path} is not an lfusd dataset manifest")
         rigs = self.manifest["rigs"]
+        rig = self._rig_arg
         if rig is None:
             if len(rigs) != 1:
                 raise LfusdError(f"{self.root} holds rigs {', '.join(rigs)}; open one with Dataset(path, rig=NAME)")
@@ -52,20 +64,22 @@ class Dataset:
             raise LfusdError(f"{self.root} has no rig {rig!r}; it has {', '.join(rigs)}")
         self.rig: RigSpec = RigSpec.from_dict(self.manifest["settings"]["rigs"][rig])
         self.rig_name = rig
-        table = json.loads((self.root / "objects.json").read_text())
+        table = json.loads((self.root / layout.OBJECTS).read_text())
         self.classes: list[str] = table["classes"]
         self._class_of_instance = np.zeros(max([o["id"] for o in table["objects"]], default=0) + 1, dtype=np.int32)
         for o in table["objects"]:
             self._class_of_instance[o["id"]] = o["class_id"]
         self._object_rows = table["objects"]
         self._objects: dict[int, DatasetObject] | None = None
+        complete = self.manifest.get("complete", {}).get(rig)
+        if scan or complete is None:  # manifests before the "complete" record: look at the folders
+            complete = [f for f in self.manifest["frames"] if all((self._frame_dir(f) / view_key(v)).is_dir() for v in self.views)]
+        self.frames: list[int] = [int(f) for f in complete]  # frames with every view rendered
+        # Per-instance caches, most recent last: raw passes (t-1, t, t+1 of a view for the motion derivation), frame.json files.
+        self._raw_cache: dict[str, dict[str, np.ndarray]] = {}
+        self._meta_cache: dict[int, dict] = {}
 
     # -- structure --------------------------------------------------------------------
-    @property
-    def frames(self) -> list[int]:
-        """Frames with every view rendered."""
-        return [f for f in self.manifest["frames"] if all((self._frame_dir(f) / view_key(v)).is_dir() for v in self.views)]
-
     @property
     def views(self) -> list[View]:
         return self.rig.views
@@ -91,6 +105,7 @@ class Dataset:
 
     @property
     def objects(self) -> dict[int, DatasetObject]:
+        """Instances by id, with their poses in every complete frame (read on first use, then kept)."""
         if self._objects is None:
             objs = {o["id"]: DatasetObject(o["id"], o["prim_path"], o["label"], o["class_id"]) for o in self._object_rows}
             for f in self.frames:
@@ -109,39 +124,39 @@ class Dataset:
         return d
 
     def read(self, frame: int, view: View, key: str) -> np.ndarray:
-        """One ground-truth array (see CONVENTIONS.md for keys, shapes and meanings)."""
+        """One ground-truth array (lfusd.keys and docs/CONVENTIONS.md list the keys, shapes and meanings)."""
+        k = get(key)
         d = self.view_dir(frame, view)
-        if key == "rgb":
-            from .formats import read_png
+        if k.stage == IMAGE:
+            if key == "rgb":
+                from .formats import read_png
 
-            return read_png(d / "rgb.png")
-        if key == "rgb_linear":
-            return passes.read_rgb_linear(d / "rgb.exr")
-        if key in RAW_KEYS:
+                return read_png(d / layout.RGB_PNG)
+            return passes.read_rgb_linear(d / layout.RGB_EXR)
+        if k.stage == RAW:
             raw = self._raw(str(d))
             if key not in raw:
-                raise LfusdError(f"{d / 'passes.exr'} has no {key} pass; render the dataset with 'lfusd render-video'")
+                raise LfusdError(f"{d / layout.PASSES_EXR} has no {key} pass; render the dataset with 'lfusd render-video'")
             return raw[key].copy()  # the cache must not be mutated by callers
-        if key == "semantic":
-            return passes.semantic(self._raw(str(d))["instance"], self._class_of_instance)
-        if key == "disparity":
-            return passes.disparity(self._raw(str(d))["depth"], self.rig.focal_px, self.baseline)
-        motion = d / MOTION_FILE
-        if motion.is_file():
-            with np.load(motion) as z:
-                if key in z.files:
-                    return z[key]
-            raise LfusdError(f"unknown key {key!r}; {motion} holds {', '.join(sorted(z.files))}")
-        known = IMAGE_KEYS + RAW_KEYS + DERIVED_KEYS
-        raise LfusdError(f"unknown or missing key {key!r} for {d}; keys: {', '.join(known)} (motion keys need 'lfusd render-video')")
+        if k.stage == STATIC:
+            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance)
+            return passes.DERIVED[key](self._raw(str(d)), info)
+        motion = d / layout.MOTION_FILE
+        if not motion.is_file():
+            raise LfusdError(f"{d} has no {layout.MOTION_FILE} for key {key!r}; derive the motion keys with 'lfusd flow' (or render with 'lfusd render-video')")
+        with np.load(motion) as z:
+            if key not in z.files:
+                raise LfusdError(f"{motion} holds no {key!r} ({', '.join(sorted(z.files))}); derive it again with 'lfusd flow'")
+            return z[key]
 
     def raw_passes(self, frame: int, view: View):
         """The view's raw passes with its camera, as lfusd.truth.motion.RawPasses (input of derive_motion)."""
-        from ..truth.motion import Camera, RawPasses
+        from ..camera import Camera
+        from ..truth.motion import RawPasses
 
         raw = self._raw(str(self.view_dir(frame, view)))
         if "vector" not in raw:
-            raise LfusdError(f"{self.view_dir(frame, view) / 'passes.exr'} has no vector pass; re-render with 'lfusd render-video'")
+            raise LfusdError(f"{self.view_dir(frame, view) / layout.PASSES_EXR} has no vector pass; re-render with 'lfusd render-video'")
         return RawPasses(
             depth=raw["depth"], vector=raw["vector"], camera=Camera(self.intrinsics(view), self.cam_to_world(frame, view)),
             position=raw["position"], instance=raw["instance"],
@@ -157,17 +172,22 @@ class Dataset:
         return frame_dir(self.root, self.rig_name, frame)
 
     def _frame_meta(self, frame: int) -> dict:
-        return _read_json(str(self._frame_dir(frame) / "frame.json"))
+        def load():
+            p = self._frame_dir(frame) / layout.FRAME_META
+            if not p.is_file():
+                raise LfusdError(f"{p} is missing; rerun the render to complete this frame")
+            return json.loads(p.read_text())
 
-    @staticmethod
-    @lru_cache(maxsize=4)
-    def _raw(view_dir: str) -> dict[str, np.ndarray]:
-        return passes.read_raw(Path(view_dir) / "passes.exr")
+        return _cached(self._meta_cache, frame, 64, load)
+
+    def _raw(self, view_dir: str) -> dict[str, np.ndarray]:
+        return _cached(self._raw_cache, view_dir, 4, lambda: passes.read_raw(Path(view_dir) / layout.PASSES_EXR))
 
 
-@lru_cache(maxsize=64)
-def _read_json(path: str) -> dict:
-    p = Path(path)
-    if not p.is_file():
-        raise LfusdError(f"{p} is missing; rerun the render to complete this frame")
-    return json.loads(p.read_text())
+def _cached(cache: dict, key, size: int, load):
+    """``cache[key]``, loaded on a miss; keeps the ``size`` most recently used entries."""
+    value = cache.pop(key) if key in cache else load()
+    cache[key] = value
+    while len(cache) > size:
+        del cache[next(iter(cache))]
+    return value

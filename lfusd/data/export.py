@@ -27,6 +27,7 @@ import numpy as np
 
 from . import formats
 from ..errors import LfusdError
+from ..keys import get
 
 FORMATS = ("hci", "kitti", "flo", "pfm", "lfmat")
 UNKNOWN_FLOW = 1e10
@@ -239,14 +240,15 @@ def export_flo(ds, dest, frame: int | None = None, view=None, all_views: bool = 
 
 
 def export_pfm(ds, dest, frame: int | None = None, view=None, all_views: bool = False, keys=("disparity", "depth", "disparity_change")) -> list[Path]:
-    """Write PFMs of ``keys`` under ``dest/<key>/``; disparity_change only where frame t+1 exists."""
+    """Write PFMs of ``keys`` under ``dest/<key>/``; motion keys only where their frame t+1 / t-1 exists."""
     frames = _frames(ds, frame)
     views = _views_for(ds, view, all_views)
     dest = _new_dest(dest)
     written = []
     for key in keys:
         for t in frames:
-            if key == "disparity_change" and t + 1 not in ds.frames:
+            step = get(key).step
+            if step and t + step not in ds.frames:
                 continue
             for v in views:
                 (dest / key).mkdir(exist_ok=True)

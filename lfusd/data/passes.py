@@ -1,4 +1,4 @@
-"""Raw render passes (Blender's EXRs) and the ground-truth keys derived from them, in NumPy.
+"""Raw render passes (Blender's EXRs) and the derived static keys computed from them, in NumPy.
 
 Raw files per view (written by the renderer):
 - ``rgb.exr``: linear RGB (half float), the beauty render;
@@ -7,20 +7,23 @@ Raw files per view (written by the renderer):
   render-video the AOVs next_position / prev_position;
 - ``motion.npz``: the motion keys derived by lfusd.truth.motion (render-video, ``lfusd flow``).
 
-Everything here follows ../shared/CONVENTIONS.md; Blender's own conventions are converted in
-this one place (background depth 1e10 -> inf; object index float -> int32 instance id).
+Everything here follows docs/CONVENTIONS.md; Blender's own conventions are converted in
+this one place (background depth 1e10 -> inf; object index float -> int32 instance id). The
+derived static keys of lfusd.keys are computed by the functions in :data:`DERIVED`.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import OpenEXR
 
+from ..camera import ray_lengths
 from ..errors import LfusdError
-
-BACKGROUND_DEPTH = 1.0e9  # Blender writes 1e10 where no surface is hit
+from ..keys import BACKGROUND_DEPTH
 # AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
 MOTION_AOVS = ("next_position", "prev_position")
 
@@ -93,3 +96,26 @@ def disparity(depth: np.ndarray, focal_px: float, baseline: float) -> np.ndarray
 def semantic(instance: np.ndarray, class_of_instance: np.ndarray) -> np.ndarray:
     """Class id per pixel from the instance ids (``class_of_instance[id]``, 0 = background)."""
     return class_of_instance[instance].astype(np.int32)
+
+
+def depth_euclidean(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Distance from the camera centre along each pixel's ray, depth * ||K^-1 [u, v, 1]||; inf where depth is."""
+    h, w = depth.shape
+    return (depth * ray_lengths(K, h, w)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class ViewInfo:
+    """What a derived static key needs beside the raw passes: the view's K, the rig baseline, the class table."""
+
+    K: np.ndarray
+    baseline: float
+    class_of_instance: np.ndarray
+
+
+# Derived static keys (lfusd.keys.STATIC): name -> f(raw passes, ViewInfo).
+DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
+    "semantic": lambda raw, info: semantic(raw["instance"], info.class_of_instance),
+    "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
+    "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),
+}

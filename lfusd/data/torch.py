@@ -3,9 +3,9 @@
 One item is one frame (or a clip of ``clip`` consecutive frames) with a chosen subset of views and
 ground-truth keys, all views cropped with one window:
 
-- ``rgb``: float32 [V,3,h,w] in [0, 1]; ``depth``, ``disparity``, ``disparity_change``: [V,h,w];
-  ``flow_fwd``/``flow_bwd`` [V,2,h,w]; ``scene_flow``, ``normal``, ``position`` [V,3,h,w];
-  ``instance``/``semantic`` int64 [V,h,w]; ``valid_*``/``occlusion_*`` bool [V,h,w].
+- any key of lfusd.keys, channels first: ``rgb`` float32 [V,3,h,w] in [0, 1]; other float keys
+  float32 [V,h,w] or [V,C,h,w] (``depth`` [V,h,w], ``flow_fwd`` [V,2,h,w], ``scene_flow`` [V,3,h,w]);
+  integer keys (``instance``, ``semantic``) int64 [V,h,w]; masks (``valid_*``, ``occlusion_*``) bool [V,h,w].
   With ``clip > 1`` every key gains a leading time axis T.
 - ``frames`` [T], ``views`` [V,2] (row, col), ``offsets`` [V,2] (sx, sy in baselines),
   ``intrinsics`` [V,3,3] (principal point moved by the crop), ``cam_to_world`` [V,4,4]
@@ -26,13 +26,11 @@ import torch
 from torch.utils.data import Dataset as _TorchDataset
 
 from ..errors import LfusdError
+from ..keys import KEYS as _REGISTRY
 
-KEYS = (
-    "rgb", "depth", "disparity", "normal", "position", "instance", "semantic", "flow_fwd", "flow_bwd",
-    "scene_flow", "disparity_change", "valid_fwd", "valid_bwd", "occlusion_fwd", "occlusion_bwd",
-)
-FORWARD = {"flow_fwd", "scene_flow", "disparity_change", "valid_fwd", "occlusion_fwd"}
-BACKWARD = {"flow_bwd", "valid_bwd", "occlusion_bwd"}
+KEYS = tuple(_REGISTRY)
+FORWARD = {k.name for k in _REGISTRY.values() if k.step > 0}  # defined only where frame t+1 exists
+BACKWARD = {k.name for k in _REGISTRY.values() if k.step < 0}
 
 
 def select_views(rig, views) -> list[tuple[int, int]]:
@@ -66,7 +64,7 @@ def _to_tensor(key: str, a: np.ndarray) -> torch.Tensor:
         return t.to(torch.float32) / (255.0 if a.dtype == np.uint8 else 1.0)
     if a.dtype == bool:
         return torch.from_numpy(np.ascontiguousarray(a))
-    if key in ("instance", "semantic"):
+    if np.issubdtype(a.dtype, np.integer):
         return torch.from_numpy(a.astype(np.int64))
     t = torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
     return t.permute(2, 0, 1) if t.ndim == 3 else t

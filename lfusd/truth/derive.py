@@ -14,8 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data.dataset import MOTION_FILE, Dataset
+from ..data.dataset import Dataset
 from ..camera import View
+from ..layout import MOTION_FILE
+
+RUN = 8  # frames of one view per task: the task's Dataset reads each raw pass once, bar the two at its ends
 
 
 def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
@@ -47,9 +50,12 @@ def write_motion(ds: Dataset, frame: int, view: View) -> Path:
     return d / MOTION_FILE
 
 
-def _derive_one(args: tuple[str, str, int, tuple[int, int]]) -> None:
-    root, rig, frame, view = args
-    write_motion(Dataset(root, rig=rig), frame, view)
+def _derive_run(args: tuple[str, str, tuple[int, int], list[int]]) -> int:
+    root, rig, view, frames = args
+    ds = Dataset(root, rig=rig)
+    for f in frames:
+        write_motion(ds, f, view)
+    return len(frames)
 
 
 def derive_dataset(
@@ -71,19 +77,18 @@ def derive_dataset(
     todo = []
     for ds in open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs]:
         rig_frames = ds.frames if frames is None else frames
-        # View-major: consecutive tasks share frames t+/-1 of one view in the raw-pass cache.
+        # Runs of frames of one view: consecutive frames share t+/-1 in the dataset's raw-pass cache.
         for v in ds.views if views is None else views:
-            for f in rig_frames:
-                d = ds.view_dir(f, v)  # raises naming a view or frame the dataset lacks
-                if overwrite or not (d / MOTION_FILE).is_file():
-                    todo.append((str(root), ds.rig_name, f, tuple(v)))
+            # view_dir raises naming a view or frame the dataset lacks
+            missing = [f for f in rig_frames if overwrite or not (ds.view_dir(f, v) / MOTION_FILE).is_file()]
+            todo += [(str(root), ds.rig_name, tuple(v), missing[i : i + RUN]) for i in range(0, len(missing), RUN)]
     if workers <= 1 or len(todo) <= 1:
         for item in todo:
-            _derive_one(item)
-            progress and progress(1)
+            n = _derive_run(item)
+            progress and progress(n)
     else:
         # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            for _ in pool.map(_derive_one, todo, chunksize=4):
-                progress and progress(1)
-    return len(todo)
+            for n in pool.map(_derive_run, todo):
+                progress and progress(n)
+    return sum(len(item[3]) for item in todo)

@@ -1,7 +1,7 @@
 """Motion ground truth from raw render passes: optical flow, scene flow, disparity change, masks.
 
 No Blender. Inputs are the raw passes of one view at frames t, t+1 and t-1 (:class:`RawPasses`);
-outputs follow ../shared/CONVENTIONS.md exactly (:data:`MOTION_KEYS`). Two backends compute the
+outputs follow docs/CONVENTIONS.md exactly (:data:`MOTION_KEYS`). Two backends compute the
 same thing: a NumPy reference (vectorised) and, when numba is installed, a compiled one-pass
 kernel (``lfusd.truth._motion_numba``, the default): for a 1024x1024 view with both neighbours about
 1.4 s against 27 ms (2 threads) or 50 ms (1 thread); see benchmarks/bench_flow.py.
@@ -63,36 +63,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera import Camera, backproject, pixel_grid, project
 from ..errors import LfusdError
+from ..keys import BACKGROUND_DEPTH, KEYS, MOTION, names
 
-MOTION_KEYS = (
-    "flow_fwd",
-    "flow_bwd",
-    "scene_flow",
-    "disparity_change",
-    "valid_fwd",
-    "valid_bwd",
-    "occlusion_fwd",
-    "occlusion_bwd",
-)
+MOTION_KEYS = names(MOTION)
 FB_ABS = 0.05  # px: forward-backward consistency slack
 FB_REL = 0.01  # fraction of the flow magnitude added to the slack
 DEPTH_REL = 1e-3  # relative inverse-depth slack of the depth test
-BACKGROUND_DEPTH = 1e9  # depths at or beyond this are background (Blender writes 1e10)
 EDGE_REL = 0.5  # a relative inverse-depth jump above this between neighbours is a depth edge
-
-
-@dataclass
-class Camera:
-    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world."""
-
-    K: np.ndarray
-    cam_to_world: np.ndarray
-
-    def world_to_cam(self) -> tuple[np.ndarray, np.ndarray]:
-        """(R, C): camera-frame point = R @ (world point - C)."""
-        m = np.asarray(self.cam_to_world, dtype=np.float64)
-        return m[:3, :3].T, m[:3, 3]
 
 
 @dataclass
@@ -124,47 +103,12 @@ def _check(p: RawPasses, what: str, shape: tuple[int, int] | None = None) -> tup
     hw = shape or p.shape
     if min(hw) < 2:
         raise LfusdError(f"{what}: the view is {hw[1]}x{hw[0]} pixels; motion needs at least 2x2")
-    want = {"depth": (), "vector": (4,), "position": (3,), "instance": (), "next_position": (3,), "prev_position": (3,)}
-    for key, tail in want.items():
+    for key in ("depth", "vector", "position", "instance", "next_position", "prev_position"):
         a = getattr(p, key)
-        if a is not None and tuple(a.shape) != (*hw, *tail):
-            raise LfusdError(f"{what}: {key} has shape {tuple(a.shape)} but the view is {hw[1]}x{hw[0]}; expected {(*hw, *tail)} (re-render it)")
+        want = KEYS[key].full_shape(*hw)
+        if a is not None and tuple(a.shape) != want:
+            raise LfusdError(f"{what}: {key} has shape {tuple(a.shape)} but the view is {hw[1]}x{hw[0]}; expected {want} (re-render it)")
     return hw
-
-
-_GRIDS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-
-
-def pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """(u, v) float32 pixel-centre coordinates, u = column, v = row (cached, read-only)."""
-    if (h, w) not in _GRIDS:
-        v, u = np.mgrid[0:h, 0:w].astype(np.float32)
-        u.setflags(write=False)
-        v.setflags(write=False)
-        _GRIDS[(h, w)] = (u, v)
-    return _GRIDS[(h, w)]
-
-
-def project(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(u, v, z) of world points (...,3) in ``cam``; z is planar depth (<= 0 behind the camera)."""
-    R, C = cam.world_to_cam()
-    K = np.asarray(cam.K, dtype=np.float64)
-    # Subtract the centre before rotating so float32 keeps precision far from the world origin.
-    d = points - C.astype(points.dtype)
-    M = (K @ R).astype(np.float32)
-    x = d @ M.T
-    z = d @ R[2].astype(np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], z
-
-
-def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam: Camera) -> np.ndarray:
-    """World points (...,3) at pixel coordinates (u, v) with planar depth z."""
-    R, C = cam.world_to_cam()
-    K = np.asarray(cam.K, dtype=np.float64)
-    A = (R.T @ np.linalg.inv(K)).astype(np.float32)  # camera ray (u, v, 1) -> world direction
-    x = np.stack([u, v, np.ones_like(u)], axis=-1) * z[..., None]
-    return x @ A.T + C.astype(np.float32)
 
 
 def foreground(depth: np.ndarray) -> np.ndarray:
@@ -369,16 +313,7 @@ def derive_motion(
         _check(prv, "frame t-1", hw)
     h, w = hw
     fg = foreground(cur.depth)
-    out: dict[str, np.ndarray] = {
-        "flow_fwd": np.zeros((h, w, 2), np.float32),
-        "flow_bwd": np.zeros((h, w, 2), np.float32),
-        "scene_flow": np.zeros((h, w, 3), np.float32),
-        "disparity_change": np.zeros((h, w), np.float32),
-        "valid_fwd": np.zeros((h, w), bool),
-        "valid_bwd": np.zeros((h, w), bool),
-        "occlusion_fwd": np.zeros((h, w), bool),
-        "occlusion_bwd": np.zeros((h, w), bool),
-    }
+    out = {k: np.zeros(KEYS[k].full_shape(h, w), KEYS[k].dtype) for k in MOTION_KEYS}
     if nxt is None and prv is None:
         return out
     fb = float(cur.camera.K[0, 0]) * float(baseline) if baseline else 0.0

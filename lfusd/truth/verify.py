@@ -24,19 +24,14 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from ..camera import Camera, project, ray_directions
 from ..errors import LfusdError
+from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
 
-THRESHOLDS: dict[str, float] = {
-    "depth": 1e-4,  # relative
-    "flow_fwd": 0.05,  # px
-    "flow_bwd": 0.05,  # px
-    "scene_flow": 1e-3,  # m
-    "disparity_change": 0.05,  # px
-    "instance": 1e-3,  # fraction of interior pixels with another id
-    "occlusion_fwd": 0.01,  # fraction of foreground pixels that disagree
-    "occlusion_bwd": 0.01,
-}
-UNITS = {"depth": "rel", "flow_fwd": "px", "flow_bwd": "px", "scene_flow": "m", "disparity_change": "px", "instance": "frac", "occlusion_fwd": "frac", "occlusion_bwd": "frac"}
+# The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
+# occlusion the fraction of interior (foreground) pixels that disagree.
+THRESHOLDS: dict[str, float] = accuracies()
+UNITS = accuracy_units()
 EDGE_PX = 2
 DEPTH_EDGE_REL = 0.02  # neighbours whose depths differ by more than this are across a depth edge
 VISIBLE_EPS = 1e-4  # relative slack of the visibility ray cast (hits nearer than 1-eps occlude)
@@ -83,18 +78,8 @@ class TracedScene:
 
 def _rays(K: np.ndarray, cam_to_world: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    pix = np.stack([u, v, np.ones_like(u)], axis=-1)
-    c2w = np.asarray(cam_to_world, np.float64)
-    d = pix @ np.linalg.inv(np.asarray(K, np.float64)).T @ c2w[:3, :3].T  # camera-z component 1
-    return np.broadcast_to(c2w[:3, 3], d.shape).copy(), d
-
-
-def _project(X: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray):
-    c2w = np.asarray(cam_to_world, np.float64)
-    c = (X - c2w[:3, 3]) @ c2w[:3, :3]
-    x = c @ np.asarray(K, np.float64).T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], c[..., 2]
+    d = ray_directions(u, v, Camera(K, cam_to_world))  # camera-z component 1
+    return np.broadcast_to(np.asarray(cam_to_world, np.float64)[:3, 3], d.shape).copy(), d
 
 
 def _hit_on_triangle(o, d, A, B, C):
@@ -163,7 +148,7 @@ def trace_motion(
             V = m1.vertices[tr]
             pos1[sel] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
             valid[sel] = True
-    u1, v1, z1 = _project(pos1, K, cam_to_world_t1)
+    u1, v1, z1 = project(pos1, Camera(K, cam_to_world_t1))
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     flow = np.stack([u1 - u.ravel(), v1 - v.ravel()], -1)
     inside = (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
@@ -346,7 +331,7 @@ def compare_view(
         id_to_row[i] = k + 1
     inst_ds = np.asarray(data["instance"]) if data.get("instance") is not None else inst_tr
     depth_ds = np.asarray(data["depth"], np.float64)
-    interior = interior_mask(inst_tr, tr["depth"]) & np.isfinite(depth_ds) & (depth_ds < 1e9)
+    interior = interior_mask(inst_tr, tr["depth"]) & np.isfinite(depth_ds) & (depth_ds < BACKGROUND_DEPTH)
     cls = id_to_row[np.clip(inst_tr, 0, len(id_to_row) - 1)]
     rows: list[Row] = []
 
@@ -371,14 +356,14 @@ def compare_view(
                 add("disparity_change", np.abs(np.asarray(data["disparity_change"], np.float64) - trace["disparity_change"]), ok)
             occ = data.get(f"occlusion_{name}")
             if occ is not None:
-                both = (inst_tr > 0) & np.isfinite(depth_ds) & (depth_ds < 1e9) & trace["valid"]
+                both = (inst_tr > 0) & np.isfinite(depth_ds) & (depth_ds < BACKGROUND_DEPTH) & trace["valid"]
                 add(f"occlusion_{name}", (np.asarray(occ, bool) != trace["occluded"]).astype(float), both, rate=True)
     return rows
 
 
 # -- datasets --------------------------------------------------------------------------------
 
-KEYS = ("depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change", "valid_fwd", "valid_bwd", "occlusion_fwd", "occlusion_bwd")
+KEYS = ("depth", "instance", *names(MOTION))  # the dataset's keys that verification reads
 
 
 def _read_optional(ds, frame, view, key):

@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import pytest
-from support.analytic import cast, project
+from support.analytic import cast, pixel_rays, project
 from support.scenes import BOXES, GROUND_HALF, PLANE_RIG, SPHERE_RIG, boxes_world
 
 from lfusd import Dataset
@@ -67,6 +67,32 @@ def test_depth_equals_closed_form_ray_casts(box_dataset, rig):
         rel = np.abs(depth[sel] - depth_ref[sel]) / depth_ref[sel]
         assert rel.max() < 1e-4, f"view {view}: relative depth error {rel.max():.2e}"
         assert np.all(np.isinf(depth[(ids_ref == 0) & (inst == 0)]))
+        checked += sel.sum()
+    assert checked > 0.5 * len(ds.views) * w * h
+
+
+@pytest.mark.parametrize("rig", ["main", "dome"])
+def test_depth_euclidean_equals_closed_form_ray_lengths(box_dataset, rig):
+    """depth_euclidean is the distance from the camera centre to the analytic hit along the pixel's ray."""
+    ds = Dataset(box_dataset[1], rig=rig)
+    w, h = ds.resolution
+    by_label = {o.prim_path: o.instance_id for o in ds.objects.values()}
+    names = {"": 0, "ground": by_label["/World/Ground"], **{p: by_label[p] for p in boxes_world()}}
+    checked = 0
+    for view in ds.views:
+        K, c2w = ds.intrinsics(view), ds.cam_to_world(1, view)
+        depth_ref, hit = cast(K, c2w, w, h, boxes_world(), GROUND_HALF)
+        origin, dirs = pixel_rays(K, c2w, w, h)
+        with np.errstate(invalid="ignore"):
+            length_ref = np.linalg.norm(depth_ref[..., None] * dirs, axis=-1)  # |hit - origin|
+        ids_ref = np.vectorize(names.get)(hit).astype(np.int32)
+        got = ds.read(1, view, "depth_euclidean")
+        assert got.dtype == np.float32 and got.shape == (h, w)
+        sel = _interior(ids_ref == ds.read(1, view, "instance")) & (ids_ref > 0)
+        rel = np.abs(got[sel] - length_ref[sel]) / length_ref[sel]
+        assert rel.max() < 1e-4, f"view {view}: relative ray-length error {rel.max():.2e}"
+        assert np.all(got[sel] > ds.read(1, view, "depth")[sel] * (1 - 1e-6))
+        assert np.all(np.isinf(got[(ids_ref == 0) & (ds.read(1, view, "instance") == 0)]))
         checked += sel.sum()
     assert checked > 0.5 * len(ds.views) * w * h
 

@@ -105,7 +105,8 @@ class Scene:
 
     def raw(self, frame, exact=True):
         """Raw passes as the lead reads them from Blender's EXR (vector per BLENDER_FACTS.md)."""
-        from lfusd.truth.motion import Camera, RawPasses
+        from lfusd.camera import Camera
+        from lfusd.truth.motion import RawPasses
 
         t = self.truth(frame)
         fg = t["which"] >= 0
