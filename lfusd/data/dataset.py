@@ -150,9 +150,9 @@ class Dataset:
             return z[key]
 
     def raw_passes(self, frame: int, view: View):
-        """The view's raw passes with its camera, as lfusd.truth.motion.RawPasses (input of derive_motion)."""
+        """The view's raw passes with its camera (the input of lfusd.truth.motion.derive_motion)."""
         from ..camera import Camera
-        from ..truth.motion import RawPasses
+        from .passes import RawPasses
 
         raw = self._raw(str(self.view_dir(frame, view)))
         if "vector" not in raw:

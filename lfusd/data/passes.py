@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 import OpenEXR
 
-from ..camera import ray_lengths
+from ..camera import Camera, ray_lengths
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH
 # AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
@@ -119,3 +119,26 @@ DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
     "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
     "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),
 }
+
+
+@dataclass
+class RawPasses:
+    """The raw passes of one view at one frame (see CONVENTIONS.md and BLENDER_FACTS.md).
+
+    depth (H,W) planar z in metres, inf (or >= 1e9) on background; vector (H,W,4) Blender's raw
+    vector pass; position (H,W,3) world position; instance (H,W) int, 0 = background;
+    next_position / prev_position (H,W,3) world position at t+1 / t-1 of the point seen at t,
+    NaN where unknown. Only depth, vector and camera are required.
+    """
+
+    depth: np.ndarray
+    vector: np.ndarray
+    camera: Camera
+    position: np.ndarray | None = None
+    instance: np.ndarray | None = None
+    next_position: np.ndarray | None = None
+    prev_position: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape[:2])

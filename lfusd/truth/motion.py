@@ -64,6 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera, backproject, pixel_grid, project
+from ..data.passes import RawPasses  # noqa: F401  (the input of derive_motion, re-exported)
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH, KEYS, MOTION, names
 
@@ -72,29 +73,6 @@ FB_ABS = 0.05  # px: forward-backward consistency slack
 FB_REL = 0.01  # fraction of the flow magnitude added to the slack
 DEPTH_REL = 1e-3  # relative inverse-depth slack of the depth test
 EDGE_REL = 0.5  # a relative inverse-depth jump above this between neighbours is a depth edge
-
-
-@dataclass
-class RawPasses:
-    """The raw passes of one view at one frame (see CONVENTIONS.md and BLENDER_FACTS.md).
-
-    depth (H,W) planar z in metres, inf (or >= 1e9) on background; vector (H,W,4) Blender's raw
-    vector pass; position (H,W,3) world position; instance (H,W) int, 0 = background;
-    next_position / prev_position (H,W,3) world position at t+1 / t-1 of the point seen at t,
-    NaN where unknown. Only depth, vector and camera are required.
-    """
-
-    depth: np.ndarray
-    vector: np.ndarray
-    camera: Camera
-    position: np.ndarray | None = None
-    instance: np.ndarray | None = None
-    next_position: np.ndarray | None = None
-    prev_position: np.ndarray | None = None
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return tuple(self.depth.shape[:2])
 
 
 def _check(p: RawPasses, what: str, shape: tuple[int, int] | None = None) -> tuple[int, int]:

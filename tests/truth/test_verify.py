@@ -236,7 +236,7 @@ def test_verify_report_script_writes_json_and_markdown(tmp_path, monkeypatch):
 
 def test_trace_motion_moves_skinned_points_with_their_joint():
     """The limb's lower part is bound to the root joint alone: traced scene flow = the root's rotation."""
-    from test_geometry import ANGLES, rot_z, skinned_stage
+    from support.skinned import ANGLES, rot_z, skinned_stage
 
     from lfusd.camera import look_at_pose
 
@@ -270,7 +270,7 @@ def blender_video(tmp_path_factory):
     import subprocess
     import sys
 
-    from test_geometry import skinned_stage
+    from support.skinned import skinned_stage
 
     from lfusd.camera import RigSpec
     from lfusd.author.rigs import add_rig
