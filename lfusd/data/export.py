@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from . import formats
+from .. import layout
 from ..errors import LfusdError
 from ..keys import get
 
@@ -52,7 +53,7 @@ def open_datasets(path, rig: str | None = None) -> list:
     """One reader per rig of the dataset in ``path``: just ``rig``, or every rig when it is None or 'all'."""
     if rig not in (None, "all"):
         return [open_dataset(path, rig)]
-    manifest = Path(path) / "manifest.json"
+    manifest = Path(path) / layout.MANIFEST
     if not manifest.is_file():
         return [open_dataset(path)]  # raises the reader's own error naming the folder
     return [open_dataset(path, r) for r in json.loads(manifest.read_text())["rigs"]]

@@ -20,6 +20,7 @@ from pathlib import Path
 from ..data.formats import write_png
 from ..data.passes import linear_to_srgb8, read_rgb_linear
 from ..errors import LfusdError
+from .. import layout
 from ..layout import frame_dir
 from .plan import WorkUnit
 from .request import RenderRequest
@@ -38,12 +39,13 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> Non
     tmp = final.parent / f".{key}.tmp-{os.getpid()}-{threading.get_ident()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    for name in ("rgb", "passes"):
+    # the worker writes <pass>_<view>.exr (Blender's multiview suffix), the dataset <pass>.exr
+    for name, final_name in (("rgb", layout.RGB_EXR), ("passes", layout.PASSES_EXR)):
         src = scratch / f"{name}_{key}.exr"
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
-        shutil.move(str(src), tmp / f"{name}.exr")
-    write_png(tmp / "rgb.png", linear_to_srgb8(read_rgb_linear(tmp / "rgb.exr")))
+        shutil.move(str(src), tmp / final_name)
+    write_png(tmp / layout.RGB_PNG, linear_to_srgb8(read_rgb_linear(tmp / layout.RGB_EXR)))
     os.rename(tmp, final)
 
 

@@ -34,6 +34,7 @@ from ..author.rigs import StageRig, select_rigs
 from ..author.stage import check_frames, file_hash, frame_range, open_stage
 from ..camera import RigSpec
 from ..errors import LfusdError
+from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
 from .plan import Plan, plan_units
 from .progress import Progress
@@ -95,7 +96,7 @@ def _prepare_output(req: RenderRequest, settings: dict) -> dict | None:
     out = req.out
     if out.exists() and not out.is_dir():
         raise LfusdError(f"output {out} is a file; give a folder for the dataset")
-    manifest_path = out / "manifest.json"
+    manifest_path = out / layout.MANIFEST
     if out.is_dir() and any(out.iterdir()):
         if not manifest_path.is_file():
             raise LfusdError(f"output folder {out} is not empty and holds no lfusd dataset; choose an empty or new folder")
@@ -141,9 +142,9 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
             for name, spec in sorted(rig_specs.items())
         },
         "software": _software(),
-        "layout": "OUT/<rig>/f<frame:06d>/<row:02d>_<col:02d>/{rgb.png,rgb.exr,passes.exr}; OUT/<rig>/f<frame:06d>/frame.json",
+        "layout": f"OUT/<rig>/f<frame:06d>/<row:02d>_<col:02d>/{{{','.join(layout.VIEW_FILES)}}}; OUT/<rig>/f<frame:06d>/{layout.FRAME_META}",
     }
-    atomic_write_text(req.out / "manifest.json", json.dumps(manifest, indent=1))
+    atomic_write_text(req.out / layout.MANIFEST, json.dumps(manifest, indent=1))
 
 
 def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int], objects: list[ObjectEntry], classes: list[str]) -> None:
@@ -154,12 +155,12 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
             for o in objects
         ],
     }
-    atomic_write_text(req.out / "objects.json", json.dumps(table, indent=1))
+    atomic_write_text(req.out / layout.OBJECTS, json.dumps(table, indent=1))
     paths = [o.prim_path for o in objects]
     for rig in rigs:
         for f in frames:
             d = frame_dir(req.out, rig.spec.name, f)
-            if (d / "frame.json").is_file():
+            if (d / layout.FRAME_META).is_file():
                 continue
             d.mkdir(parents=True, exist_ok=True)
             meta = {
@@ -168,7 +169,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
                 "cam_to_world": {view_key(v): _matrix(rig.cam_to_world(stage, v, f)) for v in rig.spec.views},
                 "object_poses": object_poses(stage, paths, f),
             }
-            atomic_write_text(d / "frame.json", json.dumps(meta))
+            atomic_write_text(d / layout.FRAME_META, json.dumps(meta))
 
 
 def _clean_stale(out: Path) -> None:
@@ -223,16 +224,16 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> dict:
             except BaseException:
                 # Record what did finish; a second failure here (a full disk) must not hide the first.
                 with contextlib.suppress(OSError):
-                    _write_manifest(req, settings, json.loads((req.out / "manifest.json").read_text()), rigs, frames, None)
+                    _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, None)
                 raise
             finally:
                 report.close()
-        _write_manifest(req, settings, json.loads((req.out / "manifest.json").read_text()), rigs, frames, device)
+        _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, device)
     except OSError as e:
         raise LfusdError(f"cannot write to {req.out} ({e.strerror or e}); free space or fix permissions, then rerun to resume") from None
     finally:
         shutil.rmtree(req.out / ".scratch", ignore_errors=True)
-    return json.loads((req.out / "manifest.json").read_text())
+    return json.loads((req.out / layout.MANIFEST).read_text())
 
 
 @dataclass

@@ -226,6 +226,7 @@ def _regenerate(stage: Usd.Stage, out: Path) -> None:
              dynamic=bool(world.GetCustomDataByKey("lfusd:dynamic")))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", COMMITTED, ids=lambda p: p.name)
 def test_committed_stage_passes_check_and_regenerates_byte_for_byte(tmp_path, path):
     stage = Usd.Stage.Open(str(path))
@@ -327,6 +328,7 @@ def test_round_layer_rounds_every_floating_point_value(tmp_path):
     assert "-0" not in text.replace("e-0", "") and "e-17" not in text  # no negative zeros, no residues
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("direction", [np.inf, -np.inf], ids=["up", "down"])
 def test_a_cpu_whose_math_rounds_the_other_way_writes_the_same_stage(tmp_path, monkeypatch, direction):
     # Emulate another CPU: NumPy's transcendental functions and norms return their neighbour
