@@ -49,16 +49,22 @@ def test_box_poses_in_stage_match_the_analytic_matrices(box_dataset, plane):
         np.testing.assert_allclose(poses[path], m, atol=1e-6)
 
 
+def analytic_views(ds):
+    """Per view of frame 1: (view, closed-form planar depth, instance id of the analytic hit)."""
+    w, h = ds.resolution
+    by_label = {o.prim_path: o.instance_id for o in ds.objects.values()}
+    names = {"": 0, "ground": by_label["/World/Ground"], **{p: by_label[p] for p in boxes_world()}}
+    for view in ds.views:
+        depth_ref, hit = cast(ds.intrinsics(view), ds.cam_to_world(1, view), w, h, boxes_world(), GROUND_HALF)
+        yield view, depth_ref, np.vectorize(names.get)(hit).astype(np.int32)
+
+
 @pytest.mark.parametrize("rig", ["main", "dome"])
 def test_depth_equals_closed_form_ray_casts(box_dataset, rig):
     ds = Dataset(box_dataset[1], rig=rig)
     w, h = ds.resolution
-    by_label = {o.prim_path: o.instance_id for o in ds.objects.values()}
-    names = {"": 0, "ground": by_label["/World/Ground"], **{p: by_label[p] for p in boxes_world()}}
     checked = 0
-    for view in ds.views:
-        depth_ref, hit = cast(ds.intrinsics(view), ds.cam_to_world(1, view), w, h, boxes_world(), GROUND_HALF)
-        ids_ref = np.vectorize(names.get)(hit).astype(np.int32)
+    for view, depth_ref, ids_ref in analytic_views(ds):
         depth = ds.read(1, view, "depth")
         inst = ds.read(1, view, "instance")
         # Silhouettes may flip where a pixel centre grazes an edge; demand near-total agreement.
@@ -76,16 +82,11 @@ def test_depth_euclidean_equals_closed_form_ray_lengths(box_dataset, rig):
     """depth_euclidean is the distance from the camera centre to the analytic hit along the pixel's ray."""
     ds = Dataset(box_dataset[1], rig=rig)
     w, h = ds.resolution
-    by_label = {o.prim_path: o.instance_id for o in ds.objects.values()}
-    names = {"": 0, "ground": by_label["/World/Ground"], **{p: by_label[p] for p in boxes_world()}}
     checked = 0
-    for view in ds.views:
-        K, c2w = ds.intrinsics(view), ds.cam_to_world(1, view)
-        depth_ref, hit = cast(K, c2w, w, h, boxes_world(), GROUND_HALF)
-        origin, dirs = pixel_rays(K, c2w, w, h)
+    for view, depth_ref, ids_ref in analytic_views(ds):
+        _, dirs = pixel_rays(ds.intrinsics(view), ds.cam_to_world(1, view), w, h)
         with np.errstate(invalid="ignore"):
             length_ref = np.linalg.norm(depth_ref[..., None] * dirs, axis=-1)  # |hit - origin|
-        ids_ref = np.vectorize(names.get)(hit).astype(np.int32)
         got = ds.read(1, view, "depth_euclidean")
         assert got.dtype == np.float32 and got.shape == (h, w)
         sel = _interior(ids_ref == ds.read(1, view, "instance")) & (ids_ref > 0)
