@@ -34,7 +34,8 @@ def show(reports: dict) -> int:
             print(f"FAIL {line}")
     ok = all(r.ok for r in reports.values())
     if ok:
-        print("verify: all checks passed")
+        compared = [n for r in reports.values() for n in r.compared().values()]
+        print(f"verify: all checks passed ({sum(compared)} px compared over {len(compared)} key checks)")
     return 0 if ok else 1
 
 

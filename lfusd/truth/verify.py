@@ -243,13 +243,27 @@ class VerifyReport:
 
     rows: list[Row] = field(default_factory=list)
 
+    def compared(self) -> dict[str, int]:
+        """Pixels compared per key (all classes together), over every frame and view."""
+        out: dict[str, int] = {}
+        for r in self.rows:
+            if r.label == ALL:
+                out[r.key] = out.get(r.key, 0) + r.count
+        return out
+
     @property
     def ok(self) -> bool:
-        return all(r.ok for r in self.rows)
+        """No row exceeds its threshold, and every key checked compared at least one pixel:
+        a check that compared nothing has failed."""
+        return bool(self.rows) and all(r.ok for r in self.rows) and all(self.compared().values())
 
     def failures(self) -> list[str]:
-        """One line per failing row, naming the key, class, frame and view."""
-        out = []
+        """One line per failing row, naming the key, class, frame and view; one per key that
+        compared nothing; one when nothing at all was compared."""
+        if not self.rows:
+            return ["nothing to compare: the frames and views selected hold no ground truth to check; select some with --frames/--views"]
+        out = [f"{key}: nothing to compare (0 px over every frame and view); check that --stage is the rendered stage"
+               for key, n in self.compared().items() if n == 0]
         for r in self.rows:
             if r.ok:
                 continue

@@ -1,5 +1,6 @@
 """lfusd.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
 
+import re
 from types import SimpleNamespace
 
 import numpy as np
@@ -170,6 +171,32 @@ def test_verify_command_passes_exact_motion_and_fails_corrupted_depth(tmp_path, 
         ds.data[f]["depth"] = ds.data[f]["depth"] * np.float32(1.01)
     assert main(["verify", "OUT"]) == 1
     assert "FAIL depth of view 0,0" in capsys.readouterr().out
+
+
+def test_verify_fails_when_it_compares_nothing(tmp_path, monkeypatch, capsys):
+    # A check that compared nothing has failed: a --stage of another (here empty) scene matches no
+    # pixel of the dataset, and a single frame has no motion to trace.
+    import lfusd.data.export
+    from lfusd.author.stage import new_stage
+    from lfusd.cli import main
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    empty = new_stage(tmp_path / "empty.usda", 1, 3)
+    empty.GetRootLayer().Save()
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(lfusd.data.export, "open_datasets", lambda p, rig=None: [ds])
+    assert main(["verify", "OUT"]) == 0
+    out = capsys.readouterr().out
+    passed = re.search(r"all checks passed \((\d+) px compared over (\d+) key checks\)", out)
+    assert passed and int(passed[1]) > 1000, out  # the pass states what it compared
+    assert main(["verify", "OUT", "--stage", str(tmp_path / "empty.usda")]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL depth: nothing to compare (0 px" in out and "all checks passed" not in out, out
+    report = verify_dataset(ds, frames=[2], views=[(0, 0)])
+    assert report.ok  # frame 2 has both neighbours
+    report = verify_dataset(ds, views=[])  # a selection of no view: no row at all
+    assert not report.rows and not report.ok and report.failures()[0].startswith("nothing to compare")
 
 
 @pytest.mark.render
