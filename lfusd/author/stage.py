@@ -100,26 +100,28 @@ def _quat(q, cls):
     return cls(float(q[0]), *(float(v) for v in q[1:]))
 
 
-def _rounded(value, type_name: Sdf.ValueTypeName, decimals: int):
+def typed_value(arr: np.ndarray, type_name: Sdf.ValueTypeName, like=None):
+    """The USD value of ``type_name`` holding ``arr`` (not quaternions); ``like``: an array value
+    whose element type the result keeps (float32 points stay float32)."""
     cls = type_name.type.pythonClass
     if cls is None:  # double, float, half: a Python float
-        return float(round_values(value, decimals))
+        return float(arr)
+    if type_name.isArray:
+        return cls.FromNumpy(arr if like is None else arr.astype(np.array(like).dtype))
+    return cls(arr.tolist()) if arr.ndim == 2 else cls(*arr.tolist())
+
+
+def _rounded(value, type_name: Sdf.ValueTypeName, decimals: int):
     if "Quat" in type_name.scalarType.cppTypeName:
         quat = getattr(Gf, type_name.scalarType.cppTypeName[2:])
         quats = value if type_name.isArray else [value]
         rounded = [_quat(round_values([q.GetReal(), *q.GetImaginary()], decimals), quat) for q in quats]
-        return cls(rounded) if type_name.isArray else rounded[0]
-    arr = round_values(np.array(value), decimals)
-    if type_name.isArray:
-        return cls.FromNumpy(arr.astype(np.array(value).dtype))
-    return cls(arr.tolist()) if arr.ndim == 2 else cls(*arr.tolist())
+        return type_name.type.pythonClass(rounded) if type_name.isArray else rounded[0]
+    return typed_value(round_values(value if isinstance(value, float) else np.array(value), decimals), type_name, like=value)
 
 
-def round_layer(layer: Sdf.Layer, decimals: int = STAGE_DECIMALS) -> int:
-    """Round every floating-point attribute value of ``layer`` (defaults and time samples) to
-    ``decimals`` places, so that one seed writes the same bytes on every CPU; returns the
-    number of values rounded. Float and half values are rounded in float64, then stored in
-    their own precision (for a float above ~0.02 its own step is coarser than the grid)."""
+def float_attribute_specs(layer: Sdf.Layer) -> list[Sdf.AttributeSpec]:
+    """Every attribute spec of ``layer`` whose values are floating point (double, float, half)."""
     specs: list[Sdf.AttributeSpec] = []
 
     def visit(path: Sdf.Path) -> None:
@@ -128,9 +130,17 @@ def round_layer(layer: Sdf.Layer, decimals: int = STAGE_DECIMALS) -> int:
             specs.append(spec)
 
     layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return specs
+
+
+def round_layer(layer: Sdf.Layer, decimals: int = STAGE_DECIMALS) -> int:
+    """Round every floating-point attribute value of ``layer`` (defaults and time samples) to
+    ``decimals`` places, so that one seed writes the same bytes on every CPU; returns the
+    number of values rounded. Float and half values are rounded in float64, then stored in
+    their own precision (for a float above ~0.02 its own step is coarser than the grid)."""
     count = 0
     # Values are cleared before they are set: Sdf ignores a set to an equal value, and -0 == 0.
-    for spec in specs:
+    for spec in float_attribute_specs(layer):
         if spec.HasDefaultValue() and spec.default is not None:
             value = _rounded(spec.default, spec.typeName, decimals)
             spec.ClearDefaultValue()

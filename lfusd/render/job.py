@@ -190,10 +190,11 @@ def _rigs_and_frames(req: RenderRequest, stage: Usd.Stage) -> tuple[list[StageRi
 
 def render(req: RenderRequest, progress=None) -> dict:
     """Render every missing view of the requested rigs and frames; return the manifest dict."""
-    return _render(req, open_stage(req.stage), progress)
+    return _render(req, open_stage(req.stage), progress)[0]
 
 
-def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> dict:
+def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, list[str]]:
+    """(manifest, names of the rigs rendered)."""
     req.check()
     if req.executor == "ray" and req.ray_address:
         from .executors import check_ray_address
@@ -233,7 +234,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> dict:
         raise LfusdError(f"cannot write to {req.out} ({e.strerror or e}); free space or fix permissions, then rerun to resume") from None
     finally:
         shutil.rmtree(req.out / ".scratch", ignore_errors=True)
-    return json.loads((req.out / layout.MANIFEST).read_text())
+    return json.loads((req.out / layout.MANIFEST).read_text()), [r.spec.name for r in rigs]
 
 
 @dataclass
@@ -256,7 +257,6 @@ def render_video(req: RenderRequest) -> VideoResult:
         first, last = frame_range(stage)
         req = replace(req, frames=list(range(first, last + 1)))
     req = replace(req, motion=True)
-    manifest = _render(req, stage)
-    names = [r.spec.name for r in select_rigs(stage, req.rig, str(req.stage))]
+    manifest, names = _render(req, stage)
     derived = derive_dataset(req.out, names, req.frames, workers=req.workers)
     return VideoResult(manifest, names, list(req.frames), derived)

@@ -6,7 +6,7 @@ No pxr and no bpy here: the parent plans with it and the Blender worker parses i
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 from ..layout import frame_dir, view_key
@@ -58,7 +58,6 @@ class WorkUnit:
     seed: int = 0
     max_bounces: int = 12
     persistent: bool = False
-    extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return asdict(self)

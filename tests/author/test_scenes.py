@@ -250,32 +250,21 @@ def _nudged(x, direction):
 def _double_values(layer):
     """[(spec, time code or None)] for every double-precision value authored in ``layer`` (a
     float's value already is float32: a float64 ulp does not move it)."""
-    from lfusd.author.stage import _FLOAT_TYPES
+    from lfusd.author.stage import float_attribute_specs
 
-    specs = []
-    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: specs.append(layer.GetObjectAtPath(p)))
     out = []
-    for spec in specs:
-        name = spec.typeName.scalarType.cppTypeName if isinstance(spec, Sdf.AttributeSpec) else ""
-        if name in _FLOAT_TYPES and (name == "double" or name.endswith("d")) and "Quat" not in name:
+    for spec in float_attribute_specs(layer):
+        name = spec.typeName.scalarType.cppTypeName
+        if (name == "double" or name.endswith("d")) and "Quat" not in name:
             out += [(spec, None)] if spec.HasDefaultValue() else []
             out += [(spec, t) for t in layer.ListTimeSamplesForPath(spec.path)]
     return out
 
 
-def _retyped(spec, arr):
-    cls = spec.typeName.type.pythonClass
-    if cls is None:  # double
-        return float(arr)
-    if spec.typeName.isArray:
-        return cls.FromNumpy(arr)
-    return cls(arr.tolist()) if arr.ndim == 2 else cls(*arr.tolist())
-
-
 @pytest.mark.parametrize("direction", [np.inf, -np.inf], ids=["up", "down"])
 def test_last_bit_of_the_inputs_to_rounding_does_not_change_the_stage(tmp_path, monkeypatch, direction):
     import lfusd.author.scenes as scenes
-    from lfusd.author.stage import round_layer
+    from lfusd.author.stage import round_layer, typed_value
 
     args = dict(frames=6, rigs=3, grid=(3, 3), resolution=(64, 64), dynamic=True)
     generate("street", tmp_path / "plain.usda", 5, **args)
@@ -287,7 +276,7 @@ def test_last_bit_of_the_inputs_to_rounding_does_not_change_the_stage(tmp_path, 
         for spec, t in _double_values(layer):
             value = np.array(spec.default if t is None else layer.QueryTimeSample(spec.path, t), np.float64)
             nudged += value.size
-            new = _retyped(spec, _nudged(value, direction))
+            new = typed_value(_nudged(value, direction), spec.typeName)
             if t is None:
                 spec.default = new
             else:
