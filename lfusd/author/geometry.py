@@ -21,6 +21,7 @@ from pxr import Usd, UsdGeom, UsdSkel, Vt
 
 from ..errors import LfusdError
 from .labels import renderable_gprims
+from .stage import world_frame
 
 _CUBE_FACES = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
 
@@ -52,9 +53,9 @@ def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
     return tri[np.argsort(face, kind="stable")]
 
 
-def _to_world(points: np.ndarray, matrix, scale: float = 1.0) -> np.ndarray:
-    m = np.array(matrix, dtype=np.float64)  # USD: row vectors, p_world = p @ M
-    return (points @ m[:3, :3] + m[3, :3]) * scale
+def _transform(points: np.ndarray, matrix) -> np.ndarray:
+    m = np.array(matrix, dtype=np.float64)  # USD: row vectors, p' = p @ M
+    return points @ m[:3, :3] + m[3, :3]
 
 
 class StageGeometry:
@@ -62,7 +63,7 @@ class StageGeometry:
 
     def __init__(self, stage: Usd.Stage):
         self.stage = stage
-        self.meters_per_unit = float(UsdGeom.GetStageMetersPerUnit(stage))
+        self.frame = world_frame(stage)
         self.gprims = renderable_gprims(stage)
         self._skel_cache = UsdSkel.Cache()
         self._skinning: dict[str, tuple[UsdSkel.SkinningQuery, UsdSkel.SkeletonQuery]] = {}
@@ -81,7 +82,6 @@ class StageGeometry:
         """World-space mesh of one gprim at ``time``."""
         t = Usd.TimeCode(time)
         path = str(prim.GetPath())
-        mpu = self.meters_per_unit
         xf = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t)
         if prim.IsA(UsdGeom.Mesh):
             mesh = UsdGeom.Mesh(prim)
@@ -92,12 +92,12 @@ class StageGeometry:
             tris = triangulate(mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t))
             if path in self._skinning:
                 return WorldMesh(path, self._skinned(path, pts, t, time), tris)
-            return WorldMesh(path, _to_world(pts, xf, mpu), tris)
+            return WorldMesh(path, self.frame.points(_transform(pts, xf)), tris)
         if prim.IsA(UsdGeom.Cube):
             size = UsdGeom.Cube(prim).GetSizeAttr().Get(t)
             corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * (size / 2.0)
             tris = triangulate(np.full(6, 4), _CUBE_FACES.ravel())
-            return WorldMesh(path, _to_world(corners, xf, mpu), tris)
+            return WorldMesh(path, self.frame.points(_transform(corners, xf)), tris)
         raise LfusdError(
             f"prim {path} is a {prim.GetTypeName()}; lfusd needs Mesh or Cube geometry (Blender tessellates other "
             "implicit shapes its own way): convert it to a Mesh"
@@ -113,7 +113,7 @@ class StageGeometry:
             m = skin.ComputeSkinnedTransform(xforms, t)
             if m is None:
                 raise LfusdError(f"UsdSkel could not skin {path} at frame {time:g}; check its joint indices and weights")
-            skel_pts = _to_world(pts, m)
+            skel_pts = _transform(pts, m)
         else:
             points = Vt.Vec3fArray.FromNumpy(pts.astype(np.float32))
             if not skin.ComputeSkinnedPoints(xforms, points, t):
@@ -121,7 +121,7 @@ class StageGeometry:
             skel_pts = np.array(points, dtype=np.float64)
         # Skinned points are in the skeleton's space; the skeleton's world transform applies.
         skel_xf = UsdGeom.Xformable(skel_query.GetPrim()).ComputeLocalToWorldTransform(t)
-        return _to_world(skel_pts, skel_xf, self.meters_per_unit)
+        return self.frame.points(_transform(skel_pts, skel_xf))
 
     def visible(self, prim: Usd.Prim, time: float) -> bool:
         """False when the gprim (or an ancestor) is authored invisible at ``time``: Blender does not render it."""
@@ -133,10 +133,8 @@ class StageGeometry:
 
 
 def local_to_world(stage: Usd.Stage, prim_path: str, time: float) -> np.ndarray:
-    """4x4 column-vector local-to-world matrix of a prim at ``time``, translation in metres."""
-    m = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(prim_path)).ComputeLocalToWorldTransform(Usd.TimeCode(time)), float).T
-    m[:3, 3] *= float(UsdGeom.GetStageMetersPerUnit(stage))
-    return m
+    """4x4 column-vector pose of a prim at ``time`` in lfusd's world (translation in metres)."""
+    return world_frame(stage).pose(UsdGeom.Xformable(stage.GetPrimAtPath(prim_path)).ComputeLocalToWorldTransform(Usd.TimeCode(time)))
 
 
 __all__ = ["StageGeometry", "WorldMesh", "triangulate", "local_to_world"]

@@ -16,6 +16,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ..errors import LfusdError
 from ..camera import RigSpec, View
+from .stage import world_frame
 from .vocabulary import RIG_VIEW, rig_attr
 
 RIGS_ROOT = "/Rigs"
@@ -95,9 +96,7 @@ class StageRig:
     def cam_to_world(self, stage: Usd.Stage, view: View, frame: float) -> np.ndarray:
         """4x4 OpenCV camera-to-world pose in metres at ``frame``, from the stage's transforms."""
         cam = stage.GetPrimAtPath(self.cameras[view])
-        m = _np(UsdGeom.Xformable(cam).ComputeLocalToWorldTransform(Usd.TimeCode(frame))) @ FLIP_YZ
-        m[:3, 3] *= UsdGeom.GetStageMetersPerUnit(stage)
-        return m
+        return world_frame(stage).pose(UsdGeom.Xformable(cam).ComputeLocalToWorldTransform(Usd.TimeCode(frame))) @ FLIP_YZ
 
 
 def rigs(stage: Usd.Stage) -> dict[str, StageRig]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +72,53 @@ def new_stage(path: str | Path, first: int = 1, last: int = 1) -> Usd.Stage:
 
 def meters_per_unit(stage: Usd.Stage) -> float:
     return float(UsdGeom.GetStageMetersPerUnit(stage))
+
+
+# Y-up stage -> Z-up world: +90 degrees about X, (x, y, z) -> (x, -z, y).
+_Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class WorldFrame:
+    """How a stage's coordinates map into lfusd's world (Z-up, metres; docs/CONVENTIONS.md):
+    rotate the stage's up axis onto +Z, then scale by metersPerUnit. The one owner of that map:
+    camera poses, object poses and geometry all go through it."""
+
+    up_axis: str
+    meters_per_unit: float
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """3x3 rotation from the stage's axes to the world's."""
+        return _Y_UP_TO_Z_UP.copy() if self.up_axis == "Y" else np.eye(3)
+
+    def matrix(self) -> np.ndarray:
+        """4x4 map of stage points (scene units) to world points (metres)."""
+        m = np.eye(4)
+        m[:3, :3] = self.rotation * self.meters_per_unit
+        return m
+
+    def points(self, points: np.ndarray) -> np.ndarray:
+        """(N,3) stage points in scene units -> world points in metres."""
+        return (np.asarray(points, np.float64) @ self.rotation.T) * self.meters_per_unit
+
+    def pose(self, usd_matrix) -> np.ndarray:
+        """A USD local-to-world matrix (row vectors, scene units) as a 4x4 column-vector world
+        pose whose translation is in metres (its linear part keeps any authored scale)."""
+        m = np.array(usd_matrix, dtype=np.float64).T
+        out = np.eye(4)
+        out[:3, :3] = self.rotation @ m[:3, :3]
+        out[:3, 3] = self.rotation @ m[:3, 3] * self.meters_per_unit
+        return out
+
+    def to_dict(self) -> dict:
+        """What the manifest records: the stage's up axis, units and the applied 4x4 map."""
+        return {"up_axis": self.up_axis, "meters_per_unit": self.meters_per_unit, "stage_to_world": self.matrix().tolist()}
+
+
+def world_frame(stage: Usd.Stage) -> WorldFrame:
+    """The stage's :class:`WorldFrame` (its upAxis and metersPerUnit, USD's defaults where unauthored)."""
+    return WorldFrame(str(UsdGeom.GetStageUpAxis(stage)), meters_per_unit(stage))
 
 
 #: Decimal places to which generated stages store every floating-point value: 1e-9 of a unit

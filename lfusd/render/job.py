@@ -31,7 +31,7 @@ from pxr import Usd, UsdGeom, UsdLux
 from .. import __version__
 from ..author.labels import ObjectEntry, object_table
 from ..author.rigs import StageRig, select_rigs
-from ..author.stage import check_frames, file_hash, frame_range, open_stage
+from ..author.stage import check_frames, file_hash, frame_range, open_stage, world_frame
 from ..camera import RigSpec
 from ..errors import LfusdError
 from .. import layout
@@ -72,13 +72,8 @@ def _matrix(m) -> list[list[float]]:
 def object_poses(stage: Usd.Stage, prim_paths: list[str], frame: int) -> dict[str, list]:
     """World pose (4x4, column vectors, metres) of each object prim at ``frame``."""
     cache = UsdGeom.XformCache(Usd.TimeCode(frame))
-    mpu = UsdGeom.GetStageMetersPerUnit(stage)
-    out = {}
-    for path in prim_paths:
-        m = np.array(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(path)), dtype=np.float64).T
-        m[:3, 3] *= mpu
-        out[path] = _matrix(m)
-    return out
+    world = world_frame(stage)
+    return {path: _matrix(world.pose(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(path)))) for path in prim_paths}
 
 
 def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict:
