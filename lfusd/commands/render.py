@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..render.request import DEVICES
+from ..render.request import DEVICES, LIGHTS
 
 
 def register(sub) -> None:
@@ -16,6 +16,8 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=16, help="Cycles samples for the RGB image (default 16)")
     p.add_argument("--device", default="auto", choices=DEVICES, help="Cycles device (default auto: OptiX, CUDA, else CPU)")
     p.add_argument("--workers", type=int, default=1, help="Blender worker processes (default 1)")
+    p.add_argument("--light", default="auto", choices=LIGHTS,
+                   help="a stage without lights: auto adds a neutral sky and sun, none keeps it dark (default auto)")
     p.add_argument("--overwrite", action="store_true", help="replace a dataset rendered with other settings")
     p.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
     p.set_defaults(func=run)
@@ -27,7 +29,7 @@ def run(args) -> int:
     req = RenderRequest(
         stage=Path(args.stage), out=Path(args.out), rig=args.rig,
         frames=None if args.frame is None else [args.frame], samples=args.samples, device=args.device,
-        workers=args.workers, overwrite=args.overwrite, quiet=args.quiet,
+        workers=args.workers, overwrite=args.overwrite, quiet=args.quiet, light=args.light,
     )
     manifest = render(req)
     print(f"lfusd: {args.out}: rigs {', '.join(manifest['rigs'])}, frames {manifest['frames']}, device {manifest['device']}")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..render.request import DEVICES, EXECUTORS
+from ..render.request import DEVICES, EXECUTORS, LIGHTS
 from . import args as argtypes
 
 
@@ -20,6 +20,8 @@ def register(sub) -> None:
     p.add_argument("--executor", default="local", choices=EXECUTORS, help="local process pool or Ray tasks")
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start a local Ray)")
     p.add_argument("--device", default="auto", choices=DEVICES, help="Cycles device (default auto: OptiX, CUDA, else CPU)")
+    p.add_argument("--light", default="auto", choices=LIGHTS,
+                   help="a stage without lights: auto adds a neutral sky and sun, none keeps it dark (default auto)")
     p.add_argument("--verify", action="store_true", help="run 'lfusd verify' on the result")
     p.add_argument("--overwrite", action="store_true", help="replace a dataset rendered with other settings")
     p.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
@@ -33,7 +35,7 @@ def run(args) -> int:
         stage=Path(args.stage), out=Path(args.out), rig=args.rig,
         frames=list(range(args.frames[0], args.frames[1] + 1)) if args.frames else None,
         samples=args.samples, device=args.device, workers=args.workers, resolution=args.resolution,
-        overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address,
+        overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address, light=args.light,
     )
     result = render_video(req)
     first, last = result.frames[0], result.frames[-1]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import platform
 import shutil
@@ -38,7 +39,9 @@ from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
 from .plan import Plan, plan_units
 from .progress import Progress
-from .request import DEVICES, EXECUTORS, RenderRequest  # noqa: F401  (DEVICES, EXECUTORS: the commands' choices)
+from .request import DEVICES, EXECUTORS, LIGHTS, RenderRequest  # noqa: F401  (DEVICES, EXECUTORS, LIGHTS: the commands' choices)
+
+log = logging.getLogger(__name__)
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -82,6 +85,7 @@ def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict
         "rigs": {r.spec.name: r.spec.to_dict() for r in rigs},
         "samples": req.samples,
         "motion": req.motion,
+        "light": req.light,  # auto adds a sky and sun to a stage without lights: other pixels
         **req.extra_settings,
     }
 
@@ -183,6 +187,22 @@ def _rigs_and_frames(req: RenderRequest, stage: Usd.Stage) -> tuple[list[StageRi
     return rigs, frames
 
 
+def has_lights(stage: Usd.Stage) -> bool:
+    """Whether the stage has a UsdLux light (DomeLight and mesh lights included), inside instances too."""
+    return any(p.HasAPI(UsdLux.LightAPI) for p in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
+
+
+def _add_light(req: RenderRequest, stage: Usd.Stage) -> bool:
+    """Whether the workers add a neutral sky and sun; warns when the stage has no lights."""
+    if has_lights(stage):
+        return False
+    if req.light == "none":
+        log.warning("stage %s has no lights and --light none: it renders black (--light auto adds a neutral sky and sun)", req.stage)
+        return False
+    log.warning("stage %s has no lights; lfusd adds a neutral sky and sun (--light none to keep it dark)", req.stage)
+    return True
+
+
 def render(req: RenderRequest, progress=None) -> dict:
     """Render every missing view of the requested rigs and frames; return the manifest dict."""
     return _render(req, open_stage(req.stage), progress)[0]
@@ -212,7 +232,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
             units = plan_units(
                 req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
                 {mesh: o.instance_id for o in objects for mesh in o.mesh_paths},
-                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage),
+                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage), _add_light(req, stage),
             )
             report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:

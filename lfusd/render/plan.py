@@ -58,6 +58,7 @@ class WorkUnit:
     seed: int = 0
     max_bounces: int = 12
     persistent: bool = False
+    add_light: bool = False  # the stage has no lights and --light auto: add a neutral sky and sun
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -81,7 +82,7 @@ def chunks(items: list, n: int) -> list[list]:
 
 
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],
-               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int]) -> list[WorkUnit]:
+               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int], add_light: bool = False) -> list[WorkUnit]:
     """Work units covering every missing (rig, frame, view) of ``plan``."""
     units: list[WorkUnit] = []
     for rig_name in sorted({k[0] for k in plan.todo}):
@@ -105,6 +106,6 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                     width=width, height=height, samples=req.samples, device=req.device, instances=instances,
                     # Locally, workers share the cores; on Ray, Blender takes what the node has.
                     threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range),
+                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range), add_light=add_light,
                 ))
     return units

@@ -9,6 +9,7 @@ from ..errors import LfusdError
 
 DEVICES = ("auto", "cpu", "cuda", "optix")
 EXECUTORS = ("local", "ray")
+LIGHTS = ("auto", "none")  # auto: a stage without lights gets a neutral sky and sun; none: nothing added
 
 
 @dataclass
@@ -29,6 +30,7 @@ class RenderRequest:
     ray_address: str | None = None
     frames_per_unit: int = 10
     motion: bool = False  # also render the t+/-1 position AOVs (render-video)
+    light: str = "auto"  # one of LIGHTS
     extra_settings: dict = field(default_factory=dict)
 
     def check(self) -> None:
@@ -41,5 +43,7 @@ class RenderRequest:
             raise LfusdError(f"unknown executor {self.executor!r}; use one of {', '.join(EXECUTORS)}")
         if self.device not in DEVICES:
             raise LfusdError(f"unknown device {self.device!r}; use one of {', '.join(DEVICES)}")
+        if self.light not in LIGHTS:
+            raise LfusdError(f"unknown --light {self.light!r}; use one of {', '.join(LIGHTS)}")
         if self.ray_address and self.executor != "ray":
             raise LfusdError("--ray-address needs --executor ray")

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
+import tempfile
 import time
 import traceback
 
@@ -77,6 +79,167 @@ def import_stage(path: str, has_dome: bool = False) -> None:
     )
     if "FINISHED" not in result:
         raise RuntimeError(f"Blender could not import stage {path}")
+
+
+# --- What the import leaves unrenderable: importer messages, untranslated prims, materials, textures.
+
+# Gprim types Blender 5.0's USD importer turns into geometry; other gprims (NurbsPatch, TetMesh,
+# HermiteCurves, measured: they become empties) do not render.
+IMPORTED_GPRIMS = {"Mesh", "Cube", "Sphere", "Cylinder", "Cylinder_1", "Cone", "Capsule", "Capsule_1", "Plane",
+                   "BasisCurves", "NurbsCurves", "Points", "Volume"}
+SKIPPED_PRIMS: dict[str, list[str]] = {}  # type name -> prim paths the importer does not render
+# Lines Blender prints while importing (stdout and stderr, measured with bpy 5.0.1):
+# its own log ("00:00.493  io.usd  | WARNING Couldn't open image file ..."), USD's diagnostics
+# ("Warning: in _ReportErrors at line 3253 of .../stage.cpp -- In </A>: Could not open asset ...")
+# and the operator's reports ("Warning: ...", "Error: ...").
+IMPORT_MESSAGE = re.compile(
+    r"^\d+:\d+\.\d+\s+\S+\s+\|\s+(?:WARNING|ERROR)\s+(?P<clog>.+)$"
+    r"|^(?:Warning|Error|Runtime Error|Coding Error): in \S+ at line \d+ of \S+ -- (?P<tf>.+)$"
+    r"|^(?:Warning|Error): (?P<report>.+)$"
+)
+FALLBACK_GREY = 0.5  # linear base colour of the surface given to materials Blender cannot translate
+SKY_GREY = 0.25  # --light auto: world background (linear radiance) and sun strength (W/m^2)
+SUN_STRENGTH = 3.0
+MISSING_IMAGE = re.compile(r"Couldn't open image file '(?P<file>[^']+)'")
+
+
+_WARNED: set[str] = set()
+
+
+def warn_once(message: str) -> None:
+    if message not in _WARNED:
+        _WARNED.add(message)
+        warn(message)
+
+
+class _ImportCheckHook(bpy.types.USDHook):
+    bl_idname = "lfusd_import_check"
+    bl_label = "lfusd import check"
+
+    @staticmethod
+    def on_import(context):
+        from pxr import UsdGeom  # Blender's bundled pxr (exposed at the top of this module)
+
+        for prim in context.get_stage().Traverse():
+            name = str(prim.GetTypeName())
+            if prim.IsA(UsdGeom.Gprim) and name not in IMPORTED_GPRIMS:
+                SKIPPED_PRIMS.setdefault(name, []).append(str(prim.GetPath()))
+
+
+class CapturedOutput:
+    """Everything written to file descriptors 1 and 2 inside the block (Blender's C++ code prints
+    there, not through Python); ``text`` holds it afterwards, and it is replayed into this
+    worker's log. The parent reads no event from stdout meanwhile."""
+
+    def __enter__(self) -> "CapturedOutput":
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self._file = tempfile.TemporaryFile()
+        self._saved = os.dup(1), os.dup(2)
+        os.dup2(self._file.fileno(), 1)
+        os.dup2(self._file.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd, saved in zip((1, 2), self._saved):
+            os.dup2(saved, fd)
+            os.close(saved)
+        self._file.seek(0)
+        self.text = self._file.read().decode("utf-8", "replace")
+        self._file.close()
+        sys.stderr.write(self.text)
+        sys.stderr.flush()
+
+
+def import_messages(text: str) -> list[str]:
+    """The warnings and errors in Blender's import output, each once, in order."""
+    found: dict[str, None] = {}
+    for line in text.splitlines():
+        m = IMPORT_MESSAGE.match(line.strip())
+        if m:
+            msg = next(g for g in m.groups() if g)
+            found[re.sub(r"\s*<0x[0-9a-fA-F]+>", "", msg).strip()] = None  # object addresses differ per run
+    return list(found)
+
+
+def warn_import(text: str) -> None:
+    """Pass what the importer reported, and the prims it skipped, to the user."""
+    for msg in import_messages(text):
+        missing = MISSING_IMAGE.search(msg)
+        if missing:
+            warn_once(f"texture {missing['file']} is missing or unreadable; surfaces using it render magenta")
+        else:
+            warn_once(f"Blender's USD import: {msg}")
+    for name, paths in sorted(SKIPPED_PRIMS.items()):
+        warn_once(f"Blender's USD importer does not render {len(paths)} {name} prim(s) (e.g. {paths[0]}); "
+             "convert them to meshes to see them")
+
+
+def _used_materials() -> list:
+    mats = {s.material for o in bpy.data.objects if o.type not in NON_GEOMETRY for s in o.material_slots if s.material}
+    return sorted(mats, key=lambda m: m.name)
+
+
+def _material_output(mat):
+    """The output node Cycles renders the material with, or None."""
+    outs = [n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and n.target in ("ALL", "CYCLES")]
+    return next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+
+
+def has_surface(mat) -> bool:
+    out = None if mat.node_tree is None else _material_output(mat)
+    return out is not None and out.inputs["Surface"].is_linked
+
+
+def fallback_surfaces() -> None:
+    """Give every used material that has no surface a mid-grey Principled BSDF, with a warning.
+
+    MaterialX-only materials (``outputs:mtlx:surface``) arrive with no nodes; Cycles renders
+    those black, and with the motion AOV outputs alone, transparent."""
+    paths = {i.as_pointer(): p for p, ids in PRIM_MAP.items() for i in ids if isinstance(i, bpy.types.Material)}
+    for mat in _used_materials():
+        if has_surface(mat):
+            continue
+        if mat.node_tree is None:
+            mat.use_nodes = True
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        out = _material_output(mat) or nodes.new("ShaderNodeOutputMaterial")
+        bsdf = nodes.new("ShaderNodeBsdfPrincipled")
+        bsdf.inputs["Base Color"].default_value = (FALLBACK_GREY, FALLBACK_GREY, FALLBACK_GREY, 1.0)
+        links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+        out.is_active_output = True
+        name = paths.get(mat.as_pointer(), mat.name)
+        warn_once(f"material {name} has no surface Blender can translate (MaterialX only?); lfusd renders it neutral grey")
+
+
+def warn_missing_images() -> None:
+    """Name every image file a material needs that is missing or unreadable (Cycles renders it magenta)."""
+    for image in bpy.data.images:
+        if image.source != "FILE" or image.packed_file is not None:
+            continue
+        path = bpy.path.abspath(image.filepath_raw or image.filepath)
+        if not os.path.isfile(path) or tuple(image.size) == (0, 0):  # size loads the file
+            warn_once(f"texture {path} is missing or unreadable; surfaces using it render magenta")
+
+
+def add_neutral_light(scene) -> None:
+    """A neutral grey sky and a sun from above, for stages that carry no lights (--light auto)."""
+    world = scene.world or bpy.data.worlds.new("lfusd_sky")
+    scene.world = world
+    if world.node_tree is None:
+        world.use_nodes = True
+    nodes = world.node_tree.nodes
+    bg = next((n for n in nodes if n.bl_idname == "ShaderNodeBackground"), None) or nodes.new("ShaderNodeBackground")
+    out = next((n for n in nodes if n.bl_idname == "ShaderNodeOutputWorld"), None) or nodes.new("ShaderNodeOutputWorld")
+    bg.inputs["Color"].default_value = (SKY_GREY, SKY_GREY, SKY_GREY, 1.0)
+    bg.inputs["Strength"].default_value = 1.0
+    world.node_tree.links.new(bg.outputs["Background"], out.inputs["Surface"])
+    sun = bpy.data.objects.new("lfusd_sun", bpy.data.lights.new("lfusd_sun", "SUN"))
+    sun.data.energy = SUN_STRENGTH
+    sun.rotation_euler = (np.radians(40.0), 0.0, np.radians(30.0))  # 50 degrees above the horizon
+    scene.collection.objects.link(sun)
 
 
 def select_device(scene, device: str) -> str:
@@ -193,7 +356,8 @@ class MotionAttributes:
 
     @staticmethod
     def _add_aov_nodes(mat) -> None:
-        mat.use_nodes = True
+        """Add the AOV outputs beside the surface (``fallback_surfaces`` gave every material one):
+        a material with AOV outputs alone renders transparent."""
         nodes, links = mat.node_tree.nodes, mat.node_tree.links
         for key, aov_name in NEIGHBOUR_AOVS.items():
             attr = nodes.new("ShaderNodeAttribute")
@@ -301,7 +465,14 @@ def main() -> int:
     job = WorkUnit.from_json(json.loads(sys.stdin.read()))
     try:
         t0 = time.time()
-        import_stage(job.stage, job.has_dome)
+        bpy.utils.register_class(_ImportCheckHook)
+        with CapturedOutput() as captured:
+            import_stage(job.stage, job.has_dome)
+        warn_import(captured.text)
+        fallback_surfaces()
+        warn_missing_images()
+        if job.add_light:
+            add_neutral_light(bpy.context.scene)
         scene, suffixes = setup_scene(job)
         device = select_device(scene, job.device)
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
