@@ -72,6 +72,8 @@ def test_negative_values_are_values_for_every_command():
     (["verify", "OUT", "--threshold", "depth"], ["--threshold", "not KEY=NUMBER"]),
     (["stage", "new", "street", "-o", "s.usda", "--grid", "0x3"], ["--grid", "positive"]),
     (["rig", "add", "s.usda", "--look-at", "-1,-2"], ["--look-at", "X,Y,Z"]),
+    (["render", "S.usda", "-o", "O", "--light", "sun"], ["argument --light", "'auto', 'none'"]),
+    (["render-video", "S.usda", "-o", "O", "--light", "on"], ["argument --light", "'auto', 'none'"]),
 ])
 def test_bad_values_are_one_line_usage_errors(capsys, argv, needles):
     from support.cli import assert_one_line_error, run_cli
@@ -79,3 +81,9 @@ def test_bad_values_are_one_line_usage_errors(capsys, argv, needles):
     code, _, err = run_cli(capsys, *argv)
     assert code == 2
     assert_one_line_error(code, err, *needles)
+
+
+def test_render_commands_take_light_auto_by_default():
+    for command in ("render", "render-video"):
+        assert parse(command, "S.usda", "-o", "O").light == "auto"
+        assert parse(command, "S.usda", "-o", "O", "--light", "none").light == "none"
