@@ -195,6 +195,17 @@ def human_rig(spec: _human.HumanSpec = _human.HumanSpec()) -> CharacterRig:
     return CharacterRig(joints, _human.parent_indices(), bind, recognise_roles(joints))
 
 
+def check_joint_paths(skel: UsdSkel.Skeleton) -> None:
+    """Refuse joint tokens that are no valid path (UsdSkel would read them, with warnings, as a flat list)."""
+    joints = [str(j) for j in skel.GetJointsAttr().Get() or []]
+    bad = next((j for j in joints if not Sdf.Path.IsValidPathString(j)[0]), None)
+    if bad is not None:
+        raise LfusdError(
+            f"skeleton {skel.GetPath()}'s joint {bad!r} is not a valid UsdSkel joint path (a prim path such as "
+            "Hips/Spine; no ':' or spaces); rename its joints (e.g. mixamorig:Hips -> mixamorig_Hips)"
+        )
+
+
 def rig_from_skeleton(skel: UsdSkel.Skeleton, skel_to_char: np.ndarray) -> CharacterRig:
     """The rig of any UsdSkel skeleton (joints recognised by name, bind pose as rest)."""
     joints = [str(j) for j in skel.GetJointsAttr().Get() or []]
@@ -203,12 +214,7 @@ def rig_from_skeleton(skel: UsdSkel.Skeleton, skel_to_char: np.ndarray) -> Chara
     bind = skel.GetBindTransformsAttr().Get()
     if not bind or len(bind) != len(joints):
         raise LfusdError(f"skeleton {skel.GetPath()} has no bindTransforms for its {len(joints)} joints; author them")
-    bad = next((j for j in joints if not Sdf.Path.IsValidPathString(j)[0]), None)
-    if bad is not None:
-        raise LfusdError(
-            f"skeleton {skel.GetPath()}'s joint {bad!r} is not a valid UsdSkel joint path (a prim path such as "
-            "Hips/Spine; no ':' or spaces); rename its joints (e.g. mixamorig:Hips -> mixamorig_Hips)"
-        )
+    check_joint_paths(skel)
     topo = UsdSkel.Topology(Vt.TokenArray(joints))
     ok, why = topo.Validate()
     if not ok:
@@ -217,6 +223,14 @@ def rig_from_skeleton(skel: UsdSkel.Skeleton, skel_to_char: np.ndarray) -> Chara
     bind = np.array([np.array(m).T for m in bind])
     if not np.all(np.isfinite(bind)):
         raise LfusdError(f"skeleton {skel.GetPath()} has non-finite bindTransforms; re-export it with a valid bind pose")
+    lin = bind[:, :3, :3]
+    off = np.abs(np.einsum("nji,njk->nik", lin, lin) - np.eye(3)).max(axis=(1, 2))
+    if off.max() > 1e-4:
+        bad = joints[int(np.argmax(off))]
+        raise LfusdError(
+            f"skeleton {skel.GetPath()}'s bind transform of joint {bad} scales or shears; lfusd animates rigid joints: "
+            "re-export with unscaled joints (put the scale on a prim above the skeleton)"
+        )
     return CharacterRig(joints, parents, bind, recognise_roles(joints), skel_to_char)
 
 

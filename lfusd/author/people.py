@@ -240,6 +240,11 @@ def _open_character(character: str | Path):
     roots = [UsdSkel.Root.Find(p) for p in skels]
     if not any(roots):
         raise LfusdError(f"character {cpath}'s skeleton {skels[0].GetPath()} is not under a SkelRoot; wrap it in one")
+    for p in skels:
+        try:
+            _gait.check_joint_paths(UsdSkel.Skeleton(p))
+        except LfusdError as e:
+            raise LfusdError(f"character {cpath}: {e}") from None
     # The skeleton that skins a mesh (UsdSkel's own binding resolution), the first found.
     cache = UsdSkel.Cache()
     for root in dict.fromkeys(r.GetPrim() for r in roots if r):
@@ -254,17 +259,17 @@ def _open_character(character: str | Path):
     )
 
 
-def _bind_points(skins) -> np.ndarray:
+def _bind_points(cpath: Path, skins) -> np.ndarray:
     """Every skinned mesh's bind-pose points in the skeleton's space (geomBindTransform applied)."""
     out = []
     for skin in skins:
         prim = skin.GetPrim()
         if skin.HasBlendShapes():
-            raise LfusdError(f"mesh {prim.GetPath()} has UsdSkel blend shapes, which lfusd does not evaluate; "
+            raise LfusdError(f"character {cpath}'s mesh {prim.GetPath()} has UsdSkel blend shapes, which lfusd does not evaluate; "
                              "re-export the character without blend shapes (morph targets)")
         pts = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.EarliestTime())
         if pts is None or len(pts) == 0:
-            raise LfusdError(f"mesh {prim.GetPath()} has no points; author its points attribute")
+            raise LfusdError(f"character {cpath}'s mesh {prim.GetPath()} has no points; author its points attribute")
         geom_bind = _col(skin.GetGeomBindTransform(Usd.TimeCode.EarliestTime()))
         pts = np.array(pts, dtype=np.float64)
         out.append(pts @ geom_bind[:3, :3].T + geom_bind[:3, 3])
@@ -318,7 +323,7 @@ def read_character(character: str | Path, target_mpu: float = 1.0) -> Character:
     if np.linalg.norm(left) > 1e-9:
         yaw = np.pi / 2 - np.arctan2(-left[0], left[1])  # forward = left turned -90 degrees
         R[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-    pts = _apply(R @ W @ skel_world, _bind_points(skins))
+    pts = _apply(R @ W @ skel_world, _bind_points(cpath, skins))
     if not np.all(np.isfinite(pts)):
         raise LfusdError(f"character {cpath}'s skinned meshes have non-finite points; fix or re-export them")
     T = np.eye(4)

@@ -35,6 +35,7 @@ for _s, _x in (("l", -1.0), ("r", 1.0)):
         f"{_s}_toe": (f"{_s}_ankle", (0.10 * _x, 0.13, 0.02)),
     })
 KEYS = list(_CANON)
+PARENTS = {k: parent for k, (parent, _) in _CANON.items()}
 
 
 def _names(style: str) -> dict[str, str]:
@@ -142,10 +143,10 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
     for key in KEYS:
         parent = _CANON[key][0]
         joints.append(f"{joints[KEYS.index(parent)]}/{names[key]}" if parent else names[key])
-        m = np.eye(4)
+        m = np.eye(4)  # rigid joint frames in the converter's space: a random orientation, at the joint
         m[:3, :3] = _rotation(rng)
-        m[:3, 3] = canon_position(key) * bind_scale
-        world[key] = content @ m
+        m[:3, 3] = content[:3, :3] @ canon_position(key) * bind_scale + content[:3, 3]
+        world[key] = m
         bind.append(world[key])
         rest.append(np.linalg.inv(world[parent]) @ world[key] if parent else world[key])
     skel = UsdSkel.Skeleton.Define(stage, "/Root/Character/Skeleton")
@@ -192,7 +193,10 @@ def gltf_mixamo(path) -> str:
 
 
 def smpl_cm(path) -> str:
-    """An SMPL-named character in a Z-up centimetre stage, turned to face +X by a rotateZ 90 and
-    moved by a translate on the Xform above its SkelRoot."""
-    return write_character(path, "smpl", up="Z", meters_per_unit=0.01, content=scaled(100.0),
-                           above=[("translate", (300.0, -200.0, 40.0)), ("rotateZ", -90.0)], seed=1)
+    """An SMPL-named character in a Z-up centimetre stage whose content is Y-up (as from a glTF
+    source), stood up by a rotateX 90, turned by a rotateZ and moved by a translate on the Xform
+    above its SkelRoot."""
+    lie = np.eye(4)
+    lie[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # rotateX -90: canonical Z-up content -> Y-up
+    return write_character(path, "smpl", up="Z", meters_per_unit=0.01, content=scaled(100.0) @ lie,
+                           above=[("translate", (300.0, -200.0, 40.0)), ("rotateZ", -90.0), ("rotateX", 90.0)], seed=1)
