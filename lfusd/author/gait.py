@@ -10,12 +10,12 @@ world points, feet do not slide however the path turns or the ground slopes.
 
 All posing is done as world-space *deltas* from the skeleton's bind pose in the character frame
 (Z up, facing +Y, metres), so any UsdSkel character whose joints can be recognised by name
-(lfusd's own, Mixamo-style, and common thigh/calf/foot names) can be driven the same way.
+(lfusd.author.skeletons: lfusd's own, Mixamo, glTF/Blender, Unreal and SMPL names) can be driven
+the same way.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -24,6 +24,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 from ..errors import LfusdError
 from . import human as _human
+from . import skeletons as _skeletons
 from .vocabulary import CYCLE_FRAMES, GAIT, SPEED, STRIDE
 
 FPS = 24.0
@@ -65,6 +66,8 @@ def gait_params(gait: str, speed: float, height: float = 1.75) -> GaitParams:
             f"{gait} speed {speed:g} m/s is above {_SPEED_LIMITS[gait]:g} m/s; "
             + ("use --gait run" if gait == "walk" else "give a slower speed")
         )
+    if not (np.isfinite(height) and height > 0):
+        raise LfusdError(f"character height {height:g} m is not positive; give a standing character with its head above its feet")
     k = np.sqrt(1.75 / height)
     if gait == "walk":
         steps_per_s = 1.8 * (speed / 1.3) ** 0.55 * k
@@ -134,54 +137,8 @@ def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 # Characters
 
 
-ROLES = ("pelvis", "spine", "chest", "neck", "head") + tuple(
-    f"{s}_{j}" for s in "lr" for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle", "toe")
-)
-REQUIRED_ROLES = ("pelvis", "l_hip", "l_knee", "l_ankle", "r_hip", "r_knee", "r_ankle")
-
-# Base names (side removed, lower case, letters and digits only) per role, best first.
-_SYNONYMS = {
-    "pelvis": ["pelvis", "hips", "hip", "root"],
-    "spine": ["spine", "abdomen", "spine1", "spine01", "lowerback"],
-    "chest": ["chest", "spine2", "spine02", "upperchest", "thorax", "spine3"],
-    "neck": ["neck", "neck1", "neck01"],
-    "head": ["head"],
-    "shoulder": ["upperarm", "arm", "humerus", "shoulder"],
-    "elbow": ["forearm", "lowerarm", "elbow"],
-    "wrist": ["hand", "wrist"],
-    "hip": ["upleg", "thigh", "upperleg", "femur", "hip"],
-    "knee": ["leg", "calf", "shin", "lowerleg", "knee"],
-    "ankle": ["foot", "ankle"],
-    "toe": ["toebase", "toe", "toes", "ball"],
-}
-
-
-def _split_side(name: str) -> tuple[str, str]:
-    leaf = name.split("/")[-1].split(":")[-1]
-    low = leaf.lower()
-    for side, words in (("l", ("left",)), ("r", ("right",))):
-        for w in words:
-            if w in low:
-                return side, re.sub(r"[^a-z0-9]", "", low.replace(w, ""))
-        if re.match(rf"^{side}[_.\- ]", low) or re.search(rf"[_.\- ]{side}$", low):
-            stripped = re.sub(rf"^{side}[_.\- ]|[_.\- ]{side}$", "", low)
-            return side, re.sub(r"[^a-z0-9]", "", stripped)
-    return "", re.sub(r"[^a-z0-9]", "", low)
-
-
-def recognise_roles(joints: list[str]) -> dict[str, int]:
-    """Map gait roles (pelvis, l_hip, ...) to joint indices by joint name."""
-    by_base: dict[tuple[str, str], int] = {}
-    for i, j in enumerate(joints):
-        by_base.setdefault(_split_side(j), i)
-    roles: dict[str, int] = {}
-    for role in ROLES:
-        side, base = (role[0], role[2:]) if role[1] == "_" else ("", role)
-        for syn in _SYNONYMS[base]:
-            if (side, syn) in by_base and by_base[(side, syn)] not in roles.values():
-                roles[role] = by_base[(side, syn)]
-                break
-    return roles
+# Roles and the joint alias table live in lfusd.author.skeletons (documented in docs/CONVENTIONS.md).
+ROLES, REQUIRED_ROLES, recognise_roles = _skeletons.ROLES, _skeletons.REQUIRED_ROLES, _skeletons.recognise_roles
 
 
 @dataclass
@@ -202,8 +159,9 @@ class CharacterRig:
         missing = [r for r in REQUIRED_ROLES if r not in self.roles]
         if missing:
             raise LfusdError(
-                f"skeleton has no joints recognisable as {', '.join(missing)}; name its leg joints like "
-                "pelvis/hips, l_hip/LeftUpLeg/thigh_l, l_knee/LeftLeg/calf_l, l_ankle/LeftFoot/foot_l"
+                f"skeleton has no joints recognisable as {', '.join(missing)}; rename them to names of lfusd's "
+                f"joint alias table (docs/CONVENTIONS.md, lfusd.author.skeletons.ALIASES), e.g. "
+                + ", ".join(_skeletons.expected_names(r) for r in missing[:3])
             )
         self.char_bind = np.einsum("ij,njk->nik", self.skel_to_char, self.bind)
         scale = np.cbrt(abs(np.linalg.det(self.skel_to_char[:3, :3])))
@@ -237,6 +195,17 @@ def human_rig(spec: _human.HumanSpec = _human.HumanSpec()) -> CharacterRig:
     return CharacterRig(joints, _human.parent_indices(), bind, recognise_roles(joints))
 
 
+def check_joint_paths(skel: UsdSkel.Skeleton) -> None:
+    """Refuse joint tokens that are no valid path (UsdSkel would read them, with warnings, as a flat list)."""
+    joints = [str(j) for j in skel.GetJointsAttr().Get() or []]
+    bad = next((j for j in joints if not Sdf.Path.IsValidPathString(j)[0]), None)
+    if bad is not None:
+        raise LfusdError(
+            f"skeleton {skel.GetPath()}'s joint {bad!r} is not a valid UsdSkel joint path (a prim path such as "
+            "Hips/Spine; no ':' or spaces); rename its joints (e.g. mixamorig:Hips -> mixamorig_Hips)"
+        )
+
+
 def rig_from_skeleton(skel: UsdSkel.Skeleton, skel_to_char: np.ndarray) -> CharacterRig:
     """The rig of any UsdSkel skeleton (joints recognised by name, bind pose as rest)."""
     joints = [str(j) for j in skel.GetJointsAttr().Get() or []]
@@ -245,12 +214,23 @@ def rig_from_skeleton(skel: UsdSkel.Skeleton, skel_to_char: np.ndarray) -> Chara
     bind = skel.GetBindTransformsAttr().Get()
     if not bind or len(bind) != len(joints):
         raise LfusdError(f"skeleton {skel.GetPath()} has no bindTransforms for its {len(joints)} joints; author them")
+    check_joint_paths(skel)
     topo = UsdSkel.Topology(Vt.TokenArray(joints))
     ok, why = topo.Validate()
     if not ok:
         raise LfusdError(f"skeleton {skel.GetPath()} has an invalid joint hierarchy ({why}); fix its joints")
     parents = np.array(topo.GetParentIndices())
     bind = np.array([np.array(m).T for m in bind])
+    if not np.all(np.isfinite(bind)):
+        raise LfusdError(f"skeleton {skel.GetPath()} has non-finite bindTransforms; re-export it with a valid bind pose")
+    lin = bind[:, :3, :3]
+    off = np.abs(np.einsum("nji,njk->nik", lin, lin) - np.eye(3)).max(axis=(1, 2))
+    if off.max() > 1e-4:
+        bad = joints[int(np.argmax(off))]
+        raise LfusdError(
+            f"skeleton {skel.GetPath()}'s bind transform of joint {bad} scales or shears; lfusd animates rigid joints: "
+            "re-export with unscaled joints (put the scale on a prim above the skeleton)"
+        )
     return CharacterRig(joints, parents, bind, recognise_roles(joints), skel_to_char)
 
 

@@ -14,6 +14,7 @@ person is checked with the rulebook at every frame.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from . import human as _human
 from ..errors import LfusdError
 from .geometry import StageGeometry
 from .labels import class_label, labelled_ancestor, set_class_label
-from .stage import frame_range, meters_per_unit
+from .stage import frame_range, meters_per_unit, world_frame
 from .vocabulary import GROUND, WATER
 
 PEOPLE_SCOPE = "/World/People"
@@ -195,33 +196,35 @@ def _rulebook_violations(stage: Usd.Stage, prim: Usd.Prim) -> list[str]:
     return [v.line() for v in Checker(stage).check() if v.prim_path == me or me in v.detail]
 
 
-def _character_transform(char_stage: Usd.Stage, skel: UsdSkel.Skeleton, root: Usd.Prim, target_mpu: float):
-    """(K, C): K maps the character file's world into the character frame (Z up, +Y forward,
-    target units); C maps the skeleton's space into the character frame."""
-    scale = meters_per_unit(char_stage) / target_mpu
-    K = np.diag([scale, scale, scale, 1.0])
-    if UsdGeom.GetStageUpAxis(char_stage) == UsdGeom.Tokens.y:
-        K = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]]) @ K  # +Y up -> +Z up
-    cache = UsdGeom.XformCache()
-    parent_world = np.array(cache.GetParentToWorldTransform(root)).T
-    skel_world = np.array(cache.GetLocalToWorldTransform(skel.GetPrim())).T
-    C = K @ np.linalg.inv(parent_world) @ skel_world
-    # Face +Y: the character's forward is where its toes point (or, without toes, +Y).
-    rig = _gait.rig_from_skeleton(skel, C)
-    fwd = np.zeros(2)
-    for side in "lr":
-        if f"{side}_toe" in rig.roles:
-            fwd += (rig.pos(f"{side}_toe") - rig.pos(f"{side}_ankle"))[:2]
-    if np.linalg.norm(fwd) > 1e-9:
-        yaw = np.pi / 2 - np.arctan2(fwd[1], fwd[0])
-        Rz = np.eye(4)
-        Rz[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-        K, C = Rz @ K, Rz @ C
-    return K, C
+# A character's legs (hips to ankles) must point down within this angle of the up axis.
+_UPRIGHT_DEG = 35.0
+# Statures accepted for a user's character, metres (outside: almost surely wrong units).
+_CHARACTER_HEIGHT = (0.3, 3.0)
+
+
+@dataclass
+class Character:
+    """A user's UsdSkel character file, read and checked (see :func:`read_character`).
+
+    ``K`` maps the file's world (its own axes and units, every transform above the SkelRoot
+    included) into the character frame: Z up, facing +Y, metres, origin on the ground between
+    the ankles; ``rig`` is its skeleton with joints recognised by lfusd.author.skeletons."""
+
+    path: Path
+    stage: Usd.Stage
+    skel: UsdSkel.Skeleton
+    root: Usd.Prim
+    K: np.ndarray
+    rig: _gait.CharacterRig
+    height: float  # bind-pose mesh, sole to top, metres
+
+
+def _col(usd_matrix) -> np.ndarray:
+    return np.array(usd_matrix, dtype=np.float64).T
 
 
 def _open_character(character: str | Path):
-    """(stage, skeleton, SkelRoot prim) of a user's character file, or a one-line LfusdError."""
+    """(stage, skeleton, SkelRoot prim, skinned meshes) of a user's character file, or a one-line LfusdError."""
     cpath = Path(character)
     if not cpath.is_file():
         raise LfusdError(f"character {cpath} does not exist; give the path of a UsdSkel .usd/.usda/.usdc file")
@@ -234,28 +237,127 @@ def _open_character(character: str | Path):
     skels = [p for p in cstage.Traverse() if p.IsA(UsdSkel.Skeleton)]
     if not skels:
         raise LfusdError(f"character {cpath} has no UsdSkel Skeleton; give a file with a SkelRoot, a Skeleton and a skinned mesh")
-    skel = UsdSkel.Skeleton(skels[0])
-    root = UsdSkel.Root.Find(skel.GetPrim())
-    if not root:
-        raise LfusdError(f"character {cpath}'s skeleton {skel.GetPath()} is not under a SkelRoot; wrap it in one")
-    return cstage, skel, root.GetPrim()
+    roots = [UsdSkel.Root.Find(p) for p in skels]
+    if not any(roots):
+        raise LfusdError(f"character {cpath}'s skeleton {skels[0].GetPath()} is not under a SkelRoot; wrap it in one")
+    for p in skels:
+        try:
+            _gait.check_joint_paths(UsdSkel.Skeleton(p))
+        except LfusdError as e:
+            raise LfusdError(f"character {cpath}: {e}") from None
+    # The skeleton that skins a mesh (UsdSkel's own binding resolution), the first found.
+    cache = UsdSkel.Cache()
+    for root in dict.fromkeys(r.GetPrim() for r in roots if r):
+        cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
+        for binding in cache.ComputeSkelBindings(UsdSkel.Root(root), Usd.PrimDefaultPredicate):
+            meshes = [t for t in binding.GetSkinningTargets() if t.GetPrim().IsA(UsdGeom.Mesh)]
+            if meshes:
+                return cstage, binding.GetSkeleton(), root, meshes
+    raise LfusdError(
+        f"character {cpath} has no mesh bound to its skeleton {skels[0].GetPath()}; bind one under the SkelRoot "
+        "with UsdSkel.BindingAPI (skel:skeleton, primvars:skel:jointIndices and jointWeights)"
+    )
 
 
-def _load_character(stage: Usd.Stage, prim: Usd.Prim, character: str | Path):
-    """Reference a user's UsdSkel character at ``prim``; return (rig, skeleton path, K @ root local)."""
+def _bind_points(cpath: Path, skins) -> np.ndarray:
+    """Every skinned mesh's bind-pose points in the skeleton's space (geomBindTransform applied)."""
+    out = []
+    for skin in skins:
+        prim = skin.GetPrim()
+        if skin.HasBlendShapes():
+            raise LfusdError(f"character {cpath}'s mesh {prim.GetPath()} has UsdSkel blend shapes, which lfusd does not evaluate; "
+                             "re-export the character without blend shapes (morph targets)")
+        pts = UsdGeom.Mesh(prim).GetPointsAttr().Get(Usd.TimeCode.EarliestTime())
+        if pts is None or len(pts) == 0:
+            raise LfusdError(f"character {cpath}'s mesh {prim.GetPath()} has no points; author its points attribute")
+        geom_bind = _col(skin.GetGeomBindTransform(Usd.TimeCode.EarliestTime()))
+        pts = np.array(pts, dtype=np.float64)
+        out.append(pts @ geom_bind[:3, :3].T + geom_bind[:3, 3])
+    return np.concatenate(out)
+
+
+def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    return pts @ m[:3, :3].T + m[:3, 3]
+
+
+def read_character(character: str | Path, target_mpu: float = 1.0) -> Character:
+    """Open and check a user's UsdSkel character (glTF/FBX conversions, Mixamo rigs, ...).
+
+    The file's upAxis and metersPerUnit (lfusd.author.stage.world_frame) and every transform above
+    and on the way to the skeleton are honoured; the character is turned to face +Y (its left hip
+    towards -X) and its origin moved to the ground (its lowest bind-pose vertex) between its
+    ankles. Refuses (one-line LfusdError, naming the file) a file without a skeleton, SkelRoot or
+    bound mesh, joints that the alias table (lfusd.author.skeletons) cannot match, blend shapes,
+    a bind pose that is flat, lying down or upside down, and a stature outside 0.3-3 m."""
     cpath = Path(character)
-    cstage, skel, root = _open_character(character)
-    K, C = _character_transform(cstage, skel, root, meters_per_unit(stage))
-    rig = _gait.rig_from_skeleton(skel, C)
-    asset = str(cpath.resolve())
+    cstage, skel, root, skins = _open_character(cpath)
+    wf = world_frame(cstage)
+    W = wf.matrix()
+    W[:3, :3] /= target_mpu
+    time = Usd.TimeCode.EarliestTime()  # transforms above the SkelRoot are baked in as they stand
+    xcache = UsdGeom.XformCache(time)
+    skel_world = _col(xcache.GetLocalToWorldTransform(skel.GetPrim()))
+    try:
+        rig = _gait.rig_from_skeleton(skel, W @ skel_world)
+    except LfusdError as e:
+        raise LfusdError(f"character {cpath}: {e}") from None
+    mid = 0.5 * (rig.pos("l_ankle") + rig.pos("r_ankle"))
+    leg = rig.pos("pelvis") - mid
+    how = f"upAxis {wf.up_axis}, metersPerUnit {wf.meters_per_unit:g} and the transforms above its SkelRoot"
+    if np.linalg.norm(leg) < 1e-3:
+        raise LfusdError(
+            f"character {cpath} has height 0: its pelvis and ankles coincide in the bind pose (with {how}); "
+            "author the skeleton's bindTransforms as its standing pose"
+        )
+    tilt = np.degrees(np.arccos(np.clip(leg[2] / np.linalg.norm(leg), -1.0, 1.0)))
+    if tilt > _UPRIGHT_DEG:
+        raise LfusdError(
+            f"character {cpath} is not standing: its legs lie {tilt:.0f} degrees off vertical (with {how}); "
+            "author it upright along the file's upAxis or fix the rotation above its SkelRoot"
+        )
+    # Face +Y: the character's left (left hip minus right hip, or the ankles) turned to -X.
+    left = (rig.pos("l_hip") - rig.pos("r_hip"))[:2]
+    if np.linalg.norm(left) < 1e-6 * np.linalg.norm(leg):
+        left = (rig.pos("l_ankle") - rig.pos("r_ankle"))[:2]
+    R = np.eye(4)
+    if np.linalg.norm(left) > 1e-9:
+        yaw = np.pi / 2 - np.arctan2(-left[0], left[1])  # forward = left turned -90 degrees
+        R[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    pts = _apply(R @ W @ skel_world, _bind_points(cpath, skins))
+    if not np.all(np.isfinite(pts)):
+        raise LfusdError(f"character {cpath}'s skinned meshes have non-finite points; fix or re-export them")
+    T = np.eye(4)
+    T[:3, 3] = -np.array([*(R[:3, :3] @ mid)[:2], pts[:, 2].min()])
+    K = T @ R @ W
+    height = float(pts[:, 2].max() - pts[:, 2].min())
+    lo, hi = _CHARACTER_HEIGHT
+    if not lo <= height <= hi:
+        raise LfusdError(
+            f"character {cpath} is {height:.3g} m tall (with {how}); give a character {lo:g}-{hi:g} m tall, "
+            "or set the file's metersPerUnit to its real units (0.01 for centimetres)"
+        )
+    rig = _gait.rig_from_skeleton(skel, K @ skel_world)
+    if not rig.height > 0.5 * lo:
+        raise LfusdError(
+            f"character {cpath}'s head or pelvis joint is at the height of its feet (with {how}); "
+            "author its bind pose standing, head up"
+        )
+    return Character(cpath, cstage, skel, root, K, rig, height)
+
+
+def _load_character(stage: Usd.Stage, prim: Usd.Prim, character: Character):
+    """Reference a read character at ``prim``; return (rig, skeleton path, K @ SkelRoot's world)."""
+    asset = str(character.path.resolve())
     layer_path = stage.GetRootLayer().realPath
     if layer_path:  # relative, so the stage and its character can move together
         asset = os.path.relpath(asset, os.path.dirname(layer_path))
         asset = asset if asset.startswith(".") else "./" + asset
+    root = character.root
     prim.GetReferences().AddReference(asset, root.GetPath())
-    root_local = np.array(UsdGeom.Xformable(root).GetLocalTransformation(Usd.TimeCode.Default())).T
-    rel = skel.GetPath().MakeRelativePath(root.GetPath())
-    return rig, prim.GetPath().AppendPath(rel), K @ root_local
+    # The reference brings the SkelRoot's subtree; what lay above it is folded into this matrix.
+    root_world = _col(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(root))
+    rel = character.skel.GetPath().MakeRelativePath(root.GetPath())
+    return character.rig, prim.GetPath().AppendPath(rel), character.K @ root_world
 
 
 def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
@@ -298,7 +400,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     if gait != "idle" and not speed > 0:
         raise LfusdError(f"speed {speed:g} m/s is not positive; give a {gait} speed > 0 m/s")
     if character is not None:
-        _open_character(character)  # refuse a bad character file before any other work
+        character = read_character(character, meters_per_unit(stage))  # refuse a bad file before other work
     fps = stage.GetTimeCodesPerSecond() or _gait.FPS
     frames = np.arange(first, last + 1)
 
@@ -309,7 +411,8 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     if gait == "idle":  # standing at the first point, facing along the path
         dist = np.zeros(len(frames))
     else:
-        dist, _, _ = _gait.journey(gait, speed, route.length, spec.height, frames, start, fps)
+        stature = character.rig.height if character is not None else spec.height
+        dist, _, _ = _gait.journey(gait, speed, route.length, stature, frames, start, fps)
     # Refuse before authoring anything: the person's root must be over support at every frame.
     z, owners = surfaces.cast(route.at(dist)[0])
     for f, zz, own in zip(frames, z, owners):

@@ -1,0 +1,202 @@
+"""UsdSkel characters shaped like converter output (glTF/FBX, Mixamo, SMPL), written with plain pxr.
+
+A character is a box per bone, each box rigidly skinned to its joint, on an 1.70 m A-posed
+skeleton. Its geometry is known in closed form in its own *canonical* frame (Z up, metres,
+facing +Y, its left at -X, soles at z = 0, head top at z = HEIGHT), and each builder authors it
+in the frame a converter would use, with the transforms above the SkelRoot that undo it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+
+HEIGHT = 1.70
+HEAD_TOP = np.array([0.0, 0.0, HEIGHT])
+
+# key: (parent key, position in the canonical frame, metres)
+_CANON = {
+    "pelvis": (None, (0.0, 0.0, 0.95)),
+    "spine": ("pelvis", (0.0, 0.0, 1.05)),
+    "spine1": ("spine", (0.0, 0.0, 1.15)),
+    "chest": ("spine1", (0.0, 0.0, 1.28)),
+    "neck": ("chest", (0.0, 0.0, 1.45)),
+    "head": ("neck", (0.0, 0.0, 1.53)),
+}
+for _s, _x in (("l", -1.0), ("r", 1.0)):
+    _CANON.update({
+        f"{_s}_clavicle": ("chest", (0.05 * _x, 0.0, 1.40)),
+        f"{_s}_shoulder": (f"{_s}_clavicle", (0.17 * _x, 0.0, 1.40)),
+        f"{_s}_elbow": (f"{_s}_shoulder", (0.19 * _x, 0.0, 1.12)),
+        f"{_s}_wrist": (f"{_s}_elbow", (0.20 * _x, 0.0, 0.88)),
+        f"{_s}_hip": ("pelvis", (0.10 * _x, 0.0, 0.90)),
+        f"{_s}_knee": (f"{_s}_hip", (0.10 * _x, 0.02, 0.50)),
+        f"{_s}_ankle": (f"{_s}_knee", (0.10 * _x, 0.0, 0.09)),
+        f"{_s}_toe": (f"{_s}_ankle", (0.10 * _x, 0.13, 0.02)),
+    })
+KEYS = list(_CANON)
+PARENTS = {k: parent for k, (parent, _) in _CANON.items()}
+
+
+def _names(style: str) -> dict[str, str]:
+    """Joint names of a naming style, per canonical key."""
+    if style == "mixamo":  # Mixamo rig after an FBX -> glTF -> USD conversion (':' becomes '_')
+        base = {"pelvis": "Hips", "spine": "Spine", "spine1": "Spine1", "chest": "Spine2", "neck": "Neck", "head": "Head"}
+        for s, side in (("l", "Left"), ("r", "Right")):
+            base.update({f"{s}_clavicle": f"{side}Shoulder", f"{s}_shoulder": f"{side}Arm", f"{s}_elbow": f"{side}ForeArm",
+                         f"{s}_wrist": f"{side}Hand", f"{s}_hip": f"{side}UpLeg", f"{s}_knee": f"{side}Leg",
+                         f"{s}_ankle": f"{side}Foot", f"{s}_toe": f"{side}ToeBase"})
+        return {k: "mixamorig_" + v for k, v in base.items()}
+    if style == "smpl":  # SMPL as many codebases name it: L_Foot is the toe joint, L_Collar the clavicle
+        base = {"pelvis": "pelvis", "spine": "spine1", "spine1": "spine2", "chest": "spine3", "neck": "neck", "head": "head"}
+        for s in "lr":
+            S = s.upper()
+            base.update({f"{s}_clavicle": f"{S}_Collar", f"{s}_shoulder": f"{S}_Shoulder", f"{s}_elbow": f"{S}_Elbow",
+                         f"{s}_wrist": f"{S}_Wrist", f"{s}_hip": f"{S}_Hip", f"{s}_knee": f"{S}_Knee",
+                         f"{s}_ankle": f"{S}_Ankle", f"{s}_toe": f"{S}_Foot"})
+        return base
+    if style == "cesium":  # CesiumMan-like numbered names: nothing to recognise
+        return {k: f"joint_{i}" for i, k in enumerate(KEYS)}
+    raise ValueError(style)
+
+
+def canon_position(key: str) -> np.ndarray:
+    return np.array(_CANON[key][1], float)
+
+
+def _boxes() -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(joint key, lo, hi) of each box, canonical frame: soles at 0, head top at HEIGHT."""
+    P = {k: canon_position(k) for k in KEYS}
+    out = [("head", np.array([-0.09, -0.10, 1.50]), np.array([0.09, 0.10, HEIGHT])),
+           ("pelvis", np.array([-0.15, -0.10, 0.85]), np.array([0.15, 0.10, 1.05]))]
+
+    def seg(key, end, w):
+        a, b = P[key], P[end] if isinstance(end, str) else np.asarray(end, float)
+        out.append((key, np.minimum(a, b) - w, np.maximum(a, b) + w))
+
+    seg("spine", "spine1", 0.12)
+    seg("spine1", "chest", 0.13)
+    seg("chest", "neck", 0.14)
+    seg("neck", "head", 0.045)
+    for s in "lr":
+        seg(f"{s}_clavicle", f"{s}_shoulder", 0.04)
+        seg(f"{s}_shoulder", f"{s}_elbow", 0.045)
+        seg(f"{s}_elbow", f"{s}_wrist", 0.04)
+        seg(f"{s}_wrist", P[f"{s}_wrist"] - [0, 0, 0.1], 0.035)
+        seg(f"{s}_hip", f"{s}_knee", 0.065)
+        seg(f"{s}_knee", f"{s}_ankle", 0.05)
+        x = P[f"{s}_ankle"][0]
+        out.append((f"{s}_ankle", np.array([x - 0.05, -0.05, 0.0]), np.array([x + 0.05, 0.13, 0.11])))
+        out.append((f"{s}_toe", np.array([x - 0.05, 0.13, 0.0]), np.array([x + 0.05, 0.20, 0.05])))
+    return out
+
+
+def box_mesh():
+    """(points (N,3) canonical, faceVertexCounts, faceVertexIndices, joint key per point)."""
+    pts, counts, idx, keys = [], [], [], []
+    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    for key, lo, hi in _boxes():
+        base = len(pts)
+        pts += [[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+        counts += [4] * 6
+        idx += [base + v for f in faces for v in f]
+        keys += [key] * 8
+    return np.array(pts, float), counts, idx, keys
+
+
+def _rotation(rng) -> np.ndarray:
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def _gf(m: np.ndarray) -> Gf.Matrix4d:
+    return Gf.Matrix4d(*np.asarray(m, float).T.ravel().tolist())  # column-vector 4x4 -> USD row-vector
+
+
+def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_unit: float = 1.0,
+                    content: np.ndarray = np.eye(4), above=(), seed: int = 0, bind_scale: float = 1.0,
+                    bind_mesh: bool = True, blend_shape: bool = False) -> str:
+    """Write a character file; returns the SkelRoot's path.
+
+    ``content`` (4x4, column vectors) maps the canonical frame to the skeleton's space (the
+    converter's axes and units); ``above`` is a list of (op, value) xformOps authored, in order, on
+    an Xform /Root above the SkelRoot (('rotateX', -90), ('scale', 0.01), ...). Joint bind frames
+    get random orientations (as exported rigs have); ``bind_scale`` = 0 puts every joint at the
+    origin (a degenerate bind pose)."""
+    rng = np.random.default_rng(seed)
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+    top = UsdGeom.Xform.Define(stage, "/Root")
+    stage.SetDefaultPrim(top.GetPrim())
+    for op, value in above:
+        if op == "scale":
+            top.AddScaleOp().Set(Gf.Vec3f(value, value, value))
+        elif op == "translate":
+            top.AddTranslateOp().Set(Gf.Vec3d(*value))
+        else:
+            getattr(top, f"Add{op[0].upper()}{op[1:]}Op")().Set(float(value))
+    root = UsdSkel.Root.Define(stage, "/Root/Character")
+    names = _names(style)
+    joints, bind, rest = [], [], []
+    world = {}
+    for key in KEYS:
+        parent = _CANON[key][0]
+        joints.append(f"{joints[KEYS.index(parent)]}/{names[key]}" if parent else names[key])
+        m = np.eye(4)  # rigid joint frames in the converter's space: a random orientation, at the joint
+        m[:3, :3] = _rotation(rng)
+        m[:3, 3] = content[:3, :3] @ canon_position(key) * bind_scale + content[:3, 3]
+        world[key] = m
+        bind.append(world[key])
+        rest.append(np.linalg.inv(world[parent]) @ world[key] if parent else world[key])
+    skel = UsdSkel.Skeleton.Define(stage, "/Root/Character/Skeleton")
+    skel.CreateJointsAttr(Vt.TokenArray(joints))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_gf(m) for m in bind]))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_gf(m) for m in rest]))
+    points, counts, indices, keys = box_mesh()
+    pts = points @ content[:3, :3].T + content[:3, 3]
+    mesh = UsdGeom.Mesh.Define(stage, "/Root/Character/Body")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(counts)
+    mesh.CreateFaceVertexIndicesAttr(indices)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(0.7, 0.5, 0.4)]))
+    if bind_mesh:
+        binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+        binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+        binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([KEYS.index(k) for k in keys]))
+        binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(keys)))
+        binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1))
+        if blend_shape:
+            shape = UsdSkel.BlendShape.Define(stage, "/Root/Character/Body/Smile")
+            shape.CreateOffsetsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 0, 1)]))
+            shape.CreatePointIndicesAttr(Vt.IntArray([0]))
+            binding.CreateBlendShapesAttr(Vt.TokenArray(["smile"]))
+            binding.CreateBlendShapeTargetsRel().SetTargets([shape.GetPath()])
+    stage.Save()
+    return str(root.GetPath())
+
+
+def scaled(s: float, rot_z_deg: float = 0.0) -> np.ndarray:
+    """4x4: a turn about Z then a uniform scale (canonical metres -> a converter's units)."""
+    a = np.radians(rot_z_deg)
+    m = np.eye(4)
+    m[:3, :3] = s * np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    return m
+
+
+def gltf_mixamo(path) -> str:
+    """A Mixamo rig as a glTF converter writes it: a Y-up metre stage whose content is Z-up
+    centimetres facing -Y (as authored in Blender/FBX) under an Xform with rotateX -90 and scale 0.01."""
+    return write_character(path, "mixamo", up="Y", meters_per_unit=1.0, content=scaled(100.0, 180.0),
+                           above=[("rotateX", -90.0), ("scale", 0.01)])
+
+
+def smpl_cm(path) -> str:
+    """An SMPL-named character in a Z-up centimetre stage whose content is Y-up (as from a glTF
+    source), stood up by a rotateX 90, turned by a rotateZ and moved by a translate on the Xform
+    above its SkelRoot."""
+    lie = np.eye(4)
+    lie[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # rotateX -90: canonical Z-up content -> Y-up
+    return write_character(path, "smpl", up="Z", meters_per_unit=0.01, content=scaled(100.0) @ lie,
+                           above=[("translate", (300.0, -200.0, 40.0)), ("rotateZ", -90.0), ("rotateX", 90.0)], seed=1)
