@@ -79,7 +79,12 @@ def write_world_stage(path: str | Path, up: str, mpu: float, rig: RigSpec | None
     e = BOX_EDGE / 2
     corners = np.array([[x, y, z] for x in (-e, e) for y in (-e, e) for z in (-e, e)])
     faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    _mesh(stage, "/World/Box/Geom", corners, faces, up, mpu)
+    box = _mesh(stage, "/World/Box/Geom", corners, faces, up, mpu)
+    # Flat faces: one normal per face corner (shared corners would be shaded smooth), in stage axes.
+    normals = [to_stage(np.mean(corners[f], 0) / e * (np.abs(np.mean(corners[f], 0)) > e / 2), up, 1.0) for f in faces]
+    box.CreateNormalsAttr([Gf.Vec3f(*n) for n in normals for _ in range(4)])
+    box.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
+    box.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     op = xf.AddTranslateOp()
     for f in range(1, FRAMES + 1):
         op.Set(Gf.Vec3d(*to_stage(box_centre(f), up, mpu)), f)
