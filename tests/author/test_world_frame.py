@@ -6,9 +6,16 @@ each checked against the convention written out by hand (tests/support/world_sta
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
-from pxr import Gf, Usd, UsdGeom
+from pxr import Gf, Usd, UsdGeom, UsdSemantics
+
+from lfusd import cli
+from lfusd.author.people import add_person
+from lfusd.author.rules import set_constraint
+from lfusd.errors import LfusdError
 
 from lfusd.author.geometry import StageGeometry, local_to_world
 from lfusd.author.rigs import add_rig, rigs
@@ -142,3 +149,56 @@ def test_stage_geometry_and_object_poses_are_the_mapped_stage_points(tmp_path, u
         assert pose[:3, 3] == pytest.approx(box_centre(frame), abs=1e-6)
         assert pose[:3, :3] @ (pts.T * mpu) + pose[:3, 3:] == pytest.approx(box.vertices.T, abs=1e-6)
         assert pose[:3, :3].T @ pose[:3, :3] == pytest.approx(np.eye(3), abs=1e-9)
+
+
+# -- lfusd check and animate on users' stages ----------------------------------------------------
+def _stage_box(stage, path, label, lo, hi, up, mpu):
+    """A box lo..hi (world metres) authored in the stage's axes and units: a labelled Xform
+    translated to its centre with a unit Cube scaled to its extent."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    x = UsdGeom.Xform.Define(stage, path)
+    x.AddTranslateOp().Set(Gf.Vec3d(*to_stage((lo + hi) / 2, up, mpu)))
+    cube = UsdGeom.Cube.Define(stage, f"{path}/geo")
+    cube.CreateSizeAttr(1.0)
+    cube.AddScaleOp().Set(Gf.Vec3f(*np.abs(to_stage(hi - lo, up, mpu))))
+    if label:
+        UsdSemantics.LabelsAPI.Apply(x.GetPrim(), "class").CreateLabelsAttr([label])
+    return x
+
+
+@pytest.mark.parametrize("up,mpu", [("Y", 0.01), ("Z", 0.0254)])
+def test_check_rules_hold_in_the_world_on_other_axes_and_units(tmp_path, capsys, up, mpu):
+    """Road, grass and a river (surface 0.3 m below the ground); a person walks 2.5 m per frame
+    from the grass into the river and out of a guide region ending at x = 4 m: both rules break
+    at frame 3 exactly, in metres and Z-up, whatever the stage's axes and units."""
+    stage = Usd.Stage.CreateNew(str(tmp_path / "s.usda"))
+    UsdGeom.SetStageUpAxis(stage, up)
+    UsdGeom.SetStageMetersPerUnit(stage, mpu)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(3)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    _stage_box(stage, "/World/Road", "road", (-10, -5, -0.2), (0, 5, 0), up, mpu)
+    _stage_box(stage, "/World/Grass", "grass", (0, -5, -0.2), (5, 5, 0), up, mpu)
+    _stage_box(stage, "/World/River", "water", (5, -5, -2.0), (15, 5, -0.3), up, mpu)
+    zone = _stage_box(stage, "/World/Zone", "", (-10, -5, -1), (4, 5, 3), up, mpu)
+    UsdGeom.Imageable(zone.GetPrim()).CreatePurposeAttr(UsdGeom.Tokens.guide)
+    walker = _stage_box(stage, "/World/Walker", "person", (0.8, -0.2, 0.001), (1.2, 0.2, 1.801), up, mpu)
+    set_constraint(walker.GetPrim(), "inside", "/World/Zone")
+    op = walker.GetOrderedXformOps()[0]
+    for f in (1, 2, 3):  # x = 1, 3.5, 6 m: on grass, on grass, over the river
+        op.Set(Gf.Vec3d(*to_stage([1.0 + 2.5 * (f - 1), 0.0, 0.901], up, mpu)), Usd.TimeCode(f))
+    stage.Save()
+    code = cli.main(["check", str(tmp_path / "s.usda")])
+    out = capsys.readouterr().out.splitlines()
+    broken = sorted(m.groups() for m in (re.match(r"(\S+): (\w+) broken at frame (\d+)", ln) for ln in out) if m)
+    assert code == 1
+    assert broken == [("/World/Walker", kind, "3") for kind in ("inside", "not_on", "on")], out
+
+
+def test_add_person_refuses_a_y_up_stage_in_one_line():
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, "Y")
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    with pytest.raises(LfusdError, match="upAxis is Y") as e:
+        add_person(stage, [(0, 0), (1, 0)])
+    assert "\n" not in str(e.value)
