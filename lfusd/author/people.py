@@ -386,10 +386,11 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     support = tuple(support) if support is not None else default_support
     water = tuple(water) if water is not None else default_water
     pts = check_points(points)
-    if abs(meters_per_unit(stage) - 1.0) > 1e-9:
+    up = UsdGeom.GetStageUpAxis(stage)
+    if abs(meters_per_unit(stage) - 1.0) > 1e-9 or up != UsdGeom.Tokens.z:
         raise LfusdError(
-            f"the stage's metersPerUnit is {meters_per_unit(stage):g}; lfusd animate needs a stage in metres "
-            "(metersPerUnit = 1): convert it or reference it from a metre stage"
+            f"the stage's upAxis is {up} and its metersPerUnit is {meters_per_unit(stage):g}; lfusd animate needs a Z-up stage in metres "
+            "(upAxis = Z, metersPerUnit = 1): convert it, or reference it from one under an Xform that maps it there"
         )
     first, last = frame_range(stage)
     start = first if start is None else int(start)

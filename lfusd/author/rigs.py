@@ -9,14 +9,14 @@ apertures are in tenths of a scene unit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ..errors import LfusdError
 from ..camera import RigSpec, View
-from .stage import world_frame
+from .stage import WorldFrame, world_frame
 from .vocabulary import RIG_VIEW, rig_attr
 
 RIGS_ROOT = "/Rigs"
@@ -53,17 +53,34 @@ def _np(m: Gf.Matrix4d) -> np.ndarray:
     return np.array(m, dtype=np.float64).T
 
 
+def _rig_in_stage(spec: RigSpec, world: WorldFrame) -> np.ndarray:
+    """The rig prim's transform in the stage's axes and units (column vectors).
+
+    ``spec.at`` and ``spec.look_at`` are metres along the stage's own axes: they are mapped into
+    lfusd's world, where the pose is built with world +Z (the stage's up axis) as up, and the
+    pose is mapped back, so that ``world.pose`` of the result is that world pose exactly."""
+    r = world.rotation
+    in_world = replace(spec, at=tuple(r @ np.asarray(spec.at, float)), look_at=tuple(r @ np.asarray(spec.look_at, float)))
+    pose = in_world.rig_to_world()
+    local = np.eye(4)
+    local[:3, :3] = r.T @ pose[:3, :3]
+    local[:3, 3] = r.T @ pose[:3, 3] / world.meters_per_unit
+    return local
+
+
 def add_rig(stage: Usd.Stage, spec: RigSpec, parent: str = RIGS_ROOT) -> Usd.Prim:
-    """Author ``spec`` as a rig prim with one camera per view; refuse a name already used."""
+    """Author ``spec`` as a rig prim with one camera per view; refuse a name already used.
+
+    ``spec.at`` / ``spec.look_at`` are metres along the stage's axes and the rig's up is the
+    stage's up axis; transforms, lenses and clipping are authored in scene units."""
     if spec.name in rigs(stage):
         raise LfusdError(f"the stage already has a rig named {spec.name!r}; choose another --name")
-    mpu = UsdGeom.GetStageMetersPerUnit(stage)
+    world = world_frame(stage)
+    mpu = world.meters_per_unit
     if not stage.GetPrimAtPath(parent):
         UsdGeom.Scope.Define(stage, parent)
     rig = UsdGeom.Xform.Define(stage, Sdf.Path(parent).AppendChild(spec.name))
-    rig_to_world = spec.rig_to_world()
-    rig_to_world[:3, 3] /= mpu
-    rig.AddTransformOp().Set(_gf(rig_to_world))
+    rig.AddTransformOp().Set(_gf(_rig_in_stage(spec, world)))
     prim = rig.GetPrim()
     for key, vtype in _FIELDS.items():
         value = getattr(spec, key)

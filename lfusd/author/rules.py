@@ -10,7 +10,7 @@ Rules (``kind``: value):
 - ``no_interpenetration``: classes (``any`` = every labelled object that is not a ground or water
   surface) whose objects it must not intersect
 - ``inside``: prim paths of regions whose world bounds must contain it
-- ``in_bounds``: true: stay inside the stage's ``lfusd:bounds`` (default prim; min and max corner),
+- ``in_bounds``: true: stay inside the stage's ``lfusd:bounds`` (default prim; min and max corner, stage coordinates),
   or inside the x/y extent of its ground and water surfaces when the stage has none
 
 Each kind is a Checker method registered with ``@rule(kind)`` (:data:`RULES`); class names and
@@ -340,8 +340,8 @@ class Checker:
         prim = self.stage.GetDefaultPrim()
         attr = prim.GetAttribute(BOUNDS) if prim else None
         if attr and attr.HasAuthoredValue():
-            v = np.array(attr.Get(), float)
-            return v[0], v[1]
+            v = np.array(attr.Get(), float)  # stage coordinates, like everything in the stage
+            return _world_box(self.geometry.frame, v[0], v[1])
         return None
 
     def _rigid(self, g: Usd.Prim) -> bool:
@@ -364,6 +364,7 @@ class Checker:
 
     def _update(self, frame: int, first: bool) -> None:
         xf = UsdGeom.XformCache(Usd.TimeCode(frame))
+        world = self.geometry.frame
         for o in self.objs:
             if o.verts is not None and not o.dynamic and not first:
                 continue
@@ -374,7 +375,7 @@ class Checker:
                 if o.rigid[k] is not None:
                     local, tris = o.rigid[k]
                     m = np.array(xf.GetLocalToWorldTransform(g), dtype=np.float64)
-                    parts.append((local @ m[:3, :3] + m[3, :3], tris))
+                    parts.append((world.points(local @ m[:3, :3] + m[3, :3]), tris))
                     continue
                 if str(g.GetPath()) in self.unusable:
                     continue
@@ -385,8 +386,9 @@ class Checker:
                     continue
                 parts.append((wm.vertices, wm.triangles))
                 if first and o.dynamic and self._rigid(g):
+                    # Local points in scene units: USD's transforms act in the stage's axes and units.
                     m = np.array(xf.GetLocalToWorldTransform(g), dtype=np.float64)
-                    local = (wm.vertices - m[3, :3]) @ np.linalg.inv(m[:3, :3])
+                    local = (world.stage_points(wm.vertices) - m[3, :3]) @ np.linalg.inv(m[:3, :3])
                     o.rigid[k] = (local, wm.triangles)
             if parts:
                 offs = np.cumsum([0] + [len(v) for v, _ in parts])[:-1]
@@ -632,7 +634,7 @@ class Checker:
             box = cache.ComputeWorldBound(self.stage.GetPrimAtPath(target)).ComputeAlignedRange()
             if box.IsEmpty():
                 raise LfusdError(f"{r.prim_path}: region {target} of rule 'inside' has no extent; give it geometry or an extent")
-            blo, bhi = np.array(box.GetMin()), np.array(box.GetMax())
+            blo, bhi = _world_box(self.geometry.frame, box.GetMin(), box.GetMax())
             if np.all(lo >= blo - 1e-6) and np.all(hi <= bhi + 1e-6):
                 return None
         return f"outside {_names(r.rules['inside'])}"
@@ -653,6 +655,13 @@ class Checker:
         if np.all(lo >= blo - 1e-6) and np.all(hi <= bhi + 1e-6):
             return None
         return f"leaves the stage bounds {tuple(np.round(blo, 2))}..{tuple(np.round(bhi, 2))}"
+
+
+def _world_box(world, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """An axis-aligned box of stage coordinates as (min, max) in lfusd's world (the map turns
+    axes onto axes, so the box stays axis-aligned)."""
+    corners = world.points(np.array([[a, b, c] for a in (lo[0], hi[0]) for b in (lo[1], hi[1]) for c in (lo[2], hi[2])], float))
+    return corners.min(0), corners.max(0)
 
 
 def _names(classes) -> str:

@@ -102,6 +102,10 @@ class WorldFrame:
         """(N,3) stage points in scene units -> world points in metres."""
         return (np.asarray(points, np.float64) @ self.rotation.T) * self.meters_per_unit
 
+    def stage_points(self, points: np.ndarray) -> np.ndarray:
+        """(N,3) world points in metres -> stage points in scene units (the inverse of :meth:`points`)."""
+        return (np.asarray(points, np.float64) / self.meters_per_unit) @ self.rotation
+
     def pose(self, usd_matrix) -> np.ndarray:
         """A USD local-to-world matrix (row vectors, scene units) as a 4x4 column-vector world
         pose whose translation is in metres (its linear part keeps any authored scale)."""

@@ -122,7 +122,8 @@ def _prepare_output(req: RenderRequest, settings: dict) -> dict | None:
     return None
 
 
-def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, rigs: list[StageRig], frames: list[int], device: str | None) -> None:
+def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, rigs: list[StageRig], frames: list[int], device: str | None,
+                    world: dict | None = None) -> None:
     rig_specs = dict(previous["settings"]["rigs"]) if previous else {}
     rig_specs.update(settings["rigs"])
     all_frames = sorted(set(previous.get("frames", [])) | set(frames)) if previous else sorted(frames)
@@ -130,6 +131,8 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
         "format": FORMAT,
         "version": FORMAT_VERSION,
         "stage": {"path": str(Path(req.stage).resolve()), "sha256": settings["stage_sha256"]},
+        # The stage's up axis and units, and the map of its coordinates into lfusd's world.
+        "world": world or (previous or {}).get("world"),
         "rigs": sorted(rig_specs),
         "frames": all_frames,
         "settings": {**settings, "rigs": rig_specs},
@@ -217,11 +220,12 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
         check_ray_address(req.ray_address)
     rigs, frames = _rigs_and_frames(req, stage)
     settings = _settings(req, file_hash(req.stage), rigs)
+    world = world_frame(stage).to_dict()
     previous = _prepare_output(req, settings)
     req.out.mkdir(parents=True, exist_ok=True)
     _clean_stale(req.out)
     try:
-        _write_manifest(req, settings, previous, rigs, frames, None)
+        _write_manifest(req, settings, previous, rigs, frames, None, world)
         objects, classes = object_table(stage)
         _write_static_metadata(req, stage, rigs, frames, objects, classes)
         plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
@@ -232,7 +236,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
             units = plan_units(
                 req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
                 {mesh: o.instance_id for o in objects for mesh in o.mesh_paths},
-                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage), _add_light(req, stage),
+                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage), _add_light(req, stage), world,
             )
             report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:
@@ -240,11 +244,11 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
             except BaseException:
                 # Record what did finish; a second failure here (a full disk) must not hide the first.
                 with contextlib.suppress(OSError):
-                    _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, None)
+                    _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, None, world)
                 raise
             finally:
                 report.close()
-        _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, device)
+        _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, device, world)
     except OSError as e:
         raise LfusdError(f"cannot write to {req.out} ({e.strerror or e}); free space or fix permissions, then rerun to resume") from None
     finally:

@@ -6,7 +6,7 @@ No pxr and no bpy here: the parent plans with it and the Blender worker parses i
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from ..layout import frame_dir, view_key
@@ -54,6 +54,9 @@ class WorkUnit:
     motion: bool  # render the t+/-1 position AOVs
     has_dome: bool  # the stage has a DomeLight: the worker creates a world before import
     stage_range: list[int]  # the stage's [first, last] frame
+    # The stage's WorldFrame.to_dict() (up_axis, meters_per_unit, stage_to_world): the worker
+    # checks that Blender's import lands in lfusd's world (Z-up, metres) by this map.
+    world: dict = field(default_factory=dict)
     scratch: str = ""  # where the worker writes; set by the executor
     seed: int = 0
     max_bounces: int = 12
@@ -82,7 +85,7 @@ def chunks(items: list, n: int) -> list[list]:
 
 
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],
-               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int], add_light: bool = False) -> list[WorkUnit]:
+               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int], add_light: bool = False, world: dict | None = None) -> list[WorkUnit]:
     """Work units covering every missing (rig, frame, view) of ``plan``."""
     units: list[WorkUnit] = []
     for rig_name in sorted({k[0] for k in plan.todo}):
@@ -106,6 +109,6 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                     width=width, height=height, samples=req.samples, device=req.device, instances=instances,
                     # Locally, workers share the cores; on Ray, Blender takes what the node has.
                     threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range), add_light=add_light,
+                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range), add_light=add_light, world=dict(world or {}),
                 ))
     return units

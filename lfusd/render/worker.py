@@ -63,9 +63,57 @@ def _objects_of(prim_path: str) -> list:
     return [i for i in PRIM_MAP.get(prim_path, []) if isinstance(i, bpy.types.Object)]
 
 
-def import_stage(path: str, has_dome: bool = False) -> None:
+# Options that put Blender's import in lfusd's world (Z-up, metres; measured with bpy 5.0.1):
+# the importer rotates a Y-up stage +90 degrees about X and scales by metersPerUnit, on the
+# matrices of root objects, so every object's matrix_world, evaluated vertex and world-space
+# pass (position, normal) is in lfusd's world, as are cameras (their lens follows the same units).
+WORLD_IMPORT_OPTIONS = {"scale": 1.0, "apply_unit_conversion_scale": True}
+# A root Xform translated by (1, 2, 3) scene units, on a stage with the job's axes and units.
+_PROBE = """#usda 1.0
+(
+    upAxis = "{up}"
+    metersPerUnit = {mpu!r}
+)
+def Xform "lfusd_world_probe"
+{{
+    double3 xformOp:translate = (1, 2, 3)
+    uniform token[] xformOpOrder = ["xformOp:translate"]
+}}
+"""
+
+
+def check_world_import(world: dict) -> None:
+    """Import a probe stage with the stage's up axis and metersPerUnit, and raise unless
+    Blender puts it where lfusd's map of the stage into its world (``world["stage_to_world"]``)
+    does: then Blender's world is lfusd's world, and every pass and pose agrees with pxr's."""
+    expected = np.array(world["stage_to_world"], np.float64) @ np.array([[1, 0, 0, 1], [0, 1, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]], np.float64)
+    with tempfile.TemporaryDirectory(prefix="lfusd_probe") as tmp:
+        path = os.path.join(tmp, "probe.usda")
+        with open(path, "w") as f:
+            f.write(_PROBE.format(up=world["up_axis"], mpu=float(world["meters_per_unit"])))
+        before = set(bpy.data.objects)
+        bpy.ops.wm.usd_import(filepath=path, set_frame_range=False, **WORLD_IMPORT_OPTIONS)
+        probes = [o for o in bpy.data.objects if o not in before]
+        got = np.array(probes[0].matrix_world, np.float64) if len(probes) == 1 else None
+        for o in probes:
+            bpy.data.objects.remove(o, do_unlink=True)
+    PRIM_MAP.clear()
+    scale = float(world["meters_per_unit"])
+    if got is None or not np.allclose(got, expected, rtol=1e-5, atol=1e-6 * scale):
+        landed = "nowhere" if got is None else f"at {np.round(got[:3, 3], 6).tolist()}"
+        raise RuntimeError(
+            f"Blender's USD import does not map upAxis {world['up_axis']}, metersPerUnit {scale:g} into lfusd's Z-up metre world "
+            f"(stage point (1, 2, 3) landed {landed}, not at {np.round(expected[:3, 3], 6).tolist()}); use bpy 5.0.x"
+        )
+
+
+def import_stage(path: str, has_dome: bool = False, world: dict | None = None) -> None:
+    """Import the stage into an empty scene, in lfusd's world (checked against ``world``, the
+    stage's WorldFrame.to_dict(), when given)."""
     bpy.utils.register_class(_PrimMapHook)
     bpy.ops.wm.read_factory_settings(use_empty=True)
+    if world:
+        check_world_import(world)
     if has_dome:  # the importer turns a DomeLight into the world only if a world already exists
         bpy.context.scene.world = bpy.data.worlds.new("World")
     result = bpy.ops.wm.usd_import(
@@ -76,6 +124,7 @@ def import_stage(path: str, has_dome: bool = False) -> None:
         import_cameras=True,
         set_frame_range=False,
         read_mesh_attributes=True,
+        **WORLD_IMPORT_OPTIONS,
     )
     if "FINISHED" not in result:
         raise RuntimeError(f"Blender could not import stage {path}")
@@ -367,6 +416,8 @@ class MotionAttributes:
             links.new(attr.outputs["Vector"], out.inputs["Color"])
 
     def _world_vertices(self, frame: int) -> dict[str, np.ndarray]:
+        """Every mesh's evaluated vertices at ``frame`` in lfusd's world: matrix_world already
+        holds the importer's map of the stage's axes and units (checked by check_world_import)."""
         if frame not in self.cache:
             self.scene.frame_set(frame)
             dg = bpy.context.evaluated_depsgraph_get()
@@ -467,7 +518,7 @@ def main() -> int:
         t0 = time.time()
         bpy.utils.register_class(_ImportCheckHook)
         with CapturedOutput() as captured:
-            import_stage(job.stage, job.has_dome)
+            import_stage(job.stage, job.has_dome, job.world)
         warn_import(captured.text)
         fallback_surfaces()
         warn_missing_images()
