@@ -2,7 +2,7 @@
 variant selections, and static stages rendered as videos and verified (issue 12).
 
 Each stage is authored here; rigs go in through the CLI (`lfusd rig add ASSET ... -o scene.usda`);
-:func:`tests.support.wild.render_and_verify` renders and verifies, then one closed-form depth is
+:func:`support.wild.render_and_verify` renders and verifies, then one closed-form depth is
 checked against the dataset: the planar depth of a box face's centre seen by each view.
 """
 
@@ -18,7 +18,11 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils
 from lfusd.author.labels import set_class_label
 from lfusd.author.scenes.textures import write_png
 from lfusd.cli import main
-from tests.support.wild import STATIC_KEYS, render_and_verify
+from lfusd.camera import RigSpec
+from lfusd.truth.verify import verify
+from support.cli import run_cli
+from support.scenes import write_motion_stage
+from support.wild import STATIC_KEYS, render_and_verify
 
 pytestmark = pytest.mark.render
 
@@ -191,3 +195,15 @@ def test_static_asset_single_frame_verifies_static_keys(tmp_path):
     assert ds.frames == [1]
     assert set(reports["main"].compared()) == set(STATIC_KEYS)
     assert_face_depth(ds, FRONT_CENTRE)
+
+
+def test_verify_of_one_frame_of_an_animated_stage_compares_its_static_keys(tmp_path, capsys):
+    stage, out = tmp_path / "moving.usda", tmp_path / "out"
+    rig = RigSpec(name="main", rows=2, cols=2, width=64, height=48, baseline=0.1, at=(0.2, -5.0, 1.6), look_at=(0.0, 0.0, 0.6))
+    write_motion_stage(stage, rig, frames=3)
+    assert main(["render", str(stage), "-o", str(out), "--frame", "2", "--samples", "1", "--device", "cpu", "--quiet"]) == 0
+    code, text, err = run_cli(capsys, "verify", out)
+    assert code == 0, text + err
+    assert "all checks passed" in text
+    compared = verify(out)["main"].compared()
+    assert set(compared) == set(STATIC_KEYS) and all(n > 0 for n in compared.values()), compared
