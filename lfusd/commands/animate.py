@@ -64,7 +64,7 @@ def run_add_person(args) -> int:
     try:
         stage.GetRootLayer().Save()
     except Exception as e:
-        raise LfusdError(f"cannot save stage {Path(target)} ({str(e).strip().splitlines()[-1]}); check the file is writable") from None
+        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
     how = "standing" if args.gait == "idle" else f"{args.gait} at {speed:g} m/s"
     print(f"added {prim.GetPath()} ({how}) to {target} in {time.perf_counter() - t0:.2f} s")
     return 0

@@ -50,7 +50,7 @@ def run_add(args) -> int:
     try:
         stage.GetRootLayer().Save()
     except Exception as e:
-        raise LfusdError(f"cannot save stage {Path(target)} ({str(e).strip().splitlines()[-1]}); check the file is writable") from None
+        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
     over = f" (a new layer over {args.stage})" if args.out else ""
     print(f"added rig {spec.name} ({rows}x{cols} views, {width}x{height} px) to {target}{over}")
     return 0
