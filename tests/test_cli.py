@@ -8,7 +8,7 @@ import re
 import shutil
 
 import pytest
-from support.scenes import write_box_stage
+from support.scenes import write_box_stage, write_motion_stage
 
 from lfusd.cli import main
 from support.cli import assert_one_line_error, run_cli
@@ -84,8 +84,11 @@ def test_render_bad_input_writes_nothing(capsys, tmp_path, bare_stage):
     assert_one_line_error(code, err, "2 rigs", "--rig")
     code, _, err = run_cli(capsys, "render", bare_stage, "-o", out, "--rig", "c")
     assert_one_line_error(code, err, "no rig named 'c'", "a, b")
-    code, _, err = run_cli(capsys, "render", bare_stage, "-o", out, "--rig", "a", "--frame", "7")
-    assert_one_line_error(code, err, "frame 7", "range 1-1")
+    # Frames outside an animated stage's range are refused (a static stage, like bare_stage, takes any).
+    moving = tmp_path / "moving.usda"
+    write_motion_stage(moving, RigSpec(name="a", rows=1, cols=1, width=8, height=8), frames=3)
+    code, _, err = run_cli(capsys, "render", moving, "-o", out, "--frame", "7")
+    assert_one_line_error(code, err, "frame 7", "range 1-3")
     code, _, err = run_cli(capsys, "render", bare_stage, "-o", out, "--rig", "a", "--samples", "0")
     assert_one_line_error(code, err, "--samples")
     assert not out.exists()

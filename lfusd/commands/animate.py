@@ -18,7 +18,9 @@ def register(sub) -> None:
         "(road, pavement, ground, grass, floor, bridge, ...), following their height; refuses a path that "
         "would put the person over water, naming the frame.",
     )
-    add.add_argument("stage", help="the .usda/.usdc stage to edit in place")
+    add.add_argument("stage", help="the USD stage or asset (.usda/.usdc/.usdz/.usd); edited in place unless -o is given")
+    add.add_argument("-o", "--out", default=None, metavar="NEW.usda",
+                     help="write a new layer that sublayers STAGE (left unchanged) and holds the person; needed for .usdz packages")
     add.add_argument("--path", nargs="+", required=True, metavar="X,Y", help="path points in stage units (at least two)")
     add.add_argument("--gait", choices=("walk", "run", "idle"), default="walk",
                      help="walk (default), run, or idle (stand at the first point, facing the second)")
@@ -48,20 +50,21 @@ def run_write_cycles(args) -> int:
 def run_add_person(args) -> int:
     from ..author.people import add_person, parse_points
     from ..author.human import HumanSpec
-    from ..author.stage import open_stage
+    from ..author.stage import open_for_edit
 
     points = parse_points(args.path)
     speed = args.speed if args.speed is not None else (1.3 if args.gait == "walk" else 3.5)
     spec = HumanSpec(args.height, args.build)
     spec.validate()
     t0 = time.perf_counter()
-    stage = open_stage(args.stage)
+    stage = open_for_edit(args.stage, args.out)
     prim = add_person(stage, points, gait=args.gait, speed=speed, start=args.start, character=args.character,
                       spec=spec, path=args.name)
+    target = args.out or args.stage
     try:
         stage.GetRootLayer().Save()
     except Exception as e:
-        raise LfusdError(f"cannot save stage {Path(args.stage)} ({e}); check the file is writable") from None
+        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
     how = "standing" if args.gait == "idle" else f"{args.gait} at {speed:g} m/s"
-    print(f"added {prim.GetPath()} ({how}) to {args.stage} in {time.perf_counter() - t0:.2f} s")
+    print(f"added {prim.GetPath()} ({how}) to {target} in {time.perf_counter() - t0:.2f} s")
     return 0

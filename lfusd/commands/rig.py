@@ -14,7 +14,9 @@ def register(sub) -> None:
     rsub = rig.add_subparsers(dest="rig_command", metavar="ACTION", required=True)
     add = rsub.add_parser("add", help="add a rig of UsdGeom.Camera prims to a stage")
     d = RigSpec()
-    add.add_argument("stage", help="the .usda/.usdc stage to edit in place")
+    add.add_argument("stage", help="the USD stage or asset (.usda/.usdc/.usdz/.usd); edited in place unless -o is given")
+    add.add_argument("-o", "--out", default=None, metavar="NEW.usda",
+                     help="write a new layer that sublayers STAGE (left unchanged) and holds the rig; needed for .usdz packages")
     add.add_argument("--name", default="main", help="rig prim name (default: main)")
     add.add_argument("--grid", type=argtypes.grid, default=f"{d.rows}x{d.cols}", help="views as ROWSxCOLS (default 9x9)")
     add.add_argument("--baseline", type=float, default=d.baseline, help="metres between neighbouring cameras (default 0.125)")
@@ -31,7 +33,7 @@ def register(sub) -> None:
 
 
 def run_add(args) -> int:
-    from ..author.stage import open_stage
+    from ..author.stage import open_for_edit
     from ..author.rigs import add_rig
 
     rows, cols = args.grid
@@ -42,11 +44,13 @@ def run_add(args) -> int:
         sensor_mm=args.sensor, width=width, height=height, at=args.at, look_at=args.look_at, spacing=args.spacing,
         layout=args.layout, radius=args.radius, axes=axes,
     )
-    stage = open_stage(args.stage)
+    stage = open_for_edit(args.stage, args.out)
     add_rig(stage, spec)
+    target = args.out or args.stage
     try:
         stage.GetRootLayer().Save()
     except Exception as e:
-        raise LfusdError(f"cannot save stage {Path(args.stage)} ({e}); check the file is writable") from None
-    print(f"added rig {spec.name} ({rows}x{cols} views, {width}x{height} px) to {args.stage}")
+        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
+    over = f" (a new layer over {args.stage})" if args.out else ""
+    print(f"added rig {spec.name} ({rows}x{cols} views, {width}x{height} px) to {target}{over}")
     return 0

@@ -32,7 +32,7 @@ from pxr import Usd, UsdGeom, UsdLux
 from .. import __version__
 from ..author.labels import ObjectEntry, object_table
 from ..author.rigs import StageRig, select_rigs
-from ..author.stage import check_frames, file_hash, frame_range, open_stage, world_frame
+from ..author.stage import check_frames, file_hash, frame_range, is_static, open_stage, world_frame
 from ..camera import RigSpec
 from ..errors import LfusdError
 from .. import layout
@@ -206,6 +206,14 @@ def _add_light(req: RenderRequest, stage: Usd.Stage) -> bool:
     return True
 
 
+def _stage_range(stage: Usd.Stage, frames: list[int]) -> tuple[int, int]:
+    """The frames over which the workers know the stage (t+/-1 outside it is unknown): an
+    animated stage's range; a static stage is known everywhere, so one frame past each end."""
+    if is_static(stage):
+        return min(frames) - 1, max(frames) + 1
+    return frame_range(stage)
+
+
 def render(req: RenderRequest, progress=None) -> dict:
     """Render every missing view of the requested rigs and frames; return the manifest dict."""
     return _render(req, open_stage(req.stage), progress)[0]
@@ -236,7 +244,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
             units = plan_units(
                 req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
                 {mesh: o.instance_id for o in objects for mesh in o.mesh_paths},
-                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage), _add_light(req, stage), world,
+                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), _stage_range(stage, frames), _add_light(req, stage), world,
             )
             report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:

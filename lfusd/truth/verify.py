@@ -331,12 +331,15 @@ def compare_view(
     frame: int,
     view: tuple[int, int],
     thresholds: dict[str, float] | None = None,
+    still: dict | None = None,
 ) -> list[Row]:
-    """Error rows of one view: ``data`` holds the dataset's arrays (missing keys None), ``fwd``/``bwd`` traces."""
+    """Error rows of one view: ``data`` holds the dataset's arrays (missing keys None), ``fwd``/``bwd``
+    traces towards t+1 / t-1, or ``still`` (a trace at t alone) for a frame with neither neighbour:
+    then only the static keys (depth, instance) are compared."""
     thr = {**THRESHOLDS, **(thresholds or {})}
-    tr = fwd or bwd
+    tr = fwd or bwd or still
     if tr is None:
-        raise LfusdError(f"frame {frame} has neither a next nor a previous frame to verify motion against; verify a sequence of 2+ frames")
+        raise ValueError("compare_view needs a trace: fwd, bwd or still")
     ids = object_ids_for(tr["prim_paths"], objects)
     inst_tr = ids[tr["mesh"]]  # mesh -1 -> last entry 0
     labels_of = np.array([""] + [str(objects[i].label) for i in sorted(objects)], dtype=object)
@@ -447,7 +450,9 @@ def verify_dataset(
                 fwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f + 1, view), H, W, 1, baseline, scenes)
             if f - 1 in all_frames:
                 bwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f - 1, view), H, W, -1, baseline, scenes)
-            report.rows.extend(compare_view(data, fwd, bwd, objects, f, tuple(view), thresholds))
+            # A frame without rendered neighbours has no motion keys to check: its static keys are.
+            still = trace_motion(geo, f, K, c2w, c2w, H, W, 0, baseline, scenes) if fwd is None and bwd is None else None
+            report.rows.extend(compare_view(data, fwd, bwd, objects, f, tuple(view), thresholds, still=still))
             for t in [t for t in scenes if t < f - 1]:
                 del scenes[t]  # frames are visited in order: free meshes no longer needed
     return report
