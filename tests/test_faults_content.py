@@ -290,16 +290,38 @@ def _reap(procs: list) -> list[str]:
     return [" ".join(p.cmdline())[:120] for p in alive]
 
 
+PARENT = """
+import os, subprocess, sys, time
+r = int(sys.argv[1])
+env = {**os.environ, "LFUSD_PARENT_PID": str(os.getpid())}
+subprocess.Popen([sys.executable, "-m", "lfusd.render.worker"], stdin=r, pass_fds=(r,), env=env)
+time.sleep(600)
+"""
+
+
 @pytest.mark.render
-def test_killed_lfusd_takes_its_rendering_workers_along(stage, tmp_path):
-    """SIGKILL: no clean-up runs in lfusd. A worker busy with a long frame (many samples) must not render on."""
-    proc = _start("render-video", stage, "-o", tmp_path / "out", "--resolution", "128x96", "--samples", "4000",
-                  "--device", "cpu", "--quiet", "--workers", "2")
-    kids = _wait_for_child(proc, WORKER, count=2)
-    time.sleep(4)  # into the first frame's render
-    proc.kill()
-    proc.communicate(timeout=60)
-    assert not _reap(kids)
+def test_a_blender_worker_dies_with_its_parent():
+    """SIGKILL: no clean-up runs in lfusd. A Blender worker that writes nothing for a while (a long
+    frame: the pipe it would die on is not written) must not render on; here it waits for its job on
+    a stdin the test keeps open, and must die when its parent does."""
+    import psutil
+
+    r, w = os.pipe()
+    try:
+        parent = subprocess.Popen([sys.executable, "-c", PARENT, str(r)], pass_fds=(r,), env={**os.environ, "PYTHONPATH": str(ROOT)})
+        kids = _wait_for_child(parent, WORKER)
+        worker = next(k for k in kids if WORKER in " ".join(k.cmdline()))
+        end = time.time() + 60
+        while "bpy" not in " ".join(m.path for m in worker.memory_maps()) and time.time() < end:
+            time.sleep(0.2)  # Blender loaded: the worker is in main(), waiting for its job
+        time.sleep(1)
+        assert worker.is_running()
+        parent.kill()
+        parent.wait()
+        assert not _reap([worker])
+    finally:
+        os.close(r)
+        os.close(w)
 
 
 @pytest.mark.render
