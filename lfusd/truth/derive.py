@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import tempfile
+import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -74,15 +76,12 @@ def _derive_run(args: tuple[str, str, tuple[int, int], list[int]]) -> int:
 
 def _pool_init(parent: int) -> None:
     """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent)
 
 
 def die_with_parent(parent: int) -> None:
     """Have the kernel kill this process when its parent dies (Linux), so a killed lfusd leaves no strays."""
-    import signal
     import sys
 
     if sys.platform.startswith("linux"):
@@ -128,11 +127,22 @@ def derive_dataset(
             n = _derive_run(item)
             progress and progress(n)
     else:
-        # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_pool_init, initargs=(os.getpid(),))
+        # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child.
+        # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
+        # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
+        # a Ctrl-C to the process group while they start up must not kill them with a traceback.
+        main = threading.current_thread() is threading.main_thread()  # only it may set handlers
+        handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
         try:
-            for n in pool.map(_derive_run, todo):
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_pool_init, initargs=(os.getpid(),))
+            futures = [pool.submit(_derive_run, item) for item in todo]
+        finally:
+            if main:
+                signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
+        try:
+            for f in futures:
+                n = f.result()
                 progress and progress(n)
         except BaseException:
             # Interrupted or failed: stop the pool now rather than let it finish its queue.
