@@ -6,8 +6,9 @@ Each command module in lfusd/commands defines ``register(subparsers)``, adding i
 
 Exit codes: 0 success; 1 ``check``/``verify`` found violations; 2 bad input (usage or an
 :class:`LfusdError`, one line); 3 an unexpected error, a bug (one line naming a file that holds the
-traceback); 130 interrupted. ``--traceback`` (anywhere on the command line) or ``LFUSD_DEBUG=1``
-prints the full chained traceback of an error, including causes hidden by ``raise ... from None``.
+traceback); 130 interrupted (SIGINT), 143 terminated (SIGTERM); both stop the workers first.
+``--traceback`` (anywhere on the command line) or ``LFUSD_DEBUG=1`` prints the full chained
+traceback of an error, including causes hidden by ``raise ... from None``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,9 @@ import importlib
 import logging
 import os
 import pkgutil
+import signal
 import sys
+import threading
 import tempfile
 import traceback
 
@@ -26,6 +29,16 @@ from .commands.args import Parser
 from .errors import LfusdError
 
 EXIT_OK, EXIT_VIOLATIONS, EXIT_ERROR, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that clean-up (workers, pools, Ray tasks) runs as for Ctrl-C."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+    raise Terminated()
 
 
 class _CliParser(Parser):
@@ -62,7 +75,7 @@ def configure_logging(verbose: int = 0) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _CliParser(prog="lfusd", description="Light-field datasets from USD stages.",
-                        epilog="exit codes: 0 ok, 1 check/verify violations, 2 bad input, 3 internal error, 130 interrupted")
+                        epilog="exit codes: 0 ok, 1 check/verify violations, 2 bad input, 3 internal error, 130 interrupted, 143 terminated")
     parser.add_argument("--version", action="version", version=f"lfusd {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_CliParser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
@@ -96,8 +109,13 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return EXIT_ERROR
+    in_main = threading.current_thread() is threading.main_thread()  # only it may set handlers
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
     try:
         return int(args.func(args) or 0)
+    except Terminated:
+        print("lfusd: terminated; rerun the same command to resume", file=sys.stderr)
+        return EXIT_TERMINATED
     except LfusdError as e:
         if debug:
             sys.stderr.write(full_traceback(e))
@@ -115,6 +133,9 @@ def main(argv: list[str] | None = None) -> int:
         first = (str(e).splitlines() or [""])[0]
         print(f"lfusd: internal error: {type(e).__name__}: {first}; the traceback is in {f.name} (please report it)", file=sys.stderr)
         return EXIT_BUG
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":

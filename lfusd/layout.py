@@ -7,6 +7,7 @@
     OUT/<rig>/f000001/00_00/          one folder per view (row 00, col 00):
         rgb.png, rgb.exr, passes.exr  the renderer's files
         motion.npz                    the motion keys (render-video, ``lfusd flow``)
+        view.json                     the completion record: size and sha256 of each file (lfusd.data.integrity)
 
 Which key lives in which file is in :mod:`lfusd.keys`.
 """
@@ -27,7 +28,8 @@ RGB_PNG = "rgb.png"
 RGB_EXR = "rgb.exr"
 PASSES_EXR = "passes.exr"
 MOTION_FILE = "motion.npz"
-VIEW_FILES = (RGB_PNG, RGB_EXR, PASSES_EXR, MOTION_FILE)
+VIEW_RECORD = "view.json"  # written last: the view is complete only if its files match it
+VIEW_FILES = (RGB_PNG, RGB_EXR, PASSES_EXR, MOTION_FILE, VIEW_RECORD)
 
 
 def view_key(view: tuple[int, int]) -> str:

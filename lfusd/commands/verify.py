@@ -1,4 +1,5 @@
-"""`lfusd verify OUT`: check a dataset's ground truth against the stage's own geometry."""
+"""`lfusd verify OUT`: check a dataset's ground truth against the stage's own geometry;
+`lfusd verify OUT --integrity`: check every view's files against its completion record only."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rig", help="rig to verify (default: every rig of the dataset)")
     p.add_argument("--threshold", nargs="+", type=argtypes.threshold, metavar="KEY=VALUE",
                    help="override limits, e.g. occlusion_fwd=0.02 flow_fwd=0.1")
+    p.add_argument("--integrity", action="store_true",
+                   help="only check every view's files against its completion record (sizes and checksums), no ray casting")
     p.set_defaults(func=handler)
 
 
@@ -39,8 +42,27 @@ def show(reports: dict) -> int:
     return 0 if ok else 1
 
 
+def integrity(out: str, rig: str | None) -> int:
+    """Print one FAIL line per view whose files do not match its record; 0 when all match, else 1."""
+    from ..data.integrity import check_dataset
+
+    checked, problems = check_dataset(out, rig)
+    for p in problems:
+        print(f"FAIL {p}")
+    if problems:
+        views = len({(p.rig, p.frame, p.view) for p in problems})
+        print(f"verify --integrity: {views} of {checked} views damaged or incomplete; rerun the render command to repair them "
+              "('lfusd flow' for motion.npz alone)")
+        return 1
+    print(f"verify --integrity: all {checked} views match their records")
+    return 0
+
+
 def handler(args) -> int:
     from ..truth.verify import verify
+
+    if args.integrity:
+        return integrity(args.out, args.rig)
 
     reports = verify(args.out, stage=args.stage, rig=args.rig, frames=args.frames, views=args.views,
                      thresholds=dict(args.threshold or []), progress=progress)

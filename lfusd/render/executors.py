@@ -31,11 +31,48 @@ log = logging.getLogger(__name__)
 WORKER = [sys.executable, "-X", "faulthandler", "-m", "lfusd.render.worker"]
 
 
-def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> None:
-    """Move one view's raw files from a worker's scratch into its final folder, atomically."""
+def check_output(scratch: Path, key: str, frame: int, unit: WorkUnit) -> None:
+    """Refuse a worker's files for one view unless they read back whole, with the unit's size and passes.
+
+    Blender reports success after writing 0-byte or cut-off EXRs on a full disk; they must not be committed."""
+    from ..data.passes import read_raw
+
+    h, w = unit.height, unit.width
+    for name in ("rgb", "passes"):
+        src = scratch / f"{name}_{key}.exr"
+        if not src.is_file():
+            raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
+        try:
+            if name == "rgb":
+                shape = read_rgb_linear(src).shape[:2]
+            else:
+                raw = read_raw(src)
+                shape = raw["depth"].shape
+                wanted = ["vector"] + (["next_position", "prev_position"] if unit.motion else [])
+                lacking = [p for p in wanted if p not in raw]
+                if lacking:
+                    raise LfusdError(f"it has no {', '.join(lacking)} pass")
+        except LfusdError as e:
+            why = str(e).split(";")[0]
+            raise LfusdError(f"Blender wrote a damaged {src.name} for view {key} of frame {frame} ({why}); "
+                             "free disk space if it is full, then rerun to resume") from None
+        if tuple(shape) != (h, w):
+            raise LfusdError(f"Blender wrote {src.name} for view {key} of frame {frame} at {shape[1]}x{shape[0]}, not {w}x{h}; rerun to resume")
+
+
+def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: WorkUnit | None = None) -> None:
+    """Move one view's raw files from a worker's scratch into its final folder, atomically.
+
+    The files are checked first (with ``unit``: readable, the right passes and size); the folder
+    gets its completion record last, before the rename. A complete view already there is kept; a
+    damaged one is replaced."""
+    from ..data import integrity
+
     final = frame_dir(out, rig, frame) / key
-    if final.is_dir():
+    if integrity.view_complete(final):
         return
+    if unit is not None:
+        check_output(scratch, key, frame, unit)
     tmp = final.parent / f".{key}.tmp-{os.getpid()}-{threading.get_ident()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -46,11 +83,19 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path) -> Non
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
         shutil.move(str(src), tmp / final_name)
     write_png(tmp / layout.RGB_PNG, linear_to_srgb8(read_rgb_linear(tmp / layout.RGB_EXR)))
-    os.rename(tmp, final)
+    integrity.record_render(tmp)
+    if final.exists():  # damaged: move it aside (a stale-tmp name, cleaned by the next run if we die here)
+        old = final.parent / f".{key}.tmp-old-{os.getpid()}-{threading.get_ident()}"
+        os.rename(final, old)
+        os.rename(tmp, final)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, final)
 
 
 _LIVE: set[subprocess.Popen] = set()
 _LIVE_LOCK = threading.Lock()
+_STOPPING = threading.Event()  # set while run_local stops its pool: no new worker may live
 
 
 def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
@@ -66,9 +111,12 @@ def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
         proc = subprocess.Popen(
             WORKER,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1,
+            env={**os.environ, "LFUSD_PARENT_PID": str(os.getpid())},  # the worker dies with this process
         )
         with _LIVE_LOCK:
             _LIVE.add(proc)
+            if _STOPPING.is_set():  # started while the pool was being stopped
+                proc.kill()
         try:
             proc.stdin.write(json.dumps({**unit.to_json(), "scratch": str(scratch)}))
             proc.stdin.close()
@@ -80,7 +128,7 @@ def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
                     device = event["device"]
                 elif event["event"] == "frame":
                     for key in event["views"]:
-                        commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]))
+                        commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]), unit)
                         if on_view:
                             on_view(1)
                     shutil.rmtree(event["scratch"], ignore_errors=True)
@@ -108,6 +156,7 @@ def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
 
 def _kill_all() -> None:
     with _LIVE_LOCK:
+        _STOPPING.set()
         for proc in list(_LIVE):
             if proc.poll() is None:
                 proc.kill()
@@ -118,6 +167,7 @@ def run_local(units: list[WorkUnit], req: RenderRequest, report) -> str:
     from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 
     pool = ThreadPoolExecutor(max_workers=req.workers)
+    _STOPPING.clear()
     try:
         futures = [pool.submit(run_unit, u, req.out, report.advance) for u in units]
         done, _ = wait(futures, return_when=FIRST_EXCEPTION)

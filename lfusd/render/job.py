@@ -124,6 +124,8 @@ def _prepare_output(req: RenderRequest, settings: dict) -> dict | None:
 
 def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, rigs: list[StageRig], frames: list[int], device: str | None,
                     world: dict | None = None) -> None:
+    from ..data import integrity
+
     rig_specs = dict(previous["settings"]["rigs"]) if previous else {}
     rig_specs.update(settings["rigs"])
     all_frames = sorted(set(previous.get("frames", [])) | set(frames)) if previous else sorted(frames)
@@ -137,10 +139,10 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
         "frames": all_frames,
         "settings": {**settings, "rigs": rig_specs},
         "device": device or (previous or {}).get("device"),
-        # Finished units: frames whose every view folder is complete, per rig (the folders,
-        # written atomically, are the ground truth; this is the summary a reader can trust).
+        # Finished units: frames whose every view matches its completion record, per rig (the
+        # records are the ground truth; this is the summary a reader can trust).
         "complete": {
-            name: [f for f in all_frames if all((frame_dir(req.out, name, f) / view_key(v)).is_dir() for v in RigSpec.from_dict(spec).views)]
+            name: [f for f in all_frames if all(integrity.view_complete(frame_dir(req.out, name, f) / view_key(v)) for v in RigSpec.from_dict(spec).views)]
             for name, spec in sorted(rig_specs.items())
         },
         "software": _software(),

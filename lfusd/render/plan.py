@@ -5,28 +5,43 @@ No pxr and no bpy here: the parent plans with it and the Blender worker parses i
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from ..data.integrity import render_problems
 from ..layout import frame_dir, view_key
 from .request import RenderRequest
 
+log = logging.getLogger(__name__)
 View = tuple[int, int]
 
 
 class Plan:
-    """The views still to render, per (rig, frame); a view folder that exists is done."""
+    """The views still to render, per (rig, frame): a view is done iff its files match its completion
+    record (lfusd.data.integrity); a folder that exists but does not match is rendered again."""
 
     def __init__(self, out: Path, views_of: dict[str, list[View]], frames: list[int]):
         self.todo: dict[tuple[str, int], list[View]] = {}
         self.total = 0
+        damaged = []
         for rig, views in views_of.items():
             for f in frames:
                 self.total += len(views)
-                missing = [v for v in views if not (frame_dir(out, rig, f) / view_key(v)).is_dir()]
+                missing = []
+                for v in views:
+                    d = frame_dir(out, rig, f) / view_key(v)
+                    problems = render_problems(d)
+                    if problems:
+                        missing.append(v)
+                        if d.exists():
+                            damaged.append(f"{d} ({problems[0]})")
                 if missing:
                     self.todo[(rig, f)] = missing
+        if damaged:
+            more = f" and {len(damaged) - 1} more" if len(damaged) > 1 else ""
+            log.warning("rendering again %d view(s) whose files do not match their record: %s%s", len(damaged), damaged[0], more)
 
     @property
     def remaining(self) -> int:

@@ -513,6 +513,16 @@ def _test_kill_hook(frame: int) -> None:
 
 
 def main() -> int:
+    # Die with the parent (Linux: the kernel sends SIGKILL), so a killed lfusd leaves no Blender rendering on.
+    parent = int(os.environ.get("LFUSD_PARENT_PID", "0"))
+    if parent:
+        if sys.platform.startswith("linux"):
+            import ctypes
+            import signal
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # it died before the request took effect
+            return 1
     job = WorkUnit.from_json(json.loads(sys.stdin.read()))
     try:
         t0 = time.time()

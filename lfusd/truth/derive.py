@@ -1,22 +1,28 @@
 """Derive the motion ground truth of a rendered dataset (raw passes -> motion.npz per view).
 
 Frame t's forward keys need frame t+1 rendered too (and backward keys t-1); at the ends of the
-rendered range they are masked invalid, as CONVENTIONS.md states.
+rendered range they are masked invalid, as CONVENTIONS.md states. Each motion.npz is recorded in
+its view's completion record with the digests of the raw passes it came from (t-1, t, t+1), so a
+frame derived at the end of one range is derived again when its neighbour arrives with the next:
+ranges rendered in pieces join without a seam.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 import tempfile
+import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from ..data import integrity
 from ..data.dataset import Dataset
 from ..camera import View
-from ..layout import MOTION_FILE
+from ..layout import MOTION_FILE, PASSES_EXR, frame_dir, view_key
 
 RUN = 8  # frames of one view per task: the task's Dataset reads each raw pass once, bar the two at its ends
 
@@ -35,8 +41,17 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
 
 
+def _passes_of(ds: Dataset, frame: int, view: View) -> dict[str, Path | None]:
+    """The raw-pass files a derivation of (frame, view) reads: {"prev", "cur", "next"}; None where the
+    dataset has no such frame (as :func:`derive_view` decides)."""
+    frames = set(ds.manifest["frames"])
+    return {k: frame_dir(ds.root, ds.rig_name, g) / view_key(view) / PASSES_EXR if k == "cur" or g in frames else None
+            for k, g in (("prev", frame - 1), ("cur", frame), ("next", frame + 1))}
+
+
 def write_motion(ds: Dataset, frame: int, view: View) -> Path:
-    """Derive and store ``motion.npz`` for one view, atomically."""
+    """Derive and store ``motion.npz`` for one view, atomically, and record it with its inputs."""
+    inputs = integrity.motion_inputs(_passes_of(ds, frame, view))
     keys = derive_view(ds, frame, view)
     d = ds.view_dir(frame, view)
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".motion.", suffix=".npz")
@@ -47,6 +62,7 @@ def write_motion(ds: Dataset, frame: int, view: View) -> Path:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    integrity.record_motion(d, inputs)
     return d / MOTION_FILE
 
 
@@ -58,6 +74,24 @@ def _derive_run(args: tuple[str, str, tuple[int, int], list[int]]) -> int:
     return len(frames)
 
 
+def _pool_init(parent: int) -> None:
+    """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent)
+
+
+def die_with_parent(parent: int) -> None:
+    """Have the kernel kill this process when its parent dies (Linux), so a killed lfusd leaves no strays."""
+    import sys
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
+
+
 def derive_dataset(
     root: str | Path,
     rigs: list[str] | None = None,
@@ -67,28 +101,54 @@ def derive_dataset(
     progress=None,
     views: list[View] | None = None,
 ) -> int:
-    """Write motion.npz for every (rig, frame, view) that lacks one (all of them with ``overwrite``).
+    """Write motion.npz for every (rig, frame, view) whose motion is not current (all of them with ``overwrite``).
 
-    ``rigs``, ``frames`` and ``views`` default to every rig, completely rendered frame and view of
-    the dataset. Returns how many views were written.
+    Current: present, matching the view's record, and derived from the raw passes now at t-1, t
+    and t+1. The neighbours of the selected frames are checked too (a frame rendered next to them
+    changes their motion). ``rigs``, ``frames`` and ``views`` default to every rig, completely
+    rendered frame and view of the dataset. Returns how many views were written.
     """
     from ..data.export import open_datasets
 
     todo = []
     for ds in open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs]:
-        rig_frames = ds.frames if frames is None else frames
+        wanted = set(ds.frames if frames is None else frames)
+        # A neighbour's motion changes when a frame next to it arrives (its t+-1 keys were masked):
+        # it is a candidate too, derived again only if its record says it came from other passes.
+        candidates = sorted(wanted | {g for f in wanted for g in (f - 1, f + 1) if g in ds.frames})
         # Runs of frames of one view: consecutive frames share t+/-1 in the dataset's raw-pass cache.
         for v in ds.views if views is None else views:
             # view_dir raises naming a view or frame the dataset lacks
-            missing = [f for f in rig_frames if overwrite or not (ds.view_dir(f, v) / MOTION_FILE).is_file()]
-            todo += [(str(root), ds.rig_name, tuple(v), missing[i : i + RUN]) for i in range(0, len(missing), RUN)]
+            stale = [f for f in candidates if (overwrite and f in wanted)
+                     or integrity.motion_problem(ds.view_dir(f, v), integrity.motion_inputs(_passes_of(ds, f, v)))]
+            todo += [(str(root), ds.rig_name, tuple(v), stale[i : i + RUN]) for i in range(0, len(stale), RUN)]
     if workers <= 1 or len(todo) <= 1:
         for item in todo:
             n = _derive_run(item)
             progress and progress(n)
     else:
-        # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child
-        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            for n in pool.map(_derive_run, todo):
+        # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child.
+        # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
+        # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
+        # a Ctrl-C to the process group while they start up must not kill them with a traceback.
+        main = threading.current_thread() is threading.main_thread()  # only it may set handlers
+        handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_pool_init, initargs=(os.getpid(),))
+            futures = [pool.submit(_derive_run, item) for item in todo]
+        finally:
+            if main:
+                signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
+        try:
+            for f in futures:
+                n = f.result()
                 progress and progress(n)
+        except BaseException:
+            # Interrupted or failed: stop the pool now rather than let it finish its queue.
+            for p in list((getattr(pool, "_processes", None) or {}).values()):
+                p.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
     return sum(len(item[3]) for item in todo)

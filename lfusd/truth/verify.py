@@ -242,6 +242,7 @@ class VerifyReport:
     """All rows of a verification; ``ok`` when no row exceeds its threshold."""
 
     rows: list[Row] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)  # views with no data to compare (missing or damaged files)
 
     def compared(self) -> dict[str, int]:
         """Pixels compared per key (all classes together), over every frame and view."""
@@ -255,14 +256,15 @@ class VerifyReport:
     def ok(self) -> bool:
         """No row exceeds its threshold, and every key checked compared at least one pixel:
         a check that compared nothing has failed."""
-        return bool(self.rows) and all(r.ok for r in self.rows) and all(self.compared().values())
+        return bool(self.rows) and not self.problems and all(r.ok for r in self.rows) and all(self.compared().values())
 
     def failures(self) -> list[str]:
         """One line per failing row, naming the key, class, frame and view; one per key that
         compared nothing; one when nothing at all was compared."""
         if not self.rows:
-            return ["nothing to compare: the frames and views selected hold no ground truth to check; select some with --frames/--views"]
-        out = [f"{key}: nothing to compare (0 px over every frame and view); check that --stage is the rendered stage"
+            return self.problems + ["nothing to compare: the frames and views selected hold no ground truth to check; select some with --frames/--views"]
+        out = list(self.problems)
+        out += [f"{key}: nothing to compare (0 px over every frame and view); check that --stage is the rendered stage"
                for key, n in self.compared().items() if n == 0]
         for r in self.rows:
             if r.ok:
@@ -423,7 +425,10 @@ def verify_dataset(
         raise LfusdError("verify needs the stage the dataset was rendered from; pass --stage PATH")
     geo = StageGeometry(open_stage(stage_path))
     baseline = baseline if baseline is not None else getattr(ds, "baseline", None)
-    all_frames = [int(f) for f in ds.frames]
+    # Every frame the manifest lists, complete or not: a view missing there is a failure, not a skip.
+    manifest = getattr(ds, "manifest", None) or {}
+    all_frames = sorted(int(f) for f in manifest.get("frames") or ds.frames)
+    expect_motion = bool(manifest.get("settings", {}).get("motion"))
     frames = all_frames if frames is None else [int(f) for f in frames]
     views = list(ds.views) if views is None else [tuple(v) for v in views]
     for f in frames:
@@ -439,9 +444,17 @@ def verify_dataset(
         for view in views:
             if progress:
                 progress(f, view)
+            where = f"frame {f} view {view[0]},{view[1]}"
+            try:
+                ds.read(f, view, "depth")
+            except (FileNotFoundError, LfusdError) as e:
+                report.problems.append(f"{where}: no depth to compare ({str(e).split(';')[0]}); rerun the render command to repair it")
+                continue
             data = {k: _read_optional(ds, f, view, k) for k in KEYS}
-            if data["depth"] is None:
-                raise LfusdError(f"the dataset has no depth for frame {f} view {view[0]},{view[1]}; re-render it")
+            lacking = [k for k in names(MOTION) if data[k] is None]
+            if expect_motion and lacking:
+                report.problems.append(f"{where}: no {', '.join(lacking)} to compare (motion.npz missing or damaged); "
+                                       "rerun render-video or 'lfusd flow' to repair it")
             H, W = np.asarray(data["depth"]).shape[:2]
             K = np.asarray(ds.intrinsics(view), np.float64)
             c2w = np.asarray(ds.cam_to_world(f, view), np.float64)

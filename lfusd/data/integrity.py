@@ -1,0 +1,219 @@
+"""Completion records: a view is complete when its files are what its record says, not when its folder exists.
+
+Each view folder holds ``view.json`` (:data:`lfusd.layout.VIEW_RECORD`)::
+
+    {"version": 1, "files": {"rgb.png": {"size": N, "sha256": HEX}, "rgb.exr": ..., "passes.exr": ...,
+                             "motion.npz": {"size": N, "sha256": HEX, "inputs": {"prev": HEX|null, "cur": HEX, "next": HEX|null}}}}
+
+The renderer writes it last inside the view's temporary folder, before the atomic rename; the
+motion derivation adds the ``motion.npz`` entry (atomically) with the digests of the raw passes
+it was derived from, so motion derived before a neighbouring frame existed, or from passes since
+re-rendered, is known to be stale. sha256 because it is the fastest stdlib hash on CPUs with SHA
+extensions (measured 1.7 GB/s here, blake2b 1.2 GB/s). No pxr, bpy or torch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import layout
+from ..layout import frame_dir, view_key
+
+VERSION = 1
+RENDER_FILES = (layout.RGB_PNG, layout.RGB_EXR, layout.PASSES_EXR)  # written by the renderer, recorded on commit
+
+# In-process memo of digests by (path, size, mtime, ctime, inode): one run hashes each file once
+# however often it checks it; a new process (the next run, `verify --integrity`) hashes again.
+_DIGESTS: dict[tuple, str] = {}
+
+
+def file_entry(path: str | Path) -> dict | None:
+    """``{"size", "sha256"}`` of a file, or None when it is missing or unreadable."""
+    try:
+        with open(path, "rb") as f:
+            st = os.fstat(f.fileno())
+            memo = (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+            digest = _DIGESTS.get(memo)
+            if digest is None:
+                digest = hashlib.file_digest(f, "sha256").hexdigest()
+                if len(_DIGESTS) > 100_000:
+                    _DIGESTS.clear()
+                _DIGESTS[memo] = digest
+    except OSError:
+        return None
+    return {"size": st.st_size, "sha256": digest}
+
+
+def read_record(view_dir: str | Path) -> dict | None:
+    """The view's record, or None when it is missing or unreadable."""
+    try:
+        rec = json.loads((Path(view_dir) / layout.VIEW_RECORD).read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and isinstance(rec.get("files"), dict) else None
+
+
+def write_record(view_dir: str | Path, record: dict) -> None:
+    """Write ``view.json`` under a temporary name and rename it into place."""
+    d = Path(view_dir)
+    fd, tmp = tempfile.mkstemp(dir=d, prefix=".view.", suffix=".json")
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(record, f, indent=1)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, d / layout.VIEW_RECORD)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def record_render(view_dir: str | Path) -> dict:
+    """Record the renderer's files of a freshly assembled view folder (call it last, before the rename)."""
+    d = Path(view_dir)
+    files = {}
+    for name in RENDER_FILES:
+        entry = file_entry(d / name)
+        if entry is None:
+            raise FileNotFoundError(f"{d / name} is missing")
+        files[name] = entry
+    record = {"version": VERSION, "files": files}
+    write_record(d, record)
+    return record
+
+
+def record_motion(view_dir: str | Path, inputs: dict) -> None:
+    """Add (or replace) the ``motion.npz`` entry, with the digests of the raw passes it came from."""
+    d = Path(view_dir)
+    record = read_record(d) or {"version": VERSION, "files": {}}
+    entry = file_entry(d / layout.MOTION_FILE)
+    if entry is None:
+        raise FileNotFoundError(f"{d / layout.MOTION_FILE} is missing")
+    record["files"][layout.MOTION_FILE] = {**entry, "inputs": inputs}
+    write_record(d, record)
+
+
+def _mismatch(d: Path, name: str, want: dict | None, deep: bool) -> str | None:
+    """Why ``name`` does not match its record entry ``want`` (None: it matches)."""
+    if want is None:
+        return f"{name} is not in the record"
+    p = d / name
+    try:
+        size = p.stat().st_size
+    except OSError:
+        return f"{name} is missing"
+    if size != want.get("size"):
+        return f"{name} has {size} bytes, the record {want.get('size')}"
+    if deep:
+        got = file_entry(p)
+        if got is None:
+            return f"{name} is unreadable"
+        if got["sha256"] != want.get("sha256"):
+            return f"{name} differs from its recorded checksum"
+    return None
+
+
+def render_problems(view_dir: str | Path, deep: bool = True) -> list[str]:
+    """Why a view is not complete: no folder, no record, or a renderer's file not matching it.
+
+    ``deep`` compares checksums, not only sizes."""
+    d = Path(view_dir)
+    if not d.is_dir():
+        return ["the view folder is missing"]
+    rec = read_record(d)
+    if rec is None:
+        return [f"it has no readable {layout.VIEW_RECORD}"]
+    return [m for name in RENDER_FILES if (m := _mismatch(d, name, rec["files"].get(name), deep))]
+
+
+def view_complete(view_dir: str | Path) -> bool:
+    """The view's rendered files all match its record (sizes and checksums)."""
+    return not render_problems(view_dir)
+
+
+def motion_inputs(passes_of: dict[str, Path | None]) -> dict[str, str | None]:
+    """Digests of the raw passes a derivation reads: {"prev", "cur", "next"} -> sha256 or None (no such frame)."""
+    out = {}
+    for k in ("prev", "cur", "next"):
+        p = passes_of.get(k)
+        entry = file_entry(p) if p is not None else None
+        out[k] = entry["sha256"] if entry else None
+    return out
+
+
+def motion_problem(view_dir: str | Path, inputs: dict | None = None, deep: bool = True) -> str | None:
+    """Why a view's motion.npz is not current (None: it is): missing, damaged, or derived from other passes.
+
+    ``inputs``: the digests of the passes it should come from now (see :func:`motion_inputs`)."""
+    d = Path(view_dir)
+    rec = read_record(d)
+    want = (rec or {"files": {}})["files"].get(layout.MOTION_FILE)
+    if want is None:
+        return f"{layout.MOTION_FILE} is missing" if not (d / layout.MOTION_FILE).is_file() else f"{layout.MOTION_FILE} is not in the record"
+    bad = _mismatch(d, layout.MOTION_FILE, want, deep)
+    if bad:
+        return bad
+    if inputs is not None and want.get("inputs") != inputs:
+        old = want.get("inputs") or {}
+        which = [k for k in ("prev", "cur", "next") if old.get(k) != inputs.get(k)]
+        return f"{layout.MOTION_FILE} was derived from other raw passes ({', '.join(which) or 'inputs'} changed)"
+    return None
+
+
+@dataclass
+class Problem:
+    """One view whose files do not match its record."""
+
+    rig: str
+    frame: int
+    view: tuple[int, int]
+    what: str
+
+    def __str__(self) -> str:
+        return f"rig {self.rig} frame {self.frame} view {self.view[0]},{self.view[1]}: {self.what}"
+
+
+def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tuple[int, list[Problem]]:
+    """Check every view of every frame in the manifest against its record, without reading pixels.
+
+    Rendered files must match; with motion (render-video), ``motion.npz`` must exist, match, and
+    come from the current raw passes of the view and its neighbours. Returns (views checked, problems).
+    """
+    from ..camera import RigSpec
+    from ..errors import LfusdError
+
+    root = Path(root)
+    try:
+        manifest = json.loads((root / layout.MANIFEST).read_text())
+    except (OSError, ValueError):
+        raise LfusdError(f"{root} holds no readable {layout.MANIFEST}; give a dataset folder") from None
+    rigs = manifest.get("rigs", [])
+    if rig not in (None, "all"):
+        if rig not in rigs:
+            raise LfusdError(f"{root} has no rig {rig!r}; it has {', '.join(rigs)}")
+        rigs = [rig]
+    settings = manifest.get("settings", {})
+    frames = [int(f) for f in manifest.get("frames", [])]
+    checked, problems = 0, []
+    for name in rigs:
+        spec = RigSpec.from_dict(settings["rigs"][name])
+        for f in frames:
+            for v in spec.views:
+                progress and progress(name, f, v)
+                d = frame_dir(root, name, f) / view_key(v)
+                checked += 1
+                bad = render_problems(d)
+                problems += [Problem(name, f, tuple(v), b) for b in bad]
+                if bad or not settings.get("motion"):
+                    continue
+                passes = {k: frame_dir(root, name, g) / view_key(v) / layout.PASSES_EXR if g in frames else None
+                          for k, g in (("prev", f - 1), ("cur", f), ("next", f + 1))}
+                m = motion_problem(d, motion_inputs(passes))
+                if m:
+                    problems.append(Problem(name, f, tuple(v), m))
+    return checked, problems
