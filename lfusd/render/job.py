@@ -29,7 +29,7 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdLux
 
 from .. import __version__
-from ..author.labels import ObjectEntry, object_table
+from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
 from ..author.stage import check_frames, file_hash, frame_range, open_stage, world_frame
 from ..camera import RigSpec
@@ -67,13 +67,6 @@ def _software() -> dict:
 
 def _matrix(m) -> list[list[float]]:
     return np.asarray(m, dtype=np.float64).tolist()
-
-
-def object_poses(stage: Usd.Stage, prim_paths: list[str], frame: int) -> dict[str, list]:
-    """World pose (4x4, column vectors, metres) of each object prim at ``frame``."""
-    cache = UsdGeom.XformCache(Usd.TimeCode(frame))
-    world = world_frame(stage)
-    return {path: _matrix(world.pose(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(path)))) for path in prim_paths}
 
 
 def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict:
@@ -152,6 +145,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
     }
     atomic_write_text(req.out / layout.OBJECTS, json.dumps(table, indent=1))
     paths = [o.prim_path for o in objects]
+    poses = ObjectPoses(stage)
     for rig in rigs:
         for f in frames:
             d = frame_dir(req.out, rig.spec.name, f)
@@ -162,7 +156,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
                 "frame": f,
                 "time_code": f,
                 "cam_to_world": {view_key(v): _matrix(rig.cam_to_world(stage, v, f)) for v in rig.spec.views},
-                "object_poses": object_poses(stage, paths, f),
+                "object_poses": {p: _matrix(m) for p, m in poses.at(paths, f).items()},
             }
             atomic_write_text(d / layout.FRAME_META, json.dumps(meta))
 
@@ -207,12 +201,13 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
         plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
         device = None
         if plan.remaining:
+            from ..author.geometry import StageGeometry, render_instances
             from .executors import run_units
 
+            plain, instanced = render_instances(StageGeometry(stage), objects, frame_range(stage)[0])
             units = plan_units(
                 req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
-                {mesh: o.instance_id for o in objects for mesh in o.mesh_paths},
-                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage),
+                plain, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), frame_range(stage), instanced,
             )
             report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:

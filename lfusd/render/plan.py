@@ -6,7 +6,7 @@ No pxr and no bpy here: the parent plans with it and the Blender worker parses i
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from ..layout import frame_dir, view_key
@@ -58,6 +58,10 @@ class WorkUnit:
     seed: int = 0
     max_bounces: int = 12
     persistent: bool = False
+    # Instanced gprims (scenegraph instance proxies, point instances), which Blender draws as copies
+    # under an anchor object: [anchor prim path, instance id, vertex count, centroid x, y, z in the
+    # anchor's space at stage_range[0], part path] (lfusd.author.geometry.render_instances).
+    instanced: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -81,7 +85,8 @@ def chunks(items: list, n: int) -> list[list]:
 
 
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],
-               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int]) -> list[WorkUnit]:
+               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int],
+               instanced: list | None = None) -> list[WorkUnit]:
     """Work units covering every missing (rig, frame, view) of ``plan``."""
     units: list[WorkUnit] = []
     for rig_name in sorted({k[0] for k in plan.todo}):
@@ -105,6 +110,6 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                     width=width, height=height, samples=req.samples, device=req.device, instances=instances,
                     # Locally, workers share the cores; on Ray, Blender takes what the node has.
                     threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range),
+                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range), instanced=instanced or [],
                 ))
     return units
