@@ -91,6 +91,15 @@ class StageGeometry:
         """True when the gprim is deformed by a UsdSkel skeleton."""
         return prim_path in self._skinning
 
+    def parts_of(self, owner: str) -> list:
+        """The drawn gprims of one object (by its path): prims (instance proxies included), and
+        :class:`~lfusd.author.labels.Part` for point instances, which have no prim of their own."""
+        if not hasattr(self, "_by_owner"):
+            self._by_owner: dict[str, list] = {}
+            for p in self.parts:
+                self._by_owner.setdefault(p.owner, []).append(p.prim if p.placement is None else p)
+        return self._by_owner.get(owner, [])
+
     def resolver(self, time: float) -> Resolver:
         """Transforms at ``time`` (cached until another time is asked for)."""
         if self._resolver is None or self._resolver.time != Usd.TimeCode(time):

@@ -252,9 +252,29 @@ def _path_key(path: str) -> tuple:
     return tuple((tokens[j], int(tokens[j + 1]) if j + 1 < len(tokens) else -1) for j in range(0, len(tokens), 2))
 
 
+def object_prim(stage: Usd.Stage, path: str) -> Usd.Prim:
+    """The prim that carries an object's identity and rules: the prim at ``path``, or for a point
+    instance (``/A[i]``, ``/A[i]/B[j]``) its instancer (a prototype prim when nested)."""
+    m = re.fullmatch(r"(.*)\[(\d+)\](.*)", path)  # the last instance index
+    if not m:
+        return stage.GetPrimAtPath(path)
+    head, index, rest = m.groups()
+    instancer = object_prim(stage, head)
+    if not rest or not instancer or not instancer.IsA(UsdGeom.PointInstancer):
+        return instancer
+    inst = UsdGeom.PointInstancer(instancer)
+    roots = inst.GetPrototypesRel().GetForwardedTargets()
+    indices = inst.GetProtoIndicesAttr().Get(Usd.TimeCode.EarliestTime())
+    k = int(indices[int(index)]) if indices is not None and int(index) < len(indices) else -1
+    if not 0 <= k < len(roots):
+        return Usd.Prim()
+    return stage.GetPrimAtPath(roots[k].AppendPath(Sdf.Path(rest.lstrip("/"))) if rest.strip("/") else roots[k])
+
+
 def scene_parts(stage: Usd.Stage) -> list[Part]:
-    """Every drawn gprim of the stage, instanced ones included, in path order."""
-    return sorted(_Walk(stage).parts, key=lambda p: _path_key(p.path))
+    """Every drawn gprim of the stage, instanced ones included: the stage's (and instance proxies')
+    gprims in traversal order, then each PointInstancer's instances."""
+    return _Walk(stage).parts
 
 
 def object_table(stage: Usd.Stage) -> tuple[list[ObjectEntry], list[str]]:
