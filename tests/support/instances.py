@@ -22,17 +22,17 @@ from lfusd.author.stage import new_stage
 
 FRAMES = (1, 2, 3)
 # Scenegraph instances: translation per frame (only Tree_1 moves).
-TREES = {f"/World/Forest/Tree_{k}": (lambda f, k=k: np.array([-2.0 + 2.0 * k, 0.0 + (0.15 * (f - 1) if k == 1 else 0.0), 0.0])) for k in range(3)}
+TREES = {f"/World/Forest/Tree_{k}": (lambda f, k=k: np.array([-1.6 + 1.6 * k, 0.0 + (0.15 * (f - 1) if k == 1 else 0.0), 0.0])) for k in range(3)}
 TRUNK = ((0.0, 0.0, 0.5), 0.4)  # (centre in the prototype, edge)
 CROWN = ((0.0, 0.0, 1.3), 1.0)
 # Bushes inside every tree: (proto index, translation in the tree's frame)
 BUSHES = [(0, (0.6, -0.6, 0.1)), (1, (-0.6, -0.6, 0.15)), (0, (0.0, -0.8, 0.1))]
 BUSH_SIZE = (0.2, 0.3)
 # Pines of the outer PointInstancer: translation per frame (pine 2 moves)
-PINES = [(lambda f, i=i: np.array([-2.0 + 2.0 * i + (0.1 * (f - 1) if i == 2 else 0.0), 3.0, 0.0])) for i in range(3)]
+PINES = [(lambda f, i=i: np.array([-1.2 + 1.2 * i + (0.1 * (f - 1) if i == 2 else 0.0), 3.0, 0.0])) for i in range(3)]
 PINE = ((0.0, 0.0, 0.6), 0.5)
-CONES = [(0.5, 0.0, 0.1), (-0.5, 0.0, 0.1)]  # nested instances, in the pine's frame
-CONE_SIZE = 0.2
+CONES = [(0.0, 0.45, 0.15), (0.0, -0.45, 0.15)]  # nested instances, in the pine's frame
+CONE_SIZE = 0.3
 
 
 def box_mesh(stage: Usd.Stage, path: str, centre, edge: float) -> UsdGeom.Mesh:
@@ -127,3 +127,18 @@ def write_instances_stage(path, rig=None, ground: bool = True, scenegraph: bool 
         add_rig(stage, rig)
     stage.Save()
     return stage
+
+
+def expected_objects(scenegraph: bool = True, points: bool = True) -> dict[str, tuple[str, object]]:
+    """{object path: (label, translation(frame))} of every object, from the authored placements."""
+    out = {}
+    for tree, pos in TREES.items() if scenegraph else ():
+        out[tree] = ("tree", pos)
+        for j, (_, t) in enumerate(BUSHES):
+            out[f"{tree}/Bushes[{j}]"] = ("bush", lambda f, pos=pos, t=t: pos(f) + np.array(t))
+    for i, pos in enumerate(PINES if points else ()):
+        out[f"/World/Forest/Trees[{i}]"] = ("pine", pos)
+        for j, t in enumerate(CONES):
+            out[f"/World/Forest/Trees[{i}]/Cones[{j}]"] = ("cone", lambda f, pos=pos, t=t: pos(f) + np.array(t))
+    out["/World/Ground"] = ("ground", lambda f: np.zeros(3))
+    return out
