@@ -20,7 +20,7 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdSkel, Vt
 
 from ..errors import LfusdError
-from .labels import renderable_gprims
+from .labels import Part, Resolver, renderable_gprims, scene_parts
 from .stage import world_frame
 
 _CUBE_FACES = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
@@ -58,13 +58,26 @@ def _transform(points: np.ndarray, matrix) -> np.ndarray:
     return points @ m[:3, :3] + m[3, :3]
 
 
+def _unsupported(prim: Usd.Prim) -> LfusdError:
+    return LfusdError(
+        f"prim {prim.GetPath()} is a {prim.GetTypeName()}; lfusd needs Mesh or Cube geometry (Blender tessellates other "
+        "implicit shapes its own way): convert it to a Mesh"
+    )
+
+
 class StageGeometry:
-    """Evaluates every renderable gprim of a stage at any time code (caches skeleton bindings)."""
+    """Evaluates every renderable gprim of a stage at any time code (caches skeleton bindings).
+
+    ``gprims``: the stage's own gprims (``stage.Traverse()``); ``parts``: everything drawn,
+    instance proxies and every point instance's prototype gprims included
+    (:func:`lfusd.author.labels.scene_parts`), which :meth:`meshes` returns."""
 
     def __init__(self, stage: Usd.Stage):
         self.stage = stage
         self.frame = world_frame(stage)
         self.gprims = renderable_gprims(stage)
+        self.parts = scene_parts(stage)
+        self._resolver: Resolver | None = None
         self._skel_cache = UsdSkel.Cache()
         self._skinning: dict[str, tuple[UsdSkel.SkinningQuery, UsdSkel.SkeletonQuery]] = {}
         for root in (p for p in stage.Traverse() if p.IsA(UsdSkel.Root)):
@@ -78,8 +91,29 @@ class StageGeometry:
         """True when the gprim is deformed by a UsdSkel skeleton."""
         return prim_path in self._skinning
 
-    def mesh(self, prim: Usd.Prim, time: float) -> WorldMesh:
-        """World-space mesh of one gprim at ``time``."""
+    def parts_of(self, owner: str) -> list:
+        """The drawn gprims of one object (by its path): prims (instance proxies included), and
+        :class:`~lfusd.author.labels.Part` for point instances, which have no prim of their own."""
+        if not hasattr(self, "_by_owner"):
+            self._by_owner: dict[str, list] = {}
+            for p in self.parts:
+                self._by_owner.setdefault(p.owner, []).append(p.prim if p.placement is None else p)
+        return self._by_owner.get(owner, [])
+
+    def resolver(self, time: float) -> Resolver:
+        """Transforms at ``time`` (cached until another time is asked for)."""
+        if self._resolver is None or self._resolver.time != Usd.TimeCode(time):
+            self._resolver = Resolver(time)
+        return self._resolver
+
+    def mesh(self, prim: Usd.Prim | Part, time: float) -> WorldMesh:
+        """World-space mesh of one gprim (or part) at ``time``."""
+        if isinstance(prim, Part):
+            if prim.placement is None:
+                m = self.mesh(prim.prim, time)
+                return WorldMesh(prim.path, m.vertices, m.triangles)
+            pts, tris = self.local(prim.prim, time)
+            return WorldMesh(prim.path, self.frame.points(_transform(pts, self.resolver(time).part(prim))), tris)
         t = Usd.TimeCode(time)
         path = str(prim.GetPath())
         xf = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t)
@@ -98,10 +132,25 @@ class StageGeometry:
             corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * (size / 2.0)
             tris = triangulate(np.full(6, 4), _CUBE_FACES.ravel())
             return WorldMesh(path, self.frame.points(_transform(corners, xf)), tris)
-        raise LfusdError(
-            f"prim {path} is a {prim.GetTypeName()}; lfusd needs Mesh or Cube geometry (Blender tessellates other "
-            "implicit shapes its own way): convert it to a Mesh"
-        )
+        raise _unsupported(prim)
+
+    def local(self, prim: Usd.Prim, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """(points in the gprim's own space, triangles): what a point instance places (no skinning)."""
+        t = Usd.TimeCode(time)
+        path = str(prim.GetPath())
+        if path in self._skinning:
+            raise LfusdError(f"skinned mesh {path} is a PointInstancer prototype, which lfusd does not evaluate; bake it")
+        if prim.IsA(UsdGeom.Mesh):
+            mesh = UsdGeom.Mesh(prim)
+            pts = mesh.GetPointsAttr().Get(t)
+            if pts is None:
+                raise LfusdError(f"mesh {path} has no points; author its points attribute")
+            return np.array(pts, dtype=np.float64), triangulate(mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t))
+        if prim.IsA(UsdGeom.Cube):
+            size = UsdGeom.Cube(prim).GetSizeAttr().Get(t)
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * (size / 2.0)
+            return corners, triangulate(np.full(6, 4), _CUBE_FACES.ravel())
+        raise _unsupported(prim)
 
     def _skinned(self, path: str, pts: np.ndarray, t: Usd.TimeCode, time: float) -> np.ndarray:
         skin, skel_query = self._skinning[path]
@@ -123,13 +172,64 @@ class StageGeometry:
         skel_xf = UsdGeom.Xformable(skel_query.GetPrim()).ComputeLocalToWorldTransform(t)
         return self.frame.points(_transform(skel_pts, skel_xf))
 
-    def visible(self, prim: Usd.Prim, time: float) -> bool:
-        """False when the gprim (or an ancestor) is authored invisible at ``time``: Blender does not render it."""
-        return UsdGeom.Imageable(prim).ComputeVisibility(Usd.TimeCode(time)) != UsdGeom.Tokens.invisible
+    def visible(self, prim: Usd.Prim | Part, time: float) -> bool:
+        """False when the gprim (or an ancestor, or for a part an instancer or its invisibleIds) is
+        invisible at ``time``: Blender does not render it."""
+        t = Usd.TimeCode(time)
+        if isinstance(prim, Part):
+            place, res = prim.placement, self.resolver(time)
+            while place is not None:
+                if not res.shown(place):
+                    return False
+                place = place.outer
+            prim = prim.prim
+        return UsdGeom.Imageable(prim).ComputeVisibility(t) != UsdGeom.Tokens.invisible
 
     def meshes(self, time: float) -> list[WorldMesh]:
-        """Every renderable gprim at ``time``."""
-        return [self.mesh(p, time) for p in self.gprims]
+        """Every part (:attr:`parts`) at ``time``; a prototype gprim is read once for all its instances."""
+        local: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        res = self.resolver(time)
+        out = []
+        for part in self.parts:
+            if part.placement is None:
+                out.append(self.mesh(part, time))
+                continue
+            key = str(part.prim.GetPath())
+            if key not in local:
+                local[key] = self.local(part.prim, time)
+            pts, tris = local[key]
+            out.append(WorldMesh(part.path, self.frame.points(_transform(pts, res.part(part))), tris))
+        return out
+
+
+def render_instances(geometry: StageGeometry, objects, frame: float) -> tuple[dict[str, int], list[list]]:
+    """What a render worker needs to give every drawn gprim its object's id: ({gprim path: id} for
+    plain gprims, [[anchor prim path, id, vertex count, centroid x, y, z, part path], ...] for
+    instanced ones). Blender draws an instanced gprim as a copy under its anchor (the outermost
+    instance prim or PointInstancer); the centroid of its points in the anchor's own space at
+    ``frame`` tells the copies apart, independent of how the importer maps the stage's axes."""
+    id_of = {m: o.instance_id for o in objects for m in o.mesh_paths}
+    plain: dict[str, int] = {}
+    instanced: list[list] = []
+    res = geometry.resolver(frame)
+    anchors: dict[str, np.ndarray] = {}
+    local: dict[str, np.ndarray] = {}
+    for part in geometry.parts:
+        iid = id_of.get(part.path)
+        if iid is None:
+            continue
+        if not part.anchor:
+            plain[part.path] = iid
+            continue
+        if part.anchor not in anchors:
+            anchors[part.anchor] = np.linalg.inv(np.array(res.xf.GetLocalToWorldTransform(geometry.stage.GetPrimAtPath(part.anchor)), np.float64))
+        key = str(part.prim.GetPath())
+        if key not in local:
+            local[key] = geometry.local(part.prim, frame)[0]
+        pts = local[key]
+        c = _transform(pts.mean(axis=0, keepdims=True), res.part(part) @ anchors[part.anchor])[0]
+        instanced.append([part.anchor, iid, len(pts), *map(float, c), part.path])
+    return plain, instanced
 
 
 def local_to_world(stage: Usd.Stage, prim_path: str, time: float) -> np.ndarray:
@@ -137,4 +237,4 @@ def local_to_world(stage: Usd.Stage, prim_path: str, time: float) -> np.ndarray:
     return world_frame(stage).pose(UsdGeom.Xformable(stage.GetPrimAtPath(prim_path)).ComputeLocalToWorldTransform(Usd.TimeCode(time)))
 
 
-__all__ = ["StageGeometry", "WorldMesh", "triangulate", "local_to_world"]
+__all__ = ["StageGeometry", "WorldMesh", "triangulate", "local_to_world", "render_instances"]

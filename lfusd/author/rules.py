@@ -52,7 +52,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdSkel
 
 from ..errors import LfusdError
 from .geometry import StageGeometry
-from .labels import object_table
+from .labels import Part, object_prim, object_table
 from .stage import frame_range
 from .vocabulary import ANY, BOUNDS, CONSTRAINT, GROUND, RULE, SURFACES, WATER, constraint_attr, rule_attr
 
@@ -259,7 +259,7 @@ def resolve_rules(stage: Usd.Stage, objects, dynamic: dict[str, bool], file_rule
             for where, layer in layers[1:]:
                 for kind, value in layer.get(o.prim_path, {}).items():
                     r.rules[kind], r.source[kind] = value, where
-        for kind, value in prim_rules(stage.GetPrimAtPath(o.prim_path)).items():
+        for kind, value in prim_rules(object_prim(stage, o.prim_path)).items():
             r.rules[kind], r.source[kind] = value, "prim"
         r.rules = {k: v for k, v in r.rules.items() if v not in ((), False, None)}
         if r.rules:
@@ -323,8 +323,9 @@ class Checker:
         self.labelled = [o for o in objects if o.label]
         self.objs: list[_Obj] = []
         for o in objects:
-            gprims = [stage.GetPrimAtPath(p) for p in o.mesh_paths]
-            self.objs.append(_Obj(o.prim_path, o.label, gprims, _time_varying(stage.GetPrimAtPath(o.prim_path))))
+            gprims = self.geometry.parts_of(o.prim_path)  # instance proxies and point instances too
+            # A point instance (/A[i]) moves with its instancer's arrays: always re-meshed.
+            self.objs.append(_Obj(o.prim_path, o.label, gprims, "[" in o.prim_path or _time_varying(object_prim(stage, o.prim_path))))
         self.index = {o.path: i for i, o in enumerate(self.objs)}
         dynamic = {o.path: o.dynamic for o in self.objs}
         self.rules = resolve_rules(stage, objects, dynamic, file_rules)
@@ -376,6 +377,10 @@ class Checker:
                     local, tris = o.rigid[k]
                     m = np.array(xf.GetLocalToWorldTransform(g), dtype=np.float64)
                     parts.append((world.points(local @ m[:3, :3] + m[3, :3]), tris))
+                    continue
+                if isinstance(g, Part):  # a point instance: meshed with its instance transform every frame
+                    wm = self.geometry.mesh(g, frame)
+                    parts.append((wm.vertices, wm.triangles))
                     continue
                 if str(g.GetPath()) in self.unusable:
                     continue

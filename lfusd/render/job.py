@@ -30,14 +30,14 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdLux
 
 from .. import __version__
-from ..author.labels import ObjectEntry, object_table
+from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
 from ..author.stage import check_frames, file_hash, frame_range, is_static, open_stage, world_frame
 from ..camera import RigSpec
 from ..errors import LfusdError
 from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
-from .plan import Plan, plan_units
+from .plan import Plan, StageSetup, plan_units
 from .progress import Progress
 from .request import DEVICES, EXECUTORS, LIGHTS, RenderRequest  # noqa: F401  (DEVICES, EXECUTORS, LIGHTS: the commands' choices)
 
@@ -70,13 +70,6 @@ def _software() -> dict:
 
 def _matrix(m) -> list[list[float]]:
     return np.asarray(m, dtype=np.float64).tolist()
-
-
-def object_poses(stage: Usd.Stage, prim_paths: list[str], frame: int) -> dict[str, list]:
-    """World pose (4x4, column vectors, metres) of each object prim at ``frame``."""
-    cache = UsdGeom.XformCache(Usd.TimeCode(frame))
-    world = world_frame(stage)
-    return {path: _matrix(world.pose(cache.GetLocalToWorldTransform(stage.GetPrimAtPath(path)))) for path in prim_paths}
 
 
 def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict:
@@ -161,6 +154,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
     }
     atomic_write_text(req.out / layout.OBJECTS, json.dumps(table, indent=1))
     paths = [o.prim_path for o in objects]
+    poses = ObjectPoses(stage)
     for rig in rigs:
         for f in frames:
             d = frame_dir(req.out, rig.spec.name, f)
@@ -171,7 +165,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
                 "frame": f,
                 "time_code": f,
                 "cam_to_world": {view_key(v): _matrix(rig.cam_to_world(stage, v, f)) for v in rig.spec.views},
-                "object_poses": object_poses(stage, paths, f),
+                "object_poses": {p: _matrix(m) for p, m in poses.at(paths, f).items()},
             }
             atomic_write_text(d / layout.FRAME_META, json.dumps(meta))
 
@@ -241,12 +235,14 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, 
         plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
         device = None
         if plan.remaining:
+            from ..author.geometry import StageGeometry, render_instances
             from .executors import run_units
 
+            plain, instanced = render_instances(StageGeometry(stage), objects, frame_range(stage)[0])
             units = plan_units(
                 req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
-                {mesh: o.instance_id for o in objects for mesh in o.mesh_paths},
-                any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), _stage_range(stage, frames), _add_light(req, stage), world,
+                StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
+                           _add_light(req, stage), world),
             )
             report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
             try:

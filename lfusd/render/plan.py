@@ -77,6 +77,10 @@ class WorkUnit:
     max_bounces: int = 12
     persistent: bool = False
     add_light: bool = False  # the stage has no lights and --light auto: add a neutral sky and sun
+    # Instanced gprims (scenegraph instance proxies, point instances), which Blender draws as copies
+    # under an anchor object: [anchor prim path, instance id, vertex count, centroid x, y, z in the
+    # anchor's space at stage_range[0], part path] (lfusd.author.geometry.render_instances).
+    instanced: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -99,8 +103,21 @@ def chunks(items: list, n: int) -> list[list]:
     return out
 
 
+@dataclass
+class StageSetup:
+    """What every worker of a render needs to know about the stage, found once by the parent with
+    pxr (the worker must not use usd-core): the WorkUnit fields shared by all units."""
+
+    instances: dict[str, int]  # mesh prim path -> instance id
+    instanced: list  # see WorkUnit.instanced
+    has_dome: bool
+    stage_range: list[int]  # frames over which the worker knows the stage (t+/-1 outside is unknown)
+    add_light: bool
+    world: dict  # the stage's WorldFrame.to_dict()
+
+
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],
-               instances: dict[str, int], has_dome: bool, stage_range: tuple[int, int], add_light: bool = False, world: dict | None = None) -> list[WorkUnit]:
+               setup: StageSetup) -> list[WorkUnit]:
     """Work units covering every missing (rig, frame, view) of ``plan``."""
     units: list[WorkUnit] = []
     for rig_name in sorted({k[0] for k in plan.todo}):
@@ -121,9 +138,9 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                 units.append(WorkUnit(
                     unit=len(units), rig=rig_name, stage=str(Path(req.stage).resolve()),
                     cameras={view_key(v): cameras_of[rig_name][v] for v in vchunk}, frames=todo,
-                    width=width, height=height, samples=req.samples, device=req.device, instances=instances,
+                    width=width, height=height, samples=req.samples, device=req.device,
                     # Locally, workers share the cores; on Ray, Blender takes what the node has.
                     threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                    motion=req.motion, has_dome=has_dome, stage_range=list(stage_range), add_light=add_light, world=dict(world or {}),
+                    motion=req.motion, **asdict(setup),
                 ))
     return units

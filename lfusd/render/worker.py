@@ -368,6 +368,116 @@ def setup_scene(job: WorkUnit) -> tuple[object, list[str]]:
     return scene, suffixes
 
 
+def _dupli_signatures(dg, anchors: dict[str, str]) -> dict[tuple, tuple]:
+    """{(anchor object, persistent id, object): (anchor prim path, vertex count, centroid in the
+    anchor's space, prototype object, world matrix)} of every mesh Blender instances under an anchor."""
+    out, centroids = {}, {}
+    for inst in dg.object_instances:
+        if not inst.is_instance or inst.object.type != "MESH" or inst.parent is None:
+            continue
+        anchor = anchors.get(inst.parent.name)
+        if anchor is None:
+            continue
+        ob = inst.object
+        if ob.name not in centroids:
+            co = np.empty(len(ob.data.vertices) * 3, np.float64)
+            ob.data.vertices.foreach_get("co", co)
+            co = co.reshape(-1, 3)
+            centroids[ob.name] = (len(co), co.mean(axis=0) if len(co) else np.zeros(3))
+        n, c = centroids[ob.name]
+        m = np.array(inst.matrix_world, np.float64)
+        rel = np.linalg.inv(np.array(inst.parent.matrix_world, np.float64)) @ m
+        # Dupli objects live only during the iteration: keep the original (the prototype object).
+        out[(inst.parent.name, tuple(inst.persistent_id), ob.name)] = (anchor, n, rel[:3, :3] @ c + rel[:3, 3], ob.original, m)
+    return out
+
+
+def _match(parts: list, duplis: dict) -> dict[tuple, list]:
+    """Pair each instanced part [anchor, id, n, cx, cy, cz, path] with the dupli whose centroid in the
+    same anchor's space is nearest (within 1e-3 of a unit, same vertex count preferred); linear time
+    through a grid of 1e-3 cells."""
+    cell = 1e-3
+    grid: dict[tuple, list] = {}
+    for key, (anchor, n, c, _, _) in duplis.items():
+        grid.setdefault((anchor, *np.floor(c / cell).astype(int)), []).append((key, n, c))
+    taken, out = set(), {}
+    for part in parts:
+        anchor, n, c = part[0], part[2], np.asarray(part[3:6], np.float64)
+        base = np.floor(c / cell).astype(int)
+        best = None
+        for d in np.ndindex(3, 3, 3):
+            for key, m, cd in grid.get((anchor, *(base + np.array(d) - 1)), ()):
+                if key in taken:
+                    continue
+                score = (m != n, float(np.linalg.norm(cd - c)))
+                if score[1] <= cell and (best is None or score < best[0]):
+                    best = (score, key)
+        if best is not None:
+            taken.add(best[1])
+            out[best[1]] = part
+    return out
+
+
+def realize_instances(scene, job: WorkUnit) -> None:
+    """Make every instanced gprim (scenegraph instance, point instance) a real object of its own:
+    object index = its instance id, its own mesh data (for the motion AOVs) and its Blender-evaluated
+    world matrix keyed at every frame the job renders or reads (t, t+/-1). Blender's instancers
+    (collection-instance empties, point clouds with a Geometry Nodes instancer) stop rendering."""
+    if not job.instanced:
+        return
+    first, last = job.stage_range
+    # The prim map may name a PointInstancer by its point cloud data only: find its object through it.
+    users: dict[int, list] = {}
+    for o in scene.objects:
+        if o.data is not None:
+            users.setdefault(o.data.as_pointer(), []).append(o)
+    anchors = {}
+    for path in {p[0] for p in job.instanced}:
+        for i in PRIM_MAP.get(path, []):
+            for o in [i] if isinstance(i, bpy.types.Object) else users.get(i.as_pointer(), []):
+                anchors[o.name] = path
+    scene.frame_set(first)  # the parent measured the centroids at the stage's first frame
+    duplis = _dupli_signatures(bpy.context.evaluated_depsgraph_get(), anchors)
+    matched = _match(job.instanced, duplis)
+    if len(matched) < len(job.instanced):
+        done = {id(q) for q in matched.values()}
+        missing = [p[6] for p in job.instanced if id(p) not in done]
+        warn(f"{len(missing)} instanced gprims (e.g. {missing[0]}) have no Blender instance; their pixels get instance 0")
+    coll = bpy.data.collections.new("lfusd_instances")
+    scene.collection.children.link(coll)
+    realized = {}
+    for key, (_, _, _, ob, m) in duplis.items():
+        part = matched.get(key)
+        real = bpy.data.objects.new(f"lfusd_{part[1] if part else 0}_{ob.name}", ob.data.copy())
+        coll.objects.link(real)
+        real.pass_index = int(part[1]) if part else 0
+        real.rotation_mode = "QUATERNION"
+        realized[key] = (real, [])
+    if len(duplis) > len(matched):
+        warn(f"{len(duplis) - len(matched)} Blender instances match no instanced gprim of the stage; their pixels get instance 0")
+    for name in anchors:
+        bpy.data.objects[name].hide_render = True
+    frames = sorted({g for f in job.frames for g in (f - 1, f, f + 1) if first <= g <= last})
+    for f in frames:
+        scene.frame_set(f)
+        for inst in bpy.context.evaluated_depsgraph_get().object_instances:
+            if inst.is_instance and inst.parent is not None:
+                entry = realized.get((inst.parent.name, tuple(inst.persistent_id), inst.object.name))
+                if entry is not None:
+                    entry[1].append((f, inst.matrix_world.copy()))
+    for real, poses in realized.values():
+        if not poses:
+            continue
+        real.matrix_world = poses[0][1]
+        if all(p == poses[0][1] for _, p in poses[1:]):
+            continue  # static: no keys
+        for f, p in poses:
+            real.matrix_world = p
+            for prop in ("location", "rotation_quaternion", "scale"):
+                real.keyframe_insert(prop, frame=f)
+    scene.frame_set(first)
+
+
 NEIGHBOUR_AOVS = {"next": "next_position", "prev": "prev_position"}
 
 
@@ -535,6 +645,7 @@ def main() -> int:
         if job.add_light:
             add_neutral_light(bpy.context.scene)
         scene, suffixes = setup_scene(job)
+        realize_instances(scene, job)
         device = select_device(scene, job.device)
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
         emit("ready", device=device, seconds=time.time() - t0)

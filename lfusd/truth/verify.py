@@ -50,8 +50,8 @@ class TracedScene:
         self.meshes = geometry.meshes(time)
         self.scene = o3d.t.geometry.RaycastingScene()
         self.geom_ids: list[int] = []
-        for prim, m in zip(geometry.gprims, self.meshes):
-            if len(m.triangles) == 0 or not geometry.visible(prim, time):
+        for part, m in zip(geometry.parts, self.meshes):
+            if len(m.triangles) == 0 or not geometry.visible(part, time):
                 self.geom_ids.append(-1)
                 continue
             gid = self.scene.add_triangles(
@@ -207,14 +207,17 @@ def interior_mask(instance: np.ndarray, depth: np.ndarray, edge_px: int = EDGE_P
 
 
 def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
-    """Instance id of each gprim path: the object whose prim is the gprim or its nearest ancestor."""
-    from pxr import Sdf
-
+    """Instance id of each gprim (or point-instance part) path: the object whose path is the path or
+    its nearest ancestor (``/A[i]/B`` is below ``/A[i]``), 0 when none. Linear: one dict lookup per
+    ancestor of each path."""
     out = np.zeros(len(prim_paths) + 1, np.int64)  # last entry: background (-1 index)
-    owners = sorted(((Sdf.Path(o.prim_path), int(i)) for i, o in objects.items()), key=lambda x: -x[0].pathElementCount)
+    owner = {o.prim_path: int(i) for i, o in objects.items()}
     for k, p in enumerate(prim_paths):
-        sp = Sdf.Path(p)
-        out[k] = next((i for op, i in owners if sp.HasPrefix(op)), 0)
+        while p:
+            if p in owner:
+                out[k] = owner[p]
+                break
+            p = p[: max(p.rfind("/"), p.rfind("["))]  # drop the last name or instance index
     return out
 
 

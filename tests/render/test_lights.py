@@ -13,7 +13,7 @@ from pxr import UsdGeom, UsdLux
 from lfusd.author.stage import new_stage
 from lfusd.errors import LfusdError
 from lfusd.render import job
-from lfusd.render.plan import Plan, WorkUnit, plan_units
+from lfusd.render.plan import Plan, StageSetup, WorkUnit, plan_units
 from lfusd.render.request import RenderRequest
 
 
@@ -88,7 +88,8 @@ def test_a_stage_with_lights_is_untouched(tmp_path, warnings):
 def test_work_units_carry_add_light_and_settings_record_the_choice(tmp_path):
     req = request(light="none")
     plan = Plan(tmp_path, {"main": [(0, 0)]}, [1])
-    units = plan_units(req, plan, {"main": {(0, 0): "/Rigs/main/cam_00_00"}}, {"main": (8, 8)}, {}, False, (1, 1), True)
+    units = plan_units(req, plan, {"main": {(0, 0): "/Rigs/main/cam_00_00"}}, {"main": (8, 8)},
+                       StageSetup({}, [], False, [1, 1], True, {}))
     assert [u.add_light for u in units] == [True]
     assert WorkUnit.from_json(json.loads(json.dumps(units[0].to_json()))).add_light is True
     assert job._settings(req, "hash", [])["light"] == "none"
