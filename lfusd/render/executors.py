@@ -95,10 +95,9 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
 
 _LIVE: set[subprocess.Popen] = set()
 _LIVE_LOCK = threading.Lock()
-_STOPPING = threading.Event()  # set while run_local stops its pool: no new worker may live
 
 
-def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
+def run_unit(unit: WorkUnit, out: Path, on_view=None, stopping: threading.Event | None = None) -> str:
     """Run one Blender worker over a unit, committing views as frames finish; return the device used.
 
     The worker's warnings are logged here (they reach the terminal); all its output goes to the log."""
@@ -115,7 +114,7 @@ def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
         )
         with _LIVE_LOCK:
             _LIVE.add(proc)
-            if _STOPPING.is_set():  # started while the pool was being stopped
+            if stopping is not None and stopping.is_set():  # started while its pool was being stopped
                 proc.kill()
         try:
             proc.stdin.write(json.dumps({**unit.to_json(), "scratch": str(scratch)}))
@@ -154,9 +153,9 @@ def run_unit(unit: WorkUnit, out: Path, on_view=None) -> str:
     return device
 
 
-def _kill_all() -> None:
+def _kill_all(stopping: threading.Event) -> None:
     with _LIVE_LOCK:
-        _STOPPING.set()
+        stopping.set()
         for proc in list(_LIVE):
             if proc.poll() is None:
                 proc.kill()
@@ -167,16 +166,16 @@ def run_local(units: list[WorkUnit], req: RenderRequest, report) -> str:
     from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 
     pool = ThreadPoolExecutor(max_workers=req.workers)
-    _STOPPING.clear()
+    stopping = threading.Event()  # set while this pool stops: no new worker of it may live
     try:
-        futures = [pool.submit(run_unit, u, req.out, report.advance) for u in units]
+        futures = [pool.submit(run_unit, u, req.out, report.advance, stopping) for u in units]
         done, _ = wait(futures, return_when=FIRST_EXCEPTION)
         for f in done:
             if f.exception() is not None:
                 raise f.exception()
         devices = [f.result() for f in futures]
     finally:
-        _kill_all()
+        _kill_all(stopping)
         pool.shutdown(wait=True, cancel_futures=True)
     return devices[0] if devices else "cpu"
 

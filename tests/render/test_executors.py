@@ -38,3 +38,16 @@ def test_worker_warnings_reach_the_parent_log(tmp_path, monkeypatch, caplog):
 def test_work_unit_round_trips_through_json():
     u = unit(cameras={"00_01": "/Rigs/main/cam_00_01"}, scratch="/tmp/x", seed=3)
     assert WorkUnit.from_json(json.loads(json.dumps(u.to_json()))) == u
+
+
+def test_a_finished_pool_does_not_stop_later_workers(tmp_path, monkeypatch, caplog):
+    """Stopping one pool kills only workers started while it stops, not those of a later run in
+    the same process (a library user renders twice in one session)."""
+    from types import SimpleNamespace
+
+    monkeypatch.setattr(executors, "WORKER", [sys.executable, "-c", STAND_IN])
+    req = SimpleNamespace(workers=1, out=tmp_path / "a")
+    assert executors.run_local([], req, SimpleNamespace(advance=lambda n: None)) == "cpu"
+    with caplog.at_level(logging.WARNING, logger="lfusd.render.executors"):
+        assert executors.run_unit(unit(), tmp_path / "b") == "cpu"
+    assert any("material Foo has no surface" in r.getMessage() for r in caplog.records)
