@@ -16,7 +16,8 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=16, help="Cycles samples for the RGB image (default 16)")
     p.add_argument("--device", default="auto", choices=DEVICES, help="Cycles device (default auto: OptiX, CUDA, else CPU)")
     p.add_argument("--workers", type=int, default=1, help="Blender worker processes (default 1)")
-    p.add_argument("--overwrite", action="store_true", help="replace a dataset rendered with other settings")
+    p.add_argument("--overwrite", action="store_true", help="replace an lfusd dataset rendered with other settings (only lfusd's own files)")
+    p.add_argument("--force", action="store_true", help="render even when the estimated size exceeds the free disk space or memory")
     p.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
     p.set_defaults(func=run)
 
@@ -27,7 +28,7 @@ def run(args) -> int:
     req = RenderRequest(
         stage=Path(args.stage), out=Path(args.out), rig=args.rig,
         frames=None if args.frame is None else [args.frame], samples=args.samples, device=args.device,
-        workers=args.workers, overwrite=args.overwrite, quiet=args.quiet,
+        workers=args.workers, overwrite=args.overwrite, force=args.force, quiet=args.quiet,
     )
     manifest = render(req)
     print(f"lfusd: {args.out}: rigs {', '.join(manifest['rigs'])}, frames {manifest['frames']}, device {manifest['device']}")

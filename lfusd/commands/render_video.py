@@ -21,7 +21,8 @@ def register(sub) -> None:
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start a local Ray)")
     p.add_argument("--device", default="auto", choices=DEVICES, help="Cycles device (default auto: OptiX, CUDA, else CPU)")
     p.add_argument("--verify", action="store_true", help="run 'lfusd verify' on the result")
-    p.add_argument("--overwrite", action="store_true", help="replace a dataset rendered with other settings")
+    p.add_argument("--overwrite", action="store_true", help="replace an lfusd dataset rendered with other settings (only lfusd's own files)")
+    p.add_argument("--force", action="store_true", help="render even when the estimated size exceeds the free disk space or memory")
     p.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
     p.set_defaults(func=run)
 
@@ -33,7 +34,7 @@ def run(args) -> int:
         stage=Path(args.stage), out=Path(args.out), rig=args.rig,
         frames=list(range(args.frames[0], args.frames[1] + 1)) if args.frames else None,
         samples=args.samples, device=args.device, workers=args.workers, resolution=args.resolution,
-        overwrite=args.overwrite, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address,
+        overwrite=args.overwrite, force=args.force, quiet=args.quiet, executor=args.executor, ray_address=args.ray_address,
     )
     result = render_video(req)
     first, last = result.frames[0], result.frames[-1]
