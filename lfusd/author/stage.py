@@ -76,7 +76,8 @@ def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
     try:
         layers, assets, unresolved = UsdUtils.ComputeAllDependencies(str(stage_path))
     except Tf.ErrorException as e:
-        raise LfusdError(f"cannot resolve the files stage {path} depends on ({str(e).strip().splitlines()[-1]}); fix its references") from None
+        reason = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), "a layer failed to load")[:200]
+        raise LfusdError(f"cannot resolve the files stage {path} depends on ({reason}); fix its references") from None
     paths = {Path(layer.realPath).resolve() for layer in layers if layer.realPath} | {Path(a).resolve() for a in assets}
     paths.add(stage_path)
     known = known or {}

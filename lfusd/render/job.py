@@ -189,9 +189,9 @@ def _remove_dataset(out: Path, manifest: dict) -> None:
         raise _io_error(out, e) from None
 
 
-def _prepare_output(req: RenderRequest, settings: dict, files: dict) -> dict | None:
+def _prepare_output(req: RenderRequest, settings: dict, files: dict, remove: bool = True) -> dict | None:
     """Refuse a folder holding something else or another dataset; return the existing
-    manifest, if any (``--overwrite``: remove the other dataset, and return None)."""
+    manifest, if any (``--overwrite``: remove the other dataset when ``remove``, and return None)."""
     out = req.out
     manifest = existing_dataset(out)
     if manifest is None:
@@ -210,7 +210,8 @@ def _prepare_output(req: RenderRequest, settings: dict, files: dict) -> dict | N
         why = f"; --overwrite is refused here: {refusal}" if refusal else " or pass --overwrite"
         raise LfusdError(f"output folder {out} holds a different dataset (differs in {', '.join(diff)}); "
                          f"choose another -o folder{why}")
-    _remove_dataset(out, manifest)
+    if remove:
+        _remove_dataset(out, manifest)
     return None
 
 
@@ -327,7 +328,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> t
     settings = _settings(req, files, rigs)
     check_size(req, [(r.spec.name, len(r.spec.views), r.spec.width, r.spec.height) for r in rigs], frames)
     if existing is not None:
-        _prepare_output(req, settings, files)  # refuse before taking the lock (which writes OUT/.lock)
+        _prepare_output(req, settings, files, remove=False)  # refuse before taking the lock (which writes OUT/.lock)
     try:
         req.out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
