@@ -248,7 +248,7 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
         "format": FORMAT,
         "version": FORMAT_VERSION,
         "id": (previous or {}).get("id") or uuid.uuid4().hex,  # proof that lfusd wrote the folder
-        "stage": {"path": str(Path(req.stage).resolve()), "files": files},
+        "stage": {"path": str(Path(req.stage).resolve()), "sha256": files.get(Path(req.stage).name, {}).get("sha256"), "files": files},
         "rigs": sorted(rig_specs),
         "frames": all_frames,
         "settings": {**settings, "rigs": rig_specs},
