@@ -376,3 +376,19 @@ def test_a_failed_export_leaves_nothing_that_blocks_the_retry(capsys, monkeypatc
     monkeypatch.setattr(formats, "write_pfm", real)
     files = export.export(ds, "pfm", dest)
     assert files and all(p.is_file() and dest in p.parents for p in files)
+
+
+def test_an_os_error_anywhere_is_one_line_with_exit_2(capsys, monkeypatch, tmp_path, project, fake_render):
+    """A failure of the machine (here: a full disk while `lfusd flow` writes) is no bug: one line, exit 2."""
+    from lfusd.truth import derive
+
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(out / "main"))
+
+    monkeypatch.setattr(derive, "derive_dataset", full)
+    code, _, err = run_cli(capsys, "flow", out)
+    assert_one_line_error(code, err, "No space left on device", "free disk space")
+    assert code == 2
