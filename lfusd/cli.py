@@ -14,6 +14,7 @@ traceback of an error, including causes hidden by ``raise ... from None``.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -124,14 +125,25 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("lfusd: interrupted; rerun the same command to resume", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except OSError as e:  # the machine, not lfusd: a full disk, a read-only folder, a missing path
+        if debug:
+            sys.stderr.write(full_traceback(e))
+        what = f"{e.filename}: " if e.filename else ""
+        fix = "free disk space" if e.errno in (errno.ENOSPC, errno.EDQUOT) else "check the path and its permissions"
+        print(f"lfusd: error: {what}{e.strerror or e}; {fix}, then rerun", file=sys.stderr)
+        return EXIT_ERROR
     except Exception as e:  # a bug: keep the message short, the traceback in a file for the report
         text = full_traceback(e)
-        with tempfile.NamedTemporaryFile("w", prefix="lfusd-traceback-", suffix=".txt", delete=False) as f:
-            f.write(text)
         if debug:
             sys.stderr.write(text)
         first = (str(e).splitlines() or [""])[0]
-        print(f"lfusd: internal error: {type(e).__name__}: {first}; the traceback is in {f.name} (please report it)", file=sys.stderr)
+        try:
+            with tempfile.NamedTemporaryFile("w", prefix="lfusd-traceback-", suffix=".txt", delete=False) as f:
+                f.write(text)
+            where = f"the traceback is in {f.name}"
+        except OSError:  # no room for the file either: the summary line must still come out
+            where = "rerun with --traceback for the traceback"
+        print(f"lfusd: internal error: {type(e).__name__}: {first}; {where} (please report it)", file=sys.stderr)
         return EXIT_BUG
     finally:
         if in_main:

@@ -1,6 +1,7 @@
 """File and folder names of an lfusd dataset: the one place that spells them.
 
-    OUT/manifest.json                 stage path and hash, rigs, frames, complete frames, settings, versions
+    OUT/manifest.json                 format, dataset id, stage files and hashes, rigs, frames, complete frames, settings, versions
+    OUT/.lock                         held (flock) by the one run writing the folder
     OUT/logs/                         Blender's output of each worker
     OUT/objects.json                  class table and instance table (id -> prim path, label)
     OUT/<rig>/f000001/frame.json      per-view cam_to_world and per-object world poses
@@ -22,6 +23,12 @@ FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
 OBJECTS = "objects.json"
 FRAME_META = "frame.json"
+LOGS = "logs"  # Blender's output, one file per worker
+SCRATCH = ".scratch"  # workers' temporary files
+LOCK = ".lock"  # one writer per dataset folder: the pid and command of the run holding it
+# What lfusd writes at the top of OUT, besides one folder per rig (manifest["rigs"]): the only
+# entries `--overwrite` removes.
+OWN_ENTRIES = (OBJECTS, LOGS, SCRATCH)
 
 # Per-view files.
 RGB_PNG = "rgb.png"

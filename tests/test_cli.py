@@ -102,9 +102,9 @@ def test_render_refuses_a_folder_holding_something_else(capsys, tmp_path, bare_s
     code, _, err = run_cli(capsys, "render", bare_stage, "-o", out)
     assert_one_line_error(code, err, str(out), "not empty")
     (out / "notes.txt").unlink()
-    (out / "manifest.json").write_text(json.dumps({"format": "lfusd-dataset", "settings": {"stage_sha256": "0" * 64, "samples": 16, "rigs": {}}}))
+    (out / "manifest.json").write_text(json.dumps({"format": "lfusd-dataset", "id": "x", "settings": {"stage_id": "0" * 64, "samples": 16, "rigs": {}}}))
     code, _, err = run_cli(capsys, "render", bare_stage, "-o", out)
-    assert_one_line_error(code, err, "holds a different dataset", "stage_sha256", "--overwrite")
+    assert_one_line_error(code, err, "holds a different dataset", "stage file bare.usda", "--overwrite")
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json"]
 
 

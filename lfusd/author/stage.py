@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdUtils, Vt
 
 from ..errors import LfusdError
 
@@ -126,6 +126,69 @@ def file_hash(path: str | Path) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def _identity_key(path: Path, root: Path) -> str:
+    """A dependency's name in the identity: relative to the stage's folder when inside it, so
+    that moving a project folder keeps its datasets' identity."""
+    try:
+        return path.relative_to(root).as_posix()
+    except ValueError:
+        return path.as_posix()
+
+
+def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
+    """Every file that affects a render of the stage at ``path``: its layer stack (sublayers,
+    references, payloads) and the assets its layers name (textures, ...), as
+    ``{name: {"size", "mtime_ns", "sha256"}}``; a named asset that does not resolve is
+    ``{"missing": True}``. ``known``: a previous result whose hashes are reused for files whose
+    size and mtime are unchanged (hashing every texture on every run is the cost it saves)."""
+    stage_path = Path(path).resolve()
+    root = stage_path.parent
+    try:
+        layers, assets, unresolved = UsdUtils.ComputeAllDependencies(str(stage_path))
+    except Tf.ErrorException as e:
+        reason = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), "a layer failed to load")[:200]
+        raise LfusdError(f"cannot resolve the files stage {path} depends on ({reason}); fix its references") from None
+    paths = {Path(layer.realPath).resolve() for layer in layers if layer.realPath} | {Path(a).resolve() for a in assets}
+    paths.add(stage_path)
+    known = known or {}
+    files: dict[str, dict] = {}
+    for p in sorted(paths):
+        key = _identity_key(p, root)
+        try:
+            st = p.stat()
+        except OSError:
+            files[key] = {"missing": True}
+            continue
+        old = known.get(key) or {}
+        if old.get("size") == st.st_size and old.get("mtime_ns") == st.st_mtime_ns and old.get("sha256"):
+            files[key] = dict(old)
+        else:
+            try:
+                files[key] = {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": file_hash(p)}
+            except OSError as e:
+                raise LfusdError(f"cannot read {p}, a file stage {path} depends on ({e.strerror}); fix its permissions") from None
+    for u in unresolved:
+        files.setdefault(_identity_key(Path(u), root), {"missing": True})
+    return files
+
+
+def files_digest(files: dict[str, dict]) -> str:
+    """One sha256 over the names and contents of ``files`` (a :func:`stage_files` result)."""
+    h = hashlib.sha256()
+    for key in sorted(files):
+        h.update(f"{key}\0{files[key].get('sha256', 'missing')}\n".encode())
+    return h.hexdigest()
+
+
+def changed_file(old: dict[str, dict], new: dict[str, dict]) -> str | None:
+    """The first file whose content differs between two :func:`stage_files` results (or that one
+    of them lacks), or None."""
+    for key in sorted(set(old) | set(new)):
+        if (old.get(key) or {}).get("sha256") != (new.get(key) or {}).get("sha256"):
+            return key
+    return None
 
 
 def new_stage(path: str | Path, first: int = 1, last: int = 1) -> Usd.Stage:

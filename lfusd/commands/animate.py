@@ -30,6 +30,7 @@ def register(sub) -> None:
     add.add_argument("--height", type=float, default=1.75, help="procedural human's stature in metres (default 1.75)")
     add.add_argument("--build", type=float, default=0.5, help="procedural human's build, 0 slim to 1 heavy (default 0.5)")
     add.add_argument("--name", default=None, help="prim path for the person (default /World/People/Person_NN)")
+    add.add_argument("--force", action="store_true", help="replace a prim already at --name")
     add.set_defaults(func=run_add_person)
     cyc = asub.add_parser("write-cycles", help="write the procedural human's looping idle/walk/run clips (USD)")
     cyc.add_argument("-o", "--out", default="animations", help="folder (default: animations)")
@@ -58,6 +59,8 @@ def run_add_person(args) -> int:
     spec.validate()
     t0 = time.perf_counter()
     stage = open_for_edit(args.stage, args.out)
+    if args.name is not None:
+        _check_person_path(stage, args.name, args.force)
     prim = add_person(stage, points, gait=args.gait, speed=speed, start=args.start, character=args.character,
                       spec=spec, path=args.name)
     target = args.out or args.stage
@@ -68,3 +71,16 @@ def run_add_person(args) -> int:
     how = "standing" if args.gait == "idle" else f"{args.gait} at {speed:g} m/s"
     print(f"added {prim.GetPath()} ({how}) to {target} in {time.perf_counter() - t0:.2f} s")
     return 0
+
+
+def _check_person_path(stage, name: str, force: bool) -> None:
+    """Refuse a --name that is not an absolute prim path, or names a prim that exists (unless --force: removed)."""
+    from pxr import Sdf
+
+    path = Sdf.Path(name) if Sdf.Path.IsValidPathString(name) else None
+    if path is None or not path.IsAbsolutePath() or not path.IsPrimPath() or path == Sdf.Path.absoluteRootPath:
+        raise LfusdError(f"--name {name!r} is not an absolute prim path; give one such as /World/People/Alice")
+    if stage.GetPrimAtPath(path):
+        if not force:
+            raise LfusdError(f"stage already has a prim at {name}; choose another --name or pass --force to replace it")
+        stage.RemovePrim(path)

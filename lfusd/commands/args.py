@@ -74,3 +74,28 @@ point = _argtype(lambda text: parse_point(text, "point"), "point")
 grid = _argtype(parse_grid, "grid")
 resolution = _argtype(parse_resolution, "resolution")
 threshold = _argtype(_threshold, "threshold")
+
+
+def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
+    """The options `lfusd render` and `lfusd render-video` share, and their `RenderRequest` fields
+    (see :func:`render_request_fields`)."""
+    from ..render.request import DEVICES, LIGHTS
+
+    p.add_argument("-o", "--out", required=True, help="dataset folder (created; rerunning resumes)")
+    p.add_argument("--rig", default=None, help="rig name, or 'all' (default: the stage's only rig)")
+    p.add_argument("--samples", type=int, default=16, help=f"Cycles samples for {samples_help} (default 16)")
+    p.add_argument("--workers", type=int, default=1, help="Blender worker processes / Ray task slots (default 1)")
+    p.add_argument("--device", default="auto", choices=DEVICES, help="Cycles device (default auto: OptiX, CUDA, else CPU)")
+    p.add_argument("--light", default="auto", choices=LIGHTS,
+                   help="a stage without lights: auto adds a neutral sky and sun, none keeps it dark (default auto)")
+    p.add_argument("--overwrite", action="store_true", help="replace an lfusd dataset rendered with other settings (only lfusd's own files)")
+    p.add_argument("--force", action="store_true", help="render even when the estimated size exceeds the free disk space or memory")
+    p.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
+
+
+def render_request_fields(args: argparse.Namespace) -> dict:
+    """The `RenderRequest` fields of the options :func:`add_render_options` added."""
+    from pathlib import Path
+
+    return dict(stage=Path(args.stage), out=Path(args.out), rig=args.rig, samples=args.samples, device=args.device,
+                workers=args.workers, light=args.light, overwrite=args.overwrite, force=args.force, quiet=args.quiet)

@@ -29,6 +29,7 @@ def register(sub) -> None:
     add.add_argument("--layout", default=d.layout, help=f"{'|'.join(LAYOUTS)} (default plane)")
     add.add_argument("--radius", type=float, default=None, help="sphere radius in metres (default: distance to --look-at)")
     add.add_argument("--axes", default=None, help=f"{'|'.join(AXES)} (default parallel; converge for sphere)")
+    add.add_argument("--force", action="store_true", help="allow grids and resolutions beyond the limits (4096 views, 16384x16384)")
     add.set_defaults(func=run_add)
 
 
@@ -36,6 +37,9 @@ def run_add(args) -> int:
     from ..author.stage import open_for_edit
     from ..author.rigs import add_rig
 
+    from ..render.request import check_rig_size
+
+    check_rig_size(args.grid, args.resolution, args.force)  # a million cameras take hours to author: refuse first
     rows, cols = args.grid
     width, height = args.resolution
     axes = args.axes or ("converge" if args.layout == "sphere" else "parallel")

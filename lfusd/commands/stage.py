@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 from ..errors import LfusdError
 from . import args as argtypes
@@ -22,6 +23,7 @@ def register(sub) -> None:
     n.add_argument("--rigs", type=int, default=10, help="rig placements rig_00.. (0-10, default 10)")
     n.add_argument("--grid", type=argtypes.grid, default="9x9", help="views per rig, ROWSxCOLS (default 9x9)")
     n.add_argument("--resolution", type=argtypes.resolution, default="1024x1024", help="image size WIDTHxHEIGHT (default 1024x1024)")
+    n.add_argument("--force", action="store_true", help="replace an existing stage file; allow grids and resolutions beyond the limits")
     n.add_argument("--dynamic", action="store_true",
                    help="add walking/running people, drifting boats, driving cars, swinging doors over the frames")
     n.set_defaults(func=new_handler)
@@ -34,10 +36,27 @@ def new_handler(args) -> int:
     from ..author.scenes import generate
 
     t0 = time.perf_counter()
-    if not str(args.output).endswith((".usda", ".usdc", ".usd")):
-        raise LfusdError(f"output {args.output} must end in .usda, .usdc or .usd")
-    generate(args.template, args.output, args.seed, frames=args.frames, rigs=args.rigs, grid=args.grid, resolution=args.resolution,
-             dynamic=args.dynamic)
+    from ..data.formats import why_unwritable
+    from ..render.request import check_rig_size
+
+    out = Path(args.output)
+    if not str(out).endswith((".usda", ".usdc", ".usd")):
+        raise LfusdError(f"output {out} must end in .usda, .usdc or .usd")
+    if out.exists() and not args.force:
+        raise LfusdError(f"stage {out} already exists; choose another -o file or pass --force to replace it")
+    if out.is_dir():
+        raise LfusdError(f"output {out} is a folder; give a .usda/.usdc/.usd file")
+    if args.rigs:
+        check_rig_size(args.grid, args.resolution, args.force)
+    try:
+        generate(args.template, out, args.seed, frames=args.frames, rigs=args.rigs, grid=args.grid, resolution=args.resolution,
+                 dynamic=args.dynamic)
+    except OSError as e:
+        raise LfusdError(f"cannot write stage {out} ({e.strerror or e}): {why_unwritable(out)}") from None
+    except Exception as e:  # pxr reports an unwritable layer as Tf.ErrorException
+        if type(e).__name__ != "ErrorException":
+            raise
+        raise LfusdError(f"cannot write stage {out}: {why_unwritable(out)}") from None
     kind = ", dynamic" if args.dynamic else ""
     print(f"wrote {args.output} ({args.template}{kind}, seed {args.seed}, frames 1-{args.frames}, {args.rigs} rigs) "
           f"in {time.perf_counter() - t0:.2f} s")

@@ -6,6 +6,7 @@ Imports neither pxr, bpy nor torch: ``from lfusd import Dataset`` stays light.
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,10 +52,14 @@ class Dataset:
         path = self.root / layout.MANIFEST
         if not path.is_file():
             raise LfusdError(f"{self.root} holds no lfusd dataset (no {layout.MANIFEST}); render one with 'lfusd render'")
-        self.manifest = json.loads(path.read_text())
-        if self.manifest.get("format") != FORMAT:
-            raise LfusdError(f"{path} is not an lfusd dataset manifest")
-        rigs = self.manifest["rigs"]
+        self.manifest = _read_json(path, "rerun the render that made the dataset (it rewrites the manifest)")
+        if not isinstance(self.manifest, dict) or self.manifest.get("format") != FORMAT:
+            raise LfusdError(f"{path} is not an lfusd dataset manifest; open the output folder of 'lfusd render'")
+        try:
+            rigs = list(self.manifest["rigs"])
+            rig_specs = self.manifest["settings"]["rigs"]
+        except (KeyError, TypeError):
+            raise LfusdError(f"{path} lacks its rigs record; rerun the render that made the dataset") from None
         rig = self._rig_arg
         if rig is None:
             if len(rigs) != 1:
@@ -62,13 +67,20 @@ class Dataset:
             rig = rigs[0]
         if rig not in rigs:
             raise LfusdError(f"{self.root} has no rig {rig!r}; it has {', '.join(rigs)}")
-        self.rig: RigSpec = RigSpec.from_dict(self.manifest["settings"]["rigs"][rig])
+        try:
+            self.rig: RigSpec = RigSpec.from_dict(rig_specs[rig])
+        except (KeyError, TypeError, ValueError):
+            raise LfusdError(f"{path} holds no readable record of rig {rig!r}; rerun the render that made the dataset") from None
         self.rig_name = rig
-        table = json.loads((self.root / layout.OBJECTS).read_text())
-        self.classes: list[str] = table["classes"]
-        self._class_of_instance = np.zeros(max([o["id"] for o in table["objects"]], default=0) + 1, dtype=np.int32)
-        for o in table["objects"]:
-            self._class_of_instance[o["id"]] = o["class_id"]
+        objects_path = self.root / layout.OBJECTS
+        table = _read_json(objects_path, "rerun the render that made the dataset (it rewrites the object table)")
+        try:
+            self.classes: list[str] = list(table["classes"])
+            self._class_of_instance = np.zeros(max([int(o["id"]) for o in table["objects"]], default=0) + 1, dtype=np.int32)
+            for o in table["objects"]:
+                self._class_of_instance[o["id"]] = o["class_id"]
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise LfusdError(f"{objects_path} is not an lfusd object table; rerun the render that made the dataset") from None
         self._object_rows = table["objects"]
         self._objects: dict[int, DatasetObject] | None = None
         complete = self.manifest.get("complete", {}).get(rig)
@@ -144,10 +156,13 @@ class Dataset:
         motion = d / layout.MOTION_FILE
         if not motion.is_file():
             raise LfusdError(f"{d} has no {layout.MOTION_FILE} for key {key!r}; derive the motion keys with 'lfusd flow' (or render with 'lfusd render-video')")
-        with np.load(motion) as z:
-            if key not in z.files:
-                raise LfusdError(f"{motion} holds no {key!r} ({', '.join(sorted(z.files))}); derive it again with 'lfusd flow'")
-            return z[key]
+        try:
+            with np.load(motion) as z:
+                if key not in z.files:
+                    raise LfusdError(f"{motion} holds no {key!r} ({', '.join(sorted(z.files))}); derive it again with 'lfusd flow'")
+                return z[key]
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise LfusdError(f"{motion} is unreadable ({e}); derive it again with 'lfusd flow'") from None
 
     def raw_passes(self, frame: int, view: View):
         """The view's raw passes with its camera (the input of lfusd.truth.motion.derive_motion)."""
@@ -176,12 +191,22 @@ class Dataset:
             p = self._frame_dir(frame) / layout.FRAME_META
             if not p.is_file():
                 raise LfusdError(f"{p} is missing; rerun the render to complete this frame")
-            return json.loads(p.read_text())
+            return _read_json(p, "delete it and rerun the render to write it again")
 
         return _cached(self._meta_cache, frame, 64, load)
 
     def _raw(self, view_dir: str) -> dict[str, np.ndarray]:
         return _cached(self._raw_cache, view_dir, 4, lambda: passes.read_raw(Path(view_dir) / layout.PASSES_EXR))
+
+
+def _read_json(path: Path, fix: str):
+    """The JSON in ``path``, or LfusdError naming the file and ``fix``."""
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise LfusdError(f"{path} is missing; {fix}") from None
+    except (OSError, ValueError) as e:
+        raise LfusdError(f"{path} is unreadable ({getattr(e, 'strerror', None) or str(e).splitlines()[0]}); {fix}") from None
 
 
 def _cached(cache: dict, key, size: int, load):

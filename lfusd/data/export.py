@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +69,10 @@ def _new_dest(dest) -> Path:
     dest = Path(dest)
     if dest.exists():
         raise LfusdError(f"export target {dest} already exists; choose a new folder or remove it first")
-    dest.mkdir(parents=True)
+    try:
+        dest.mkdir(parents=True)
+    except OSError as e:
+        raise LfusdError(f"cannot create export target {dest} ({e.strerror}): {formats.why_unwritable(dest)}") from None
     return dest
 
 
@@ -288,7 +293,28 @@ def export_lfmat(ds, dest, frame: int | None = None, matlab: bool = False) -> li
 
 
 def export(ds, fmt: str, dest, frame: int | None = None, **kw):
-    """Dispatch to ``export_<fmt>``."""
+    """Dispatch to ``export_<fmt>``, writing into a hidden folder beside ``dest`` that is renamed
+    to ``dest`` when complete: a failed export leaves nothing that blocks its retry."""
     if fmt not in FORMATS:
         raise LfusdError(f"unknown export format {fmt!r}; use one of {', '.join(FORMATS)}")
-    return globals()[f"export_{fmt}"](ds, dest, frame=frame, **kw)
+    dest = Path(dest)
+    if dest.exists():
+        raise LfusdError(f"export target {dest} already exists; choose a new folder or remove it first")
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise LfusdError(f"cannot create export target {dest} ({e.strerror}): {formats.why_unwritable(dest)}") from None
+    tmp = dest.parent / f".{dest.name}.partial-{os.getpid()}"
+    try:
+        result = globals()[f"export_{fmt}"](ds, tmp, frame=frame, **kw)
+        tmp.rename(dest)
+    except OSError as e:
+        raise LfusdError(f"cannot write export {dest} ({e.strerror or e}): {formats.why_unwritable(tmp / 'x')}") from None
+    finally:
+        if tmp.is_dir() and not tmp.is_symlink():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    def moved(p):
+        return dest / Path(p).relative_to(tmp)
+
+    return [moved(p) for p in result] if isinstance(result, list) else moved(result)

@@ -16,7 +16,10 @@ PNG I/O goes through OpenCV (which orders colour channels B, G, R in memory).
 from __future__ import annotations
 
 import configparser
+import functools
+import os
 import re
+import shutil
 import time
 from pathlib import Path
 
@@ -35,9 +38,37 @@ def _cv2():
     return cv2
 
 
+@functools.cache
+def file_mode() -> int:
+    """The mode of a new file under the process's umask (0644 under the usual 022): for files
+    made with ``tempfile.mkstemp`` (0600), which a shared dataset must not keep."""
+    try:  # Linux states the umask; setting it to read it races with threads creating files
+        with open("/proc/self/status") as f:
+            mask = next(int(ln.split()[1], 8) for ln in f if ln.startswith("Umask:"))
+    except (OSError, StopIteration, ValueError):
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return 0o666 & ~mask
+
+
+def why_unwritable(path, size: int = 0) -> str:
+    """Why a file at ``path`` (of about ``size`` bytes) could not be written, and the fix."""
+    folder = Path(path).parent
+    if not folder.is_dir():
+        return f"its folder {folder} does not exist; create it"
+    if not os.access(folder, os.W_OK):
+        return f"its folder {folder} is not writable; fix its permissions or choose another destination"
+    try:
+        if shutil.disk_usage(folder).free <= size + (1 << 20):
+            return f"the disk holding {folder} is full; free space"
+    except OSError:
+        pass
+    return "check the destination's disk and permissions"
+
+
 def _imwrite(path, image: np.ndarray) -> None:
-    if not _cv2().imwrite(str(path), image):
-        raise LfusdError(f"could not write {path}; check that its folder exists and is writable")
+    if not _cv2().imwrite(str(path), image):  # OpenCV says only that it failed: find out why
+        raise LfusdError(f"could not write {path}: {why_unwritable(path, image.nbytes)}")
 
 
 def _need(path: Path) -> Path:

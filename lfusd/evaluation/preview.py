@@ -181,7 +181,9 @@ def write_video(path, frames: list[np.ndarray], fps: float = 12.0) -> Path:
     eh, ew = h - h % 2, w - w % 2
     vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (ew, eh))
     if not vw.isOpened():
-        raise LfusdError(f"could not open a video writer for {path}; write a .gif instead")
+        from ..data.formats import why_unwritable
+
+        raise LfusdError(f"could not open a video writer for {path}: {why_unwritable(path)}")
     for f in frames:
         vw.write(np.ascontiguousarray(f[:eh, :ew, ::-1]))
     vw.release()
@@ -209,7 +211,12 @@ def preview(ds, dest, frame: int | None = None, video: bool = True, fps: float =
         raise LfusdError(f"frame {frame} is not in the dataset ({frames[0]}..{frames[-1]}); pick one of those")
     t = frames[0] if frame is None else frame
     c = tuple(ds.rig.centre_view)
-    dest.mkdir(parents=True, exist_ok=True)
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        from ..data.formats import why_unwritable
+
+        raise LfusdError(f"cannot create preview folder {dest} ({e.strerror}): {why_unwritable(dest)}") from None
     out: list[Path] = []
 
     def save(name, img):

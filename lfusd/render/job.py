@@ -17,12 +17,16 @@ missing.
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import json
 import logging
 import os
 import platform
 import shutil
+import sys
 import tempfile
+import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -32,14 +36,15 @@ from pxr import Usd, UsdGeom, UsdLux
 from .. import __version__
 from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
-from ..author.stage import check_frames, file_hash, frame_range, is_static, open_stage, world_frame
+from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
 from ..camera import RigSpec
+from ..data.formats import file_mode
 from ..errors import LfusdError
 from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
 from .plan import Plan, StageSetup, plan_units
 from .progress import Progress
-from .request import DEVICES, EXECUTORS, LIGHTS, RenderRequest  # noqa: F401  (DEVICES, EXECUTORS, LIGHTS: the commands' choices)
+from .request import RenderRequest, check_size
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +53,7 @@ def atomic_write_text(path: Path, text: str) -> None:
     """Write a file under a temporary name in the same folder, then rename it into place."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
         with os.fdopen(fd, "w") as f:
             f.write(text)
         os.replace(tmp, path)
@@ -72,9 +78,23 @@ def _matrix(m) -> list[list[float]]:
     return np.asarray(m, dtype=np.float64).tolist()
 
 
-def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict:
+def _versions() -> dict:
+    """The software whose version changes pixels: lfusd and Blender."""
+    import importlib.metadata as md
+
+    try:
+        bpy = md.version("bpy")
+    except md.PackageNotFoundError:
+        bpy = None
+    return {"lfusd": __version__, "bpy": bpy}
+
+
+def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
     return {
-        "stage_sha256": stage_hash,
+        # Everything that affects pixels: the stage's files (layer stack, textures, ...), the
+        # renderer's version and the render settings. A resume must match all of it.
+        "stage_id": files_digest(files),
+        "versions": _versions(),
         "rigs": {r.spec.name: r.spec.to_dict() for r in rigs},
         "samples": req.samples,
         "motion": req.motion,
@@ -83,40 +103,138 @@ def _settings(req: RenderRequest, stage_hash: str, rigs: list[StageRig]) -> dict
     }
 
 
-def _prepare_output(req: RenderRequest, settings: dict) -> dict | None:
-    """Refuse a folder holding something else; return the existing manifest, if any."""
-    out = req.out
+def _io_error(path: Path, e: OSError) -> LfusdError:
+    """One line for a failed read or write under ``path``, with the fix its errno calls for."""
+    if e.errno in (errno.ENOSPC, errno.EDQUOT):
+        fix = "free disk space, then rerun to resume"
+    elif e.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        fix = "make it writable or choose another -o folder"
+    else:
+        fix = "fix the folder, then rerun to resume"
+    return LfusdError(f"cannot write to {path} ({e.strerror or e}); {fix}")
+
+
+def existing_dataset(out: Path) -> dict | None:
+    """The manifest of the lfusd dataset in ``out``; None for a missing or empty folder. Raises
+    LfusdError for anything lfusd cannot prove it wrote: a file, a folder with other files, a
+    manifest without lfusd's format field and a dataset id. Reads only."""
+    out = Path(out)
     if out.exists() and not out.is_dir():
         raise LfusdError(f"output {out} is a file; give a folder for the dataset")
-    manifest_path = out / layout.MANIFEST
-    if out.is_dir() and any(out.iterdir()):
-        if not manifest_path.is_file():
-            raise LfusdError(f"output folder {out} is not empty and holds no lfusd dataset; choose an empty or new folder")
-        try:
-            manifest = json.loads(manifest_path.read_text())
-        except (OSError, json.JSONDecodeError):
-            raise LfusdError(f"{manifest_path} is unreadable; move the folder aside or use --overwrite") from None
-        old = manifest.get("settings", {})
-        # Rigs not asked for this time may already be in the folder; the ones asked for must match.
-        same = old.get("stage_sha256") == settings["stage_sha256"] and all(
-            old.get(k) == v for k, v in settings.items() if k not in ("stage_sha256", "rigs")
-        ) and all(old.get("rigs", {}).get(n, s) == s for n, s in settings["rigs"].items())
-        if not same:
-            if not req.overwrite:
-                diff = [k for k in settings if k != "rigs" and old.get(k) != settings[k]]
-                diff += [f"rig {n}" for n, s in settings["rigs"].items() if old.get("rigs", {}).get(n, s) != s]
-                raise LfusdError(
-                    f"output folder {out} holds a different dataset (differs in {', '.join(diff) or 'settings'}); "
-                    "choose another -o folder or pass --overwrite"
-                )
-            shutil.rmtree(out)
-            return None
-        return manifest
+    if not out.is_dir():
+        return None
+    try:
+        entries = [p for p in out.iterdir() if p.name != layout.LOCK]
+    except OSError as e:
+        raise LfusdError(f"cannot read output folder {out} ({e.strerror}); fix its permissions or choose another -o folder") from None
+    if not entries:
+        return None
+    path = out / layout.MANIFEST
+    if not path.is_file() or path.is_symlink():
+        raise LfusdError(f"output folder {out} is not empty and holds no lfusd dataset; choose an empty or new folder")
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise LfusdError(f"{path} is unreadable ({getattr(e, 'strerror', None) or e}), so {out} is not provably an lfusd dataset; "
+                         "move the folder aside or choose another -o folder") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise LfusdError(f"output folder {out} holds a {layout.MANIFEST} that is not an lfusd dataset's; choose another -o folder "
+                         "(lfusd deletes nothing it did not write, --overwrite included)")
+    if not manifest.get("id"):
+        raise LfusdError(f"output folder {out} holds an lfusd dataset of an older format (no dataset id); choose another -o folder "
+                         "or move it aside")
+    return manifest
+
+
+def _overwrite_refusal(req: RenderRequest, manifest: dict) -> str | None:
+    """Why ``--overwrite`` may not remove the dataset in ``req.out``, or None when it may."""
+    out = req.out
+    if out.is_symlink():
+        return f"{out} is a symbolic link; give the folder it points to"
+    real = out.resolve()
+    if real == Path.cwd().resolve():
+        return f"{out} is the current folder"
+    if real in Path(req.stage).resolve().parents:
+        return f"{out} holds the stage {req.stage}"
+    for name in _own_names(manifest):
+        if (out / name).is_symlink():
+            return f"{out / name} is a symbolic link lfusd did not make"
     return None
 
 
+def _own_names(manifest: dict) -> list[str]:
+    """The top-level entries of OUT that lfusd wrote: its files and one folder per rig."""
+    rigs = [r for r in manifest.get("rigs", []) if isinstance(r, str) and r and r not in (".", "..") and "/" not in r and "\\" not in r]
+    return [*layout.OWN_ENTRIES, *rigs]
+
+
+def _remove_dataset(out: Path, manifest: dict) -> None:
+    """Remove lfusd's own entries of ``out`` (never the folder itself, nor anything else in
+    it), the manifest last: an interrupted removal leaves a dataset that --overwrite removes."""
+    try:
+        for name in _own_names(manifest):
+            p = out / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            elif p.exists():
+                p.unlink()
+        (out / layout.MANIFEST).unlink(missing_ok=True)
+    except OSError as e:
+        raise _io_error(out, e) from None
+
+
+def _prepare_output(req: RenderRequest, settings: dict, files: dict, remove: bool = True) -> dict | None:
+    """Refuse a folder holding something else or another dataset; return the existing
+    manifest, if any (``--overwrite``: remove the other dataset when ``remove``, and return None)."""
+    out = req.out
+    manifest = existing_dataset(out)
+    if manifest is None:
+        return None
+    old = manifest.get("settings", {})
+    # Rigs not asked for this time may already be in the folder; the ones asked for must match.
+    diff = [k for k in settings if k != "rigs" and old.get(k) != settings[k]]
+    diff += [f"rig {n}" for n, s in settings["rigs"].items() if old.get("rigs", {}).get(n, s) != s]
+    if not diff:
+        return manifest
+    if "stage_id" in diff:
+        changed = changed_file(manifest.get("stage", {}).get("files") or {}, files)
+        diff[diff.index("stage_id")] = f"stage file {changed} (changed since it was rendered)" if changed else "stage files"
+    refusal = _overwrite_refusal(req, manifest)
+    if not req.overwrite or refusal:
+        why = f"; --overwrite is refused here: {refusal}" if refusal else " or pass --overwrite"
+        raise LfusdError(f"output folder {out} holds a different dataset (differs in {', '.join(diff)}); "
+                         f"choose another -o folder{why}")
+    if remove:
+        _remove_dataset(out, manifest)
+    return None
+
+
+@contextlib.contextmanager
+def output_lock(out: Path):
+    """Hold OUT/.lock (an advisory flock) while writing the dataset in ``out``: one writer per
+    folder. The kernel drops the lock of a process that dies, so a stale lock is simply taken."""
+    path = Path(out) / layout.LOCK
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, file_mode())
+    except OSError as e:
+        raise _io_error(Path(out), e) from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "unknown"
+            pid, _, command = holder.partition(" ")
+            raise LfusdError(f"output folder {out} is being written by process {pid} ({command or 'unknown command'}); "
+                             "wait for it to finish or stop it, or choose another -o folder") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()} {' '.join(['lfusd', *sys.argv[1:]]) if sys.argv else 'lfusd'}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing drops the flock
+
+
 def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, rigs: list[StageRig], frames: list[int], device: str | None,
-                    world: dict | None = None) -> None:
+                    files: dict, world: dict | None = None) -> None:
     from ..data import integrity
 
     rig_specs = dict(previous["settings"]["rigs"]) if previous else {}
@@ -125,7 +243,8 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
     manifest = {
         "format": FORMAT,
         "version": FORMAT_VERSION,
-        "stage": {"path": str(Path(req.stage).resolve()), "sha256": settings["stage_sha256"]},
+        "id": (previous or {}).get("id") or uuid.uuid4().hex,  # proof that lfusd wrote the folder
+        "stage": {"path": str(Path(req.stage).resolve()), "sha256": files.get(Path(req.stage).name, {}).get("sha256"), "files": files},
         # The stage's up axis and units, and the map of its coordinates into lfusd's world.
         "world": world or (previous or {}).get("world"),
         "rigs": sorted(rig_specs),
@@ -170,10 +289,13 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
             atomic_write_text(d / layout.FRAME_META, json.dumps(meta))
 
 
-def _clean_stale(out: Path) -> None:
-    for tmp in out.glob("*/f*/.*.tmp-*"):
-        shutil.rmtree(tmp, ignore_errors=True)
-    shutil.rmtree(out / ".scratch", ignore_errors=True)
+def _clean_stale(out: Path, rigs: list[str]) -> None:
+    """Remove what a killed run left (it holds no lock any more: this run holds it), in lfusd's
+    own folders only."""
+    for rig in rigs:
+        for tmp in (out / rig).glob("f*/.*.tmp-*"):
+            shutil.rmtree(tmp, ignore_errors=True)
+    shutil.rmtree(out / layout.SCRATCH, ignore_errors=True)
 
 
 def _rigs_and_frames(req: RenderRequest, stage: Usd.Stage) -> tuple[list[StageRig], list[int]]:
@@ -212,54 +334,68 @@ def _stage_range(stage: Usd.Stage, frames: list[int]) -> tuple[int, int]:
 
 def render(req: RenderRequest, progress=None) -> dict:
     """Render every missing view of the requested rigs and frames; return the manifest dict."""
-    return _render(req, open_stage(req.stage), progress)[0]
+    return _render(req.capped(), open_stage(req.stage), progress)[0]
 
 
-def _render(req: RenderRequest, stage: Usd.Stage, progress=None) -> tuple[dict, list[str]]:
-    """(manifest, names of the rigs rendered)."""
+def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> tuple[dict, list[str]]:
+    """(manifest, names of the rigs rendered); ``then(names)`` runs afterwards, still holding
+    the folder's lock. Everything that can refuse runs before the folder is touched."""
     req.check()
     if req.executor == "ray" and req.ray_address:
         from .executors import check_ray_address
 
         check_ray_address(req.ray_address)
     rigs, frames = _rigs_and_frames(req, stage)
-    settings = _settings(req, file_hash(req.stage), rigs)
+    existing = existing_dataset(req.out)
+    files = stage_files(req.stage, known=(existing or {}).get("stage", {}).get("files"))
+    settings = _settings(req, files, rigs)
     world = world_frame(stage).to_dict()
-    previous = _prepare_output(req, settings)
-    req.out.mkdir(parents=True, exist_ok=True)
-    _clean_stale(req.out)
+    check_size(req, [(r.spec.name, len(r.spec.views), r.spec.width, r.spec.height) for r in rigs], frames)
+    if existing is not None:
+        _prepare_output(req, settings, files, remove=False)  # refuse before taking the lock (which writes OUT/.lock)
     try:
-        _write_manifest(req, settings, previous, rigs, frames, None, world)
-        objects, classes = object_table(stage)
-        _write_static_metadata(req, stage, rigs, frames, objects, classes)
-        plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
-        device = None
-        if plan.remaining:
-            from ..author.geometry import StageGeometry, render_instances
-            from .executors import run_units
-
-            plain, instanced = render_instances(StageGeometry(stage), objects, frame_range(stage)[0])
-            units = plan_units(
-                req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
-                StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
-                           _add_light(req, stage), world),
-            )
-            report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
-            try:
-                device = run_units(units, req, report)
-            except BaseException:
-                # Record what did finish; a second failure here (a full disk) must not hide the first.
-                with contextlib.suppress(OSError):
-                    _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, None, world)
-                raise
-            finally:
-                report.close()
-        _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, device, world)
+        req.out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise LfusdError(f"cannot write to {req.out} ({e.strerror or e}); free space or fix permissions, then rerun to resume") from None
-    finally:
-        shutil.rmtree(req.out / ".scratch", ignore_errors=True)
-    return json.loads((req.out / layout.MANIFEST).read_text()), [r.spec.name for r in rigs]
+        raise _io_error(req.out, e) from None
+    with output_lock(req.out):
+        previous = _prepare_output(req, settings, files)  # again: the folder may have changed before the lock
+        names = [r.spec.name for r in rigs]
+        try:
+            _clean_stale(req.out, sorted(set(names) | set((previous or {}).get("rigs", []))))
+            _write_manifest(req, settings, previous, rigs, frames, None, files, world)
+            objects, classes = object_table(stage)
+            _write_static_metadata(req, stage, rigs, frames, objects, classes)
+            plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
+            device = None
+            if plan.remaining:
+                from ..author.geometry import StageGeometry, render_instances
+                from .executors import run_units
+
+                plain, instanced = render_instances(StageGeometry(stage), objects, frame_range(stage)[0])
+                units = plan_units(
+                    req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
+                    StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
+                               _add_light(req, stage), world),
+                )
+                report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
+                try:
+                    device = run_units(units, req, report)
+                except BaseException:
+                    # Record what did finish; a second failure here (a full disk) must not hide the first.
+                    with contextlib.suppress(OSError):
+                        _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, None, files, world)
+                    raise
+                finally:
+                    report.close()
+            _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, device, files, world)
+            manifest = json.loads((req.out / layout.MANIFEST).read_text())
+            if then is not None:
+                then(names)
+        except OSError as e:
+            raise _io_error(req.out, e) from None
+        finally:
+            shutil.rmtree(req.out / layout.SCRATCH, ignore_errors=True)
+    return manifest, names
 
 
 @dataclass
@@ -281,7 +417,7 @@ def render_video(req: RenderRequest) -> VideoResult:
     if not req.frames:
         first, last = frame_range(stage)
         req = replace(req, frames=list(range(first, last + 1)))
-    req = replace(req, motion=True)
-    manifest, names = _render(req, stage)
-    derived = derive_dataset(req.out, names, req.frames, workers=req.workers)
-    return VideoResult(manifest, names, list(req.frames), derived)
+    req = replace(req, motion=True).capped()
+    derived = []
+    manifest, names = _render(req, stage, then=lambda names: derived.append(derive_dataset(req.out, names, req.frames, workers=req.workers)))
+    return VideoResult(manifest, names, list(req.frames), derived[0])

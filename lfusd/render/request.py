@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import logging
+import os
+import shutil
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..errors import LfusdError
@@ -10,6 +13,33 @@ from ..errors import LfusdError
 DEVICES = ("auto", "cpu", "cuda", "optix")
 EXECUTORS = ("local", "ray")
 LIGHTS = ("auto", "none")  # auto: a stage without lights gets a neutral sky and sun; none: nothing added
+
+log = logging.getLogger(__name__)
+
+# Bytes per pixel of one view and frame, for the up-front size estimate. Disk: rgb.png (3),
+# rgb.exr (half RGBA, 8), passes.exr (12 float32 channels, 48; 18 with the motion AOVs, 72),
+# motion.npz (about 10 float32 values, 40), halved for the files' compression. Memory: Blender's
+# render result and film buffers of one view, about 200 (a lower bound).
+DISK_BYTES_PER_PIXEL = {False: (3 + 8 + 48) / 2, True: (3 + 8 + 72 + 40) / 2}
+MEMORY_BYTES_PER_PIXEL = 200
+# Beyond these a rig is a mistake more often than a plan (authoring a million cameras takes
+# hours); `--force` lifts them. 64x64 views; 16384x16384 pixels (Blender's render result alone
+# is about 50 GB there).
+MAX_VIEWS = 4096
+MAX_PIXELS = 16384 * 16384
+
+
+def check_rig_size(grid: tuple[int, int], resolution: tuple[int, int] | None, force: bool = False) -> None:
+    """Refuse, up front, a grid of more than MAX_VIEWS views or a view of more than MAX_PIXELS pixels."""
+    if force:
+        return
+    rows, cols = grid
+    if rows * cols > MAX_VIEWS:
+        raise LfusdError(f"--grid {rows}x{cols} is {rows * cols} views, more than {MAX_VIEWS} per rig; use a smaller grid or pass --force")
+    if resolution and resolution[0] * resolution[1] > MAX_PIXELS:
+        w, h = resolution
+        raise LfusdError(f"--resolution {w}x{h} is {w * h / 1e6:.0f} Mpixel per view, more than {MAX_PIXELS / 1e6:.0f}; "
+                         "use a smaller resolution or pass --force")
 
 
 @dataclass
@@ -25,6 +55,7 @@ class RenderRequest:
     workers: int = 1
     resolution: tuple[int, int] | None = None
     overwrite: bool = False
+    force: bool = False  # render even when the size estimate exceeds the free disk space or memory
     quiet: bool = False
     executor: str = "local"
     ray_address: str | None = None
@@ -47,3 +78,56 @@ class RenderRequest:
             raise LfusdError(f"unknown --light {self.light!r}; use one of {', '.join(LIGHTS)}")
         if self.ray_address and self.executor != "ray":
             raise LfusdError("--ray-address needs --executor ray")
+
+    def capped(self) -> "RenderRequest":
+        """This request with at most one local worker per CPU core (more only compete for them)."""
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        if self.executor == "local" and self.workers and self.workers > cores:
+            log.warning("--workers %d is more than this machine's %d CPU cores; using %d", self.workers, cores, cores)
+            return replace(self, workers=cores)
+        return self
+
+
+def _gb(n: float) -> str:
+    return f"{n / 1e9:.3g} GB"
+
+
+def _free_disk(path: Path) -> int | None:
+    p = Path(path).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return shutil.disk_usage(p).free
+    except OSError:
+        return None
+
+
+def _memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def size_estimate(rigs: list[tuple[str, int, int, int]], frames: int, motion: bool, workers: int) -> tuple[float, float]:
+    """(disk bytes, memory bytes) a render of ``rigs`` (name, views, width, height) over
+    ``frames`` frames needs: the dataset's files, and the render results of ``workers`` views at once."""
+    disk = sum(views * w * h for _, views, w, h in rigs) * frames * DISK_BYTES_PER_PIXEL[motion]
+    memory = max((w * h for _, _, w, h in rigs), default=0) * MEMORY_BYTES_PER_PIXEL * workers
+    return disk, memory
+
+
+def check_size(req: RenderRequest, rigs: list[tuple[str, int, int, int]], frames: list[int]) -> None:
+    """Refuse, before any work, a render whose estimated files exceed the free disk space under
+    ``req.out`` or whose views cannot fit in this machine's memory (``--force`` renders anyway)."""
+    if req.force:
+        return
+    disk, memory = size_estimate(rigs, len(frames), req.motion, req.workers if req.executor == "local" else 1)
+    free, ram = _free_disk(req.out), _memory()
+    what = ", ".join(f"{name} {views} views of {w}x{h}" for name, views, w, h in rigs)
+    if ram is not None and memory > ram:
+        raise LfusdError(f"rendering {what} needs about {_gb(memory)} of memory (this machine has {_gb(ram)}); "
+                         "lower --resolution or --workers, or pass --force to try anyway")
+    if free is not None and disk > free:
+        raise LfusdError(f"rendering {what} over {len(frames)} frames needs about {_gb(disk)} of disk ({_gb(free)} free under {req.out}); "
+                         "free space, lower --resolution or the frames, or pass --force to try anyway")
