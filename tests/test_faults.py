@@ -70,7 +70,9 @@ def project(tmp_path):
 
 @pytest.fixture
 def fake_render(monkeypatch):
-    """Blender workers stood in for: each unit's view folders appear, as a worker's would."""
+    """Blender workers stood in for: each unit's view folders appear with their completion
+    record, as a worker's would (the files hold no image)."""
+    from lfusd.data import integrity
     from lfusd.render import executors
 
     def run_units(units, req, report):
@@ -79,7 +81,9 @@ def fake_render(monkeypatch):
                 for key in u.cameras:
                     d = frame_dir(req.out, u.rig, f) / key
                     d.mkdir(parents=True, exist_ok=True)
-                    (d / "rgb.png").write_bytes(b"fake")
+                    for name in integrity.RENDER_FILES:
+                        (d / name).write_bytes(b"fake")
+                    integrity.record_render(d)
         return "cpu"
 
     monkeypatch.setattr(executors, "run_units", run_units)

@@ -92,4 +92,4 @@ def test_work_units_carry_add_light_and_settings_record_the_choice(tmp_path):
                        StageSetup({}, [], False, [1, 1], True, {}))
     assert [u.add_light for u in units] == [True]
     assert WorkUnit.from_json(json.loads(json.dumps(units[0].to_json()))).add_light is True
-    assert job._settings(req, "hash", [])["light"] == "none"
+    assert job._settings(req, {}, [])["light"] == "none"
