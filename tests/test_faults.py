@@ -343,7 +343,16 @@ def test_metadata_files_are_readable_by_group_and_others(capsys, tmp_path, proje
         assert render(capsys, project / "scene.usda", out)[0] == 0
     finally:
         os.umask(old)
-    for p in (out / "manifest.json", out / "objects.json", frame_dir(out, "main", 1) / "frame.json"):
+    for p in (out / "manifest.json", out / "objects.json", frame_dir(out, "main", 1) / "frame.json",
+              frame_dir(out, "main", 1) / "00_00" / VIEW_RECORD):
+        mode = stat.S_IMODE(p.stat().st_mode)
+        assert mode & 0o044 == 0o044, (p, oct(mode))
+
+
+def test_derived_motion_is_readable_by_group_and_others(whole):
+    """motion.npz and its record are written under temporary names (0600) and then shared."""
+    d = frame_dir(whole, "main", 2) / "00_00"
+    for p in (d / MOTION_FILE, d / VIEW_RECORD):
         mode = stat.S_IMODE(p.stat().st_mode)
         assert mode & 0o044 == 0o044, (p, oct(mode))
 

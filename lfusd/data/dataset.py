@@ -14,6 +14,7 @@ import numpy as np
 
 from . import passes
 from .. import layout
+from .integrity import render_problems
 from ..camera import RigSpec, View
 from ..errors import LfusdError
 from ..keys import IMAGE, RAW, STATIC, get
@@ -85,7 +86,9 @@ class Dataset:
         self._objects: dict[int, DatasetObject] | None = None
         complete = self.manifest.get("complete", {}).get(rig)
         if scan or complete is None:  # manifests before the "complete" record: look at the folders
-            complete = [f for f in self.manifest["frames"] if all((self._frame_dir(f) / view_key(v)).is_dir() for v in self.views)]
+            # Sizes against each view's completion record (checksums: `lfusd verify --integrity`).
+            complete = [f for f in self.manifest["frames"]
+                        if not any(render_problems(self._frame_dir(f) / view_key(v), deep=False) for v in self.views)]
         self.frames: list[int] = [int(f) for f in complete]  # frames with every view rendered
         # Per-instance caches, most recent last: raw passes (t-1, t, t+1 of a view for the motion derivation), frame.json files.
         self._raw_cache: dict[str, dict[str, np.ndarray]] = {}

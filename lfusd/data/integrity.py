@@ -23,6 +23,7 @@ from pathlib import Path
 
 from .. import layout
 from ..layout import frame_dir, view_key
+from .formats import file_mode
 
 VERSION = 1
 RENDER_FILES = (layout.RGB_PNG, layout.RGB_EXR, layout.PASSES_EXR)  # written by the renderer, recorded on commit
@@ -63,6 +64,7 @@ def write_record(view_dir: str | Path, record: dict) -> None:
     d = Path(view_dir)
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".view.", suffix=".json")
     try:
+        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
         with os.fdopen(fd, "w") as f:
             json.dump(record, f, indent=1)
             f.flush()

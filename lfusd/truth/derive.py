@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import integrity
+from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
 from ..layout import MOTION_FILE, PASSES_EXR, frame_dir, view_key
@@ -56,6 +57,7 @@ def write_motion(ds: Dataset, frame: int, view: View) -> Path:
     d = ds.view_dir(frame, view)
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".motion.", suffix=".npz")
     try:
+        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
         with os.fdopen(fd, "wb") as f:
             np.savez(f, **keys)
         os.replace(tmp, d / MOTION_FILE)

@@ -10,12 +10,14 @@ import pytest
 
 from lfusd import Dataset, LfusdError, layout
 from lfusd.camera import RigSpec
+from lfusd.data import integrity
 
 RIG = RigSpec(name="main", rows=1, cols=2, width=8, height=6)
 
 
 def make(root: pathlib.Path, frames=(1, 2), rendered=(1, 2), complete: list[int] | None = None) -> pathlib.Path:
-    """A dataset folder with frame.json files and empty view folders for the ``rendered`` frames."""
+    """A dataset folder with frame.json files and, for the ``rendered`` frames, view folders whose
+    files (holding no image) match their completion record."""
     manifest = {"format": layout.FORMAT, "version": layout.FORMAT_VERSION, "rigs": ["main"], "frames": list(frames), "settings": {"rigs": {"main": RIG.to_dict()}}}
     if complete is not None:
         manifest["complete"] = {"main": complete}
@@ -29,6 +31,9 @@ def make(root: pathlib.Path, frames=(1, 2), rendered=(1, 2), complete: list[int]
         if f in rendered:
             for v in RIG.views:
                 (d / layout.view_key(v)).mkdir(exist_ok=True)
+                for name in integrity.RENDER_FILES:
+                    (d / layout.view_key(v) / name).write_bytes(b"stand-in")
+                integrity.record_render(d / layout.view_key(v))
     return root
 
 
@@ -49,6 +54,12 @@ def test_frames_come_from_the_manifest_once_and_refresh_looks_at_the_folders(tmp
 
 def test_frames_of_an_old_manifest_are_found_in_the_folders(tmp_path):
     assert Dataset(make(tmp_path / "ds", frames=(1, 2, 3), rendered=(1, 3))).frames == [1, 3]
+
+
+def test_a_view_whose_files_do_not_match_their_record_is_not_complete(tmp_path):
+    root = make(tmp_path / "ds", frames=(1, 2, 3), rendered=(1, 2, 3))
+    (layout.frame_dir(root, "main", 2) / "00_01" / layout.PASSES_EXR).write_bytes(b"cut")
+    assert Dataset(root).frames == [1, 3]
 
 
 def test_structure_properties_do_no_io(tmp_path, monkeypatch):
