@@ -23,8 +23,11 @@ def register(sub) -> None:
     add.add_argument("--focal-length", type=float, default=d.focal_length_mm, help="lens in mm (default 39)")
     add.add_argument("--sensor", type=float, default=d.sensor_mm, help="sensor width in mm (default 36)")
     add.add_argument("--resolution", type=argtypes.resolution, default=f"{d.width}x{d.height}", help="WIDTHxHEIGHT pixels (default 1024x1024)")
-    add.add_argument("--at", type=argtypes.point, default=",".join(map(str, d.at)), help="rig centre X,Y,Z: metres along the stage's own axes (its up axis is the rig's up)")
-    add.add_argument("--look-at", type=argtypes.point, default=",".join(map(str, d.look_at)), help="point X,Y,Z the rig looks at (metres, stage axes)")
+    add.add_argument("--at", type=argtypes.point, default=None,
+                     help="rig centre X,Y,Z: metres along the stage's own axes, its up axis the rig's up "
+                          f"(default: {d.at[2]:g} m up, {-d.at[1]:g} m back from the origin)")
+    add.add_argument("--look-at", type=argtypes.point, default=None,
+                     help=f"point X,Y,Z the rig looks at (metres, stage axes; default: {d.look_at[2]:g} m above the origin)")
     add.add_argument("--spacing", default=d.spacing, help=f"{'|'.join(SPACINGS)} (default uniform)")
     add.add_argument("--layout", default=d.layout, help=f"{'|'.join(LAYOUTS)} (default plane)")
     add.add_argument("--radius", type=float, default=None, help="sphere radius in metres (default: distance to --look-at)")
@@ -34,7 +37,7 @@ def register(sub) -> None:
 
 
 def run_add(args) -> int:
-    from ..author.stage import open_for_edit
+    from ..author.stage import open_for_edit, world_frame
     from ..author.rigs import add_rig
 
     from ..render.request import check_rig_size
@@ -43,12 +46,17 @@ def run_add(args) -> int:
     rows, cols = args.grid
     width, height = args.resolution
     axes = args.axes or ("converge" if args.layout == "sphere" else "parallel")
+    stage = open_for_edit(args.stage, args.out)
+    # The default pose is stated in lfusd's world (Z up); on a stage with another up axis it is
+    # turned into the stage's axes, so the default rig stands upright on any stage.
+    d, turn = RigSpec(), world_frame(stage).rotation.T
+    at = args.at if args.at is not None else tuple(float(x) for x in turn @ d.at)
+    look_at = args.look_at if args.look_at is not None else tuple(float(x) for x in turn @ d.look_at)
     spec = RigSpec(
         name=args.name, rows=rows, cols=cols, baseline=args.baseline, focal_length_mm=args.focal_length,
-        sensor_mm=args.sensor, width=width, height=height, at=args.at, look_at=args.look_at, spacing=args.spacing,
+        sensor_mm=args.sensor, width=width, height=height, at=at, look_at=look_at, spacing=args.spacing,
         layout=args.layout, radius=args.radius, axes=axes,
     )
-    stage = open_for_edit(args.stage, args.out)
     add_rig(stage, spec)
     target = args.out or args.stage
     try:

@@ -119,6 +119,21 @@ def test_rig_add_cli_takes_negative_stage_coordinates_on_a_y_up_cm_stage(capsys,
     assert abs(c2w[2, 0]) < 1e-9 and -c2w[2, 1] > 0  # image x level, image up towards the stage's up (world +Z)
 
 
+@pytest.mark.parametrize("up", ["Y", "Z"])
+def test_rig_add_default_pose_stands_upright_on_any_up_axis(capsys, tmp_path, up):
+    """Without --at/--look-at the rig is 1.5 m up, 10 m back, looking level at a point 1.5 m above
+    the origin, on a Y-up centimetre stage as on a Z-up one (not 10 m below its floor)."""
+    path = tmp_path / "s.usda"
+    write_world_stage(path, up, 0.01)
+    code, _, err = run_cli(capsys, "rig", "add", str(path), "--grid", "1x1", "--resolution", "16x16")
+    assert code == 0, err
+    stage = open_stage(path)
+    c2w = rigs(stage)["main"].cam_to_world(stage, (0, 0), 1)
+    assert c2w[:3, 3] == pytest.approx((0.0, -10.0, 1.5), abs=1e-9)
+    assert c2w[:3, 2] == pytest.approx((0.0, 1.0, 0.0), abs=1e-9)  # looking level along world +Y
+    assert -c2w[2, 1] == pytest.approx(1.0)  # image up is world +Z, the stage's up
+
+
 def test_existing_z_up_metre_rigs_are_unchanged(tmp_path):
     """The map is the identity on lfusd's own stages: the rig is exactly RigSpec's pose."""
     spec = RigSpec(name="r", rows=2, cols=3, width=16, height=16, at=(0.2, -5.0, 1.6), look_at=(0.0, 0.0, 0.6))
