@@ -11,7 +11,8 @@ instance, flow, scene flow, disparity change and occlusion independently of Blen
 Default thresholds (:data:`THRESHOLDS`), applied to the 99th percentile of the error on
 *interior* pixels (foreground in both, at least ``EDGE_PX`` pixels from any instance edge or depth
 edge of the traced image) for every object class and for all classes together:
-flow 0.05 px, scene flow 1 mm, depth 1e-4 relative, disparity change 0.05 px; instance ids must
+flow 0.05 px, scene flow 1 mm (or 1e-3 of the object's size for objects under 1 m: the error is
+scaled by max(1, 1 mm / (1e-3 x size)) before it is compared), depth 1e-4 relative, disparity change 0.05 px; instance ids must
 agree on all but 0.1 % of interior pixels; occlusion masks must agree with ray-cast visibility on
 99 % of the pixels that are foreground in both (over the whole view; per-class rates are only
 reported, as a small object's disagreement at its edges is a large share of its pixels).
@@ -34,6 +35,7 @@ THRESHOLDS: dict[str, float] = accuracies()
 UNITS = accuracy_units()
 EDGE_PX = 2
 DEPTH_EDGE_REL = 0.02  # neighbours whose depths differ by more than this are across a depth edge
+SCENE_FLOW_REL = 1e-3  # scene flow is also held to this fraction of the object's size (small objects)
 VISIBLE_EPS = 1e-4  # relative slack of the visibility ray cast (hits nearer than 1-eps occlude)
 
 
@@ -97,6 +99,28 @@ def _hit_on_triangle(o, d, A, B, C):
         b1 = (d11 * d20 - d01 * d21) / den
         b2 = (d00 * d21 - d01 * d20) / den
     return t, P, b1, b2
+
+
+def _bounds(meshes) -> np.ndarray:
+    """(n, 2, 3): each mesh's world-space min and max corner at the traced time (NaN when empty)."""
+    out = np.full((len(meshes), 2, 3), np.nan)
+    for i, m in enumerate(meshes):
+        if len(m.vertices):
+            out[i] = m.vertices.min(0), m.vertices.max(0)
+    return out
+
+
+def object_sizes(mesh_ids: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Size (bounding-box diagonal, metres) of every instance id from its meshes' bounds;
+    ``mesh_ids``: instance id per mesh (as :func:`object_ids_for` gives, last entry background)."""
+    n = int(mesh_ids.max(initial=0)) + 1
+    lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+    ok = np.isfinite(bounds[:, 0, 0])
+    np.minimum.at(lo, mesh_ids[:-1][ok], bounds[ok, 0])
+    np.maximum.at(hi, mesh_ids[:-1][ok], bounds[ok, 1])
+    with np.errstate(invalid="ignore"):
+        size = np.linalg.norm(hi - lo, axis=1)
+    return np.where(np.isfinite(size), size, np.inf)
 
 
 def trace_motion(
@@ -167,6 +191,7 @@ def trace_motion(
         "position": pos.reshape(H, W, 3),
         "mesh": mesh.reshape(H, W),
         "prim_paths": [m.prim_path for m in s0.meshes],
+        "mesh_bounds": _bounds(s0.meshes),
         "flow": flow.reshape(H, W, 2),
         "scene_flow": (pos1 - pos).reshape(H, W, 3),
         "disparity_change": dchange.reshape(H, W),
@@ -373,7 +398,11 @@ def compare_view(
             if data.get(f"flow_{name}") is not None:
                 add(f"flow_{name}", np.linalg.norm(np.asarray(data[f"flow_{name}"], np.float64) - trace["flow"], axis=-1), ok)
             if name == "fwd" and data.get("scene_flow") is not None:
-                add("scene_flow", np.linalg.norm(np.asarray(data["scene_flow"], np.float64) - trace["scene_flow"], axis=-1), ok)
+                # Held to the limit or SCENE_FLOW_REL of the object's size, whichever is smaller:
+                # 1 mm says nothing about a 2 cm chess piece. The error is scaled to the limit.
+                size = object_sizes(ids, trace["mesh_bounds"])[np.clip(inst_tr, 0, None)]
+                scale = np.maximum(1.0, thr["scene_flow"] / (SCENE_FLOW_REL * size))
+                add("scene_flow", scale * np.linalg.norm(np.asarray(data["scene_flow"], np.float64) - trace["scene_flow"], axis=-1), ok)
             if name == "fwd" and data.get("disparity_change") is not None and np.isfinite(trace["disparity_change"][ok]).all():
                 add("disparity_change", np.abs(np.asarray(data["disparity_change"], np.float64) - trace["disparity_change"]), ok)
             occ = data.get(f"occlusion_{name}")

@@ -421,3 +421,27 @@ def test_verify_command_threshold_overrides(tmp_path, monkeypatch, capsys):
     assert "FAIL depth of view 0,0 at frame 2" in capsys.readouterr().out
     assert main(["verify", "OUT", "--threshold", "depth"]) == 2
     assert "not KEY=NUMBER" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("half, offset, passes", [
+    (0.01, 0.0005, False),  # a 3.5 cm piece: 0.5 mm is 1.4 % of its size, far above 1e-3 of it
+    (0.01, 0.00001, True),  # 10 um on that piece: within 1e-3 of its size
+    (0.6, 0.0005, True),  # a 2 m box: 0.5 mm is within the 1 mm limit
+])
+def test_scene_flow_of_small_objects_is_held_to_their_size(tmp_path, half, offset, passes):
+    """Scene flow passes at 1 mm, or 1e-3 of the object's size where that is smaller: an absolute
+    millimetre says nothing about a chess piece."""
+    K = intrinsics(N * 1.05, N, N)
+    z = 12 * half  # the box fills about a sixth of the image whatever its size
+    cube = Box((half, half, half), {f: pose(rot((0.3, 1, 0.2), 8.0 * f), (half * 0.2 * f, 0.0, z)) for f in (1, 2, 3)}, 1, "/World/Piece")
+    back = Box((30 * half, 30 * half, half), {f: pose(t=(0, 0, 3 * z)) for f in (1, 2, 3)}, 2, "/World/Board")
+    sc = Scene([cube, back], K, {f: np.eye(4) for f in (1, 2, 3)}, N, N, baseline=half)
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    for f in ds.frames:
+        sf = ds.data[f]["scene_flow"]
+        ds.data[f]["scene_flow"] = np.where((ds.data[f]["instance"] == 1)[..., None], sf + np.float32(offset), sf)
+    report = verify_dataset(ds)
+    rows = [r for r in report.rows if r.key == "scene_flow" and r.label == "wall"]  # the piece (first label)
+    assert sum(r.count for r in rows) > 0
+    assert report.ok is passes, report.failures()
