@@ -669,6 +669,18 @@ def test_ctrl_c_during_derivation_stops_the_pool_and_exits_130(stage, tmp_path):
     assert not _alive(kids, 5), "derivation processes outlived lfusd"
 
 
+@pytest.mark.render
+def test_ctrl_c_under_ray_exits_130_and_leaves_no_ray_or_blender_process(stage, tmp_path):
+    """Ray's local cluster (GCS, raylet, its workers) and the Blender workers all end with lfusd."""
+    proc = _start(*_render_args(stage, tmp_path / "out", "--workers", "2", "--executor", "ray"))
+    kids = _wait_for_child(proc, WORKER)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1] == "lfusd: interrupted; rerun the same command to resume" and "Traceback" not in err, err
+    assert not _reap(kids), "Ray or Blender processes outlived lfusd"
+
+
 def _reap(procs: list) -> list[str]:
     """Kill what is still alive (a failed test must not leave it running); their command lines."""
     alive = _alive(procs, 3)
