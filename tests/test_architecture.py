@@ -10,13 +10,14 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "lfusd"
 
-BASE = {"errors", "keys", "layout", "camera"}
+BASE = {"errors", "keys", "layout", "camera", "processes"}
 # Which parts of lfusd each part may import (a part is a subpackage or a top-level module).
 ALLOWED = {
     "errors": set(),
     "keys": {"errors"},
     "layout": {"errors"},
     "camera": {"errors"},
+    "processes": set(),
     "data": BASE | {"data"},
     "author": BASE | {"author"},
     "truth": BASE | {"data", "truth", "author"},  # verify traces motion on the stage itself

@@ -22,6 +22,7 @@ from ..data.passes import linear_to_srgb8, read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
 from ..layout import frame_dir
+from ..processes import PARENT_PID_ENV
 from .plan import WorkUnit
 from .request import RenderRequest
 
@@ -110,7 +111,7 @@ def run_unit(unit: WorkUnit, out: Path, on_view=None, stopping: threading.Event 
         proc = subprocess.Popen(
             WORKER,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1,
-            env={**os.environ, "LFUSD_PARENT_PID": str(os.getpid())},  # the worker dies with this process
+            env={**os.environ, PARENT_PID_ENV: str(os.getpid())},  # the worker dies with this process
         )
         with _LIVE_LOCK:
             _LIVE.add(proc)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdLux
+from pxr import Usd, UsdLux
 
 from .. import __version__
 from ..author.labels import ObjectEntry, ObjectPoses, object_table
@@ -79,14 +79,9 @@ def _matrix(m) -> list[list[float]]:
 
 
 def _versions() -> dict:
-    """The software whose version changes pixels: lfusd and Blender."""
-    import importlib.metadata as md
-
-    try:
-        bpy = md.version("bpy")
-    except md.PackageNotFoundError:
-        bpy = None
-    return {"lfusd": __version__, "bpy": bpy}
+    """The software whose version changes pixels: lfusd and Blender (of :func:`_software`)."""
+    software = _software()
+    return {"lfusd": software["lfusd"], "bpy": software.get("bpy")}
 
 
 def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:

@@ -24,6 +24,7 @@ import traceback
 import bpy
 import numpy as np
 
+from lfusd.processes import PARENT_PID_ENV, die_with_parent
 from lfusd.render.plan import WorkUnit
 
 bpy.utils.expose_bundled_modules()  # Blender's USD hooks hand out objects of its bundled pxr
@@ -623,16 +624,9 @@ def _test_kill_hook(frame: int) -> None:
 
 
 def main() -> int:
-    # Die with the parent (Linux: the kernel sends SIGKILL), so a killed lfusd leaves no Blender rendering on.
-    parent = int(os.environ.get("LFUSD_PARENT_PID", "0"))
-    if parent:
-        if sys.platform.startswith("linux"):
-            import ctypes
-            import signal
-
-            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # it died before the request took effect
-            return 1
+    parent = int(os.environ.get(PARENT_PID_ENV, "0"))
+    if parent:  # a killed lfusd must leave no Blender rendering on
+        die_with_parent(parent)
     job = WorkUnit.from_json(json.loads(sys.stdin.read()))
     try:
         t0 = time.time()

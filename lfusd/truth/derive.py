@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import integrity
+from ..processes import die_with_parent
 from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
@@ -80,18 +81,6 @@ def _pool_init(parent: int) -> None:
     """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent)
-
-
-def die_with_parent(parent: int) -> None:
-    """Have the kernel kill this process when its parent dies (Linux), so a killed lfusd leaves no strays."""
-    import sys
-
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
-    if os.getppid() != parent:  # the parent died before the request took effect
-        os._exit(1)
 
 
 def derive_dataset(
