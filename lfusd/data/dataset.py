@@ -14,7 +14,7 @@ import numpy as np
 
 from . import passes
 from .. import layout
-from .integrity import render_problems
+from .integrity import complete_frames
 from ..camera import RigSpec, View
 from ..errors import LfusdError
 from ..keys import IMAGE, RAW, STATIC, get
@@ -87,8 +87,7 @@ class Dataset:
         complete = self.manifest.get("complete", {}).get(rig)
         if scan or complete is None:  # manifests before the "complete" record: look at the folders
             # Sizes against each view's completion record (checksums: `lfusd verify --integrity`).
-            complete = [f for f in self.manifest["frames"]
-                        if not any(render_problems(self._frame_dir(f) / view_key(v), deep=False) for v in self.views)]
+            complete = complete_frames(self.root, rig, self.manifest["frames"], self.views)
         self.frames: list[int] = [int(f) for f in complete]  # frames with every view rendered
         # Per-instance caches, most recent last: raw passes (t-1, t, t+1 of a view for the motion derivation), frame.json files.
         self._raw_cache: dict[str, dict[str, np.ndarray]] = {}

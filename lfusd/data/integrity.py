@@ -138,6 +138,12 @@ def view_complete(view_dir: str | Path) -> bool:
     return not render_problems(view_dir)
 
 
+def complete_frames(root: str | Path, rig: str, frames, views) -> list[int]:
+    """The ``frames`` whose every view's files match their records by size (a quick check:
+    checksums are for the planner and `lfusd verify --integrity`)."""
+    return [f for f in frames if not any(render_problems(frame_dir(root, rig, f) / view_key(v), deep=False) for v in views)]
+
+
 def motion_inputs(passes_of: dict[str, Path | None]) -> dict[str, str | None]:
     """Digests of the raw passes a derivation reads: {"prev", "cur", "next"} -> sha256 or None (no such frame)."""
     out = {}

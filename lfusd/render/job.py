@@ -251,8 +251,7 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
         "complete": {
             # sizes only: Plan has checked the checksums of this run's views, and rehashing a
             # whole dataset at every manifest write would cost minutes at the reference scale
-            name: [f for f in all_frames if not any(integrity.render_problems(frame_dir(req.out, name, f) / view_key(v), deep=False)
-                                                    for v in RigSpec.from_dict(spec).views)]
+            name: integrity.complete_frames(req.out, name, all_frames, RigSpec.from_dict(spec).views)
             for name, spec in sorted(rig_specs.items())
         },
         "software": _software(),
