@@ -2,13 +2,15 @@
 
 Every key readable with ``Dataset.read(frame, view, key)`` has one :class:`Key` in :data:`KEYS`:
 its dtype, its shape after (H, W), its unit and meaning, the per-view file it is stored in or
-computed from, the stage that produces it and, where :mod:`lfusd.truth.verify` checks it, its
+computed from (format version 2, :mod:`lfusd.layout`), the stage that produces it, how that file
+stores it (:class:`Storage`: the one owner of each key's stored precision, which
+:mod:`lfusd.data.store` encodes and checks) and, where :mod:`lfusd.truth.verify` checks it, its
 accuracy. The reader, the motion derivation, the verifier, the PyTorch dataset, the exporters and
 docs/CONVENTIONS.md (:func:`markdown_table`) all take their key lists from here.
 
-Adding a key: one row in :data:`_TABLE`, the code that computes it (a raw pass in
-``lfusd.data.passes.read_raw``, a derived static key in ``lfusd.data.passes.DERIVED``, a motion
-key in ``lfusd.truth.motion.derive_motion``) and a test; regenerate the table in
+Adding a key: one row in :data:`_TABLE` with its :class:`Storage`, the code that computes it (a
+raw pass in ``lfusd.data.passes.read_raw``, a derived static key in ``lfusd.data.passes.DERIVED``, a
+motion key in ``lfusd.truth.motion.derive_motion``) and a test; regenerate the table in
 docs/CONVENTIONS.md with ``python -c "import lfusd.keys as k; print(k.markdown_table())"``.
 """
 
@@ -24,12 +26,54 @@ BACKGROUND_DEPTH = 1.0e9
 # Stages that produce keys.
 IMAGE = "image"  # the beauty render
 RAW = "raw pass"  # Blender's data passes, converted to the conventions on read
-STATIC = "derived static"  # computed on read from one view's raw passes and the metadata
-MOTION = "derived motion"  # derived from frames t-1, t, t+1 (lfusd.truth.motion), stored in motion.npz
+STATIC = "derived static"  # computed on read from one view's stored keys and the metadata
+MOTION = "derived motion"  # derived from frames t-1, t, t+1 (lfusd.truth.motion), stored in motion.exr
 STAGES = (IMAGE, RAW, STATIC, MOTION)
 
 # Units of the verification accuracies, as lfusd.truth.verify reports them.
 _ACCURACY_UNITS = {"rel": "relative", "px": "px", "m": "m", "frac": "of pixels disagree"}  # for markdown_table
+
+
+# How format version 2 stores a key (Storage.encoding). The precision of each lossy encoding is
+# chosen so that the error it adds is at most 1/20 of the key's verification limit; the lossless
+# ones cost little after compression (benchmarks/bench_storage.py measures both).
+ENCODINGS = {
+    "image": "half RGB as rendered, lossless",
+    "float32": "float32, lossless",
+    "half": "float16",  # keys in [-1, 1]: error <= 2^-12 per component
+    "uint32": "uint32, lossless",
+    "fixed": "float32 rounded to multiples of 2^-bits",  # absolute error <= 2^-(bits+1)
+    "mask": "bit `bits` of the uint32 `masks` channel",
+    "computed": "computed on read",  # from Storage.sources (and the metadata)
+    "raw": "Blender's raw pass, kept only with --keep-raw",
+}
+
+
+@dataclass(frozen=True)
+class Storage:
+    """How format version 2 stores one key: the encoding (:data:`ENCODINGS`), its parameter
+    ``bits`` and, for a computed key, the stored keys it is computed from."""
+
+    encoding: str
+    bits: int = 0  # 'fixed': fractional bits (values are multiples of 2**-bits); 'mask': the bit
+    sources: tuple[str, ...] = ()  # 'computed': the keys it needs stored
+
+    @property
+    def error(self) -> float:
+        """The largest error the encoding adds (in the key's unit; 0: lossless). Half: per component of a value in [-1, 1]."""
+        return {"fixed": 2.0 ** -(self.bits + 1), "half": 2.0**-12}.get(self.encoding, 0.0)
+
+    def describe(self, unit: str) -> str:
+        """One cell of the key table: the encoding and the error it adds."""
+        if self.encoding == "fixed":
+            return f"float32, multiples of 2^-{self.bits} {unit} (error <= {self.error:.2g} {unit})"
+        if self.encoding == "half":
+            return f"float16 (error <= {self.error:.2g})"
+        if self.encoding == "mask":
+            return f"bit {self.bits} of `masks` (uint32)"
+        if self.encoding == "computed":
+            return f"computed from {', '.join(self.sources)}" if self.sources else "computed"
+        return ENCODINGS[self.encoding]
 
 
 @dataclass(frozen=True)
@@ -41,8 +85,9 @@ class Key:
     shape: tuple[int, ...]  # shape after (H, W)
     unit: str
     meaning: str
-    file: str  # the per-view file (lfusd.layout) it is stored in or computed from
+    file: str  # the per-view file (lfusd.layout, format version 2) it is stored in or computed from
     stage: str  # one of STAGES
+    storage: Storage = Storage("raw")  # how format version 2 stores it
     step: int = 0  # +1 / -1: describes the motion to frame t+1 / t-1 and is defined only where that frame exists
     accuracy: float | None = None  # verification limit on the p99 error (lfusd.truth.verify)
     accuracy_unit: str | None = None  # 'rel', 'px', 'm' or 'frac'
@@ -52,41 +97,51 @@ class Key:
         return (height, width, *self.shape)
 
 
+_RGB, _GT, _MOTION, _RAW = "rgb.exr", "gt.exr", "motion.exr", "passes.exr"  # lfusd.layout's names (keys imports no layout)
+_FLOW = Storage("fixed", 8)  # 2^-9 = 0.002 px, 1/25 of the 0.05 px limit
 _TABLE = (
-    Key("rgb", "uint8", (3,), "sRGB", "the rendered image, 8-bit sRGB", "rgb.png", IMAGE),
-    Key("rgb_linear", "float32", (3,), "linear RGB", "the rendered image, linear (scene-referred) RGB", "rgb.exr", IMAGE),
-    Key("depth", "float32", (), "m", "planar z-depth along the optical axis; `inf` where no surface", "passes.exr", RAW,
-        accuracy=1e-4, accuracy_unit="rel"),
-    Key("normal", "float32", (3,), "unitless", "unit surface normal, world frame; NaN where no surface", "passes.exr", RAW),
-    Key("position", "float32", (3,), "m", "world position of the surface seen at the pixel centre; NaN where no surface", "passes.exr", RAW),
-    Key("instance", "int32", (), "id", "0 = background, otherwise an id listed in the object table", "passes.exr", RAW,
-        accuracy=1e-3, accuracy_unit="frac"),
+    Key("rgb", "uint8", (3,), "sRGB", "the rendered image, 8-bit sRGB", _RGB, IMAGE,
+        storage=Storage("computed", sources=("rgb_linear",))),  # rgb.png instead when rgb_linear is not asked for
+    Key("rgb_linear", "float32", (3,), "linear RGB", "the rendered image, linear (scene-referred) RGB", _RGB, IMAGE,
+        storage=Storage("image")),
+    Key("depth", "float32", (), "m", "planar z-depth along the optical axis; `inf` where no surface", _GT, RAW,
+        accuracy=1e-4, accuracy_unit="rel", storage=Storage("float32")),
+    Key("normal", "float32", (3,), "unitless", "unit surface normal, world frame; NaN where no surface", _GT, RAW,
+        storage=Storage("half")),
+    Key("position", "float32", (3,), "m", "world position of the surface seen at the pixel centre; NaN where no surface", _GT, STATIC,
+        storage=Storage("computed", sources=("depth",))),
+    Key("instance", "int32", (), "id", "0 = background, otherwise an id listed in the object table", _GT, RAW,
+        accuracy=1e-3, accuracy_unit="frac", storage=Storage("uint32")),
     Key("vector", "float32", (4,), "px", "Blender's raw vector pass: X, Y = previous - current, Z, W = current - next (raster pixels, y up)",
-        "passes.exr", RAW),
+        _RAW, RAW),
     Key("next_position", "float32", (3,), "m", "world position at t+1 of the surface point seen at t; NaN where unknown (render-video)",
-        "passes.exr", RAW),
+        _RAW, RAW),
     Key("prev_position", "float32", (3,), "m", "world position at t-1 of the surface point seen at t; NaN where unknown (render-video)",
-        "passes.exr", RAW),
-    Key("semantic", "int32", (), "id", "class id listed in the class table (0 = unlabelled)", "passes.exr", STATIC),
+        _RAW, RAW),
+    Key("semantic", "int32", (), "id", "class id listed in the class table (0 = unlabelled)", _GT, STATIC,
+        storage=Storage("computed", sources=("instance",))),
     Key("disparity", "float32", (), "px", "pixels per unit baseline step, d = f_px * b / z (planar, parallel rigs); 0 where no surface",
-        "passes.exr", STATIC),
+        _GT, STATIC, storage=Storage("computed", sources=("depth",))),
     Key("depth_euclidean", "float32", (), "m",
         "distance along the pixel's ray from the camera centre to the surface, depth * ||K^-1 [u, v, 1]||; `inf` where no surface",
-        "passes.exr", STATIC),
-    Key("flow_fwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t+1", "motion.npz", MOTION,
-        step=1, accuracy=0.05, accuracy_unit="px"),
-    Key("flow_bwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t-1", "motion.npz", MOTION,
-        step=-1, accuracy=0.05, accuracy_unit="px"),
-    Key("scene_flow", "float32", (3,), "m", "world-frame displacement of the surface point seen at (u, v), t -> t+1", "motion.npz", MOTION,
-        step=1, accuracy=1e-3, accuracy_unit="m"),
-    Key("disparity_change", "float32", (), "px", "disparity of that point at t+1 minus its disparity at t", "motion.npz", MOTION,
-        step=1, accuracy=0.05, accuracy_unit="px"),
-    Key("valid_fwd", "bool", (), "mask", "where the forward motion ground truth is defined", "motion.npz", MOTION, step=1),
-    Key("valid_bwd", "bool", (), "mask", "where the backward motion ground truth is defined", "motion.npz", MOTION, step=-1),
-    Key("occlusion_fwd", "bool", (), "mask", "the point is hidden or outside the image at t+1", "motion.npz", MOTION,
-        step=1, accuracy=0.01, accuracy_unit="frac"),
-    Key("occlusion_bwd", "bool", (), "mask", "the point is hidden or outside the image at t-1", "motion.npz", MOTION,
-        step=-1, accuracy=0.01, accuracy_unit="frac"),
+        _GT, STATIC, storage=Storage("computed", sources=("depth",))),
+    Key("flow_fwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t+1", _MOTION, MOTION,
+        step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
+    Key("flow_bwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t-1", _MOTION, MOTION,
+        step=-1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
+    # 2^-18 m = 3.8 um: 1/20 of verify's limit (1e-3 of the object's size) down to 7.6 cm objects
+    Key("scene_flow", "float32", (3,), "m", "world-frame displacement of the surface point seen at (u, v), t -> t+1", _MOTION, MOTION,
+        step=1, accuracy=1e-3, accuracy_unit="m", storage=Storage("fixed", 17)),
+    Key("disparity_change", "float32", (), "px", "disparity of that point at t+1 minus its disparity at t", _MOTION, MOTION,
+        step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
+    Key("valid_fwd", "bool", (), "mask", "where the forward motion ground truth is defined", _MOTION, MOTION, step=1,
+        storage=Storage("mask", 0)),
+    Key("valid_bwd", "bool", (), "mask", "where the backward motion ground truth is defined", _MOTION, MOTION, step=-1,
+        storage=Storage("mask", 1)),
+    Key("occlusion_fwd", "bool", (), "mask", "the point is hidden or outside the image at t+1", _MOTION, MOTION,
+        step=1, accuracy=0.01, accuracy_unit="frac", storage=Storage("mask", 2)),
+    Key("occlusion_bwd", "bool", (), "mask", "the point is hidden or outside the image at t-1", _MOTION, MOTION,
+        step=-1, accuracy=0.01, accuracy_unit="frac", storage=Storage("mask", 3)),
 )
 
 KEYS: dict[str, Key] = {k.name: k for k in _TABLE}
@@ -107,6 +162,36 @@ def get(name: str) -> Key:
     return KEYS[name]
 
 
+def stored(wanted) -> tuple[str, ...]:
+    """The keys format version 2 stores so that every key of ``wanted`` can be read: those stored
+    directly, and the sources of the computed ones (registry order). ``rgb`` without ``rgb_linear``
+    is stored itself (rgb.png)."""
+    wanted = set(wanted)
+    need = {n for n in wanted if KEYS[n].storage.encoding != "computed"}
+    need |= {s for n in wanted for s in KEYS[n].storage.sources if n != "rgb"}
+    if "rgb" in wanted:
+        need.add("rgb_linear" if "rgb_linear" in wanted else "rgb")
+    return tuple(k.name for k in _TABLE if k.name in need)
+
+
+def check_wanted(wanted, motion: bool, keep_raw: bool) -> tuple[str, ...]:
+    """The keys a render writes, validated (``--keys``): LfusdError in one line naming the first
+    unknown key, a motion key without render-video or a raw pass without ``--keep-raw``.
+    ``wanted`` None: every key the render makes (raw passes with ``keep_raw``)."""
+    if wanted is None:
+        return tuple(k.name for k in _TABLE if (motion or k.stage != MOTION) and (keep_raw or k.storage.encoding != "raw")
+                     and (motion or k.name not in ("next_position", "prev_position")))
+    for name in wanted:
+        k = get(name)
+        if k.stage == MOTION and not motion:
+            raise LfusdError(f"--keys {name}: motion keys need 'lfusd render-video'; drop it or render a video")
+        if k.storage.encoding == "raw" and not keep_raw:
+            raise LfusdError(f"--keys {name}: a raw pass, kept only with --keep-raw; add --keep-raw or drop it")
+        if name in ("next_position", "prev_position") and not motion:
+            raise LfusdError(f"--keys {name}: a motion AOV, rendered only by 'lfusd render-video'; drop it or render a video")
+    return tuple(k.name for k in _TABLE if k.name in set(wanted))
+
+
 def accuracies() -> dict[str, float]:
     """The verification limit of every verified key (p99 error, in its ``accuracy_unit``)."""
     return {k.name: k.accuracy for k in _TABLE if k.accuracy is not None}
@@ -120,8 +205,8 @@ def accuracy_units() -> dict[str, str]:
 def markdown_table() -> str:
     """The key table of docs/CONVENTIONS.md (a test keeps the two identical)."""
     rows = [
-        "| key | shape, dtype | unit | meaning | file | produced by | verified to (p99) |",
-        "|---|---|---|---|---|---|---|",
+        "| key | shape, dtype | unit | meaning | file | produced by | stored as | verified to (p99) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for k in _TABLE:
         shape = ",".join(["H", "W", *map(str, k.shape)])
@@ -130,5 +215,5 @@ def markdown_table() -> str:
             value = f"{100 * k.accuracy:g} %" if k.accuracy_unit == "frac" else f"{k.accuracy:g}"
             acc = f"{value} {_ACCURACY_UNITS[k.accuracy_unit]}"
         meaning = k.meaning.replace("|", "\\|")  # a literal | would end the table cell
-        rows.append(f"| `{k.name}` | {shape} {k.dtype} | {k.unit} | {meaning} | `{k.file}` | {k.stage} | {acc} |")
+        rows.append(f"| `{k.name}` | {shape} {k.dtype} | {k.unit} | {meaning} | `{k.file}` | {k.stage} | {k.storage.describe(k.unit)} | {acc} |")
     return "\n".join(rows) + "\n"

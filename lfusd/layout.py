@@ -5,12 +5,16 @@
     OUT/logs/                         Blender's output of each worker
     OUT/objects.json                  class table and instance table (id -> prim path, label)
     OUT/<rig>/f000001/frame.json      per-view cam_to_world and per-object world poses
-    OUT/<rig>/f000001/00_00/          one folder per view (row 00, col 00):
-        rgb.png, rgb.exr, passes.exr  the renderer's files
-        motion.npz                    the motion keys (render-video, ``lfusd flow``)
+    OUT/<rig>/f000001/00_00/          one folder per view (row 00, col 00), format version 2:
+        rgb.exr                       the beauty render (linear half RGB); rgb.png instead when only `rgb` is asked for
+        gt.exr                        depth, normal, instance (lfusd.data.store)
+        motion.exr                    the motion keys (render-video, ``lfusd flow``)
+        passes.exr                    Blender's raw passes: removed once the keys above are written and
+                                      checked, kept with ``--keep-raw``
         view.json                     the completion record: size and sha256 of each file (lfusd.data.integrity)
 
-Which key lives in which file is in :mod:`lfusd.keys`.
+Format version 1 (lfusd before the storage format, still read by ``Dataset``): rgb.png, rgb.exr,
+passes.exr, motion.npz per view. Which key lives in which file is in :mod:`lfusd.keys`.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from __future__ import annotations
 from pathlib import Path
 
 FORMAT = "lfusd-dataset"  # manifest["format"]
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 1: rgb.png, rgb.exr, passes.exr, motion.npz per view; 2: see the module docstring
 
 MANIFEST = "manifest.json"
 OBJECTS = "objects.json"
@@ -34,9 +38,12 @@ OWN_ENTRIES = (OBJECTS, LOGS, SCRATCH)
 RGB_PNG = "rgb.png"
 RGB_EXR = "rgb.exr"
 PASSES_EXR = "passes.exr"
-MOTION_FILE = "motion.npz"
+GT_FILE = "gt.exr"
+MOTION_FILE = "motion.exr"
 VIEW_RECORD = "view.json"  # written last: the view is complete only if its files match it
-VIEW_FILES = (RGB_PNG, RGB_EXR, PASSES_EXR, MOTION_FILE, VIEW_RECORD)
+VIEW_FILES = (RGB_EXR, RGB_PNG, GT_FILE, MOTION_FILE, PASSES_EXR, VIEW_RECORD)
+MOTION_FILE_V1 = "motion.npz"  # format version 1's motion keys (np.savez)
+VIEW_FILES_V1 = (RGB_PNG, RGB_EXR, PASSES_EXR, MOTION_FILE_V1, VIEW_RECORD)
 
 
 def view_key(view: tuple[int, int]) -> str:

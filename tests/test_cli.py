@@ -115,18 +115,18 @@ def test_rerun_resumes_only_missing_views_and_settings_change_is_refused(capsys,
     out = tmp_path / "out"
     assert run_cli(capsys, "render", stage, "-o", out, "--samples", "2", "--quiet", "--device", "cpu")[0] == 0
     frame = out / "main" / "f000001"
-    keep = (frame / "00_00" / "passes.exr").stat().st_mtime_ns
+    keep = (frame / "00_00" / "gt.exr").stat().st_mtime_ns
     shutil.rmtree(frame / "00_02")
     (frame / ".00_02.tmp-999").mkdir()  # debris of a killed run
     (frame / ".00_02.tmp-999" / "rgb.exr").write_bytes(b"partial")
     code, _, err = run_cli(capsys, "render", stage, "-o", out, "--samples", "2", "--device", "cpu")
     assert code == 0
     assert "1/3" not in err and "3/3 views" in err  # only one view was rendered again
-    assert (frame / "00_02" / "passes.exr").is_file() and not (frame / ".00_02.tmp-999").exists()
-    assert (frame / "00_00" / "passes.exr").stat().st_mtime_ns == keep
+    assert (frame / "00_02" / "gt.exr").is_file() and not (frame / ".00_02.tmp-999").exists()
+    assert (frame / "00_00" / "gt.exr").stat().st_mtime_ns == keep
     code, _, err = run_cli(capsys, "render", stage, "-o", out, "--samples", "3", "--device", "cpu")
     assert_one_line_error(code, err, "holds a different dataset", "samples")
-    assert (frame / "00_00" / "passes.exr").stat().st_mtime_ns == keep
+    assert (frame / "00_00" / "gt.exr").stat().st_mtime_ns == keep
     code, _, _ = run_cli(capsys, "render", stage, "-o", out, "--samples", "3", "--quiet", "--device", "cpu", "--overwrite")
     assert code == 0 and json.loads((out / "manifest.json").read_text())["settings"]["samples"] == 3
     assert not any(p.name.startswith(".") for p in frame.iterdir())

@@ -33,9 +33,10 @@ from lfusd import Dataset
 from lfusd.camera import RigSpec
 from lfusd.data import integrity
 from lfusd.errors import LfusdError
-from lfusd.layout import MOTION_FILE, PASSES_EXR, RGB_EXR, VIEW_RECORD, frame_dir
+from lfusd.layout import GT_FILE, MOTION_FILE, PASSES_EXR, RGB_EXR, VIEW_RECORD, frame_dir
 from lfusd.render import executors
 from lfusd.render.plan import WorkUnit
+from lfusd.truth import derive
 
 RIG = RigSpec(name="main", rows=1, cols=1, width=16, height=16, at=(0, -5, 1), look_at=(0, 0, 0.5))
 
@@ -94,6 +95,7 @@ def fake_render(monkeypatch):
         return "cpu"
 
     monkeypatch.setattr(executors, "run_units", run_units)
+    monkeypatch.setattr(derive, "derive_dataset", lambda *a, **k: 0)  # nothing to derive from files holding no image
 
 
 def render(capsys, stage, out, *extra):
@@ -262,19 +264,19 @@ def test_unwritable_output_and_full_disk_are_one_line_with_exit_2(capsys, monkey
     assert code == 2 and "make it writable" not in err
 
 
-@pytest.mark.parametrize("damage", ["manifest.json", "objects.json", "motion.npz", "frame.json"])
+@pytest.mark.parametrize("damage", ["manifest.json", "objects.json", "gt.exr", "frame.json"])
 def test_a_corrupt_dataset_file_is_named_in_one_line(capsys, tmp_path, project, fake_render, damage):
 
     out = tmp_path / "out"
     assert render(capsys, project / "scene.usda", out)[0] == 0
     target = {"manifest.json": out / "manifest.json", "objects.json": out / "objects.json",
               "frame.json": frame_dir(out, "main", 1) / "frame.json",
-              "motion.npz": frame_dir(out, "main", 1) / "00_00" / "motion.npz"}[damage]
+              "gt.exr": frame_dir(out, "main", 1) / "00_00" / GT_FILE}[damage]
     target.write_bytes(b"\x00garbage{")
     with pytest.raises(LfusdError, match=damage.replace(".", r"\.")):
         ds = Dataset(out)
         ds.objects  # reads frame.json
-        ds.read(1, (0, 0), "flow_fwd")
+        ds.read(1, (0, 0), "depth")
     code, _, err = run_cli(capsys, "export", "pfm", out, tmp_path / "exp")
     if damage in ("manifest.json", "objects.json"):
         assert_one_line_error(code, err, damage)
@@ -504,7 +506,8 @@ def stage(tmp_path_factory):
 def whole(stage):
     """Frames 1-4 rendered in one run."""
     out = stage.parent / "whole"
-    code, _, err = _cli("render-video", stage, "-o", out, *TINY)
+    # --keep-raw: repairing a damaged view derives its neighbours' motion again from their raw passes
+    code, _, err = _cli("render-video", stage, "-o", out, *TINY, "--keep-raw")
     assert code == 0, err
     return out
 
@@ -591,7 +594,7 @@ def test_verify_fails_on_a_missing_motion_file_or_view(whole, tmp_path):
     code, text, err = _cli("verify", out)
     assert code == 1, text + err
     fails = [ln for ln in text.splitlines() if ln.startswith("FAIL ")]
-    assert any("frame 2 view 0,1" in ln and "motion.npz" in ln for ln in fails), text
+    assert any("frame 2 view 0,1" in ln and MOTION_FILE in ln for ln in fails), text
     assert any("frame 3 view 0,0" in ln and "no depth" in ln for ln in fails), text
     assert "all checks passed" not in text
 

@@ -59,6 +59,17 @@ def _frame_range(text: str) -> tuple[int, int]:
     return first, last
 
 
+def _keys(text: str) -> tuple[str, ...]:
+    from ..keys import get
+
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise LfusdError(f"--keys {text!r} names no key; give a comma list such as rgb,depth,flow_fwd")
+    for n in names:
+        get(n)  # one line naming the unknown key and the known ones
+    return names
+
+
 def _threshold(text: str) -> tuple[str, float]:
     key, _, value = text.partition("=")
     try:
@@ -74,6 +85,7 @@ point = _argtype(lambda text: parse_point(text, "point"), "point")
 grid = _argtype(parse_grid, "grid")
 resolution = _argtype(parse_resolution, "resolution")
 threshold = _argtype(_threshold, "threshold")
+_key_list = _argtype(_keys, "keys")
 
 
 def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
@@ -91,6 +103,9 @@ def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an lfusd dataset rendered with other settings (only lfusd's own files)")
     p.add_argument("--force", action="store_true", help="render even when the estimated size exceeds the free disk space or memory")
     p.add_argument("--quiet", action="store_true", help="log lines instead of a progress bar")
+    p.add_argument("--keys", type=_key_list, default=None, metavar="KEY,...",
+                   help="ground-truth keys to store, e.g. rgb,depth,flow_fwd (default: every key the command makes)")
+    p.add_argument("--keep-raw", action="store_true", help="keep Blender's raw passes (passes.exr) beside the stored keys")
 
 
 def render_request_fields(args: argparse.Namespace) -> dict:
@@ -98,4 +113,5 @@ def render_request_fields(args: argparse.Namespace) -> dict:
     from pathlib import Path
 
     return dict(stage=Path(args.stage), out=Path(args.out), rig=args.rig, samples=args.samples, device=args.device,
-                workers=args.workers, light=args.light, overwrite=args.overwrite, force=args.force, quiet=args.quiet)
+                workers=args.workers, light=args.light, overwrite=args.overwrite, force=args.force, quiet=args.quiet,
+                keys=args.keys, keep_raw=args.keep_raw)

@@ -1,6 +1,9 @@
 """`Dataset`: read an lfusd dataset folder as NumPy arrays in the conventions of docs/CONVENTIONS.md.
 
-Imports neither pxr, bpy nor torch: ``from lfusd import Dataset`` stays light.
+Reads every format version lfusd wrote (lfusd.layout): 1 (rgb.png, rgb.exr, passes.exr,
+motion.npz per view) and 2 (rgb.exr, gt.exr, motion.exr, passes.exr only with ``--keep-raw``;
+the keys a render was asked for in the manifest's ``settings.keys``). Imports neither pxr, bpy
+nor torch: ``from lfusd import Dataset`` stays light.
 """
 
 from __future__ import annotations
@@ -12,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import passes
+from . import passes, store
 from .. import layout
 from .integrity import complete_frames
 from ..camera import RigSpec, View
 from ..errors import LfusdError
-from ..keys import IMAGE, RAW, STATIC, get
+from ..keys import IMAGE, MOTION, STATIC, get
 from ..layout import FORMAT, frame_dir, view_key
 
 
@@ -83,6 +86,12 @@ class Dataset:
         except (KeyError, TypeError, ValueError, IndexError):
             raise LfusdError(f"{objects_path} is not an lfusd object table; rerun the render that made the dataset") from None
         self._object_rows = table["objects"]
+        self.version = int(self.manifest.get("version", 1))  # the format version (lfusd.layout.FORMAT_VERSION)
+        if self.version > layout.FORMAT_VERSION:
+            raise LfusdError(f"{path} is format version {self.version}, newer than this lfusd reads ({layout.FORMAT_VERSION}); upgrade lfusd")
+        keys = self.manifest["settings"].get("keys")
+        # The keys the render was asked for (format version 2); None: every key it makes.
+        self.keys: tuple[str, ...] | None = tuple(keys) if keys is not None else None
         self._objects: dict[int, DatasetObject] | None = None
         complete = self.manifest.get("complete", {}).get(rig)
         if scan or complete is None:  # manifests before the "complete" record: look at the folders
@@ -92,6 +101,7 @@ class Dataset:
         # Per-instance caches, most recent last: raw passes (t-1, t, t+1 of a view for the motion derivation), frame.json files.
         self._raw_cache: dict[str, dict[str, np.ndarray]] = {}
         self._meta_cache: dict[int, dict] = {}
+        self._file_cache: dict[str, dict[str, np.ndarray]] = {}  # decoded gt.exr / motion.exr, most recent last
 
     # -- structure --------------------------------------------------------------------
     @property
@@ -141,30 +151,31 @@ class Dataset:
         """One ground-truth array (lfusd.keys and docs/CONVENTIONS.md list the keys, shapes and meanings)."""
         k = get(key)
         d = self.view_dir(frame, view)
+        if self.keys is not None and key not in self.keys and k.storage.encoding != "raw":
+            raise LfusdError(f"key {key!r} was not written to {self.root} (rendered with --keys {','.join(self.keys)}); "
+                             f"render it into another folder with {key} in --keys")
         if k.stage == IMAGE:
-            if key == "rgb":
+            png = d / layout.RGB_PNG
+            if key == "rgb" and png.is_file():
                 from .formats import read_png
 
-                return read_png(d / layout.RGB_PNG)
-            return passes.read_rgb_linear(d / layout.RGB_EXR)
-        if k.stage == RAW:
-            raw = self._raw(str(d))
-            if key not in raw:
-                raise LfusdError(f"{d / layout.PASSES_EXR} has no {key} pass; render the dataset with 'lfusd render-video'")
-            return raw[key].copy()  # the cache must not be mutated by callers
+                return read_png(png)
+            if not (d / layout.RGB_EXR).is_file():
+                raise LfusdError(f"{d} has no {layout.RGB_EXR} for key {key!r}; rerun the render command to repair the view")
+            rgb = passes.read_rgb_linear(d / layout.RGB_EXR)
+            return rgb if key == "rgb_linear" else passes.linear_to_srgb8(rgb)
+        if k.stage == MOTION:
+            return self._motion(d, key)
+        stored = self._static(str(d))
+        if key in stored:
+            return stored[key].copy()  # the cache must not be mutated by callers
         if k.stage == STATIC:
-            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance)
-            return passes.DERIVED[key](self._raw(str(d)), info)
-        motion = d / layout.MOTION_FILE
-        if not motion.is_file():
-            raise LfusdError(f"{d} has no {layout.MOTION_FILE} for key {key!r}; derive the motion keys with 'lfusd flow' (or render with 'lfusd render-video')")
-        try:
-            with np.load(motion) as z:
-                if key not in z.files:
-                    raise LfusdError(f"{motion} holds no {key!r} ({', '.join(sorted(z.files))}); derive it again with 'lfusd flow'")
-                return z[key]
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-            raise LfusdError(f"{motion} is unreadable ({e}); derive it again with 'lfusd flow'") from None
+            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance, self.cam_to_world(frame, view))
+            return passes.DERIVED[key](stored, info)
+        raw = self._raw(str(d))
+        if key not in raw:
+            raise LfusdError(f"{d / layout.PASSES_EXR} has no {key} pass; render the dataset with 'lfusd render-video'")
+        return raw[key].copy()
 
     def raw_passes(self, frame: int, view: View):
         """The view's raw passes with its camera (the input of lfusd.truth.motion.derive_motion)."""
@@ -198,7 +209,39 @@ class Dataset:
         return _cached(self._meta_cache, frame, 64, load)
 
     def _raw(self, view_dir: str) -> dict[str, np.ndarray]:
-        return _cached(self._raw_cache, view_dir, 4, lambda: passes.read_raw(Path(view_dir) / layout.PASSES_EXR))
+        path = Path(view_dir) / layout.PASSES_EXR
+        if self.version >= 2 and not path.is_file():
+            raise LfusdError(f"the raw passes of {view_dir} were removed once its ground truth was written (rendered without "
+                             "--keep-raw); they are needed here: render again with --keep-raw")
+        return _cached(self._raw_cache, view_dir, 4, lambda: passes.read_raw(path))
+
+    def _static(self, view_dir: str) -> dict[str, np.ndarray]:
+        """The stored static keys of a view: gt.exr (format version 2), else the raw passes (version 1, or
+        a view whose ground truth is not written yet)."""
+        gt = Path(view_dir) / layout.GT_FILE
+        if self.version >= 2 and gt.is_file():
+            return _cached(self._file_cache, str(gt), 4, lambda: store.read(gt))
+        raw = self._raw(view_dir)
+        return raw if self.version == 1 else {k: raw[k] for k in ("depth", "normal", "instance")}
+
+    def _motion(self, d: Path, key: str) -> np.ndarray:
+        """One motion key of a view: from motion.exr (format version 2) or motion.npz (version 1)."""
+        name = layout.MOTION_FILE if self.version >= 2 else layout.MOTION_FILE_V1
+        path = d / name
+        if not path.is_file():
+            raise LfusdError(f"{d} has no {name} for key {key!r}; derive the motion keys with 'lfusd flow' (or render with 'lfusd render-video')")
+        try:
+            if self.version >= 2:
+                keys = _cached(self._file_cache, str(path), 4, lambda: store.read(path))
+                if key not in keys:
+                    raise KeyError(key)
+                return keys[key].copy()
+            with np.load(path) as z:
+                return z[key]
+        except KeyError:
+            raise LfusdError(f"{path} holds no {key!r}; derive it again with 'lfusd flow'") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise LfusdError(f"{path} is unreadable ({e}); derive it again with 'lfusd flow'") from None
 
 
 def _read_json(path: Path, fix: str):

@@ -4,8 +4,8 @@ Raw files per view (written by the renderer):
 - ``rgb.exr``: linear RGB (half float), the beauty render;
 - ``passes.exr``: Blender's multilayer EXR of the exact data render (1 sample at each pixel
   centre): Depth.Z, Normal.XYZ, Position.XYZ, Vector.XYZW, Object Index.X, and with
-  render-video the AOVs next_position / prev_position;
-- ``motion.npz``: the motion keys derived by lfusd.truth.motion (render-video, ``lfusd flow``).
+  render-video the AOVs next_position / prev_position. Format version 2 keeps it only with
+  ``--keep-raw``: its keys go to gt.exr and motion.exr (lfusd.data.store).
 
 Everything here follows docs/CONVENTIONS.md; Blender's own conventions are converted in
 this one place (background depth 1e10 -> inf; object index float -> int32 instance id). The
@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 import OpenEXR
 
-from ..camera import Camera, ray_lengths
+from ..camera import Camera, backproject, pixel_grid, ray_lengths
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH
 # AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
@@ -104,17 +104,29 @@ def depth_euclidean(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return (depth * ray_lengths(K, h, w)).astype(np.float32)
 
 
+def position(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> np.ndarray:
+    """World position of the surface at each pixel centre from planar depth and the pose (float64
+    arithmetic, float32 result); NaN where there is no surface."""
+    h, w = depth.shape
+    u, v = pixel_grid(h, w, np.float64)
+    fg = np.isfinite(depth)
+    p = backproject(u, v, np.where(fg, depth, 0).astype(np.float64), Camera(np.asarray(K, np.float64), np.asarray(cam_to_world, np.float64)))
+    return np.where(fg[..., None], p, np.nan).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class ViewInfo:
-    """What a derived static key needs beside the raw passes: the view's K, the rig baseline, the class table."""
+    """What a derived static key needs beside the stored keys: the view's K and pose, the rig baseline, the class table."""
 
     K: np.ndarray
     baseline: float
     class_of_instance: np.ndarray
+    cam_to_world: np.ndarray | None = None
 
 
-# Derived static keys (lfusd.keys.STATIC): name -> f(raw passes, ViewInfo).
+# Derived static keys (lfusd.keys.STATIC): name -> f(stored keys {depth, instance, ...}, ViewInfo).
 DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
+    "position": lambda raw, info: position(raw["depth"], info.K, info.cam_to_world),
     "semantic": lambda raw, info: semantic(raw["instance"], info.class_of_instance),
     "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
     "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),

@@ -17,8 +17,7 @@ import sys
 import threading
 from pathlib import Path
 
-from ..data.formats import write_png
-from ..data.passes import linear_to_srgb8, read_rgb_linear
+from ..data.passes import read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
 from ..layout import frame_dir
@@ -83,8 +82,7 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
         shutil.move(str(src), tmp / final_name)
-    write_png(tmp / layout.RGB_PNG, linear_to_srgb8(read_rgb_linear(tmp / layout.RGB_EXR)))
-    integrity.record_render(tmp)
+    integrity.record_render(tmp)  # rgb.png, gt.exr and motion.exr come from lfusd.truth.derive
     if final.exists():  # damaged: move it aside (a stale-tmp name, cleaned by the next run if we die here)
         old = final.parent / f".{key}.tmp-old-{os.getpid()}-{threading.get_ident()}"
         os.rename(final, old)

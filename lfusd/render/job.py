@@ -94,6 +94,10 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         "samples": req.samples,
         "motion": req.motion,
         "light": req.light,  # auto adds a sky and sun to a stage without lights: other pixels
+        # Format version 2 (lfusd.layout): the keys stored and whether the raw passes stay.
+        "format_version": FORMAT_VERSION,
+        "keys": list(req.stored_keys()),
+        "keep_raw": req.keep_raw,
         **req.extra_settings,
     }
 
@@ -330,8 +334,12 @@ def _stage_range(stage: Usd.Stage, frames: list[int]) -> tuple[int, int]:
 
 
 def render(req: RenderRequest, progress=None) -> dict:
-    """Render every missing view of the requested rigs and frames; return the manifest dict."""
-    return _render(req.capped(), open_stage(req.stage), progress)[0]
+    """Render every missing view of the requested rigs and frames, store their ground truth
+    (lfusd.truth.derive); return the manifest dict."""
+    from ..truth.derive import derive_dataset
+
+    req = req.capped()
+    return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers))[0]
 
 
 def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> tuple[dict, list[str]]:
@@ -346,6 +354,9 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> t
     existing = existing_dataset(req.out)
     files = stage_files(req.stage, known=(existing or {}).get("stage", {}).get("files"))
     settings = _settings(req, files, rigs)
+    # Frames that may still be rendered next to these keep their raw passes (lfusd.truth.derive):
+    # an animated stage's range; None for a static stage, which renders over any range.
+    settings["stage_frames"] = None if is_static(stage) else list(frame_range(stage))
     world = world_frame(stage).to_dict()
     check_size(req, [(r.spec.name, len(r.spec.views), r.spec.width, r.spec.height) for r in rigs], frames)
     if existing is not None:

@@ -62,6 +62,8 @@ class RenderRequest:
     frames_per_unit: int = 10
     motion: bool = False  # also render the t+/-1 position AOVs (render-video)
     light: str = "auto"  # one of LIGHTS
+    keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
+    keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
     extra_settings: dict = field(default_factory=dict)
 
     def check(self) -> None:
@@ -78,6 +80,13 @@ class RenderRequest:
             raise LfusdError(f"unknown --light {self.light!r}; use one of {', '.join(LIGHTS)}")
         if self.ray_address and self.executor != "ray":
             raise LfusdError("--ray-address needs --executor ray")
+        self.stored_keys()
+
+    def stored_keys(self) -> tuple[str, ...]:
+        """The keys this render writes (``--keys``, validated against lfusd.keys; LfusdError in one line)."""
+        from ..keys import check_wanted
+
+        return check_wanted(self.keys, self.motion, self.keep_raw)
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""

@@ -1,14 +1,24 @@
-"""Derive the motion ground truth of a rendered dataset (raw passes -> motion.npz per view).
+"""Derive the ground truth of a rendered dataset from its raw passes, store it, and drop the raw passes.
 
-Frame t's forward keys need frame t+1 rendered too (and backward keys t-1); at the ends of the
-rendered range they are masked invalid, as CONVENTIONS.md states. Each motion.npz is recorded in
-its view's completion record with the digests of the raw passes it came from (t-1, t, t+1), so a
-frame derived at the end of one range is derived again when its neighbour arrives with the next:
-ranges rendered in pieces join without a seam.
+Per view (format version 2, lfusd.layout): the static keys go from Blender's ``passes.exr`` into
+``gt.exr``, the motion keys of frame t (from the raw passes of t-1, t and t+1) into
+``motion.exr``, each in its stored encoding (lfusd.data.store) and read back and compared with
+what was derived before it counts (the pixels compared go into the view's record). Then, unless
+the render kept them (``--keep-raw``), the raw passes of frame t are removed once nothing can
+need them again: gt.exr of t is written, the motion of t-1, t and t+1 is current, and no frame
+within two of t is still to come (inside the stage's range but not rendered: a later range
+rendered next to it re-derives t+-1, which reads the raw passes of t and t+-2... of t+-1's
+neighbours). Frame t's forward keys need t+1 rendered (backward keys t-1); at the ends of the
+rendered range they are masked invalid, as CONVENTIONS.md states. Each motion file is recorded
+with the digests of the raw passes it came from (t-1, t, t+1; a removed file's digest stays in
+its record), so a frame derived at the end of one range is derived again when its neighbour
+arrives with the next: ranges rendered in pieces join without a seam. Format version 1 datasets
+(motion.npz, raw passes kept) are derived as they were.
 """
 
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
 import signal
@@ -19,14 +29,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import integrity
+from ..data import integrity, store
 from ..processes import die_with_parent
 from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
-from ..layout import MOTION_FILE, PASSES_EXR, frame_dir, view_key
+from ..errors import LfusdError
+from ..keys import KEYS, MOTION, STATIC, RAW, stored
+from ..layout import GT_FILE, MOTION_FILE, MOTION_FILE_V1, PASSES_EXR, RGB_EXR, RGB_PNG, frame_dir, view_key
+
+log = logging.getLogger(__name__)
 
 RUN = 8  # frames of one view per task: the task's Dataset reads each raw pass once, bar the two at its ends
+REACH = 2  # a frame still to come within this many frames keeps a view's raw passes (see the module docstring)
 
 
 def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
@@ -51,36 +66,147 @@ def _passes_of(ds: Dataset, frame: int, view: View) -> dict[str, Path | None]:
             for k, g in (("prev", frame - 1), ("cur", frame), ("next", frame + 1))}
 
 
+def _wanted(ds: Dataset) -> tuple[str, ...]:
+    """The keys the dataset's render asked for (every key for a format version 1 dataset)."""
+    return ds.keys if ds.keys is not None else tuple(KEYS)
+
+
+def wants_motion(ds: Dataset) -> bool:
+    """Whether the dataset holds motion keys: rendered by render-video with motion keys asked for."""
+    return bool(ds.manifest["settings"].get("motion")) and any(KEYS[k].stage == MOTION for k in _wanted(ds))
+
+
 def write_motion(ds: Dataset, frame: int, view: View) -> Path:
-    """Derive and store ``motion.npz`` for one view, atomically, and record it with its inputs."""
+    """Derive and store the motion keys of one view, atomically, and record them with their inputs.
+
+    Format version 2: motion.exr holds the keys asked for, read back and compared before it is
+    recorded. Version 1: motion.npz (np.savez)."""
+    return _write_motion(ds, frame, view)[0]
+
+
+def _write_motion(ds: Dataset, frame: int, view: View) -> tuple[Path, int]:
+    """:func:`write_motion`, and the pixels compared when reading it back."""
     inputs = integrity.motion_inputs(_passes_of(ds, frame, view))
     keys = derive_view(ds, frame, view)
     d = ds.view_dir(frame, view)
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".motion.", suffix=".npz")
-    try:
-        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **keys)
-        os.replace(tmp, d / MOTION_FILE)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    integrity.record_motion(d, inputs)
-    return d / MOTION_FILE
+    if ds.version == 1:
+        fd, tmp = tempfile.mkstemp(dir=d, prefix=".motion.", suffix=".npz")
+        try:
+            os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **keys)
+            os.replace(tmp, d / MOTION_FILE_V1)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        integrity.record_motion(d, inputs)
+        return d / MOTION_FILE_V1, 0
+    keep = {k: v for k, v in keys.items() if k in _wanted(ds)}
+    path = store.write(d / MOTION_FILE, keep)
+    checked = store.check(path, keep)
+    integrity.record_motion(d, inputs, {"checked": checked})
+    log.debug("%s: motion keys read back within their storage error (%d pixels compared)", path, checked)
+    return path, checked
 
 
-def _derive_run(args: tuple[str, str, tuple[int, int], list[int]]) -> int:
-    root, rig, view, frames = args
+def write_static(ds: Dataset, frame: int, view: View) -> int:
+    """Format version 2: store the static keys of one view from its raw passes (gt.exr, checked by
+    reading it back), and its image as asked for (rgb.png for ``rgb`` alone, rgb.exr dropped when no
+    image key is asked for). Returns the pixels compared."""
+    d = ds.view_dir(frame, view)
+    keep = stored(_wanted(ds))
+    rec = integrity.read_record(d)
+    add, remove, annotate, checked = {}, [], {}, 0
+    if integrity.present(rec, PASSES_EXR) and "pixels" not in rec["files"][PASSES_EXR]:
+        # the neighbours' motion records name these passes by their pixels (a re-render keeps them)
+        annotate[PASSES_EXR] = {"pixels": integrity.pixels_digest(ds._raw(str(d)))}
+    gt_keys = [k for k in keep if KEYS[k].file == GT_FILE and KEYS[k].stage in (RAW, STATIC)]
+    if gt_keys and not integrity.present(rec, GT_FILE):
+        raw = ds._raw(str(d))
+        arrays = {k: raw[k] for k in gt_keys}
+        path = store.write(d / GT_FILE, arrays)
+        checked = store.check(path, arrays)
+        add[GT_FILE] = {"checked": checked}
+        log.debug("%s: static keys read back within their storage error (%d pixels compared)", path, checked)
+    if integrity.present(rec, RGB_EXR):
+        if "rgb" in keep and not integrity.present(rec, RGB_PNG):
+            from ..data.formats import write_png
+            from ..data.passes import linear_to_srgb8, read_rgb_linear
+
+            write_png(d / RGB_PNG, linear_to_srgb8(read_rgb_linear(d / RGB_EXR)))
+            add[RGB_PNG] = {}
+        if "rgb_linear" not in keep:
+            remove.append(RGB_EXR)
+    if add or remove or annotate:
+        integrity.record_files(d, add, tuple(remove), annotate)
+        for name in remove:
+            (d / name).unlink(missing_ok=True)
+    return checked
+
+
+def _static_missing(ds: Dataset, frame: int, view: View) -> bool:
+    rec = integrity.read_record(ds.view_dir(frame, view))
+    keep = stored(_wanted(ds))
+    if integrity.present(rec, PASSES_EXR) and "pixels" not in rec["files"][PASSES_EXR]:
+        return True
+    gt = any(KEYS[k].file == GT_FILE for k in keep) and not integrity.present(rec, GT_FILE)
+    image = integrity.present(rec, RGB_EXR) and ("rgb_linear" not in keep or ("rgb" in keep and not integrity.present(rec, RGB_PNG)))
+    return gt or image
+
+
+def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) -> tuple[int, int]:
+    root, rig, view, static, motion = args
     ds = Dataset(root, rig=rig)
-    for f in frames:
-        write_motion(ds, f, view)
-    return len(frames)
+    checked = 0
+    for f in sorted(set(static) | set(motion)):
+        if f in static:
+            checked += write_static(ds, f, view)
+        if f in motion:
+            checked += _write_motion(ds, f, view)[1]
+    return len(set(static) | set(motion)), checked
 
 
 def _pool_init(parent: int) -> None:
     """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent(parent)
+
+
+def raw_needed(ds: Dataset, frame: int, view: View) -> str | None:
+    """Why the raw passes of (frame, view) must stay (None: they may go; see the module docstring)."""
+    if ds.version == 1 or ds.manifest["settings"].get("keep_raw"):
+        return "the dataset keeps its raw passes"
+    d = ds.view_dir(frame, view)
+    rec = integrity.read_record(d)
+    if any(KEYS[k].file == GT_FILE for k in stored(_wanted(ds))) and "checked" not in (rec or {}).get("files", {}).get(GT_FILE, {}):
+        return f"{GT_FILE} is not written"
+    if not wants_motion(ds):
+        return None
+    complete = set(ds.frames)
+    first_last = ds.manifest["settings"].get("stage_frames")  # None: a static stage, every frame can come
+    for g in range(frame - REACH, frame + REACH + 1):
+        if g in complete:
+            if abs(g - frame) <= 1 and integrity.motion_problem(ds.view_dir(g, view), integrity.motion_inputs(_passes_of(ds, g, view))):
+                return f"the motion of frame {g} is not current"
+        elif first_last is None or first_last[0] <= g <= first_last[1]:
+            return f"frame {g} may still be rendered"
+    return None
+
+
+def drop_raw(ds: Dataset, frames, views) -> int:
+    """Remove the raw passes that nothing needs any more among ``frames`` x ``views``; how many went."""
+    if ds.version == 1 or ds.manifest["settings"].get("keep_raw"):
+        return 0
+    n = 0
+    for f in frames:
+        for v in views:
+            d = frame_dir(ds.root, ds.rig_name, f) / view_key(v)
+            if not (d / PASSES_EXR).is_file() or f not in ds.frames or raw_needed(ds, f, v):
+                continue
+            integrity.record_files(d, remove=(PASSES_EXR,))  # the record keeps its digest: the neighbours' inputs
+            (d / PASSES_EXR).unlink()
+            n += 1
+    return n
 
 
 def derive_dataset(
@@ -92,54 +218,94 @@ def derive_dataset(
     progress=None,
     views: list[View] | None = None,
 ) -> int:
-    """Write motion.npz for every (rig, frame, view) whose motion is not current (all of them with ``overwrite``).
+    """Write gt.exr and the motion keys of every (rig, frame, view) where they are not current (the
+    motion of all of them with ``overwrite``), then remove the raw passes nothing needs any more.
 
-    Current: present, matching the view's record, and derived from the raw passes now at t-1, t
-    and t+1. The neighbours of the selected frames are checked too (a frame rendered next to them
-    changes their motion). ``rigs``, ``frames`` and ``views`` default to every rig, completely
-    rendered frame and view of the dataset. Returns how many views were written.
+    Current: present, matching the view's record, and (motion) derived from the raw passes now at
+    t-1, t and t+1. The neighbours of the selected frames are checked too (a frame rendered next
+    to them changes their motion). ``rigs``, ``frames`` and ``views`` default to every rig,
+    completely rendered frame and view of the dataset. Returns how many views were written.
     """
     from ..data.export import open_datasets
 
+    datasets = list(open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs])
+    for ds in datasets:
+        ds.refresh()  # the frames complete now, not when the manifest was last written
+    selected = {ds.rig_name: (set(ds.frames if frames is None else frames), ds.views if views is None else views) for ds in datasets}
+    # First the static keys (and the pixels digests of new raw passes, which motion records name),
+    # then the motion keys that are not current.
+    todo = [(str(root), ds.rig_name, tuple(v), [f for f in sorted(selected[ds.rig_name][0]) if _static_missing(ds, f, v)], [])
+            for ds in datasets if ds.version >= 2 for v in selected[ds.rig_name][1]]
+    written = set()
+    checked = _run(todo, workers, progress, written)
     todo = []
-    for ds in open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs]:
-        wanted = set(ds.frames if frames is None else frames)
+    for ds in datasets:
+        wanted, vs = selected[ds.rig_name]
+        if not wants_motion(ds):
+            continue
         # A neighbour's motion changes when a frame next to it arrives (its t+-1 keys were masked):
         # it is a candidate too, derived again only if its record says it came from other passes.
         candidates = sorted(wanted | {g for f in wanted for g in (f - 1, f + 1) if g in ds.frames})
-        # Runs of frames of one view: consecutive frames share t+/-1 in the dataset's raw-pass cache.
-        for v in ds.views if views is None else views:
+        if overwrite and ds.version >= 2 and not ds.manifest["settings"].get("keep_raw"):
+            gone = [f for f in sorted(wanted) for v in vs if not (ds.view_dir(f, v) / PASSES_EXR).is_file()]
+            if gone:
+                raise LfusdError(f"{root}: 'lfusd flow' derives the motion keys again from Blender's raw passes, which this dataset removed "
+                                 f"once they were derived (frame {gone[0]}: rendered without --keep-raw); render it again with --keep-raw")
+        for v in vs:
             # view_dir raises naming a view or frame the dataset lacks
             stale = [f for f in candidates if (overwrite and f in wanted)
                      or integrity.motion_problem(ds.view_dir(f, v), integrity.motion_inputs(_passes_of(ds, f, v)))]
-            todo += [(str(root), ds.rig_name, tuple(v), stale[i : i + RUN]) for i in range(0, len(stale), RUN)]
+            # Runs of frames of one view: consecutive frames share t+/-1 in the dataset's raw-pass cache.
+            todo += [(str(root), ds.rig_name, tuple(v), [], stale[i : i + RUN]) for i in range(0, len(stale), RUN)]
+    checked += _run(todo, workers, progress, written)
+    # Raw passes go in this process, after every derivation: one view's removal depends on its
+    # neighbours' motion, which other tasks write.
+    dropped = 0
+    for ds in datasets:
+        wanted, vs = selected[ds.rig_name]
+        near = sorted({g for f in wanted for g in range(f - REACH, f + REACH + 1) if g in ds.frames})
+        dropped += drop_raw(ds, near, vs)
+    if written or dropped:
+        log.info("%s: ground truth written for %d views (read back and compared with what was derived on %d pixels x keys), "
+                 "raw passes removed from %d", root, len(written), checked, dropped)
+    return len(written)
+
+
+def _run(todo: list, workers: int, progress, written: set) -> int:
+    """Run derivation tasks here or in a pool of ``workers`` processes; the pixels compared.
+    ``written`` collects the (rig, view, frame) written."""
+    checked = 0
+    for item in todo:
+        written.update((item[1], item[2], f) for f in set(item[3]) | set(item[4]))
     if workers <= 1 or len(todo) <= 1:
         for item in todo:
-            n = _derive_run(item)
+            n, c = _derive_run(item)
+            checked += c
             progress and progress(n)
-    else:
-        # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child.
-        # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
-        # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
-        # a Ctrl-C to the process group while they start up must not kill them with a traceback.
-        main = threading.current_thread() is threading.main_thread()  # only it may set handlers
-        handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
-        try:
-            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                       initializer=_pool_init, initargs=(os.getpid(),))
-            futures = [pool.submit(_derive_run, item) for item in todo]
-        finally:
-            if main:
-                signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
-        try:
-            for f in futures:
-                n = f.result()
-                progress and progress(n)
-        except BaseException:
-            # Interrupted or failed: stop the pool now rather than let it finish its queue.
-            for p in list((getattr(pool, "_processes", None) or {}).values()):
-                p.terminate()
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
-        pool.shutdown(wait=True)
-    return sum(len(item[3]) for item in todo)
+        return checked
+    # spawn, not fork: forking after numba's or BLAS's threads have run can kill the child.
+    # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
+    # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
+    # a Ctrl-C to the process group while they start up must not kill them with a traceback.
+    main = threading.current_thread() is threading.main_thread()  # only it may set handlers
+    handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_pool_init, initargs=(os.getpid(),))
+        futures = [pool.submit(_derive_run, item) for item in todo]
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
+    try:
+        for f in futures:
+            n, c = f.result()
+            checked += c
+            progress and progress(n)
+    except BaseException:
+        # Interrupted or failed: stop the pool now rather than let it finish its queue.
+        for p in list((getattr(pool, "_processes", None) or {}).values()):
+            p.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return checked

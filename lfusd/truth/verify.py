@@ -27,6 +27,7 @@ import numpy as np
 
 from ..camera import Camera, project, ray_directions
 from ..errors import LfusdError
+from ..layout import MOTION_FILE
 from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
 
 # The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
@@ -485,7 +486,7 @@ def verify_dataset(
             data = {k: _read_optional(ds, f, view, k) for k in KEYS}
             lacking = [k for k in names(MOTION) if data[k] is None]
             if expect_motion and lacking:
-                report.problems.append(f"{where}: no {', '.join(lacking)} to compare (motion.npz missing or damaged); "
+                report.problems.append(f"{where}: no {', '.join(lacking)} to compare ({MOTION_FILE} missing or damaged); "
                                        "rerun render-video or 'lfusd flow' to repair it")
             H, W = np.asarray(data["depth"]).shape[:2]
             K = np.asarray(ds.intrinsics(view), np.float64)

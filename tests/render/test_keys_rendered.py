@@ -22,7 +22,7 @@ def tiny_video(tmp_path_factory):
     stage = root / "movers.usda"
     write_motion_stage(stage, RIG, 3)
     out = root / "out"
-    assert main(["render-video", str(stage), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
+    assert main(["render-video", str(stage), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw"]) == 0
     return out
 
 

@@ -52,7 +52,8 @@ def video(tmp_path_factory):
     out = root / "out"
     from lfusd.cli import main
 
-    assert main(["render-video", str(stage), "-o", str(out), "--samples", "2", "--quiet", "--device", "cpu", "--workers", "2"]) == 0
+    # --keep-raw: Blender's raw passes stay readable (the vector pass test below)
+    assert main(["render-video", str(stage), "-o", str(out), "--samples", "2", "--quiet", "--device", "cpu", "--workers", "2", "--keep-raw"]) == 0
     return stage, out
 
 

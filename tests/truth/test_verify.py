@@ -209,7 +209,7 @@ def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
     from lfusd.camera import RigSpec
 
     write_box_stage(tmp_path / "s.usda", [RigSpec(name="main", rows=1, cols=1, width=8, height=8, at=(0, -5, 1), look_at=(0, 0, 0.5))])
-    assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
+    assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw"]) == 0
     exr = tmp_path / "out" / "main" / "f000001" / "00_00" / "passes.exr"
     parts = [p for p in OpenEXR.File(str(exr)).parts if "Vector" not in p.name()]
     OpenEXR.File([OpenEXR.Part(p.header, p.channels) for p in parts]).write(str(exr))
@@ -327,7 +327,8 @@ def blender_video(tmp_path_factory):
         op.Set(Gf.Matrix4d(*m.ravel().tolist()), f)
     stage.Save()
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "lfusd", "render-video", str(tmp_path / "s.usda"), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu"]
+    cmd = [sys.executable, "-m", "lfusd", "render-video", str(tmp_path / "s.usda"), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu",
+           "--keep-raw"]  # raw passes: the tests below derive the motion again with lfusd flow
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     return out
@@ -374,10 +375,12 @@ def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_vide
     assert main(["verify", str(out), "--frames", "2"]) == 0
     capsys.readouterr()
     # Flip the sign of the v component of flow_fwd in one view's motion file.
-    path = Dataset(out).view_dir(2, (0, 1)) / "motion.npz"
-    z = dict(np.load(path))
+    from lfusd.data import store
+
+    path = Dataset(out).view_dir(2, (0, 1)) / "motion.exr"
+    z = store.read(path)
     z["flow_fwd"][..., 1] *= -1
-    np.savez(path, **z)
+    store.write(path, z)
     assert main(["verify", str(out), "--frames", "2"]) == 1
     fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
     assert fails and all(ln.startswith("FAIL flow_fwd of view 0,1 at frame 2") for ln in fails), fails

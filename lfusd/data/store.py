@@ -1,0 +1,162 @@
+"""Format version 2's ground-truth files: each key in the encoding its :class:`lfusd.keys.Storage` names.
+
+    gt.exr      depth (FLOAT), normal.X/.Y/.Z (HALF), instance (UINT): the static keys of the raw passes
+    motion.exr  flow_fwd.X/.Y, flow_bwd.X/.Y, scene_flow.X/.Y/.Z, disparity_change (FLOAT rounded to
+                fixed point), masks (UINT, bit ``Storage.bits`` per mask key)
+
+Single-part scanline OpenEXR, ZIP: measured on the default scene at 1024x1024
+(benchmarks/bench_storage.py), ZIP gave the smallest sum over these channels among ZIP, ZIPS, PIZ
+and ZSTD (HDF5 gzip+shuffle was within 3 %), and every OpenEXR reads it (ZSTD needs 3.4+).
+The header attribute ``lfusd:keys`` lists the keys a file holds. Rounding is where the low bits
+are noise: flow on a static surface is 1e-5 px of float noise rather than 0 until rounded, which
+ZIP cannot compress. No pxr, bpy or torch.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from ..errors import LfusdError
+from ..keys import KEYS
+from .formats import file_mode
+
+COMPRESSION = OpenEXR.ZIP_COMPRESSION
+KEYS_ATTR = "lfusd:keys"
+MASKS = "masks"  # the uint32 channel holding every mask key, one bit each
+_COMPONENTS = "XYZW"
+
+
+def channel_names(name: str) -> list[str]:
+    """The EXR channels of one key: ``depth``, or ``normal.X``, ``normal.Y``, ``normal.Z``."""
+    n = KEYS[name].shape[0] if KEYS[name].shape else 0
+    return [f"{name}.{c}" for c in _COMPONENTS[:n]] if n else [name]
+
+
+def quantize(name: str, array: np.ndarray) -> np.ndarray:
+    """The values the encoding of ``name`` keeps, as the key's dtype (what a round trip returns)."""
+    st = KEYS[name].storage
+    a = np.asarray(array)
+    if st.encoding == "fixed":
+        scale = 2.0**st.bits
+        return (np.round(a.astype(np.float64) * scale) / scale).astype(np.float32)
+    if st.encoding == "half":
+        return a.astype(np.float16).astype(np.float32)
+    return a.astype(KEYS[name].dtype)
+
+
+def encode(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """EXR channels holding ``arrays`` (key -> array in the conventions), each in its encoding."""
+    channels: dict[str, np.ndarray] = {}
+    masks = None
+    for name, a in arrays.items():
+        st = KEYS[name].storage
+        a = np.asarray(a)
+        if st.encoding == "mask":
+            bit = a.astype(bool).astype(np.uint32) << np.uint32(st.bits)
+            masks = bit if masks is None else masks | bit
+            continue
+        if st.encoding == "uint32":
+            if a.size and a.min() < 0:
+                raise LfusdError(f"{name} holds negative ids; it cannot be stored as uint32 (a bug: report it)")
+            values = a.astype(np.uint32)
+        elif st.encoding == "half":
+            values = a.astype(np.float16)
+        elif st.encoding in ("float32", "fixed"):
+            values = quantize(name, a)
+        else:
+            raise ValueError(f"{name} ({st.encoding}) is not stored in a ground-truth file")
+        comps = channel_names(name)
+        for i, ch in enumerate(comps):
+            channels[ch] = np.ascontiguousarray(values[..., i] if len(comps) > 1 else values)
+    if masks is not None:
+        channels[MASKS] = np.ascontiguousarray(masks)
+    return channels
+
+
+def decode(channels: dict[str, np.ndarray], names) -> dict[str, np.ndarray]:
+    """The keys ``names`` from EXR channels written by :func:`encode`, as Dataset.read returns them."""
+    out = {}
+    for name in names:
+        k = KEYS[name]
+        if k.storage.encoding == "mask":
+            out[name] = ((channels[MASKS] >> np.uint32(k.storage.bits)) & np.uint32(1)).astype(bool)
+            continue
+        comps = [channels[c] for c in channel_names(name)]
+        a = np.stack(comps, axis=-1) if k.shape else comps[0]
+        out[name] = a.astype(k.dtype)
+    return out
+
+
+def write(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
+    """Write ``arrays`` (key -> array) into one EXR under a temporary name, then rename it into place."""
+    path = Path(path)
+    header = {"compression": COMPRESSION, "type": OpenEXR.scanlineimage, KEYS_ATTR: ",".join(arrays)}
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".exr")
+    os.close(fd)
+    try:
+        OpenEXR.File(header, encode(arrays)).write(tmp)
+        os.chmod(tmp, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read(path: str | Path) -> dict[str, np.ndarray]:
+    """Every key of a file written by :func:`write`."""
+    try:
+        f = OpenEXR.File(str(path))
+        names = [n for n in str(f.header()[KEYS_ATTR]).split(",") if n]
+        channels = {name: ch.pixels for name, ch in f.channels().items()}
+        return decode(channels, names)
+    except (KeyError, ValueError, RuntimeError, OSError) as e:
+        raise LfusdError(f"cannot read {path} ({str(e).splitlines()[0] if str(e) else type(e).__name__}); "
+                         "derive it again (rerun the render command, or 'lfusd flow' for motion.exr)") from None
+    except Exception as e:  # OpenEXR raises plain exceptions for missing or corrupt files
+        raise LfusdError(f"cannot read {path} ({e}); derive it again (rerun the render command)") from None
+
+
+def excess(name: str, got: np.ndarray, want: np.ndarray) -> float:
+    """How far ``got`` (read back) is outside the storage error of ``name`` around ``want`` (0: inside).
+
+    Non-finite values must come back identical; finite ones within ``Storage.error``, plus half an
+    ulp of float32 for fixed point (values beyond 2^(24-bits)) and half's relative 2^-11 for half."""
+    st = KEYS[name].storage
+    got, want = np.asarray(got), np.asarray(want)
+    if got.shape != want.shape:
+        return np.inf
+    if st.encoding in ("mask", "uint32", "float32", "image"):
+        same = np.array_equal(got, want, equal_nan=want.dtype.kind == "f")
+        return 0.0 if same else np.inf
+    g, w = got.astype(np.float64), want.astype(np.float64)
+    finite = np.isfinite(w)
+    if not np.array_equal(np.isnan(g), np.isnan(w)) or not np.array_equal(g[~finite & ~np.isnan(w)], w[~finite & ~np.isnan(w)]):
+        return np.inf
+    if st.encoding == "fixed":
+        allowed = st.error + np.spacing(np.abs(want[finite]).astype(np.float32)).astype(np.float64) / 2
+    else:  # half
+        allowed = np.maximum(2.0**-11 * np.abs(w[finite]), 2.0**-25)
+    err = np.abs(g[finite] - w[finite]) - allowed
+    return float(max(err.max(initial=0.0), 0.0))
+
+
+def check(path: str | Path, arrays: dict[str, np.ndarray]) -> int:
+    """Read ``path`` back and compare every key with ``arrays`` (what was written) within its storage
+    error; LfusdError naming the first key outside it. Returns the pixels compared (summed over keys)."""
+    back = read(path)
+    compared = 0
+    for name, want in arrays.items():
+        if name not in back:
+            raise LfusdError(f"{path} lost key {name!r} on writing; free disk space if it is full, then rerun")
+        bad = excess(name, back[name], want)
+        if bad > 0:
+            raise LfusdError(f"{path}: {name} read back off by {bad:g} beyond its storage error; "
+                             "free disk space if it is full, then rerun (a persistent failure is a bug: report it)")
+        compared += int(np.asarray(want).shape[0] * np.asarray(want).shape[1])
+    return compared
