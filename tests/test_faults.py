@@ -566,7 +566,7 @@ def test_damaged_files_are_repaired_by_a_rerun(stage, whole, tmp_path, overwrite
     for f, key in damaged:
         assert f"frame {f} view {int(key[:2])},{int(key[3:])}:" in text, text
 
-    code, text, err = _cli("render-video", stage, "-o", out, *TINY, *(["--overwrite"] if overwrite else []))
+    code, text, err = _cli("render-video", stage, "-o", out, *TINY, "--keep-raw", *(["--overwrite"] if overwrite else []))
     assert code == 0, err
     assert "warning: rendering again 2 view(s)" in err, err
     for (f, key), stats in before.items():

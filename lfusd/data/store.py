@@ -4,9 +4,13 @@
     motion.exr  flow_fwd.X/.Y, flow_bwd.X/.Y, scene_flow.X/.Y/.Z, disparity_change (FLOAT rounded to
                 fixed point), masks (UINT, bit ``Storage.bits`` per mask key)
 
-Single-part scanline OpenEXR, ZIP: measured on the default scene at 1024x1024
-(benchmarks/bench_storage.py), ZIP gave the smallest sum over these channels among ZIP, ZIPS, PIZ
-and ZSTD (HDF5 gzip+shuffle was within 3 %), and every OpenEXR reads it (ZSTD needs 3.4+).
+Single-part scanline OpenEXR, ZIP. Measured on the default scene at 1024x1024
+(benchmarks/bench_storage.py): these channels take 3.02 bytes per pixel with ZIP against 2.61 with
+ZSTD, 2.50 with HDF5 gzip+shuffle, 3.19 with HTJ2K, 3.29 with ZIPS and 7.45 with PIZ. ZIP costs
+0.4-0.5 bytes per pixel more than the best (about 7 % of a whole view, 6.7 bytes per pixel with
+its image) and every OpenEXR reader since 1.x reads it: ZSTD needs OpenEXR 3.4+ (Blender 5.0
+cannot read it, measured: "unable to decompress data"), and HDF5 leaves the image format every
+other file here uses.
 The header attribute ``lfusd:keys`` lists the keys a file holds. Rounding is where the low bits
 are noise: flow on a static surface is 1e-5 px of float noise rather than 0 until rounded, which
 ZIP cannot compress. No pxr, bpy or torch.

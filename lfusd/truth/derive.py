@@ -6,9 +6,9 @@ Per view (format version 2, lfusd.layout): the static keys go from Blender's ``p
 what was derived before it counts (the pixels compared go into the view's record). Then, unless
 the render kept them (``--keep-raw``), the raw passes of frame t are removed once nothing can
 need them again: gt.exr of t is written, the motion of t-1, t and t+1 is current, and no frame
-within two of t is still to come (inside the stage's range but not rendered: a later range
-rendered next to it re-derives t+-1, which reads the raw passes of t and t+-2... of t+-1's
-neighbours). Frame t's forward keys need t+1 rendered (backward keys t-1); at the ends of the
+within two of t is still to come (inside an animated stage's range but not rendered, or any
+frame of a static stage): when t+1 arrives, the motion of t is derived again, from the raw passes
+of t-1, t and t+1. Frame t's forward keys need t+1 rendered (backward keys t-1); at the ends of the
 rendered range they are masked invalid, as CONVENTIONS.md states. Each motion file is recorded
 with the digests of the raw passes it came from (t-1, t, t+1; a removed file's digest stays in
 its record), so a frame derived at the end of one range is derived again when its neighbour
@@ -231,7 +231,10 @@ def derive_dataset(
     datasets = list(open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs])
     for ds in datasets:
         ds.refresh()  # the frames complete now, not when the manifest was last written
-    selected = {ds.rig_name: (set(ds.frames if frames is None else frames), ds.views if views is None else views) for ds in datasets}
+    # lfusd flow (overwrite) derives every frame the manifest lists, and names what it cannot read
+    everything = {ds.rig_name: ds.manifest["frames"] if overwrite else ds.frames for ds in datasets}
+    selected = {ds.rig_name: (set(everything[ds.rig_name] if frames is None else frames), ds.views if views is None else views)
+                for ds in datasets}
     # First the static keys (and the pixels digests of new raw passes, which motion records name),
     # then the motion keys that are not current.
     todo = [(str(root), ds.rig_name, tuple(v), [f for f in sorted(selected[ds.rig_name][0]) if _static_missing(ds, f, v)], [])
@@ -242,6 +245,9 @@ def derive_dataset(
     for ds in datasets:
         wanted, vs = selected[ds.rig_name]
         if not wants_motion(ds):
+            if overwrite:  # lfusd flow
+                raise LfusdError(f"{root} holds no motion keys (rendered by 'lfusd render', or by render-video with --keys naming none); "
+                                 "render a video with 'lfusd render-video'")
             continue
         # A neighbour's motion changes when a frame next to it arrives (its t+-1 keys were masked):
         # it is a candidate too, derived again only if its record says it came from other passes.

@@ -209,7 +209,8 @@ def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
     from lfusd.camera import RigSpec
 
     write_box_stage(tmp_path / "s.usda", [RigSpec(name="main", rows=1, cols=1, width=8, height=8, at=(0, -5, 1), look_at=(0, 0, 0.5))])
-    assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw"]) == 0
+    assert main(["render-video", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--frames", "1", "--samples", "1", "--quiet", "--device", "cpu",
+                 "--keep-raw"]) == 0
     exr = tmp_path / "out" / "main" / "f000001" / "00_00" / "passes.exr"
     parts = [p for p in OpenEXR.File(str(exr)).parts if "Vector" not in p.name()]
     OpenEXR.File([OpenEXR.Part(p.header, p.channels) for p in parts]).write(str(exr))
@@ -217,6 +218,11 @@ def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
     assert main(["flow", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("lfusd: error:") and "has no vector pass" in err and str(exr) in err and len(err.splitlines()) == 1
+    assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "still"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
+    capsys.readouterr()
+    assert main(["flow", str(tmp_path / "still")]) == 2  # a still render has no motion keys to derive
+    err = capsys.readouterr().err.strip()
+    assert "holds no motion keys" in err and "render-video" in err and len(err.splitlines()) == 1
 
 
 def _load_script(name):
