@@ -69,6 +69,15 @@ def write_motion(ds: Dataset, frame: int, view: View) -> Path:
     return d / MOTION_FILE
 
 
+def derive_if_stale(ds: Dataset, frame: int, view: View) -> bool:
+    """Write one view's motion unless it is current (as :func:`derive_dataset` decides); whether it wrote."""
+    d = ds.view_dir(frame, view)
+    if not integrity.motion_problem(d) and not integrity.motion_problem(d, integrity.motion_inputs(_passes_of(ds, frame, view))):
+        return False  # (the first check needs no hashing: a freshly rendered view has no motion yet)
+    write_motion(ds, frame, view)
+    return True
+
+
 def _derive_run(args: tuple[str, str, tuple[int, int], list[int]]) -> int:
     root, rig, view, frames = args
     ds = Dataset(root, rig=rig)
