@@ -144,8 +144,8 @@ def run_unit(unit: WorkUnit, out: Path, report=None, stopping: threading.Event |
                 if event["event"] == "ready":
                     device = event["device"]
                 elif event["event"] == "frame":  # one chunk of views of a frame
-                    log.debug("rig %s frame %d: %d views in %.2f s %s", unit.rig, event["frame"], len(event["views"]),
-                              event.get("seconds", 0.0), event.get("phases", {}))
+                    log.debug("rig %s frame %d: %d views in %.2f s %s, scene evaluated at %d times so far", unit.rig, event["frame"],
+                              len(event["views"]), event.get("seconds", 0.0), event.get("phases", {}), event.get("evaluations", 0))
                     for key in event["views"]:
                         commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]), unit)
                         if report is not None:

@@ -617,7 +617,7 @@ def render_chunk(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     im = scene.render.image_settings
 
     # Beauty: linear RGB, user samples, default filter.
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     lighting.set(True)
     vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = False
     vl.use_pass_vector = vl.use_pass_object_index = False
@@ -634,9 +634,10 @@ def render_chunk(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     _shift_lenses(scene, False)
     _render(scene, os.path.join(scratch, "rgb"))
     phases["beauty"] = phases.get("beauty", 0.0) + time.perf_counter() - t
+    phases["beauty_cpu"] = phases.get("beauty_cpu", 0.0) + time.process_time() - c
 
     # Data passes: one sample at each pixel centre, no bounces, no light.
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     lighting.set(False)
     vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = True
     vl.use_pass_vector = vl.use_pass_object_index = True
@@ -651,6 +652,7 @@ def render_chunk(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     _shift_lenses(scene, True)
     _render(scene, os.path.join(scratch, "passes"))
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t
+    phases["data_cpu"] = phases.get("data_cpu", 0.0) + time.process_time() - c
 
 
 def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: MotionAttributes | None, lighting: Lighting) -> None:
@@ -666,8 +668,9 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
         os.makedirs(scratch, exist_ok=True)
         _use_views(scene, chunk)
         render_chunk(scene, job, scratch, lighting, phases)
+        print(f"lfusd: frame {frame} views {len(chunk)} seconds " + " ".join(f"{k} {v:.3f}" for k, v in phases.items()), file=sys.stderr, flush=True)
         emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in chunk], seconds=time.perf_counter() - t,
-             phases={k: round(v, 4) for k, v in phases.items()})
+             phases={k: round(v, 4) for k, v in phases.items()}, evaluations=motion.evaluations if motion is not None else 0)
 
 
 def _test_kill_hook(frame: int) -> None:
