@@ -11,9 +11,9 @@ for that format (float32, ZIP). It does not do the second, exact data render at 
 integrity records: that is lfusd's overhead.
 
 Prints, per sample count, from runs interleaved side by side (floor, lfusd, floor, lfusd, ...):
-wall seconds of each (best of --repeat), views per second, the ratio of the bests and the median
-of the per-pair ratios (the machine may be shared), and the peak resident memory of the largest
-process and of the whole process tree (polled with psutil). Then the peak memory of lfusd for two
+wall seconds of each (best of --repeat), views per second, the ratio of the bests, the median
+of the per-pair ratios and the ratio of CPU seconds (the machine may be shared), and the peak
+resident memory of the largest process and of the whole process tree (polled with psutil). Then the peak memory of lfusd for two
 video lengths (flat in frames is the goal).
 """
 
@@ -85,13 +85,14 @@ def make_stage(path: Path, frames: int, grid: tuple[int, int], resolution: tuple
     stage.Save()
 
 
-def timed(cmd: list[str], what: str, cwd=None) -> tuple[float, float, float]:
+def timed(cmd: list[str], what: str, cwd=None) -> tuple[float, float, float, float]:
     """Run ``cmd``; (wall seconds, peak RSS of its largest process, peak RSS summed over its process
-    tree), memory in MiB, polled every 50 ms."""
+    tree, CPU seconds of the tree), memory in MiB, polled every 50 ms (CPU as last seen per process)."""
     t = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd)
     root = psutil.Process(proc.pid)
     largest = total = 0
+    cpu: dict[int, float] = {}
     while proc.poll() is None:
         try:
             tree = [root, *root.children(recursive=True)]
@@ -99,6 +100,8 @@ def timed(cmd: list[str], what: str, cwd=None) -> tuple[float, float, float]:
             for p in tree:
                 try:
                     rss.append(p.memory_info().rss)
+                    c = p.cpu_times()
+                    cpu[p.pid] = c.user + c.system
                 except psutil.Error:
                     pass
             largest, total = max(largest, max(rss, default=0)), max(total, sum(rss))
@@ -109,17 +112,17 @@ def timed(cmd: list[str], what: str, cwd=None) -> tuple[float, float, float]:
     err = proc.stderr.read()
     if proc.returncode:
         sys.exit(f"{what} failed: {err.strip()[-800:]}")
-    return wall, largest / 2**20, total / 2**20
+    return wall, largest / 2**20, total / 2**20, sum(cpu.values())
 
 
-def run_floor(stage: Path, out: Path, samples: int, frames: int, resolution) -> tuple[float, float, float]:
+def run_floor(stage: Path, out: Path, samples: int, frames: int, resolution) -> tuple[float, float, float, float]:
     job = {"stage": str(stage), "samples": samples, "first": 1, "last": frames, "out": str(out),
            "width": resolution[0], "height": resolution[1]}
     shutil.rmtree(out, ignore_errors=True)
     return timed([sys.executable, "-c", FLOOR, json.dumps(job)], "the bare Blender render")
 
 
-def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1) -> tuple[float, float, float]:
+def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1) -> tuple[float, float, float, float]:
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "lfusd", "render-video", str(stage), "-o", str(out), "--samples", str(samples),
            "--device", "cpu", "--quiet", "--frames", f"1-{frames}", "--workers", str(workers)]
@@ -151,17 +154,18 @@ def main() -> None:
         print(f"static_boxes, crate moving; {args.grid[0]}x{args.grid[1]} views, {args.resolution[0]}x{args.resolution[1]}, "
               f"{args.frames} frames ({views} views), CPU, lfusd --workers {args.workers}; best of {args.repeat}, interleaved")
         print(f"{'samples':>7} {'floor s':>8} {'lfusd s':>8} {'floor v/s':>9} {'lfusd v/s':>9} {'ratio':>6} {'median':>6}"
-              f" {'floor MiB max/sum':>18} {'lfusd MiB max/sum':>18}")
+              f" {'CPU ratio':>9} {'floor MiB max/sum':>18} {'lfusd MiB max/sum':>18}")
         for samples in (int(s) for s in args.samples.split(",")):
             floors, runs = [], []
             for _ in range(args.repeat):
                 floors.append(run_floor(stage, tmp / "floor", samples, args.frames, args.resolution))
                 runs.append(run_lfusd(stage, tmp / "lfusd", samples, args.frames, args.workers))
-            fb, lb = min(w for w, _, _ in floors), min(w for w, _, _ in runs)
+            fb, lb = min(r[0] for r in floors), min(r[0] for r in runs)
             med = statistics.median(r[0] / f[0] for f, r in zip(floors, runs))
-            fm = f"{max(m for _, m, _ in floors):.0f}/{max(s for _, _, s in floors):.0f}"
-            lm = f"{max(m for _, m, _ in runs):.0f}/{max(s for _, _, s in runs):.0f}"
-            print(f"{samples:7d} {fb:8.2f} {lb:8.2f} {views / fb:9.2f} {views / lb:9.2f} {lb / fb:6.3f} {med:6.3f} {fm:>18} {lm:>18}",
+            cpu = min(r[3] for r in runs) / min(f[3] for f in floors)  # CPU seconds: what a loaded machine distorts least
+            fm = f"{max(r[1] for r in floors):.0f}/{max(r[2] for r in floors):.0f}"
+            lm = f"{max(r[1] for r in runs):.0f}/{max(r[2] for r in runs):.0f}"
+            print(f"{samples:7d} {fb:8.2f} {lb:8.2f} {views / fb:9.2f} {views / lb:9.2f} {lb / fb:6.3f} {med:6.3f} {cpu:9.3f} {fm:>18} {lm:>18}",
                   flush=True)
         if args.memory_frames:
             lengths = [int(x) for x in args.memory_frames.split(",")]
@@ -171,7 +175,7 @@ def main() -> None:
             for n in lengths:
                 s = tmp / f"mem{n}.usda"
                 make_stage(s, n, args.memory_grid, args.memory_resolution)
-                w, largest, total = run_lfusd(s, tmp / f"mem{n}", 1, n, args.workers)
+                w, largest, total, _ = run_lfusd(s, tmp / f"mem{n}", 1, n, args.workers)
                 peaks.append(largest)
                 print(f"  {n:4d} frames: {w:7.1f} s, peak RSS largest process {largest:7.1f} MiB, process tree {total:7.1f} MiB")
             if len(peaks) > 1:

@@ -648,7 +648,7 @@ def render_chunk(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     cyc.max_bounces = 0
     im.media_type = "MULTI_LAYER_IMAGE"
     im.color_depth = "32"
-    im.exr_codec = "ZIP"
+    im.exr_codec = job.raw_codec
     _shift_lenses(scene, True)
     _render(scene, os.path.join(scratch, "passes"))
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t
