@@ -1,13 +1,20 @@
-"""`lfusd render-video` against a bare Blender multiview render of the same views, frames, samples.
+"""`lfusd render-video` against the fair floor: one bare Blender multiview render of beauty plus data passes.
 
-    .venv/bin/python benchmarks/bench_render_video.py [--frames 10] [--grid 3x3] [--resolution 256x256]
-        [--samples 16] [--memory-frames 10,150] [--memory-grid 2x2] [--memory-resolution 96x96]
+    .venv/bin/python benchmarks/bench_render_video.py [--grid 3x3] [--resolution 512x512] [--frames 3]
+        [--samples 1,16] [--repeat 3] [--memory-frames 2,8] [--memory-grid 2x2] [--memory-resolution 96x96]
 
-Prints, from one run side by side:
-- wall time of `lfusd render-video` (beauty + exact data passes + motion AOVs + derived motion)
-  and of a bare bpy script rendering only the beauty images with multiview, and their ratio;
-- views per second of each;
-- peak resident memory (parent and largest Blender worker) for short and long videos.
+The floor is what a bare bpy script needs for the same views, frames and samples: ONE render call
+per frame with multiview, writing the beauty (Combined) and the data passes lfusd needs (Depth,
+Normal, Position, Vector, Object Index) into one multilayer EXR per view, with Blender's defaults
+for that format (float32, ZIP). It does not do the second, exact data render at the pixel centres
+(1 sample, 0 bounces), the motion AOVs, the derivation of the motion keys, the PNGs or the
+integrity records: that is lfusd's overhead.
+
+Prints, per sample count, from runs interleaved side by side (floor, lfusd, floor, lfusd, ...):
+wall seconds of each (best of --repeat), views per second, the ratio of the bests, the median
+of the per-pair ratios and the ratio of CPU seconds (the machine may be shared), and the peak
+resident memory of the largest process and of the whole process tree (polled with psutil). Then the peak memory of lfusd for two
+video lengths (flat in frames is the goal).
 """
 
 from __future__ import annotations
@@ -15,22 +22,23 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-LFUSD = [sys.executable, "-m", "lfusd"]
+import psutil
 
-BARE = r"""
+ROOT = Path(__file__).resolve().parents[1]
+
+FLOOR = r"""
 import json, sys, time, bpy
 bpy.utils.expose_bundled_modules()
 job = json.loads(sys.argv[-1])
-t0 = time.time()
 bpy.ops.wm.read_factory_settings(use_empty=True)
-bpy.ops.wm.usd_import(filepath=job["stage"])
+bpy.ops.wm.usd_import(filepath=job["stage"], set_frame_range=False)
 sc = bpy.context.scene
 cams = [o for o in bpy.data.objects if o.type == "CAMERA" and o.name.startswith("cam_")]
 for o in cams:
@@ -42,14 +50,16 @@ r.use_multiview = True; r.views_format = "MULTIVIEW"
 for v in r.views: v.use = False
 for o in cams:
     v = r.views.new(o.name[1:]); v.camera_suffix = o.name[1:]
+vl = sc.view_layers[0]
+vl.use_pass_combined = vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = True
+vl.use_pass_vector = vl.use_pass_object_index = True
 sc.cycles.samples = job["samples"]; sc.cycles.use_denoising = False; sc.cycles.use_adaptive_sampling = False
 sc.cycles.device = "CPU"
-r.image_settings.file_format = "PNG"
+r.image_settings.media_type = "MULTI_LAYER_IMAGE"  # Blender's defaults: float32, ZIP
 for f in range(job["first"], job["last"] + 1):
     sc.frame_set(f)
     r.filepath = f"{job['out']}/f{f:06d}_"
     bpy.ops.render.render(write_still=True)
-print("BARE", time.time() - t0)
 """
 
 
@@ -57,8 +67,8 @@ def make_stage(path: Path, frames: int, grid: tuple[int, int], resolution: tuple
     """The bundled static box stage, with its crate sliding and turning over ``frames`` frames."""
     from pxr import Gf, Usd, UsdGeom
 
-    from lfusd.camera import RigSpec
     from lfusd.author.rigs import add_rig
+    from lfusd.camera import RigSpec
 
     shutil.copy(ROOT / "stages" / "static_boxes.usda", path)
     stage = Usd.Stage.Open(str(path))
@@ -70,31 +80,53 @@ def make_stage(path: Path, frames: int, grid: tuple[int, int], resolution: tuple
         ops["xformOp:rotateXYZ"].Set(Gf.Vec3f(0.0, 0.0, 25.0 + 2.0 * f), f)
     stage.RemovePrim("/Rigs/main")
     rows, cols = grid
-    add_rig(stage, RigSpec(name="main", rows=rows, cols=cols, baseline=0.1, width=resolution[0], height=resolution[1], at=(0.5, -7.0, 2.2), look_at=(0.0, 1.0, 0.6)))
+    add_rig(stage, RigSpec(name="main", rows=rows, cols=cols, baseline=0.1, width=resolution[0], height=resolution[1],
+                           at=(0.5, -7.0, 2.2), look_at=(0.0, 1.0, 0.6)))
     stage.Save()
 
 
-def run_lfusd(stage: Path, out: Path, samples: int, frames: int) -> tuple[float, float, float]:
-    """(wall seconds, parent peak MiB, largest worker peak MiB) of one render-video run."""
-    code = (
-        "import resource, sys, time; from lfusd.cli import main; t = time.time(); "
-        f"rc = main(['render-video', {str(stage)!r}, '-o', {str(out)!r}, '--samples', '{samples}', '--device', 'cpu', '--quiet', '--frames', '1-{frames}']); "
-        "print('WALL', time.time() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); sys.exit(rc)"
-    )
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
-    if p.returncode:
-        sys.exit(f"render-video failed: {p.stderr.strip().splitlines()[-1]}")
-    _, wall, parent, child = next(ln for ln in p.stdout.splitlines() if ln.startswith("WALL")).split()
-    return float(wall), int(parent) / 1024, int(child) / 1024
+def timed(cmd: list[str], what: str, cwd=None) -> tuple[float, float, float, float]:
+    """Run ``cmd``; (wall seconds, peak RSS of its largest process, peak RSS summed over its process
+    tree, CPU seconds of the tree), memory in MiB, polled every 50 ms (CPU as last seen per process)."""
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd)
+    root = psutil.Process(proc.pid)
+    largest = total = 0
+    cpu: dict[int, float] = {}
+    while proc.poll() is None:
+        try:
+            tree = [root, *root.children(recursive=True)]
+            rss = []
+            for p in tree:
+                try:
+                    rss.append(p.memory_info().rss)
+                    c = p.cpu_times()
+                    cpu[p.pid] = c.user + c.system
+                except psutil.Error:
+                    pass
+            largest, total = max(largest, max(rss, default=0)), max(total, sum(rss))
+        except psutil.Error:
+            pass
+        time.sleep(0.05)
+    wall = time.perf_counter() - t
+    err = proc.stderr.read()
+    if proc.returncode:
+        sys.exit(f"{what} failed: {err.strip()[-800:]}")
+    return wall, largest / 2**20, total / 2**20, sum(cpu.values())
 
 
-def run_bare(stage: Path, out: Path, samples: int, frames: int, resolution) -> float:
-    job = {"stage": str(stage), "samples": samples, "first": 1, "last": frames, "out": str(out), "width": resolution[0], "height": resolution[1]}
-    t = time.time()
-    p = subprocess.run([sys.executable, "-c", BARE, json.dumps(job)], capture_output=True, text=True)
-    if p.returncode:
-        sys.exit(f"bare Blender render failed: {p.stderr.strip()[-500:]}")
-    return time.time() - t
+def run_floor(stage: Path, out: Path, samples: int, frames: int, resolution) -> tuple[float, float, float, float]:
+    job = {"stage": str(stage), "samples": samples, "first": 1, "last": frames, "out": str(out),
+           "width": resolution[0], "height": resolution[1]}
+    shutil.rmtree(out, ignore_errors=True)
+    return timed([sys.executable, "-c", FLOOR, json.dumps(job)], "the bare Blender render")
+
+
+def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1) -> tuple[float, float, float, float]:
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [sys.executable, "-m", "lfusd", "render-video", str(stage), "-o", str(out), "--samples", str(samples),
+           "--device", "cpu", "--quiet", "--frames", f"1-{frames}", "--workers", str(workers)]
+    return timed(cmd, "lfusd render-video", cwd=ROOT)
 
 
 def pair(text: str) -> tuple[int, int]:
@@ -104,11 +136,13 @@ def pair(text: str) -> tuple[int, int]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--grid", type=pair, default=(3, 3))
-    ap.add_argument("--resolution", type=pair, default=(256, 256))
-    ap.add_argument("--samples", type=int, default=16)
-    ap.add_argument("--memory-frames", default="10,150")
+    ap.add_argument("--resolution", type=pair, default=(512, 512))
+    ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--samples", default="1,16", help="sample counts, comma separated")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--workers", type=int, default=1, help="lfusd's --workers")
+    ap.add_argument("--memory-frames", default="2,8", help="video lengths for the memory check ('' to skip)")
     ap.add_argument("--memory-grid", type=pair, default=(2, 2))
     ap.add_argument("--memory-resolution", type=pair, default=(96, 96))
     args = ap.parse_args()
@@ -117,22 +151,35 @@ def main() -> None:
         stage = tmp / "bench.usda"
         make_stage(stage, args.frames, args.grid, args.resolution)
         views = args.grid[0] * args.grid[1] * args.frames
-        print(f"stage: static_boxes scene, crate moving; {args.grid[0]}x{args.grid[1]} views, {args.resolution[0]}x{args.resolution[1]}, {args.frames} frames, {args.samples} samples, CPU")
-        bare = run_bare(stage, tmp / "bare", args.samples, args.frames, args.resolution)
-        wall, _, _ = run_lfusd(stage, tmp / "lfusd", args.samples, args.frames)
-        print(f"bare Blender multiview (beauty only): {bare:7.2f} s  {views / bare:6.2f} views/s")
-        print(f"lfusd render-video (all outputs):     {wall:7.2f} s  {views / wall:6.2f} views/s")
-        print(f"overhead ratio lfusd / bare: {wall / bare:.3f}")
-        print(f"memory ({args.memory_grid[0]}x{args.memory_grid[1]} views, {args.memory_resolution[0]}x{args.memory_resolution[1]}, 1 sample):")
-        peaks = []
-        for n in (int(x) for x in args.memory_frames.split(",")):
-            s = tmp / f"mem{n}.usda"
-            make_stage(s, n, args.memory_grid, args.memory_resolution)
-            w, parent, child = run_lfusd(s, tmp / f"mem{n}", 1, n)
-            peaks.append(max(parent, child))
-            print(f"  {n:4d} frames: {w:7.1f} s, peak RSS parent {parent:7.1f} MiB, largest worker {child:7.1f} MiB")
-        if len(peaks) > 1:
-            print(f"  peak ratio {args.memory_frames.split(',')[-1]} / {args.memory_frames.split(',')[0]} frames: {peaks[-1] / peaks[0]:.3f}")
+        print(f"static_boxes, crate moving; {args.grid[0]}x{args.grid[1]} views, {args.resolution[0]}x{args.resolution[1]}, "
+              f"{args.frames} frames ({views} views), CPU, lfusd --workers {args.workers}; best of {args.repeat}, interleaved")
+        print(f"{'samples':>7} {'floor s':>8} {'lfusd s':>8} {'floor v/s':>9} {'lfusd v/s':>9} {'ratio':>6} {'median':>6}"
+              f" {'CPU ratio':>9} {'floor MiB max/sum':>18} {'lfusd MiB max/sum':>18}")
+        for samples in (int(s) for s in args.samples.split(",")):
+            floors, runs = [], []
+            for _ in range(args.repeat):
+                floors.append(run_floor(stage, tmp / "floor", samples, args.frames, args.resolution))
+                runs.append(run_lfusd(stage, tmp / "lfusd", samples, args.frames, args.workers))
+            fb, lb = min(r[0] for r in floors), min(r[0] for r in runs)
+            med = statistics.median(r[0] / f[0] for f, r in zip(floors, runs))
+            cpu = min(r[3] for r in runs) / min(f[3] for f in floors)  # CPU seconds: what a loaded machine distorts least
+            fm = f"{max(r[1] for r in floors):.0f}/{max(r[2] for r in floors):.0f}"
+            lm = f"{max(r[1] for r in runs):.0f}/{max(r[2] for r in runs):.0f}"
+            print(f"{samples:7d} {fb:8.2f} {lb:8.2f} {views / fb:9.2f} {views / lb:9.2f} {lb / fb:6.3f} {med:6.3f} {cpu:9.3f} {fm:>18} {lm:>18}",
+                  flush=True)
+        if args.memory_frames:
+            lengths = [int(x) for x in args.memory_frames.split(",")]
+            print(f"memory of lfusd render-video, {args.memory_grid[0]}x{args.memory_grid[1]} views, "
+                  f"{args.memory_resolution[0]}x{args.memory_resolution[1]}, 1 sample:")
+            peaks = []
+            for n in lengths:
+                s = tmp / f"mem{n}.usda"
+                make_stage(s, n, args.memory_grid, args.memory_resolution)
+                w, largest, total, _ = run_lfusd(s, tmp / f"mem{n}", 1, n, args.workers)
+                peaks.append(largest)
+                print(f"  {n:4d} frames: {w:7.1f} s, peak RSS largest process {largest:7.1f} MiB, process tree {total:7.1f} MiB")
+            if len(peaks) > 1:
+                print(f"  peak ratio {lengths[-1]} / {lengths[0]} frames: {peaks[-1] / peaks[0]:.3f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

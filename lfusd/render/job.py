@@ -342,9 +342,11 @@ def render(req: RenderRequest, progress=None) -> dict:
     return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers))[0]
 
 
-def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> tuple[dict, list[str]]:
+def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, overlap=None) -> tuple[dict, list[str]]:
     """(manifest, names of the rigs rendered); ``then(names)`` runs afterwards, still holding
-    the folder's lock. Everything that can refuse runs before the folder is touched."""
+    the folder's lock. ``overlap(plan, rigs, dataset_frames)``, when given, returns a
+    lfusd.render.overlap.MotionScheduler told of every view as it is committed; it is stopped
+    on the way out. Everything that can refuse runs before the folder is touched."""
     req.check()
     if req.executor == "ray" and req.ray_address:
         from .executors import check_ray_address
@@ -368,6 +370,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> t
     with output_lock(req.out):
         previous = _prepare_output(req, settings, files)  # again: the folder may have changed before the lock
         names = [r.spec.name for r in rigs]
+        scheduler = None
         try:
             _clean_stale(req.out, sorted(set(names) | set((previous or {}).get("rigs", []))))
             _write_manifest(req, settings, previous, rigs, frames, None, files, world)
@@ -375,10 +378,13 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> t
             _write_static_metadata(req, stage, rigs, frames, objects, classes)
             plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
             device = None
-            if plan.remaining:
-                from ..author.geometry import StageGeometry, render_instances
-                from .executors import run_units
+            # imported before any child starts: a Ctrl-C then interrupts no import
+            from ..author.geometry import StageGeometry, render_instances
+            from .executors import run_units
 
+            if overlap is not None:
+                scheduler = overlap(plan, rigs, json.loads((req.out / layout.MANIFEST).read_text())["frames"])
+            if plan.remaining:
                 plain, instanced = render_instances(StageGeometry(stage), objects, frame_range(stage)[0])
                 units = plan_units(
                     req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
@@ -386,6 +392,10 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> t
                                _add_light(req, stage), world),
                 )
                 report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
+                if scheduler is not None:
+                    from .overlap import CommitReport
+
+                    report = CommitReport(report, scheduler)
                 try:
                     device = run_units(units, req, report)
                 except BaseException:
@@ -402,6 +412,8 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None) -> t
         except OSError as e:
             raise _io_error(req.out, e) from None
         finally:
+            if scheduler is not None:
+                scheduler.stop()
             shutil.rmtree(req.out / layout.SCRATCH, ignore_errors=True)
     return manifest, names
 
@@ -417,15 +429,32 @@ class VideoResult:
 
 
 def render_video(req: RenderRequest) -> VideoResult:
-    """Render a frame range (default: the stage's) with the motion AOVs, then derive the motion
-    keys of exactly the rigs and frames rendered (the folder may hold others)."""
-    from ..truth.derive import derive_dataset
+    """Render a frame range (default: the stage's) with the motion AOVs and derive the motion keys
+    of exactly the rigs and frames rendered (the folder may hold others): each view's frame as soon
+    as it and its neighbours are committed, in ``req.workers`` derivation processes beside the
+    renderer (lfusd.render.overlap); what is left (neighbours from earlier runs, Ray units) at the end."""
+    from .overlap import MotionScheduler
 
     stage = open_stage(req.stage)
     if not req.frames:
         first, last = frame_range(stage)
         req = replace(req, frames=list(range(first, last + 1)))
     req = replace(req, motion=True).capped()
-    derived = []
-    manifest, names = _render(req, stage, then=lambda names: derived.append(derive_dataset(req.out, names, req.frames, workers=req.workers)))
-    return VideoResult(manifest, names, list(req.frames), derived[0])
+    state: dict = {}
+
+    def overlap(plan: Plan, rigs: list[StageRig], dataset_frames: list[int]) -> MotionScheduler:
+        todo = {(rig, f, tuple(v)) for (rig, f), views in plan.todo.items() for v in views}
+        views_of = {r.spec.name: (list(r.spec.views), (r.spec.width, r.spec.height)) for r in rigs}
+        state["scheduler"] = MotionScheduler(req.out, views_of, list(req.frames), dataset_frames, todo, lanes=req.workers)
+        return state["scheduler"]
+
+    def finish(names: list[str]) -> None:
+        from ..truth.derive import derive_dataset
+
+        written, left = state["scheduler"].finish()
+        for rig, frames in sorted(left.items()):
+            written += derive_dataset(req.out, [rig], frames, workers=req.workers)
+        state["derived"] = written
+
+    manifest, names = _render(req, stage, then=finish, overlap=overlap)
+    return VideoResult(manifest, names, list(req.frames), state["derived"])

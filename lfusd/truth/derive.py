@@ -154,6 +154,25 @@ def _static_missing(ds: Dataset, frame: int, view: View) -> bool:
     return gt or image
 
 
+def derive_if_stale(ds: Dataset, frame: int, view: View) -> bool:
+    """Write one view's ground truth (gt.exr) and motion unless current (as :func:`derive_dataset`
+    decides); whether it wrote. The overlapped render calls it per view as soon as t-1, t and t+1
+    are in place; its neighbours' raw-pass digests are recorded first, so that the motion's record
+    names them as :func:`derive_dataset` would (else it would be derived again at the end)."""
+    wrote = False
+    if ds.version >= 2:
+        for g in (frame - 1, frame + 1, frame):
+            if (frame_dir(ds.root, ds.rig_name, g) / view_key(view) / PASSES_EXR).is_file() and _static_missing(ds, g, view):
+                write_static(ds, g, view)
+                wrote = wrote or g == frame
+    if wants_motion(ds):
+        d = ds.view_dir(frame, view)
+        if integrity.motion_problem(d, integrity.motion_inputs(_passes_of(ds, frame, view))):
+            _write_motion(ds, frame, view)
+            wrote = True
+    return wrote
+
+
 def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) -> tuple[int, int]:
     root, rig, view, static, motion = args
     ds = Dataset(root, rig=rig)

@@ -1,0 +1,182 @@
+"""Motion derivation overlapped with rendering (`lfusd render-video`).
+
+The Blender workers hand each chunk of views over as soon as it is written and render on; the
+parent commits the views (lfusd.render.executors.commit_view) and tells a :class:`MotionScheduler`,
+which derives frame t of a view as soon as the raw passes of t-1, t and t+1 are in place (those
+of them the dataset has), in derivation processes ("lanes") that run beside the renderer. What
+could not be derived early (a neighbour from an earlier run, a unit on Ray) is derived at the end
+by lfusd.truth.derive.derive_dataset, as before.
+
+A view always goes to the same lane, which keeps a Dataset per recent view: the raw passes of
+t-1 and t stay decoded for frame t+1, so each raw pass is decoded once, within a memory budget
+(:data:`RAW_CACHE_BYTES` per lane); beyond it a view's passes are decoded again, never held.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+from collections import OrderedDict
+from concurrent.futures import Future, ProcessPoolExecutor
+from pathlib import Path
+
+from ..processes import die_with_parent
+
+log = logging.getLogger(__name__)
+
+# Decoded raw passes of one view and frame (lfusd.data.passes.read_raw with the motion AOVs):
+# depth 4, normal 12, position 12, instance 4, vector 16, next/prev position 12 + 12 bytes per pixel.
+RAW_BYTES_PER_PIXEL = 72
+RAW_CACHE_BYTES = 1 << 30  # per lane: at 512x512 about 14 views' windows, at 1024x1024 3
+RAW_PER_VIEW = 4  # a Dataset keeps its 4 most recent raw passes (t-1, t, t+1 and the one before)
+
+View = tuple[int, int]
+_DATASETS: OrderedDict = OrderedDict()  # in a lane: (root, rig, view) -> Dataset, most recent last
+
+
+def _lane_init(parent: int) -> None:
+    """Lane processes: the parent alone answers Ctrl-C, and they die with it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent)
+
+
+def _warm() -> None:
+    """Import the derivation (and load numba's compiled kernels) while the first frame renders."""
+    from ..truth import derive, motion  # noqa: F401
+
+
+def _derive(root: str, rig: str, view: View, frames: list[int], cached_views: int) -> int:
+    """In a lane: derive the motion of ``frames`` of one view that is not current; how many were written."""
+    from ..data.dataset import Dataset
+    from ..truth.derive import derive_if_stale
+
+    key = (root, rig, view)
+    ds = _DATASETS.pop(key, None) or Dataset(root, rig=rig)
+    _DATASETS[key] = ds
+    while len(_DATASETS) > cached_views:
+        _DATASETS.popitem(last=False)
+    return sum(derive_if_stale(ds, f, view) for f in frames)
+
+
+def cached_views(width: int, height: int, budget: int = RAW_CACHE_BYTES) -> int:
+    """How many views' recent raw passes a lane keeps decoded within ``budget`` bytes (at least one)."""
+    return max(1, budget // (RAW_PER_VIEW * RAW_BYTES_PER_PIXEL * width * height))
+
+
+def _view(key: str) -> View:
+    row, col = key.split("_")
+    return int(row), int(col)
+
+
+class MotionScheduler:
+    """Derive each view's motion as soon as its frame and the neighbours it has are committed.
+
+    ``views_of``: rig -> (its views, (width, height)); ``frames``: the frames this run renders;
+    ``dataset_frames``: every frame of the dataset (the manifest's: a frame's neighbour counts only
+    if the dataset has it); ``todo``: the (rig, frame, view) this run renders (the others of
+    ``frames`` are complete on disk already); ``lanes``: derivation processes."""
+
+    def __init__(self, out: Path, views_of: dict[str, tuple[list[View], tuple[int, int]]], frames: list[int],
+                 dataset_frames: list[int], todo: set[tuple[str, int, View]], lanes: int = 1):
+        self.out = str(Path(out))
+        self.views_of, self.todo = views_of, todo
+        self.dataset_frames = set(dataset_frames)
+        wanted = set(frames)
+        # as derive_dataset: a neighbour's motion changes when a frame next to it arrives
+        self.candidates = sorted(wanted | {g for f in wanted for g in (f - 1, f + 1) if g in self.dataset_frames})
+        self.committed_views: set[tuple[str, int, View]] = set()
+        self.submitted: set[tuple[str, int, View]] = set()
+        self.on_disk: dict[tuple[str, int, View], bool] = {}
+        self.futures: list[Future] = []
+        self.error: BaseException | None = None
+        self.lock = threading.Lock()
+        self.lane_of = {(rig, v): i for rig, (views, _) in views_of.items() for i, v in enumerate(views)}
+        # spawn, not fork: forking after numba's, BLAS's or the executor's threads have run can kill the child
+        ctx = multiprocessing.get_context("spawn")
+        handler = None
+        if threading.current_thread() is threading.main_thread():  # a Ctrl-C while they start must not reach them
+            handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            self.lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),))
+                          for _ in range(max(1, lanes))]
+            for lane in self.lanes:
+                lane.submit(_warm)  # starts the process now, beside the workers' start-up
+        finally:
+            if handler is not None:
+                signal.signal(signal.SIGINT, handler)
+
+    def _in_place(self, rig: str, frame: int, view: View) -> bool:
+        key = (rig, frame, view)
+        if key in self.committed_views:
+            return True
+        if key in self.todo:
+            return False  # this run renders it, and has not yet
+        if key not in self.on_disk:  # rendered by an earlier run (or missing): a quick check, once
+            from ..data.integrity import render_problems
+            from ..layout import frame_dir, view_key
+
+            self.on_disk[key] = not render_problems(frame_dir(self.out, rig, frame) / view_key(view), deep=False)
+        return self.on_disk[key]
+
+    def _ready(self, rig: str, frame: int, view: View) -> bool:
+        return all(self._in_place(rig, g, view) for g in (frame - 1, frame, frame + 1) if g == frame or g in self.dataset_frames)
+
+    def committed(self, rig: str, frame: int, key: str) -> None:
+        """A view is in place: submit every derivation it completes. Raises a lane's error, so a
+        failing derivation stops the render at once."""
+        view = _view(key)
+        with self.lock:
+            if self.error is not None:
+                raise self.error
+            self.committed_views.add((rig, frame, view))
+            for c in (frame - 1, frame, frame + 1):
+                job = (rig, c, view)
+                if c in self.candidates and job not in self.submitted and self._ready(*job):
+                    self.submitted.add(job)
+                    lane = self.lanes[self.lane_of[(rig, view)] % len(self.lanes)]
+                    w, h = self.views_of[rig][1]
+                    fut = lane.submit(_derive, self.out, rig, view, [c], cached_views(w, h))
+                    fut.add_done_callback(self._done)
+                    self.futures.append(fut)
+
+    def _done(self, fut: Future) -> None:
+        if not fut.cancelled() and fut.exception() is not None and self.error is None:
+            self.error = fut.exception()
+
+    def finish(self) -> tuple[int, dict[str, list[int]]]:
+        """Wait for the lanes: (views written, rig -> frames some view of which is left to derive)."""
+        written = sum(f.result() for f in self.futures)
+        left = {}
+        for rig, (views, _) in self.views_of.items():
+            frames = [f for f in self.candidates if any((rig, f, v) not in self.submitted for v in views)]
+            if frames:
+                left[rig] = frames
+        return written, left
+
+    def stop(self) -> None:
+        """Stop the lanes now (the render failed or ended); what they wrote is complete or absent."""
+        pending = not all(f.done() for f in self.futures)
+        for lane in self.lanes:
+            if pending:  # interrupted or failed: do not let it finish its queue
+                for p in list((getattr(lane, "_processes", None) or {}).values()):
+                    p.terminate()
+            lane.shutdown(wait=not pending, cancel_futures=True)
+
+
+class CommitReport:
+    """The progress report the executors call, which also tells the scheduler of each committed view."""
+
+    def __init__(self, report, scheduler: MotionScheduler):
+        self.report, self.scheduler = report, scheduler
+
+    def advance(self, n: int) -> None:
+        self.report.advance(n)
+
+    def committed(self, rig: str, frame: int, key: str) -> None:
+        self.scheduler.committed(rig, frame, key)
+
+    def close(self) -> None:
+        self.report.close()
