@@ -287,11 +287,11 @@ def run_baselines(ds, frames=None, views="all", n_planes: int = 64, asr: int = 7
 def format_table(results: dict, title: str = "") -> str:
     """A plain-text table in the style of the literature's results tables."""
     cols = {
-        "disparity": [("MSEx100", "mse_x100"), ("BadPix0.01", "badpix_0.01"), ("BadPix0.03", "badpix_0.03"), ("BadPix0.07", "badpix_0.07"), ("Q25", "q25")],
-        "flow": [("EPE", "epe"), ("Fl-all%", "fl_all"), (">1px%", "1px")],
-        "sceneflow": [("EPE3D", "epe3d"), ("Acc3DS%", "acc3d_strict"), ("Acc3DR%", "acc3d_relax"), ("Outl3D%", "outlier3d"), ("D1%", "d1"), ("D2%", "d2"), ("Fl%", "fl"), ("SF%", "sf")],
-        "views": [("PSNR", "psnr"), ("SSIM", "ssim")],
-        "views_blend": [("PSNR", "psnr"), ("SSIM", "ssim")],
+        "disparity": [("MSEx100", "mse_x100"), ("BadPix0.01", "badpix_0.01_pct"), ("BadPix0.03", "badpix_0.03_pct"), ("BadPix0.07", "badpix_0.07_pct"), ("Q25", "q25_x100")],
+        "flow": [("EPE", "epe_px"), ("Fl-all%", "fl_all_pct"), (">1px%", "epe_gt_1px_pct")],
+        "sceneflow": [("EPE3D", "epe3d_m"), ("Acc3DS%", "acc3d_strict_pct"), ("Acc3DR%", "acc3d_relax_pct"), ("Outl3D%", "outlier3d_pct"), ("D1%", "d1_pct"), ("D2%", "d2_pct"), ("Fl%", "fl_pct"), ("SF%", "sf_pct")],
+        "views": [("PSNR", "psnr_db"), ("SSIM", "ssim")],
+        "views_blend": [("PSNR", "psnr_db"), ("SSIM", "ssim")],
     }
     names = {
         "disparity": "Disparity, plane sweep (centre view)",

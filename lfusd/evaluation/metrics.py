@@ -1,24 +1,35 @@
-"""Reference (NumPy) metrics for light-field disparity, optical flow, scene flow and view synthesis.
+"""Reference (NumPy) metrics for light-field disparity, optical flow, scene flow and view synthesis:
+the definitions of lfusd's native protocol (``lfusd eval --protocol lfusd``).
 
-Every rate is in percent. Pixels enter a metric only where the mask is true and the ground truth
-is finite; there is no implicit border (the HCI benchmark's convention when it is given a mask).
+Every rate is in percent and its key ends in ``_pct``; end-point errors carry their unit (``_px``,
+``_m``). Pixels enter a metric only where the mask is true and the ground truth is finite; there is
+no implicit border. This is NOT the HCI benchmark's convention: its toolkit scores every pixel but a
+15-px border and never reads a mask; ``--protocol hci`` (:mod:`lfusd.evaluation.protocols`) does
+that, and also the other benchmarks' masks, NaN policies, quantiles and pooling.
 
 Definitions (the literature's; see the docstrings for the exact formulas):
-- disparity: HCI 4D light-field benchmark (Honauer et al. 2016): ``mse_x100``, ``badpix_<t>``
-  (percent with |error| > t), ``q25`` (100 x the 25th percentile of |error|, linear interpolation).
-- optical flow: ``epe`` (mean end-point error), ``fl_all`` (KITTI 2015: error > 3 px and > 5 % of
-  the true magnitude), ``1px`` (percent with error > 1 px).
-- scene flow (3-D, metres): ``epe3d``, ``acc3d_strict`` (error < 0.05 m or relative < 5 %),
-  ``acc3d_relax`` (< 0.1 m or < 10 %), ``outlier3d`` (> 0.3 m or relative > 10 %), relative =
-  error / (|gt| + 1e-4) (FlowNet3D / HPLFlowNet / FLOT).
-- KITTI 2015 scene-flow outliers ``d1``, ``d2``, ``fl``, ``sf``: a pixel is an outlier when its
-  error exceeds 3 px and 5 % of the true value; ``sf`` counts pixels that are an outlier in any.
-- view synthesis: ``psnr`` and ``ssim`` on luma Y of MATLAB's ``rgb2ycbcr`` (BT.601, Y in
+- disparity (HCI 4D light-field benchmark, Honauer et al. 2016, over lfusd's mask): ``mse_x100``,
+  ``badpix_<t>_pct`` (percent with |error| > t), ``q25_x100`` (100 x the 25th percentile of
+  |error|, NumPy's linear interpolation; the HCI toolkit takes ``sorted[int(0.25 N)]`` instead).
+  A non-finite prediction counts as an infinite error.
+- optical flow: ``epe_px`` (mean end-point error), ``fl_all_pct`` (KITTI 2015: error > 3 px and
+  > 5 % of the true magnitude), ``epe_gt_1px_pct`` (percent with error > 1 px; RAFT's Sintel "1px"
+  is the opposite, the fraction with error < 1 px: ``--protocol sintel``).
+- scene flow (3-D, metres): ``epe3d_m``, ``acc3d_strict_pct`` (error < 0.05 m or relative < 5 %),
+  ``acc3d_relax_pct`` (< 0.1 m or < 10 %), ``outlier3d_pct`` (> 0.3 m or relative > 10 %),
+  relative = error / (|gt| + 1e-4) (FlowNet3D / HPLFlowNet / FLOT).
+- KITTI 2015 scene-flow outliers ``d1_pct``, ``d2_pct``, ``fl_pct``, ``sf_pct``: a pixel is an
+  outlier when its error exceeds 3 px and 5 % of the true value; ``sf`` counts pixels that are an
+  outlier in any.
+- view synthesis: ``psnr_db`` and ``ssim`` on luma Y of MATLAB's ``rgb2ycbcr`` (BT.601, Y in
   [16/255, 235/255]) with peak 1. SSIM is Wang et al.'s reference ``ssim_index.m``: an 11x11
   Gaussian window of sigma 1.5 (normalised to sum 1), K1 = 0.01, K2 = 0.03, L = 1, population
-  (not sample) statistics, averaged over the 'valid' windows only (no padding), which is also
-  ``skimage.metrics.structural_similarity(..., gaussian_weights=True, data_range=1)``, the
-  function BasicLFSR / DistgSSR report with.
+  (not sample) statistics, averaged over the 'valid' windows only (no padding). The same value
+  comes from ``skimage.metrics.structural_similarity(a, b, gaussian_weights=True, sigma=1.5,
+  use_sample_covariance=False, data_range=1)`` (its reflect padding only touches the border it
+  crops). BasicLFSR / DistgASR call ``structural_similarity(a, b, gaussian_weights=True)`` on float
+  Y: sample covariance (x 121/120) and, in scikit-image 0.19, data_range 2 (the float dtype's
+  -1..1; newer releases raise); ``--protocol basiclfsr`` reproduces that value.
 """
 
 from __future__ import annotations
@@ -64,8 +75,8 @@ def disparity(pred, gt, mask=None) -> dict[str, float]:
     err = np.where(np.isfinite(err), err, np.inf)  # a non-finite prediction is a bad pixel
     out = {"mse_x100": float(100.0 * np.mean(err**2)) if err.size else float("nan")}
     for t in BADPIX_THRESHOLDS:
-        out[f"badpix_{t}"] = _pct(err > t)
-    out["q25"] = float(100.0 * np.percentile(err, 25)) if err.size else float("nan")
+        out[f"badpix_{t}_pct"] = _pct(err > t)
+    out["q25_x100"] = float(100.0 * np.percentile(err, 25)) if err.size else float("nan")
     return out
 
 
@@ -82,9 +93,9 @@ def optical_flow(pred, gt, valid=None) -> dict[str, float]:
     e = _epe(pred[m], gt[m])
     mag = np.sqrt(np.sum(gt[m] ** 2, axis=-1))
     return {
-        "epe": float(np.mean(e)) if e.size else float("nan"),
-        "fl_all": _pct((e > 3.0) & (e > 0.05 * mag)),
-        "1px": _pct(e > 1.0),
+        "epe_px": float(np.mean(e)) if e.size else float("nan"),
+        "fl_all_pct": _pct((e > 3.0) & (e > 0.05 * mag)),
+        "epe_gt_1px_pct": _pct(e > 1.0),
     }
 
 
@@ -92,7 +103,7 @@ def scene_flow(pred, gt, valid=None, kitti=None) -> dict[str, float]:
     """EPE3D, Acc3DS, Acc3DR and Outlier3D of (H,W,3) or (N,3) scene flows (metres) over ``valid``.
 
     With ``kitti=(d1_pred, d1_gt, d2_pred, d2_gt, flow_pred, flow_gt)`` (image-space disparities and
-    flow of the same pixels) the KITTI ``d1``, ``d2``, ``fl``, ``sf`` outlier rates are added.
+    flow of the same pixels) the KITTI ``d1_pct``, ``d2_pct``, ``fl_pct``, ``sf_pct`` outlier rates are added.
     """
     pred, gt = np.asarray(pred, np.float64), np.asarray(gt, np.float64)
     _check_shapes("scene flow", pred, gt, 3)
@@ -100,15 +111,15 @@ def scene_flow(pred, gt, valid=None, kitti=None) -> dict[str, float]:
     e = _epe(pred[m], gt[m])
     rel = e / (np.sqrt(np.sum(gt[m] ** 2, axis=-1)) + REL_EPS)
     return {
-        "epe3d": float(np.mean(e)) if e.size else float("nan"),
-        "acc3d_strict": _pct((e < 0.05) | (rel < 0.05)),
-        "acc3d_relax": _pct((e < 0.1) | (rel < 0.1)),
-        "outlier3d": _pct((e > 0.3) | (rel > 0.1)),
+        "epe3d_m": float(np.mean(e)) if e.size else float("nan"),
+        "acc3d_strict_pct": _pct((e < 0.05) | (rel < 0.05)),
+        "acc3d_relax_pct": _pct((e < 0.1) | (rel < 0.1)),
+        "outlier3d_pct": _pct((e > 0.3) | (rel > 0.1)),
     } | ({} if kitti is None else kitti_outliers(*kitti, valid))
 
 
 def kitti_outliers(d1_pred, d1_gt, d2_pred, d2_gt, flow_pred, flow_gt, valid=None) -> dict[str, float]:
-    """KITTI 2015 scene-flow outlier rates ``d1``, ``d2``, ``fl``, ``sf`` (percent).
+    """KITTI 2015 scene-flow outlier rates ``d1_pct``, ``d2_pct``, ``fl_pct``, ``sf_pct`` (percent, one image).
 
     ``d1``: disparity at t; ``d2``: disparity at t+1 of the point seen at t (d + disparity change);
     ``fl``: optical flow. Outlier: error > 3 px and > 5 % of the true value (|gt| for disparity, the
@@ -132,7 +143,7 @@ def kitti_outliers(d1_pred, d1_gt, d2_pred, d2_gt, flow_pred, flow_gt, valid=Non
     o2 = out(d2p[m], d2g[m])
     e = _epe(fp[m], fg[m])
     of = (e > 3.0) & (e > 0.05 * np.sqrt(np.sum(fg[m] ** 2, axis=-1)))
-    return {"d1": _pct(o1), "d2": _pct(o2), "fl": _pct(of), "sf": _pct(o1 | o2 | of)}
+    return {"d1_pct": _pct(o1), "d2_pct": _pct(o2), "fl_pct": _pct(of), "sf_pct": _pct(o1 | o2 | of)}
 
 
 def rgb_to_y(rgb) -> np.ndarray:
@@ -156,8 +167,12 @@ def _filter_valid(img: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.einsum("ijkl,kl->ij", win, w)
 
 
-def ssim(a, b, data_range: float = 1.0) -> float:
-    """Mean SSIM of two (H,W) images (Wang et al.'s ssim_index.m; see the module docstring)."""
+def ssim(a, b, data_range: float = 1.0, cov_norm: float = 1.0) -> float:
+    """Mean SSIM of two (H,W) images (Wang et al.'s ssim_index.m; see the module docstring).
+
+    ``cov_norm`` scales the (co)variances as scikit-image does: 1 is the population statistics of
+    the reference; 121/120 is skimage's default ``use_sample_covariance=True``.
+    """
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     if a.shape != b.shape or a.ndim != 2:
         raise LfusdError(f"ssim: needs two images of one (H,W) shape, got {a.shape} and {b.shape}")
@@ -166,9 +181,9 @@ def ssim(a, b, data_range: float = 1.0) -> float:
     w = gaussian_window()
     c1, c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
     mu_a, mu_b = _filter_valid(a, w), _filter_valid(b, w)
-    saa = _filter_valid(a * a, w) - mu_a**2
-    sbb = _filter_valid(b * b, w) - mu_b**2
-    sab = _filter_valid(a * b, w) - mu_a * mu_b
+    saa = cov_norm * (_filter_valid(a * a, w) - mu_a**2)
+    sbb = cov_norm * (_filter_valid(b * b, w) - mu_b**2)
+    sab = cov_norm * (_filter_valid(a * b, w) - mu_a * mu_b)
     s = ((2 * mu_a * mu_b + c1) * (2 * sab + c2)) / ((mu_a**2 + mu_b**2 + c1) * (saa + sbb + c2))
     return float(s.mean())
 
@@ -185,7 +200,7 @@ def view_synthesis(pred, gt) -> dict[str, float]:
     pred, gt = _unit_rgb(pred), _unit_rgb(gt)
     _check_shapes("view synthesis", pred, gt, 3)
     yp, yg = rgb_to_y(pred), rgb_to_y(gt)
-    return {"psnr": psnr(yp, yg), "ssim": ssim(yp, yg)}
+    return {"psnr_db": psnr(yp, yg), "ssim": ssim(yp, yg)}
 
 
 def _unit_rgb(x) -> np.ndarray:

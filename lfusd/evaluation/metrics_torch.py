@@ -81,8 +81,8 @@ def disparity(pred, gt, mask=None, device=None) -> dict[str, torch.Tensor]:
     err = torch.where(m, err, torch.zeros_like(err))
     out = {"mse_x100": 100.0 * _masked_mean(err**2, m)}
     for t in BADPIX_THRESHOLDS:
-        out[f"badpix_{t}"] = _masked_pct(err > t, m)
-    out["q25"] = 100.0 * _masked_quantile(err, m, 0.25)
+        out[f"badpix_{t}_pct"] = _masked_pct(err > t, m)
+    out["q25_x100"] = 100.0 * _masked_quantile(err, m, 0.25)
     return out
 
 
@@ -91,7 +91,7 @@ def _epe(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 
 
 def optical_flow(pred, gt, valid=None, device=None) -> dict[str, torch.Tensor]:
-    """EPE, Fl-all and 1px of a batch of flows (B,H,W,2); see lfusd.evaluation.metrics.optical_flow."""
+    """epe_px, fl_all_pct and epe_gt_1px_pct of a batch of flows (B,H,W,2); see lfusd.evaluation.metrics.optical_flow."""
     pred, gt = _t(pred, device), _t(gt, device)
     pred = pred.to(gt.device)
     _check("optical flow", pred, gt, 2, 4)
@@ -99,9 +99,9 @@ def optical_flow(pred, gt, valid=None, device=None) -> dict[str, torch.Tensor]:
     e = torch.where(m, _epe(pred, gt), torch.zeros((), dtype=torch.float64, device=gt.device))
     mag = torch.sqrt((gt**2).sum(dim=-1))
     return {
-        "epe": _masked_mean(e, m),
-        "fl_all": _masked_pct((e > 3.0) & (e > 0.05 * mag), m),
-        "1px": _masked_pct(e > 1.0, m),
+        "epe_px": _masked_mean(e, m),
+        "fl_all_pct": _masked_pct((e > 3.0) & (e > 0.05 * mag), m),
+        "epe_gt_1px_pct": _masked_pct(e > 1.0, m),
     }
 
 
@@ -117,15 +117,15 @@ def scene_flow(pred, gt, valid=None, device=None, kitti=None) -> dict[str, torch
     e = torch.where(m, _epe(pred, gt), torch.zeros((), dtype=torch.float64, device=gt.device))
     rel = e / (torch.sqrt((gt**2).sum(dim=-1)) + REL_EPS)
     return {
-        "epe3d": _masked_mean(e, m),
-        "acc3d_strict": _masked_pct((e < 0.05) | (rel < 0.05), m),
-        "acc3d_relax": _masked_pct((e < 0.1) | (rel < 0.1), m),
-        "outlier3d": _masked_pct((e > 0.3) | (rel > 0.1), m),
+        "epe3d_m": _masked_mean(e, m),
+        "acc3d_strict_pct": _masked_pct((e < 0.05) | (rel < 0.05), m),
+        "acc3d_relax_pct": _masked_pct((e < 0.1) | (rel < 0.1), m),
+        "outlier3d_pct": _masked_pct((e > 0.3) | (rel > 0.1), m),
     } | ({} if kitti is None else kitti_outliers(*kitti, valid, device=device))
 
 
 def kitti_outliers(d1_pred, d1_gt, d2_pred, d2_gt, flow_pred, flow_gt, valid=None, device=None) -> dict[str, torch.Tensor]:
-    """KITTI d1, d2, fl, sf of a batch; see lfusd.evaluation.metrics.kitti_outliers."""
+    """KITTI d1_pct, d2_pct, fl_pct, sf_pct of a batch; see lfusd.evaluation.metrics.kitti_outliers."""
     d1p, d1g, d2p, d2g, fp, fg = (_t(a, device) for a in (d1_pred, d1_gt, d2_pred, d2_gt, flow_pred, flow_gt))
     dev = d1g.device
     d1p, d2p, d2g, fp, fg = (a.to(dev) for a in (d1p, d2p, d2g, fp, fg))
@@ -143,7 +143,7 @@ def kitti_outliers(d1_pred, d1_gt, d2_pred, d2_gt, flow_pred, flow_gt, valid=Non
     o1, o2 = out(d1p, d1g), out(d2p, d2g)
     e = _epe(fp, fg)
     of = (e > 3.0) & (e > 0.05 * torch.sqrt((fg**2).sum(dim=-1)))
-    return {"d1": _masked_pct(o1, m), "d2": _masked_pct(o2, m), "fl": _masked_pct(of, m), "sf": _masked_pct(o1 | o2 | of, m)}
+    return {"d1_pct": _masked_pct(o1, m), "d2_pct": _masked_pct(o2, m), "fl_pct": _masked_pct(of, m), "sf_pct": _masked_pct(o1 | o2 | of, m)}
 
 
 def rgb_to_y(rgb: torch.Tensor) -> torch.Tensor:
@@ -196,4 +196,4 @@ def view_synthesis(pred, gt, device=None) -> dict[str, torch.Tensor]:
     pred = pred.to(gt.device)
     _check("view synthesis", pred, gt, 3, 4)
     yp, yg = rgb_to_y(pred), rgb_to_y(gt)
-    return {"psnr": psnr(yp, yg), "ssim": ssim(yp, yg)}
+    return {"psnr_db": psnr(yp, yg), "ssim": ssim(yp, yg)}

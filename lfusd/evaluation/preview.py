@@ -1,8 +1,8 @@
 """Pictures of a dataset: flow colour wheel, disparity/depth colour maps, segmentation overlays,
 a contact sheet of all views and an MP4 of the centre view over time with its flow beside it.
 
-The flow colours follow Baker et al. (Middlebury, IJCV 2011) as in their ``colorcode.cpp`` and in
-``flow_vis``: a 55-colour wheel (red-yellow 15, yellow-green 6, green-cyan 4, cyan-blue 11,
+The flow colours follow Baker et al. (Middlebury, IJCV 2011) as in their ``colorcode.cpp``, computed
+exactly as ``flow_vis`` does (see :func:`flow_to_color`): a 55-colour wheel (red-yellow 15, yellow-green 6, green-cyan 4, cyan-blue 11,
 blue-magenta 13, magenta-red 6), hue from atan2(-v, -u), saturation from the magnitude over the
 largest magnitude (white = no motion). With image coordinates (v down): flow to the right is red,
 down is yellow-orange, left is cyan-blue and up is blue-violet.
@@ -51,7 +51,13 @@ def make_colorwheel() -> np.ndarray:
 def flow_to_color(flow, max_flow: float | None = None, valid=None) -> np.ndarray:
     """(H,W,2) flow -> (H,W,3) uint8 RGB on the Middlebury wheel; invalid / non-finite pixels black.
 
-    ``max_flow`` sets the magnitude of full saturation (default: the largest valid magnitude).
+    Identical, level for level, to ``flow_vis.flow_to_color(flow)`` (Tom Runia's flow_vis, the
+    colouring RAFT ships): u and v are divided by (largest valid magnitude + 1e-5), the radius is
+    taken of the divided components, each channel is ``(1-f)*col0 + f*col1`` with col = wheel/255,
+    desaturated as ``1 - rad*(1-col)`` inside the unit radius (``0.75*col`` outside) and stored as
+    ``floor(255*col)``. Invalid pixels count as zero flow for the maximum, as if flow_vis were given
+    them zeroed. ``max_flow`` replaces the largest magnitude (fixed colours across a video); flow
+    beyond it is drawn darker, as flow_vis draws radii above 1.
     """
     f = np.asarray(flow, np.float64)
     if f.ndim != 3 or f.shape[2] != 2:
@@ -61,24 +67,33 @@ def flow_to_color(flow, max_flow: float | None = None, valid=None) -> np.ndarray
         ok &= np.asarray(valid, bool)
     u = np.where(ok, f[..., 0], 0.0)
     v = np.where(ok, f[..., 1], 0.0)
-    rad = np.sqrt(u**2 + v**2)
-    scale = float(max_flow) if max_flow else float(rad.max())
-    if scale > 0:
-        u, v, rad = u / scale, v / scale, rad / scale
+    rad_max = float(max_flow) if max_flow else float(np.max(np.sqrt(np.square(u) + np.square(v))))
+    u = u / (rad_max + 1e-5)
+    v = v / (rad_max + 1e-5)
+    img = _flow_uv_to_colors(u, v)
+    img[~ok] = 0
+    return img
+
+
+def _flow_uv_to_colors(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """flow_vis' flow_uv_to_colors: the expression order matters to the level (floor of 255*col)."""
     wheel = make_colorwheel()
     n = wheel.shape[0]
+    rad = np.sqrt(np.square(u) + np.square(v))
     a = np.arctan2(-v, -u) / np.pi
     fk = (a + 1) / 2 * (n - 1)
-    k0 = np.floor(fk).astype(int)
-    k1 = (k0 + 1) % n
+    k0 = np.floor(fk).astype(np.int32)
+    k1 = k0 + 1
+    k1[k1 == n] = 0
     w = fk - k0
     img = np.zeros(u.shape + (3,), np.uint8)
+    inside = rad <= 1
     for i in range(3):
-        c = (1 - w) * wheel[k0, i] / 255.0 + w * wheel[k1, i] / 255.0
-        inside = rad <= 1
-        c = np.where(inside, 1 - rad * (1 - c), c * 0.75)  # beyond max_flow: darker
-        img[..., i] = np.floor(255 * c)
-    img[~ok] = 0
+        col0 = wheel[k0, i] / 255.0
+        col1 = wheel[k1, i] / 255.0
+        col = (1 - w) * col0 + w * col1
+        col = np.where(inside, 1 - rad * (1 - col), col * 0.75)  # beyond the largest radius: darker
+        img[..., i] = np.floor(255 * col)
     return img
 
 

@@ -3,14 +3,22 @@
 Predictions are files in DIR named by frame and view, ``<frame:04d>_<row:02d>_<col:02d>.<ext>``
 (e.g. ``0001_04_04.pfm``), the names `lfusd export` uses:
 
-- disparity: ``.pfm`` or ``.npy`` (H,W) disparity in pixels per baseline step;
+- disparity: ``.pfm``, ``.npy`` (H,W) or a KITTI 16-bit ``.png`` disparity in pixels per baseline step;
 - flow: ``.flo``, ``.npy`` (H,W,2) or a KITTI 16-bit ``.png`` forward flow (t -> t+1);
 - sceneflow: ``.npy`` (H,W,3) world-frame displacement in metres (t -> t+1); with
   ``<stem>_disp.{pfm,npy}`` (disparity at t), ``<stem>_disp2.{pfm,npy}`` (disparity at t+1 of the
   point seen at t) and ``<stem>_flow.{flo,npy}`` beside it the KITTI d1/d2/fl/sf outliers are added;
 - views: ``.png`` (RGB uint8) or ``.npy`` (H,W,3) in [0, 1].
 
-Masks: disparity over pixels with a surface (finite depth); flow and scene flow over valid_fwd.
+Masks, NaN policy, percentiles and pooling follow ``--protocol`` (lfusd.evaluation.protocols):
+``lfusd`` (default, native) scores disparity over pixels with a surface (finite depth), flow and
+scene flow over valid_fwd; ``hci``, ``kitti``, ``sintel``, ``spring`` and ``basiclfsr`` reproduce
+those benchmarks' official code. The summary row pools or averages as each protocol does.
+
+``--gt`` may also be a KITTI folder written by ``lfusd export kitti`` (DEST or DEST/training), with
+``--protocol kitti``: predictions then follow the devkit's submission layout, PRED/disp_0/,
+PRED/disp_1/, PRED/flow/ holding ``<index:06d>_10.{png,pfm,flo,npy}``, and the ground truth is the
+exported PNGs: rounded to 1/64 px (flow) and 1/256 px (disparity), as the official pipeline sees it.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ import numpy as np
 from ..errors import LfusdError
 
 TASKS = ("disparity", "flow", "sceneflow", "views")
-EXTS = {"disparity": (".pfm", ".npy"), "flow": (".flo", ".npy", ".png"), "sceneflow": (".npy",), "views": (".png", ".npy")}
+EXTS = {"disparity": (".pfm", ".npy", ".png"), "flow": (".flo", ".npy", ".png"), "sceneflow": (".npy",), "views": (".png", ".npy")}
 NAME = re.compile(r"^(\d+)_(\d+)_(\d+)$")
 
 
@@ -41,6 +49,10 @@ def _load(path: Path, what: str) -> np.ndarray:
         if ext == ".npy":
             return np.load(path, allow_pickle=False)
         if ext == ".png":
+            if what == "disparity":
+                d, valid = formats.read_kitti_disparity(path)
+                d[~valid] = np.nan
+                return d
             if what == "flow":
                 f, valid = formats.read_kitti_flow(path)
                 f[~valid] = np.nan
@@ -71,26 +83,123 @@ def _companion(path: Path, suffix: str, exts) -> Path | None:
     return None
 
 
-def evaluate(ds, pred_dir, task: str, rig: str | None = None) -> list[dict]:
-    """Score every prediction file in ``pred_dir``; one row per (frame, view) with its metrics.
+class Scores(list):
+    """The rows of `lfusd eval` (a list of dicts, one per image) with the protocol's summary row
+    (``summary``) and how each metric was summarised (``aggregation``: 'pooled' or 'mean')."""
 
-    ``ds`` is a dataset reader or a dataset folder (then ``rig`` picks the rig of a multi-rig one).
+    def __init__(self, rows, summary: dict, aggregation: dict, protocol: str, task: str):
+        super().__init__(rows)
+        self.summary, self.aggregation, self.protocol, self.task = summary, aggregation, protocol, task
+
+
+def dataset_truth(ds, frame: int, view, task: str) -> dict:
+    """Ground truth of one image for :func:`lfusd.evaluation.protocols.score`."""
+    if task == "views":
+        return {"rgb": ds.read(frame, view, "rgb")}
+    t = {"depth": ds.read(frame, view, "depth"), "disparity": ds.read(frame, view, "disparity")}
+    if task in ("flow", "sceneflow"):
+        t |= {"flow": ds.read(frame, view, "flow_fwd"), "valid": np.asarray(ds.read(frame, view, "valid_fwd"), bool), "occluded": np.asarray(ds.read(frame, view, "occlusion_fwd"), bool)}
+    if task == "sceneflow":
+        t |= {"scene_flow": ds.read(frame, view, "scene_flow"), "disparity2": t["disparity"] + ds.read(frame, view, "disparity_change")}
+    return t
+
+
+def kitti_root(path) -> Path | None:
+    """The folder holding flow_occ/ or disp_occ_0/ when ``path`` is a KITTI export (DEST or DEST/training)."""
+    p = Path(path)
+    for q in (p, p / "training"):
+        if (q / "flow_occ").is_dir() or (q / "disp_occ_0").is_dir():
+            return q
+    return None
+
+
+def kitti_truth(root: Path, name: str, task: str) -> dict:
+    """Ground truth of image ``name`` (``000000_10.png``) of a KITTI folder, as the devkit reads it."""
+    from ..data import formats
+
+    t: dict = {"kitti": True}
+
+    def disp(sub):
+        d, ok = formats.read_kitti_disparity(root / sub / name)
+        return d.astype(np.float64), ok
+
+    if task in ("flow", "sceneflow"):
+        f, occ = formats.read_kitti_flow(root / "flow_occ" / name)
+        _, noc = formats.read_kitti_flow(root / "flow_noc" / name)
+        t |= {"flow": f.astype(np.float64), "flow_occ": occ, "flow_noc": noc}
+    if task in ("disparity", "sceneflow"):
+        t["disp0"], t["disp0_occ"] = disp("disp_occ_0")
+        t["disp0_noc"] = disp("disp_noc_0")[1]
+    if task == "sceneflow":
+        t["disp1"], t["disp1_occ"] = disp("disp_occ_1")
+        t["disp1_noc"] = disp("disp_noc_1")[1]
+    return t
+
+
+KITTI_PRED = {"disparity": "disp_0", "flow": "flow", "sceneflow": "flow"}
+
+
+def _evaluate_kitti(root: Path, pred: Path, task: str, protocol: str) -> Scores:
+    from . import protocols
+
+    if protocol != "kitti":
+        raise LfusdError(f"{root} is a KITTI folder; score it with --protocol kitti")
+    protocols.check(protocol, task)
+    gt_dir = root / ("disp_occ_0" if task == "disparity" else "flow_occ")
+    names = sorted(p.name for p in gt_dir.glob("*_10.png"))
+    sub = pred / KITTI_PRED[task]
+    rows, tallies = [], []
+    for name in names:
+        stem = name[:-4]
+        paths = {}
+        for key, folder, what in (("main", KITTI_PRED[task], "disparity" if task == "disparity" else "flow"), ("disp", "disp_0", "disparity"), ("disp2", "disp_1", "disparity")):
+            if key != "main" and task != "sceneflow":
+                continue
+            found = [q for q in (pred / folder / f"{stem}{e}" for e in EXTS[what]) if q.is_file()]
+            paths[key] = (found[0], what) if found else None
+        if paths["main"] is None:
+            continue
+        if task == "sceneflow" and None in paths.values():
+            raise LfusdError(f"{stem}: the KITTI scene-flow evaluation needs disp_0/, disp_1/ and flow/ predictions of every image; {pred} lacks some")
+        p = {k: _load(v[0], v[1]) for k, v in paths.items()}
+        prediction = p["main"] if task != "sceneflow" else {"flow": p["main"], "disp": p["disp"], "disp2": p["disp2"]}
+        try:
+            res, tally = protocols.score(protocol, task, prediction, kitti_truth(root, name, task))
+        except LfusdError as e:
+            raise LfusdError(f"{paths['main'][0].name}: {e}") from None
+        rows.append({"scene": root.parent.name if root.name == "training" else root.name, "frame": int(stem.split("_")[0]), "row": "", "col": "", **res})
+        tallies.append(tally)
+    if not rows:
+        raise LfusdError(f"no {task} predictions for the KITTI folder {root}: expected {sub}/000000_10{EXTS['disparity' if task == 'disparity' else 'flow'][0]} (the devkit's submission layout)")
+    summary, how = protocols.summarise(rows, tallies, protocol)
+    return Scores(rows, {"scene": rows[0]["scene"], "frame": "summary", "row": "", "col": "", **summary}, how, protocol, task)
+
+
+def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "lfusd") -> Scores:
+    """Score every prediction file in ``pred_dir`` under ``protocol``; one row per (frame, view).
+
+    ``ds`` is a dataset reader, a dataset folder (then ``rig`` picks the rig of a multi-rig one) or
+    a KITTI folder (``--protocol kitti``). The result is a list of rows with ``.summary``.
     """
-    from . import metrics
+    from . import protocols
     from ..data import export
 
-    if isinstance(ds, (str, Path)):
-        ds = export.open_dataset(ds, rig)
     if task not in TASKS:
         raise LfusdError(f"unknown task {task!r}; use one of {', '.join(TASKS)}")
+    protocols.check(protocol, task)
     pred = Path(pred_dir)
     if not pred.is_dir():
         raise LfusdError(f"prediction folder {pred} does not exist; give the folder holding <frame>_<row>_<col> files")
+    if isinstance(ds, (str, Path)):
+        root = kitti_root(ds)
+        if root is not None:
+            return _evaluate_kitti(root, pred, task, protocol)
+        ds = export.open_dataset(ds, rig)
     files = find_predictions(pred, task)
     if not files:
         raise LfusdError(f"no {task} predictions in {pred}: expected files like 0001_04_04{EXTS[task][0]} (frame_row_col)")
     views = {tuple(v) for v in ds.views}
-    rows = []
+    rows, tallies = [], []
     for frame, view, path in files:
         if frame not in ds.frames:
             raise LfusdError(f"{path.name}: frame {frame} is not in the dataset ({ds.frames[0]}..{ds.frames[-1]})")
@@ -99,43 +208,41 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None) -> list[dict]:
         if task in ("flow", "sceneflow") and frame + 1 not in ds.frames:
             raise LfusdError(f"{path.name}: frame {frame} is the last one and has no forward motion ground truth; predict frames before it")
         p = _load(path, task)
+        if task == "sceneflow":
+            d1 = _companion(path, "_disp", (".pfm", ".npy"))
+            d2 = _companion(path, "_disp2", (".pfm", ".npy"))
+            fl = _companion(path, "_flow", (".flo", ".npy"))
+            both = d1 and d2 and fl
+            p = {"sceneflow": p, "disp": _load(d1, "disparity") if both else None, "disp2": _load(d2, "disparity") if both else None, "flow": _load(fl, "flow") if both else None}
         try:
-            if task == "disparity":
-                depth = ds.read(frame, view, "depth")
-                res = metrics.disparity(p, ds.read(frame, view, "disparity"), np.isfinite(depth))
-            elif task == "flow":
-                res = metrics.optical_flow(p, ds.read(frame, view, "flow_fwd"), ds.read(frame, view, "valid_fwd"))
-            elif task == "sceneflow":
-                valid = np.asarray(ds.read(frame, view, "valid_fwd"), bool)
-                res = metrics.scene_flow(p, ds.read(frame, view, "scene_flow"), valid)
-                d1 = _companion(path, "_disp", (".pfm", ".npy"))
-                d2 = _companion(path, "_disp2", (".pfm", ".npy"))
-                fl = _companion(path, "_flow", (".flo", ".npy"))
-                if d1 and d2 and fl:
-                    dg = ds.read(frame, view, "disparity")
-                    res.update(metrics.kitti_outliers(_load(d1, "disparity"), dg, _load(d2, "disparity"), dg + ds.read(frame, view, "disparity_change"), _load(fl, "flow"), ds.read(frame, view, "flow_fwd"), valid))
-            else:
-                p = np.asarray(p)
-                res = metrics.view_synthesis(p.astype(np.float64) / 255.0 if p.dtype == np.uint8 else p, ds.read(frame, view, "rgb"))
+            res, tally = protocols.score(protocol, task, p, dataset_truth(ds, frame, view, task))
         except LfusdError as e:
             raise LfusdError(f"{path.name}: {e}") from None
         rows.append({"scene": export.scene_name(ds), "frame": frame, "row": view[0], "col": view[1], **res})
-    return rows
+        tallies.append(tally)
+    summary, how = protocols.summarise(rows, tallies, protocol)
+    return Scores(rows, {"scene": rows[0]["scene"], "frame": "summary", "row": "", "col": "", **summary}, how, protocol, task)
 
 
-def mean_row(rows: list[dict]) -> dict:
-    """The mean of every metric over ``rows`` (NaN-aware), as a row with frame 'mean'."""
-    keys = [k for k in rows[0] if k not in ("scene", "frame", "row", "col")]
-    return {"scene": rows[0]["scene"], "frame": "mean", "row": "", "col": "", **{k: float(np.nanmean([r.get(k, np.nan) for r in rows])) for k in keys}}
+def aggregation_note(scores: Scores) -> str:
+    """One line saying how the summary row was made."""
+    pooled = [k for k, v in scores.aggregation.items() if v == "pooled"]
+    mean = [k for k, v in scores.aggregation.items() if v == "mean"]
+    parts = []
+    if pooled:
+        parts.append("pooled over every pixel of every image: " + ", ".join(pooled))
+    if mean:
+        parts.append("mean of per-image values: " + ", ".join(mean))
+    return f"summary ({scores.protocol} protocol): " + "; ".join(parts) + f"; pixels = {scores.summary['pixels']} compared"
 
 
-def write_results(rows: list[dict], task: str, json_path, csv_path) -> None:
-    """Write ``rows`` and their mean as JSON ({task, rows, mean}) and CSV (mean last)."""
-    mean = mean_row(rows)
-    Path(json_path).write_text(json.dumps({"task": task, "rows": rows, "mean": mean}, indent=1, default=float))
-    keys = list(dict.fromkeys(k for r in rows for k in r))
+def write_results(scores: Scores, json_path, csv_path) -> None:
+    """Write the rows and the summary as JSON ({task, protocol, rows, summary, aggregation}) and CSV (summary last)."""
+    doc = {"task": scores.task, "protocol": scores.protocol, "rows": list(scores), "summary": scores.summary, "aggregation": scores.aggregation}
+    Path(json_path).write_text(json.dumps(doc, indent=1, default=float))
+    keys = list(dict.fromkeys(k for r in list(scores) + [scores.summary] for k in r))
     with open(csv_path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys)
         w.writeheader()
-        for r in rows + [mean]:
+        for r in list(scores) + [scores.summary]:
             w.writerow(r)

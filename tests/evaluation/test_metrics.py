@@ -39,10 +39,10 @@ def test_disparity_matches_literal_hci_formulas():
     errs = [abs(pred[i, j] - gt[i, j]) for i in range(13) for j in range(17) if mask[i, j] and math.isfinite(gt[i, j])]
     assert res["mse_x100"] == pytest.approx(100 * sum(e * e for e in errs) / len(errs), rel=1e-12)
     for t in (0.01, 0.03, 0.07):
-        assert res[f"badpix_{t}"] == pytest.approx(_pct(e > t for e in errs), rel=1e-12)
-    assert res["q25"] == pytest.approx(100 * _quantile_linear(errs, 0.25), rel=1e-12)
+        assert res[f"badpix_{t}_pct"] == pytest.approx(_pct(e > t for e in errs), rel=1e-12)
+    assert res["q25_x100"] == pytest.approx(100 * _quantile_linear(errs, 0.25), rel=1e-12)
     # badpix rates actually move with the noise (the test can fail)
-    assert 0 < res["badpix_0.07"] < res["badpix_0.03"] < res["badpix_0.01"] < 100
+    assert 0 < res["badpix_0.07_pct"] < res["badpix_0.03_pct"] < res["badpix_0.01_pct"] < 100
 
 
 def test_disparity_no_mask_uses_every_pixel_no_border():
@@ -50,7 +50,7 @@ def test_disparity_no_mask_uses_every_pixel_no_border():
     pred = np.zeros((20, 20))
     pred[0, :] = 1.0  # errors only on the border row: an implicit border would hide them
     res = metrics.disparity(pred, gt)
-    assert res["badpix_0.07"] == pytest.approx(5.0)
+    assert res["badpix_0.07_pct"] == pytest.approx(5.0)
     assert res["mse_x100"] == pytest.approx(100 * 20 / 400)
 
 
@@ -69,10 +69,10 @@ def test_optical_flow_matches_literal_formulas():
             epe.append(e)
             fl.append(e > 3 and e / mag > 0.05)
             one.append(e > 1)
-    assert res["epe"] == pytest.approx(sum(epe) / len(epe), rel=1e-12)
-    assert res["fl_all"] == pytest.approx(_pct(fl), rel=1e-12)
-    assert res["1px"] == pytest.approx(_pct(one), rel=1e-12)
-    assert 0 < res["fl_all"] < res["1px"] < 100
+    assert res["epe_px"] == pytest.approx(sum(epe) / len(epe), rel=1e-12)
+    assert res["fl_all_pct"] == pytest.approx(_pct(fl), rel=1e-12)
+    assert res["epe_gt_1px_pct"] == pytest.approx(_pct(one), rel=1e-12)
+    assert 0 < res["fl_all_pct"] < res["epe_gt_1px_pct"] < 100
 
 
 def test_scene_flow_matches_literal_formulas():
@@ -81,11 +81,11 @@ def test_scene_flow_matches_literal_formulas():
     res = metrics.scene_flow(pred, gt, None)
     e = [math.dist(p, g) for p, g in zip(pred, gt)]
     rel = [ei / (math.sqrt(sum(x * x for x in g)) + 1e-4) for ei, g in zip(e, gt)]
-    assert res["epe3d"] == pytest.approx(sum(e) / len(e), rel=1e-12)
-    assert res["acc3d_strict"] == pytest.approx(_pct(a < 0.05 or r < 0.05 for a, r in zip(e, rel)), rel=1e-12)
-    assert res["acc3d_relax"] == pytest.approx(_pct(a < 0.1 or r < 0.1 for a, r in zip(e, rel)), rel=1e-12)
-    assert res["outlier3d"] == pytest.approx(_pct(a > 0.3 or r > 0.1 for a, r in zip(e, rel)), rel=1e-12)
-    assert 0 < res["acc3d_strict"] < res["acc3d_relax"] < 100
+    assert res["epe3d_m"] == pytest.approx(sum(e) / len(e), rel=1e-12)
+    assert res["acc3d_strict_pct"] == pytest.approx(_pct(a < 0.05 or r < 0.05 for a, r in zip(e, rel)), rel=1e-12)
+    assert res["acc3d_relax_pct"] == pytest.approx(_pct(a < 0.1 or r < 0.1 for a, r in zip(e, rel)), rel=1e-12)
+    assert res["outlier3d_pct"] == pytest.approx(_pct(a > 0.3 or r > 0.1 for a, r in zip(e, rel)), rel=1e-12)
+    assert 0 < res["acc3d_strict_pct"] < res["acc3d_relax_pct"] < 100
 
 
 def test_kitti_outliers_match_literal_formulas():
@@ -108,8 +108,8 @@ def test_kitti_outliers_match_literal_formulas():
             e = math.hypot(*(fp[i, j] - fg[i, j]))
             c = e > 3 and e > 0.05 * math.hypot(*fg[i, j])
             o1.append(a), o2.append(b), of.append(c), osf.append(a or b or c)
-    assert res == pytest.approx({"d1": _pct(o1), "d2": _pct(o2), "fl": _pct(of), "sf": _pct(osf)}, rel=1e-12)
-    assert 0 < res["d1"] < res["sf"] < 100
+    assert res == pytest.approx({"d1_pct": _pct(o1), "d2_pct": _pct(o2), "fl_pct": _pct(of), "sf_pct": _pct(osf)}, rel=1e-12)
+    assert 0 < res["d1_pct"] < res["sf_pct"] < 100
 
 
 def test_luma_is_matlab_rgb2ycbcr():
@@ -149,11 +149,11 @@ def test_ssim_and_psnr_match_literal_formulas():
     yp = (16 + 65.481 * rgb_pred[..., 0] + 128.553 * rgb_pred[..., 1] + 24.966 * rgb_pred[..., 2]) / 255
     yg = (16 + 65.481 * rgb_gt[..., 0] + 128.553 * rgb_gt[..., 1] + 24.966 * rgb_gt[..., 2]) / 255
     mse = sum((p - g) ** 2 for p, g in zip(yp.ravel(), yg.ravel())) / yp.size
-    assert res["psnr"] == pytest.approx(10 * math.log10(1 / mse), rel=1e-12)
+    assert res["psnr_db"] == pytest.approx(10 * math.log10(1 / mse), rel=1e-12)
     assert res["ssim"] == pytest.approx(_ssim_literal(yp, yg), rel=1e-10)
     assert 0.2 < res["ssim"] < 0.99
     same = metrics.view_synthesis(rgb_gt, rgb_gt)
-    assert same["ssim"] == pytest.approx(1.0) and same["psnr"] == math.inf
+    assert same["ssim"] == pytest.approx(1.0) and same["psnr_db"] == math.inf
 
 
 def test_uint8_views_are_scaled_to_unit_range():
@@ -196,7 +196,7 @@ def test_torch_disparity_agrees_with_numpy():
     t = mt.disparity(torch.from_numpy(pred), torch.from_numpy(gt), torch.from_numpy(mask))
     _agree([metrics.disparity(pred[b], gt[b], mask[b]) for b in range(2)], t)
     assert all(math.isnan(float(v[2])) for v in t.values())
-    assert math.isnan(metrics.disparity(pred[2], gt[2], mask[2])["q25"])
+    assert math.isnan(metrics.disparity(pred[2], gt[2], mask[2])["q25_x100"])
 
 
 def test_torch_flows_agree_with_numpy():
@@ -214,8 +214,8 @@ def test_torch_flows_agree_with_numpy():
     # scene_flow with kitti= merges both sets of keys, in NumPy and PyTorch alike
     gt3b = gt3 * 1.0
     both = [metrics.scene_flow(pred3[b], gt3b[b], valid[b], kitti=tuple(a[b] for a in args)) for b in range(2)]
-    assert set(both[0]) == {"epe3d", "acc3d_strict", "acc3d_relax", "outlier3d", "d1", "d2", "fl", "sf"}
-    assert both[0]["d1"] == metrics.kitti_outliers(*(a[0] for a in args), valid[0])["d1"]
+    assert set(both[0]) == {"epe3d_m", "acc3d_strict_pct", "acc3d_relax_pct", "outlier3d_pct", "d1_pct", "d2_pct", "fl_pct", "sf_pct"}
+    assert both[0]["d1_pct"] == metrics.kitti_outliers(*(a[0] for a in args), valid[0])["d1_pct"]
     _agree(both, mt.scene_flow(pred3, gt3b, valid, kitti=args))
 
 
@@ -261,15 +261,15 @@ def test_eval_disparity_cli_writes_table_json_csv(fake_cli, tmp_path, capsys):
     np.save(pred / "0001_00_02.npy", ds.read(1, (0, 2), "disparity"))
     assert main(["eval", "--task", "disparity", "--pred", str(pred), "--gt", "/data/fake"]) == 0
     out = capsys.readouterr().out
-    assert "mse_x100" in out and "mean" in out
+    assert "mse_x100" in out and "summary" in out
     res = json.loads((pred / "eval_disparity.json").read_text())
     rows = {(r["frame"], r["row"], r["col"]): r for r in res["rows"]}
     assert rows[(2, 1, 1)]["mse_x100"] == pytest.approx(100 * 0.05**2, rel=1e-4)
-    assert rows[(2, 1, 1)]["badpix_0.03"] == pytest.approx(100.0) and rows[(2, 1, 1)]["badpix_0.07"] == 0.0
+    assert rows[(2, 1, 1)]["badpix_0.03_pct"] == pytest.approx(100.0) and rows[(2, 1, 1)]["badpix_0.07_pct"] == 0.0
     assert rows[(1, 0, 2)]["mse_x100"] == 0.0
     with open(pred / "eval_disparity.csv") as f:
         lines = list(csv.DictReader(f))
-    assert [line["frame"] for line in lines] == ["1", "2", "mean"] and lines[0]["scene"] == "fake"
+    assert [line["frame"] for line in lines] == ["1", "2", "summary"] and lines[0]["scene"] == "fake"
 
 
 def test_eval_flow_views_and_sceneflow(fake_cli, tmp_path):
@@ -281,10 +281,10 @@ def test_eval_flow_views_and_sceneflow(fake_cli, tmp_path):
     pred.mkdir()
     formats.write_flo(pred / "0001_01_01.flo", ds.read(1, (1, 1), "flow_fwd") + np.array([3.0, 4.0], np.float32))
     r = evaluate(ds, pred, "flow")[0]
-    assert r["epe"] == pytest.approx(5.0, rel=1e-5) and r["1px"] == 100.0
+    assert r["epe_px"] == pytest.approx(5.0, rel=1e-5) and r["epe_gt_1px_pct"] == 100.0
     formats.write_png(pred / "0003_02_02.png", ds.read(3, (2, 2), "rgb"))
     r = evaluate(ds, pred, "views")[0]
-    assert r["psnr"] == math.inf and r["ssim"] == pytest.approx(1.0)
+    assert r["psnr_db"] == math.inf and r["ssim"] == pytest.approx(1.0)
     sf = ds.read(1, (1, 1), "scene_flow")
     np.save(pred / "0001_01_01.npy", sf + np.array([0.0, 0.0, 0.02], np.float32))
     d = ds.read(1, (1, 1), "disparity")
@@ -292,8 +292,8 @@ def test_eval_flow_views_and_sceneflow(fake_cli, tmp_path):
     formats.write_pfm(pred / "0001_01_01_disp2.pfm", d + ds.read(1, (1, 1), "disparity_change"))
     formats.write_flo(pred / "0001_01_01_flow.flo", ds.read(1, (1, 1), "flow_fwd"))
     r = evaluate(ds, pred, "sceneflow")[0]
-    assert r["epe3d"] == pytest.approx(0.02, rel=1e-4) and r["acc3d_strict"] == 100.0
-    assert (r["d1"], r["d2"], r["fl"], r["sf"]) == (0.0, 0.0, 0.0, 0.0)
+    assert r["epe3d_m"] == pytest.approx(0.02, rel=1e-4) and r["acc3d_strict_pct"] == 100.0
+    assert (r["d1_pct"], r["d2_pct"], r["fl_pct"], r["sf_pct"]) == (0.0, 0.0, 0.0, 0.0)
 
 
 def test_eval_bad_predictions_are_one_line_errors(fake_cli, tmp_path, capsys):
