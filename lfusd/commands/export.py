@@ -1,4 +1,4 @@
-"""`lfusd export FORMAT OUT DEST`: write a dataset in a research layout (HCI, KITTI, .flo, PFM, LF HDF5)."""
+"""`lfusd export FORMAT OUT DEST`: write a dataset in a research layout (HCI, KITTI, Spring, .flo, PFM, LF HDF5)."""
 
 from __future__ import annotations
 
@@ -8,16 +8,16 @@ from . import args as argtypes
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export",
-        help="export a dataset to HCI, KITTI, .flo, PFM or HDF5 LF layouts",
+        help="export a dataset to HCI, KITTI, Spring, .flo, PFM or HDF5 LF layouts",
         description="Export a rendered dataset OUT into DEST (which must not exist yet).",
     )
-    p.add_argument("format", choices=["hci", "kitti", "flo", "pfm", "lfmat"], help="target layout")
+    p.add_argument("format", choices=["hci", "kitti", "spring", "flo", "pfm", "lfmat"], help="target layout")
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
     p.add_argument("dest", help="new folder to write")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
     p.add_argument("--view", type=argtypes.view, default=None, help="ROW,COL view for flo/pfm (default: the centre view)")
     p.add_argument("--all-views", action="store_true", help="flo/pfm: every view; hci: also per-view disparity PFMs")
-    p.add_argument("--matlab", action="store_true", help="lfmat: write MATLAB v7.3 .mat files (LF is [U,V,H,W,3] in MATLAB)")
+    p.add_argument("--matlab", action="store_true", help="lfmat: write MATLAB v7.3 .mat files instead of .h5 (both: LF [U,V,H,W,3] in [0,1] as BasicLFSR reads it)")
     p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
     p.set_defaults(func=run)
 

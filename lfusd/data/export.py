@@ -1,18 +1,29 @@
 """Export a dataset (anything with lfusd.Dataset's interface) to the layouts research code reads.
 
+Each layout is the one its benchmark's own readers and preparation scripts consume unchanged
+(docs/CONVENTIONS.md, "Exports"):
+
 - ``hci``: one HCI 4D light-field benchmark scene folder per frame: ``parameters.cfg``,
   ``input_Cam000.png`` ... (row-major, Cam000 top-left), ``gt_disp_lowres.pfm`` and
-  ``gt_depth_lowres.pfm`` of the centre view (bottom-up little-endian PFM), ``valid_mask.png``
-  (255 where a surface is seen), and with ``all_views`` ``gt_disp_lowres_Cam000.pfm`` ... .
+  ``gt_depth_lowres.pfm`` of the view the toolkit takes as centre (camera ``int(nx*ny/2)``;
+  bottom-up little-endian PFM), ``valid_mask.png`` (255 where a surface is seen), and with
+  ``all_views`` ``gt_disp_lowres_Cam000.pfm`` ... . ``sensor_size_mm`` is the sensor of the larger
+  image dimension and ``focus_distance_m`` a finite stand-in for infinity (:data:`HCI_FOCUS_M`),
+  so the toolkit's ``disp2depth`` / ``depth2disp`` / ``compute_offset`` give lfusd's values.
 - ``kitti``: KITTI 2015 scene-flow layout under ``training/`` for consecutive frame pairs: the
   centre view is the left camera (``image_2``), its right neighbour the right one (``image_3``);
-  ``disp_occ_0`` / ``disp_noc_0`` (disparity at t), ``disp_occ_1`` / ``disp_noc_1`` (disparity at
-  t+1 of the point seen at t), ``flow_occ`` / ``flow_noc`` (forward flow); ``noc`` leaves out
-  pixels occluded at t+1.
+  ``disp_occ_0`` (disparity at t), ``disp_occ_1`` (disparity at t+1 of the point seen at t),
+  ``flow_occ`` (forward flow), and their ``noc`` versions holding only points visible in the
+  other image(s) (:func:`visible_in_view`). Values are rounded to 1/256 px (disparity) and
+  1/64 px (flow), the format's precision.
+- ``spring``: the Spring benchmark layout ``train/<scene>/frame_left|right``, ``disp1_*``,
+  ``disp2_FW_*``, ``flow_FW_*`` / ``flow_BW_*`` as .dsp5 / .flo5 at twice the image resolution
+  (Spring's loaders take every second sample).
 - ``flo``: Middlebury ``flow_fwd/`` and ``flow_bwd/`` files; unknown flow is stored as 1e10
   (Middlebury's UNKNOWN_FLOW).
 - ``pfm``: ``disparity/``, ``depth/`` and ``disparity_change/`` PFMs.
-- ``lfmat``: one HDF5 file per frame holding ``LF`` [U,V,H,W,3] uint8 (or a MATLAB v7.3 .mat).
+- ``lfmat``: one HDF5 file per frame holding ``LF`` float32 in [0, 1], [U,V,H,W,3] after
+  BasicLFSR's transpose (or a MATLAB v7.3 .mat that MATLAB loads as [U,V,H,W,3]).
 
 Per-view files are named ``<frame:04d>_<row:02d>_<col:02d>.<ext>`` (see :func:`stem`).
 """
@@ -32,8 +43,14 @@ from .. import layout
 from ..errors import LfusdError
 from ..keys import get
 
-FORMATS = ("hci", "kitti", "flo", "pfm", "lfmat")
+FORMATS = ("hci", "kitti", "spring", "flo", "pfm", "lfmat")
 UNKNOWN_FLOW = 1e10
+# HCI's focus distance for lfusd's unshifted parallel rigs (focus at infinity), finite so that the
+# toolkit's formulas (which divide by it) run: its 1/F term changes their depth by under 1e-9
+# relative for any depth below 1000 km, below float32 precision.
+HCI_FOCUS_M = 1e15
+VIS_REL = 1e-3  # relative disparity slack of the visibility test (as lfusd.truth.motion.DEPTH_REL)
+EDGE_REL = 0.5  # a relative disparity jump above this between neighbours is a depth edge (no slope across it)
 
 
 def stem(frame: int, view) -> str:
@@ -104,15 +121,25 @@ def _check_planar_grid(ds, what: str) -> None:
 # ---- HCI ---------------------------------------------------------------------------------------
 
 
+def hci_centre_view(ds) -> tuple[int, int]:
+    """The view the HCI toolkit takes as centre: camera ``int(num_cams_x * num_cams_y / 2)`` in
+    row-major order (the true centre of odd grids; lfusd's centre_view differs on even ones)."""
+    return divmod(int(ds.rig.rows * ds.rig.cols / 2), int(ds.rig.cols))
+
+
 def hci_parameters(ds, frame: int) -> dict:
     """The HCI parameters.cfg values of one frame of a dataset.
 
-    Disparity here is f_px * b / z of an unshifted parallel rig (focus at infinity); HCI's Blender
-    add-on writes such a rig as focus_distance_m = 0 with offset = 0 (the toolkit's disp->depth
-    conversion does not apply to it: use gt_depth_lowres.pfm). Pinhole cameras: fstop 100 as HCI.
+    The toolkit converts with f_px = focal_length_mm / sensor_size_mm * max(W, H), so
+    ``sensor_size_mm`` is the sensor of the larger image dimension (lfusd's sensor spans the
+    width). HCI's disparity is f_px*b*(1/z - 1/F) for focus distance F; lfusd's rigs are unshifted
+    (F = infinity, disparity f_px*b/z, which is what the exported images show), and F = 0, as
+    HCI's Blender add-on writes such a rig, makes the toolkit divide by zero: F is
+    :data:`HCI_FOCUS_M` and ``offset`` = f_px*b/F (the toolkit's compute_offset) is then ~0.
+    Pinhole cameras: fstop 100 as HCI.
     """
     rig = ds.rig
-    centre = tuple(rig.centre_view)
+    centre = hci_centre_view(ds)
     disp_c = ds.read(frame, centre, "disparity")
     fin = disp_c[np.isfinite(disp_c) & np.isfinite(ds.read(frame, centre, "depth"))]
     all_d = [fin]
@@ -122,23 +149,24 @@ def hci_parameters(ds, frame: int) -> dict:
     frustum = np.concatenate(all_d)
     c2w = np.asarray(ds.cam_to_world(frame, centre), float)
     rx, ry, rz = formats.blender_euler_xyz(c2w)
+    baseline_mm = float(rig.baseline) * 1000.0
     return {
         "focal_length_mm": float(rig.focal_length_mm),
         "image_resolution_x_px": int(rig.width),
         "image_resolution_y_px": int(rig.height),
-        "sensor_size_mm": float(rig.sensor_mm),
+        "sensor_size_mm": float(rig.sensor_mm) * max(rig.width, rig.height) / rig.width,
         "fstop": 100.0,
         "num_cams_x": int(rig.cols),
         "num_cams_y": int(rig.rows),
-        "baseline_mm": float(rig.baseline) * 1000.0,
-        "focus_distance_m": 0.0,
+        "baseline_mm": baseline_mm,
+        "focus_distance_m": HCI_FOCUS_M,
         "center_cam_x_m": float(c2w[0, 3]),
         "center_cam_y_m": float(c2w[1, 3]),
         "center_cam_z_m": float(c2w[2, 3]),
         "center_cam_rx_rad": rx,
         "center_cam_ry_rad": ry,
         "center_cam_rz_rad": rz,
-        "offset": 0.0,
+        "offset": float(rig.focal_px) * float(rig.baseline) / HCI_FOCUS_M,
         "scene": f"{scene_name(ds)}_f{frame:04d}",
         "category": "lfusd",
         "date": datetime.date.today().isoformat(),
@@ -160,7 +188,7 @@ def export_hci(ds, dest, frame: int | None = None, all_views: bool = False) -> l
     frames = _frames(ds, frame)
     dest = _new_dest(dest)
     folders = []
-    centre = tuple(ds.rig.centre_view)
+    centre = hci_centre_view(ds)
     for t in frames:
         sd = dest / f"{scene_name(ds)}_f{t:04d}"
         sd.mkdir()
@@ -179,6 +207,82 @@ def export_hci(ds, dest, frame: int | None = None, all_views: bool = False) -> l
 
 
 # ---- KITTI -------------------------------------------------------------------------------------
+
+
+def _one_sided_slopes(d: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """(towards lower index, towards higher index) differences of ``d`` along ``axis``; NaN across a
+    depth edge (relative jump above EDGE_REL) or off the image."""
+    a, b = (d[:, :-1], d[:, 1:]) if axis == 1 else (d[:-1], d[1:])
+    g = np.where(np.abs(b - a) <= EDGE_REL * np.minimum(a, b), b - a, np.nan)
+    lower, higher = np.full(d.shape, np.nan), np.full(d.shape, np.nan)
+    if axis == 1:
+        higher[:, :-1], lower[:, 1:] = g, g
+    else:
+        higher[:-1], lower[1:] = g, g
+    return lower, higher
+
+
+def visible_in_view(x, y, d_expected, disparity_other) -> np.ndarray:
+    """Whether points seen elsewhere are visible in another view of a planar parallel rig.
+
+    A point lands at (x, y) in the other view (sub-pixel) with disparity ``d_expected`` there
+    (disparity = f_px*b/z, so depth and disparity are one test). It is visible when (x, y) lies
+    inside the image and the pixel nearest (x, y) does not see a nearer surface: that pixel's
+    disparity, extrapolated to (x, y) with its one-sided slopes (never across a depth edge; exact
+    on planes), is the point's own (within :data:`VIS_REL`) or smaller (a surface behind the point,
+    which then sits on a silhouette). A nearer surface there hides it. Decided within half a pixel of
+    the other view's depth edges and creases.
+    """
+    D = np.nan_to_num(np.asarray(disparity_other, np.float64), nan=0.0, posinf=0.0)  # no surface: disparity 0
+    h, w = D.shape
+    x, y, de = (np.asarray(a, np.float64) for a in (x, y, d_expected))
+    with np.errstate(invalid="ignore"):
+        inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (de > 0)
+    x, y = np.where(inside, x, 0.0), np.where(inside, y, 0.0)
+    xi = np.clip(np.rint(x), 0, w - 1).astype(np.int64)
+    yi = np.clip(np.rint(y), 0, h - 1).astype(np.int64)
+    dx, dy = x - xi, y - yi
+    with np.errstate(invalid="ignore"):
+        left, right = _one_sided_slopes(D, 1)
+        up, down = _one_sided_slopes(D, 0)
+    # the slope on the side of the point, else the other side's, else flat
+    gx = np.where(dx >= 0, right[yi, xi], left[yi, xi])
+    gx = np.nan_to_num(np.where(np.isnan(gx), np.where(dx >= 0, left[yi, xi], right[yi, xi]), gx))
+    gy = np.where(dy >= 0, down[yi, xi], up[yi, xi])
+    gy = np.nan_to_num(np.where(np.isnan(gy), np.where(dy >= 0, up[yi, xi], down[yi, xi]), gy))
+    tol = VIS_REL * de
+    seen = D[yi, xi] + dx * gx + dy * gy  # what the pixel's surface has at (x, y)
+    return inside & (seen <= de + tol)  # the point's own surface, or one behind it
+
+
+def stereo_visible(ds, frame: int, view, other, flow=None, disparity=None) -> np.ndarray:
+    """(H,W) bool: which pixels of ``view`` show a point that ``other`` (same planar parallel rig)
+    also sees, at ``frame``; with ``flow`` (H,W,2) and ``disparity`` (H,W), the point moved to
+    view pixel (u, v) + flow with that disparity, tested against ``other`` at ``frame``."""
+    d = np.asarray(ds.read(frame, view, "disparity") if disparity is None else disparity, np.float64)
+    sx0, sy0 = ds.rig.offsets(tuple(view))
+    sx1, sy1 = ds.rig.offsets(tuple(other))
+    v, u = np.mgrid[0 : d.shape[0], 0 : d.shape[1]].astype(np.float64)
+    if flow is not None:
+        u, v = u + flow[..., 0], v + flow[..., 1]
+    with np.errstate(invalid="ignore"):
+        x, y = u - d * (sx1 - sx0), v - d * (sy1 - sy0)  # CONVENTIONS: u - d*sx, v - d*sy
+    return visible_in_view(x, y, d, ds.read(frame, other, "disparity")) & np.isfinite(d)
+
+
+def kitti_masks(ds, t: int, left, right) -> dict[str, np.ndarray]:
+    """The KITTI validity masks of frame pair (t, t+1): ``occ_0`` / ``noc_0`` (disparity at t:
+    known / also visible in the right image), ``occ_fwd`` / ``noc_fwd`` (flow: known / also visible
+    in the left image at t+1), ``noc_1`` (disparity at t+1: noc_fwd and visible in the right
+    image at t+1)."""
+    d0 = np.asarray(ds.read(t, left, "disparity"), np.float64)
+    occ_0 = np.isfinite(d0) & (d0 > 0) & np.isfinite(ds.read(t, left, "depth"))
+    occ_fwd = np.asarray(ds.read(t, left, "valid_fwd"), bool) & occ_0
+    noc_fwd = occ_fwd & ~np.asarray(ds.read(t, left, "occlusion_fwd"), bool)
+    flow = np.asarray(ds.read(t, left, "flow_fwd"), np.float64)
+    d1 = d0 + ds.read(t, left, "disparity_change")
+    noc_1 = noc_fwd & stereo_visible(ds, t + 1, left, right, flow=np.nan_to_num(flow), disparity=np.where(occ_fwd, d1, np.nan))
+    return {"occ_0": occ_0, "noc_0": occ_0 & stereo_visible(ds, t, left, right), "occ_fwd": occ_fwd, "noc_fwd": noc_fwd, "noc_1": noc_1}
 
 
 def export_kitti(ds, dest, frame: int | None = None) -> Path:
@@ -200,19 +304,75 @@ def export_kitti(ds, dest, frame: int | None = None) -> Path:
         for sub, view in (("image_2", left), ("image_3", right)):
             formats.write_png(tr / sub / name, ds.read(t, view, "rgb"))
             formats.write_png(tr / sub / f"{i:06d}_11.png", ds.read(t + 1, view, "rgb"))
+        m = kitti_masks(ds, t, left, right)
         d0 = ds.read(t, left, "disparity")
         d1 = d0 + ds.read(t, left, "disparity_change")
         flow = ds.read(t, left, "flow_fwd")
-        valid = np.asarray(ds.read(t, left, "valid_fwd"), bool) & np.isfinite(ds.read(t, left, "depth"))
-        noc = valid & ~np.asarray(ds.read(t, left, "occlusion_fwd"), bool)
-        formats.write_kitti_disparity(tr / "disp_occ_0" / name, d0)
-        formats.write_kitti_disparity(tr / "disp_noc_0" / name, d0)
-        formats.write_kitti_disparity(tr / "disp_occ_1" / name, d1, valid)
-        formats.write_kitti_disparity(tr / "disp_noc_1" / name, d1, noc)
-        formats.write_kitti_flow(tr / "flow_occ" / name, flow, valid)
-        formats.write_kitti_flow(tr / "flow_noc" / name, flow, noc)
+        formats.write_kitti_disparity(tr / "disp_occ_0" / name, d0, m["occ_0"])
+        formats.write_kitti_disparity(tr / "disp_noc_0" / name, d0, m["noc_0"])
+        formats.write_kitti_disparity(tr / "disp_occ_1" / name, d1, m["occ_fwd"])
+        formats.write_kitti_disparity(tr / "disp_noc_1" / name, d1, m["noc_1"])
+        formats.write_kitti_flow(tr / "flow_occ" / name, flow, m["occ_fwd"])
+        formats.write_kitti_flow(tr / "flow_noc" / name, flow, m["noc_fwd"])
     (dest / "frames.txt").write_text("".join(f"{i:06d} frame {t} -> {t + 1}\n" for i, t in enumerate(frames)))
     return tr
+
+
+# ---- Spring ------------------------------------------------------------------------------------
+
+
+def _spring_path(sd: Path, kind: str, cam: str, i: int, ext: str) -> Path:
+    """``sd/<kind>_<cam>/<kind>_<cam>_<i:04d>.<ext>`` (Spring's naming), creating the folder."""
+    folder = sd / f"{kind}_{cam}"
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{kind}_{cam}_{i:04d}.{ext}"
+
+
+def _spring_gt(a: np.ndarray) -> np.ndarray:
+    """Spring's ground truth has twice the image resolution per axis and its loaders take
+    ``gt[::2, ::2]``: each pixel's value fills its 2x2 block (lfusd's GT is at pixel centres)."""
+    return np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)
+
+
+def export_spring(ds, dest, frame: int | None = None) -> Path:
+    """Write consecutive frames in the Spring layout; returns ``dest/train/<scene>``.
+
+    The centre view is Spring's left camera, its right neighbour the right one; frames are
+    renumbered 1, 2, ... (``frames.txt`` maps them). Per camera: ``disp1`` (disparity, positive:
+    Spring's loader negates the left camera's), ``disp2_FW`` (disparity at t+1 of the point seen at
+    t), ``flow_FW`` / ``flow_BW``; NaN where unknown. lfusd has no backward disparity change, so
+    there is no ``disp2_BW``.
+    """
+    _check_planar_grid(ds, "the Spring layout")
+    if ds.rig.cols < 2:
+        raise LfusdError("the Spring layout needs a right neighbour of the centre view; render a grid with at least 2 columns")
+    frames = _frames(ds, frame)
+    if frames != list(range(frames[0], frames[0] + len(frames))):
+        raise LfusdError(f"the Spring layout needs consecutive frames, this dataset has {frames}; finish the render or pick one --frame")
+    rc, cc = ds.rig.centre_view
+    cams = {"left": (rc, cc), "right": (rc, cc + 1)}
+    dest = _new_dest(dest)
+    sd = dest / "train" / scene_name(ds)
+    for i, t in enumerate(frames, start=1):
+        for cam, view in cams.items():
+            def out(kind: str, ext: str, cam=cam, i=i) -> Path:
+                return _spring_path(sd, kind, cam, i, ext)
+
+            formats.write_png(out("frame", "png"), ds.read(t, view, "rgb"))
+            d = np.asarray(ds.read(t, view, "disparity"), np.float32)
+            known = np.isfinite(d) & (d > 0)
+            formats.write_dsp5(out("disp1", "dsp5"), _spring_gt(np.where(known, d, np.nan)))
+            for key, step, kind in (("fwd", 1, "FW"), ("bwd", -1, "BW")):
+                if t + step not in frames:
+                    continue
+                flow = np.asarray(ds.read(t, view, f"flow_{key}"), np.float32)
+                ok = np.asarray(ds.read(t, view, f"valid_{key}"), bool) & np.all(np.isfinite(flow), axis=-1)
+                formats.write_flo5(out(f"flow_{kind}", "flo5"), _spring_gt(np.where(ok[..., None], flow, np.nan)))
+                if key == "fwd":
+                    d2 = d + np.asarray(ds.read(t, view, "disparity_change"), np.float32)
+                    formats.write_dsp5(out("disp2_FW", "dsp5"), _spring_gt(np.where(ok & known, d2, np.nan)))
+    (dest / "frames.txt").write_text("".join(f"{i:04d} frame {t}\n" for i, t in enumerate(frames, start=1)))
+    return sd
 
 
 # ---- flo / pfm ---------------------------------------------------------------------------------
@@ -279,15 +439,17 @@ def light_field(ds, frame: int, key: str = "rgb") -> np.ndarray:
 
 
 def export_lfmat(ds, dest, frame: int | None = None, matlab: bool = False) -> list[Path]:
-    """Write one ``LF`` [U,V,H,W,3] uint8 file per frame: ``<scene>_f0001.h5`` (or ``.mat``)."""
+    """Write one ``LF`` file per frame, ``<scene>_f0001.h5`` (or ``.mat``): float32 RGB in [0, 1]
+    (their rgb2ycbcr expects it), [U,V,H,W,3] after BasicLFSR's transpose (4,3,2,1,0) and in MATLAB."""
     _check_planar_grid(ds, "the LF array layout")
     frames = _frames(ds, frame)
     dest = _new_dest(dest)
     out = []
     for t in frames:
         p = dest / f"{scene_name(ds)}_f{t:04d}.{'mat' if matlab else 'h5'}"
-        attrs = {"baseline_m": float(ds.rig.baseline), "focal_px": float(ds.rig.focal_px), "frame": int(t)}
-        formats.write_lf_h5(p, light_field(ds, t), matlab=matlab, attrs=attrs)
+        attrs = {"baseline_m": float(ds.rig.baseline), "focal_px": float(ds.rig.focal_px), "frame": int(t), "range": "rgb in [0, 1]"}
+        rgb = light_field(ds, t)
+        formats.write_lf_h5(p, rgb.astype(np.float32) / np.float32(np.iinfo(rgb.dtype).max), matlab=matlab, attrs=attrs)
         out.append(p)
     return out
 

@@ -8,7 +8,10 @@
 - KITTI 2015 16-bit PNGs: flow is RGB uint16 with R = u*64 + 2^15, G = v*64 + 2^15, B = valid
   (1/0); disparity is one uint16 channel d*256 with 0 = invalid.
 - HCI 4D light-field benchmark ``parameters.cfg`` (sections intrinsics / extrinsics / meta).
-- HDF5 ``LF`` arrays [U, V, H, W, 3] for view-synthesis code, optionally as a MATLAB v7.3 .mat.
+- HDF5 ``LF`` arrays [U, V, H, W, 3] as BasicLFSR / DistgASR read them (stored in MATLAB's axis
+  order [3, W, H, V, U]), optionally as a MATLAB v7.3 .mat.
+- Spring .flo5 / .dsp5: HDF5 files holding dataset ``flow`` (H,W,2) or ``disparity`` (H,W), NaN
+  where unknown (Spring's flow_IO.py).
 
 PNG I/O goes through OpenCV (which orders colour channels B, G, R in memory).
 """
@@ -183,7 +186,7 @@ def write_kitti_disparity(path, disparity, valid=None) -> None:
     ok = np.isfinite(d) & (d > 0)
     if valid is not None:
         ok &= np.asarray(valid, bool)
-    enc = np.clip(np.round(np.nan_to_num(d) * KITTI_DISP_SCALE), 1, 2**16 - 1).astype(np.uint16)
+    enc = np.clip(np.round(np.nan_to_num(d, posinf=0.0, neginf=0.0) * KITTI_DISP_SCALE), 1, 2**16 - 1).astype(np.uint16)
     enc[~ok] = 0
     _imwrite(path, enc)
 
@@ -296,45 +299,101 @@ def read_hci_config(path) -> dict:
 
 # ---- HDF5 LF arrays ----------------------------------------------------------------------------
 
+LF_AXES_ON_DISK = "C,W,H,V,U"  # MATLAB's column-major [U,V,H,W,C] as HDF5 stores it
+
 
 def write_lf_h5(path, lf, *, matlab: bool = False, attrs: dict | None = None) -> None:
-    """Write a light field ``lf`` [U,V,H,W,3] as dataset ``LF`` of an HDF5 file.
+    """Write a light field ``lf`` [U,V,H,W,3] as dataset ``LF``, laid out as BasicLFSR / DistgASR read it.
 
-    With ``matlab=True`` the file is a MATLAB v7.3 .mat: MATLAB's ``load`` then gives ``LF`` of
-    size [U,V,H,W,3] (HDF5 stores MATLAB arrays in reversed axis order, so the dataset on disk is
-    [3,W,H,V,U]), as the BasicLFSR / DistgASR data-preparation scripts expect.
+    Their preparation scripts (``Generate_Data_for_Training.py`` / ``_Test.py``) read every file
+    with ``np.array(h5py.File(f)['LF']).transpose((4, 3, 2, 1, 0))`` and their MATLAB versions
+    with ``load``: both give [U,V,H,W,3] only when the dataset on disk is [3,W,H,V,U] (MATLAB's
+    column-major order), so both the .h5 and the .mat store that. With ``matlab=True`` the file
+    is also a MATLAB v7.3 .mat (512-byte MAT header, ``MATLAB_class``). ``attrs`` go on the root
+    of a plain .h5 only.
     """
     import h5py
 
     lf = np.asarray(lf)
     if lf.ndim != 5 or lf.shape[-1] != 3:
         raise LfusdError(f"LF arrays are [U,V,H,W,3], got {lf.shape}")
+    classes = {np.uint8: "uint8", np.uint16: "uint16", np.float32: "single", np.float64: "double"}
+    if lf.dtype.type not in classes:
+        raise LfusdError(f"LF arrays must be uint8, uint16, float32 or float64, got {lf.dtype}")
+    on_disk = np.ascontiguousarray(lf.transpose(4, 3, 2, 1, 0))
+    with h5py.File(path, "w", **({"userblock_size": 512} if matlab else {})) as f:
+        d = f.create_dataset("LF", data=on_disk, compression="gzip")
+        if matlab:
+            d.attrs["MATLAB_class"] = np.bytes_(classes[lf.dtype.type])
+        else:
+            f.attrs["axes_on_disk"] = LF_AXES_ON_DISK
+            for k, v in (attrs or {}).items():
+                f.attrs[k] = v
     if matlab:
-        if lf.dtype.type not in (np.uint8, np.uint16, np.float32, np.float64):
-            raise LfusdError(f"MATLAB LF arrays must be uint8, uint16, float32 or float64, got {lf.dtype}")
-        with h5py.File(path, "w", userblock_size=512) as f:
-            d = f.create_dataset("LF", data=np.ascontiguousarray(lf.transpose(4, 3, 2, 1, 0)), compression="gzip")
-            d.attrs["MATLAB_class"] = np.bytes_({np.uint8: "uint8", np.uint16: "uint16", np.float32: "single"}.get(lf.dtype.type, "double"))
         text = f"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: {time.strftime('%a %b %d %H:%M:%S %Y')} HDF5 schema 1.00 .".encode()
         header = text.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM"
         with open(path, "r+b") as f:
             f.write(header.ljust(512, b"\x00"))
-        return
-    with h5py.File(path, "w") as f:
-        f.create_dataset("LF", data=lf, compression="gzip")
-        for k, v in (attrs or {}).items():
-            f.attrs[k] = v
 
 
 def read_lf_h5(path) -> np.ndarray:
-    """Read dataset ``LF`` as [U,V,H,W,3] from an HDF5 file or a MATLAB v7.3 .mat."""
+    """Read dataset ``LF`` as [U,V,H,W,3] from an HDF5 file or MATLAB v7.3 .mat, as BasicLFSR does
+    (the stored [3,W,H,V,U] transposed by (4,3,2,1,0))."""
     import h5py
 
     with h5py.File(_need(path), "r") as f:
         if "LF" not in f:
             raise LfusdError(f"{path} has no dataset 'LF'; give a light-field HDF5/.mat file")
-        d = f["LF"]
-        a = d[()]
-        if "MATLAB_class" in d.attrs:
-            a = a.transpose(4, 3, 2, 1, 0)
-    return np.ascontiguousarray(a)
+        a = f["LF"][()]
+    if a.ndim != 5 or a.shape[0] != 3:
+        raise LfusdError(f"{path}: LF is stored as {a.shape}, not [3,W,H,V,U] (MATLAB order); re-export it with `lfusd export lfmat`")
+    return np.ascontiguousarray(a.transpose(4, 3, 2, 1, 0))
+
+
+# ---- Spring .flo5 / .dsp5 ----------------------------------------------------------------------
+
+
+def _write_h5_array(path, name: str, a: np.ndarray) -> None:
+    import h5py
+
+    with h5py.File(path, "w") as f:  # as Spring's flow_IO.writeFlo5File / writeDsp5File
+        f.create_dataset(name, data=a, compression="gzip", compression_opts=5)
+
+
+def _read_h5_array(path, name: str, what: str) -> np.ndarray:
+    import h5py
+
+    try:
+        f = h5py.File(_need(path), "r")
+    except OSError:
+        raise LfusdError(f"{path} is not an HDF5 file; give a Spring {what} file") from None
+    with f:
+        if name not in f:
+            raise LfusdError(f"{path} has no dataset {name!r}; it is not a Spring {what} file")
+        return f[name][()]
+
+
+def write_flo5(path, flow) -> None:
+    """Write (H',W',2) flow as a Spring .flo5: HDF5 dataset ``flow``, NaN where unknown."""
+    f = np.asarray(flow, dtype=np.float32)
+    if f.ndim != 3 or f.shape[2] != 2:
+        raise LfusdError(f".flo5 holds (H,W,2) flow, got {f.shape}")
+    _write_h5_array(path, "flow", f)
+
+
+def read_flo5(path) -> np.ndarray:
+    """Read a Spring .flo5 (dataset ``flow``)."""
+    return _read_h5_array(path, "flow", ".flo5 flow")
+
+
+def write_dsp5(path, disparity) -> None:
+    """Write (H',W') disparity as a Spring .dsp5: HDF5 dataset ``disparity``, NaN where unknown."""
+    d = np.asarray(disparity, dtype=np.float32)
+    if d.ndim != 2:
+        raise LfusdError(f".dsp5 holds (H,W) disparity, got {d.shape}")
+    _write_h5_array(path, "disparity", d)
+
+
+def read_dsp5(path) -> np.ndarray:
+    """Read a Spring .dsp5 (dataset ``disparity``)."""
+    return _read_h5_array(path, "disparity", ".dsp5 disparity")

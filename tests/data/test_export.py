@@ -84,13 +84,15 @@ def test_flo_and_pfm_exports(ds, tmp_path):
 
 
 def test_lfmat_export(ds, tmp_path):
+    """The .h5 holds LF in MATLAB's axis order [3,W,H,V,U], float32 in [0, 1] (read as BasicLFSR
+    does in test_export_benchmarks.py)."""
     import h5py
 
     (p,) = export.export_lfmat(ds, tmp_path / "lf", frame=1)
     with h5py.File(p, "r") as f:
         lf = f["LF"][()]
-    assert lf.shape == (3, 3, 20, 24, 3) and lf.dtype == np.uint8
-    np.testing.assert_array_equal(lf[0, 2], ds.read(1, (0, 2), "rgb"))
+    assert lf.shape == (3, 24, 20, 3, 3) and lf.dtype == np.float32
+    np.testing.assert_array_equal(np.rint(lf[:, :, :, 2, 0].T * 255).astype(np.uint8), ds.read(1, (0, 2), "rgb"))
 
 
 def test_existing_target_and_bad_frame_are_one_line_errors(ds, tmp_path):

@@ -122,13 +122,38 @@ def test_lf_h5_round_trip(tmp_path, matlab):
     formats.write_lf_h5(p, lf, matlab=matlab)
     with h5py.File(p, "r") as f:
         raw = f["LF"][()]
-    if matlab:
-        assert p.read_bytes()[:19] == b"MATLAB 7.3 MAT-file"
-        # HDF5 holds MATLAB arrays in reversed axis order
-        np.testing.assert_array_equal(raw, lf.transpose(4, 3, 2, 1, 0))
-    else:
-        np.testing.assert_array_equal(raw, lf)
+    # both hold MATLAB's column-major order, as BasicLFSR's transpose((4,3,2,1,0)) expects
+    assert raw.shape == (3, 5, 4, 3, 2)
+    np.testing.assert_array_equal(raw[2, 4, 1, 0, 1], lf[1, 0, 1, 4, 2])
+    assert (p.read_bytes()[:19] == b"MATLAB 7.3 MAT-file") == matlab
     np.testing.assert_array_equal(formats.read_lf_h5(p), lf)
+
+
+def test_lf_h5_in_the_old_axis_order_is_a_one_line_error(tmp_path):
+    import h5py
+
+    p = tmp_path / "old.h5"
+    with h5py.File(p, "w") as f:
+        f.create_dataset("LF", data=np.zeros((2, 2, 4, 5, 3), np.uint8))
+    with pytest.raises(LfusdError) as e:
+        formats.read_lf_h5(p)
+    assert "MATLAB order" in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("ext", ["flo5", "dsp5"])
+def test_spring_h5_round_trip(tmp_path, ext):
+    import h5py
+
+    a = RNG.normal(size=(6, 8, 2) if ext == "flo5" else (6, 8)).astype(np.float32)
+    a.flat[3] = np.nan
+    p = tmp_path / f"a.{ext}"
+    (formats.write_flo5 if ext == "flo5" else formats.write_dsp5)(p, a)
+    with h5py.File(p, "r") as f:  # Spring's flow_IO: one dataset named 'flow' / 'disparity'
+        assert list(f.keys()) == ["flow" if ext == "flo5" else "disparity"]
+        np.testing.assert_array_equal(f[list(f.keys())[0]][()], a)
+    np.testing.assert_array_equal((formats.read_flo5 if ext == "flo5" else formats.read_dsp5)(p), a)
+    with pytest.raises(LfusdError):
+        (formats.read_dsp5 if ext == "flo5" else formats.read_flo5)(p)
 
 
 def test_bad_files_are_one_line_errors(tmp_path):
