@@ -31,6 +31,53 @@ def data_dir(tmp_path_factory):
     return tmp_path_factory.mktemp("learned") / "tiny_data"
 
 
+def _load(name: str):
+    import importlib.util
+
+    sys.path.insert(0, str(ROOT / "flow"))
+    spec = importlib.util.spec_from_file_location(f"flow_{name}", ROOT / "flow" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sample (C,H,W) at float pixel positions; also where all four neighbours are inside."""
+    c, h, w = img.shape
+    u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+    inside = (u0 >= 0) & (v0 >= 0) & (u0 + 1 < w) & (v0 + 1 < h)
+    u0, v0 = np.clip(u0, 0, w - 2), np.clip(v0, 0, h - 2)
+    a, b = u - u0, v - v0
+    out = (1 - a) * (1 - b) * img[:, v0, u0] + a * (1 - b) * img[:, v0, u0 + 1] + (1 - a) * b * img[:, v0 + 1, u0] + a * b * img[:, v0 + 1, u0 + 1]
+    return out, inside
+
+
+@pytest.mark.render
+def test_the_training_items_true_disparity_aligns_the_rendered_views(data_dir):
+    """What train_disparity.py trains on obeys CONVENTIONS.md: the centre pixel (u, v) at disparity d
+    is seen at (u - d*sx, v - d*sy) in the view at relative offset (sx, sy)."""
+    _load("training").tiny_dataset(data_dir)
+    views, rel, gt, frame = _load("train_disparity").CentreDisparity(data_dir, [1], None, False)[0]
+    views, rel, gt = views.numpy().astype(np.float64), rel.numpy().astype(np.float64), gt.numpy().astype(np.float64)
+    centre = int(np.flatnonzero((rel == 0).all(1))[0])
+    h, w = gt.shape
+    vv, uu = np.mgrid[0:h, 0:w].astype(float)
+    errs = {"true": [], "zero": [], "flipped": []}
+    for i, (sx, sy) in enumerate(rel):
+        if i == centre:
+            continue
+        for name, d in (("true", gt), ("zero", np.zeros_like(gt)), ("flipped", -gt)):
+            warped, inside = _bilinear(views[i], uu - d * sx, vv - d * sy)
+            m = inside & (gt > 1.0)  # a surface that moves by more than a pixel between neighbours
+            errs[name].append(np.abs(warped - views[centre]).mean(0)[m])
+    true, zero, flipped = (np.concatenate(errs[k]) for k in ("true", "zero", "flipped"))
+    assert true.size > 1000, true.size
+    # most of these surfaces are plain, so compare where colour varies: the 90th percentile
+    p90 = {k: np.percentile(np.concatenate(e), 90) for k, e in errs.items()}
+    assert p90["true"] < 0.5 * p90["zero"] < 0.5 * p90["flipped"], (p90, true.size)
+    assert np.mean(true) < 0.6 * np.mean(zero), (np.mean(true), np.mean(zero))
+
+
 def _check_run(name: str, task: str, data: Path, out: Path, main_key: str, capsys) -> None:
     first, seconds = _script(name, "--tiny", "--data", data, "--out", out, "--steps", 80, "--quiet")
     assert first.returncode == 0, first.stderr
