@@ -1,0 +1,182 @@
+"""Compact PyTorch re-implementations of the disentangling networks of Wang et al.,
+"Disentangling light fields for super-resolution and disparity estimation", TPAMI 2022
+(code: github.com/YingqianWang/DistgDisp, DistgSSR, DistgASR).
+
+The idea: arrange the U x V views of a light field as one macro-pixel image (MacPI; pixel
+(h, w) of view (u, v) at (h*U + u, w*V + v)) and let ordinary 2-D convolutions pick out one
+sub-space each:
+
+- spatial: 3x3 convolution with dilation = angRes (each macro-pixel's views stay apart);
+- angular: kernel = stride = angRes (one macro-pixel, all views of one spatial position);
+- EPI: kernel [1, angRes*k], stride [1, angRes] along MacPI rows (horizontal EPIs; the same
+  weights on the transposed MacPI give the vertical ones).
+
+:class:`DistgBlock` fuses the three (as DistgASR/DistgSSR's block). :class:`DisparityNet` follows
+DistgDisp: features per view, a cost volume whose entry for disparity candidate d is the angular
+("disparity-selective") convolution of the views sheared by d, 3-D aggregation, and a soft-argmin
+regression. DistgDisp shears with integer dilations of that convolution; here the views are shifted
+with bilinear sampling by d times their own offsets, so candidates can be fractional and rigs need
+not be uniform. :class:`ASRNet` follows DistgASR (2x2 -> NxN angular super-resolution): Distg
+blocks on the input views, an angular convolution to one feature per position, a 1x1 expansion to
+N*N views and a pixel shuffle into the output MacPI. Unlike DistgASR, the network adds its output
+to the angular bilinear blend of the corners (a global residual), which lets a toy run learn in
+a minute. Both use LeakyReLU and no normalisation layers (small batches).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+
+def sai_to_macpi(x: torch.Tensor) -> torch.Tensor:
+    """[B, C, U, V, H, W] sub-aperture views -> [B, C, H*U, W*V] macro-pixel image."""
+    b, c, u, v, h, w = x.shape
+    return x.permute(0, 1, 4, 2, 5, 3).reshape(b, c, h * u, w * v)
+
+
+def macpi_to_sai(x: torch.Tensor, u: int, v: int) -> torch.Tensor:
+    """[B, C, H*U, W*V] macro-pixel image -> [B, C, U, V, H, W] views."""
+    b, c, hu, wv = x.shape
+    return x.reshape(b, c, hu // u, u, wv // v, v).permute(0, 1, 3, 5, 2, 4)
+
+
+def _act() -> nn.Module:
+    return nn.LeakyReLU(0.1, inplace=True)
+
+
+class PixelShuffle1D(nn.Module):
+    """[B, r*C, H, W] -> [B, C, H, W*r]: channel block i becomes column offset i (EPI upsampling)."""
+
+    def __init__(self, r: int):
+        super().__init__()
+        self.r = r
+
+    def forward(self, x):
+        b, rc, h, w = x.shape
+        c = rc // self.r
+        return x.reshape(b, self.r, c, h, w).permute(0, 2, 3, 4, 1).reshape(b, c, h, w * self.r)
+
+
+class DistgBlock(nn.Module):
+    """Spatial, angular and EPI feature extractors on a MacPI, fused by a 1x1 conv, with a residual."""
+
+    def __init__(self, ang: int, ch: int):
+        super().__init__()
+        # an EPI kernel spans k whole macro-pixels centred on the output's own (k odd)
+        k = ang if ang % 2 else ang + 1
+        self.angular = nn.Sequential(nn.Conv2d(ch, ch, ang, stride=ang, bias=False), _act(), nn.Conv2d(ch, ch * ang * ang, 1, bias=False), nn.PixelShuffle(ang))
+        self.epi = nn.Sequential(
+            nn.Conv2d(ch, ch, (1, ang * k), stride=(1, ang), padding=(0, ang * (k - 1) // 2), bias=False),
+            _act(),
+            nn.Conv2d(ch, ch * ang, 1, bias=False),
+            PixelShuffle1D(ang),
+        )
+        self.fuse = nn.Sequential(nn.Conv2d(4 * ch, ch, 1, bias=False), _act())
+        self.spatial = nn.Sequential(
+            nn.Conv2d(ch, ch, 3, padding=ang, dilation=ang, bias=False), _act(), nn.Conv2d(ch, ch, 3, padding=ang, dilation=ang, bias=False)
+        )
+
+    def forward(self, x):
+        epi_h = self.epi(x)
+        epi_v = self.epi(x.transpose(2, 3)).transpose(2, 3)  # square angular grid: one set of weights
+        f = self.fuse(torch.cat([x, self.angular(x), epi_h, epi_v], 1))
+        return x + self.spatial(f)
+
+
+def shift_views(feat: torch.Tensor, rel: torch.Tensor, d: float) -> torch.Tensor:
+    """Resample views to the reference position for disparity d (CONVENTIONS.md, light-field grid):
+    the reference pixel (u, v) is seen at (u - d*sx, v - d*sy) in a view at relative offset (sx, sy).
+
+    feat [B, N, C, H, W], rel [B, N, 2] -> [B, N, C, H, W] (zeros outside the image).
+    """
+    b, n, c, h, w = feat.shape
+    ys, xs = torch.meshgrid(torch.arange(h, device=feat.device, dtype=feat.dtype), torch.arange(w, device=feat.device, dtype=feat.dtype), indexing="ij")
+    u = xs - d * rel[..., 0, None, None]  # B,N,H,W
+    v = ys - d * rel[..., 1, None, None]
+    grid = torch.stack([2 * u / max(w - 1, 1) - 1, 2 * v / max(h - 1, 1) - 1], -1).reshape(b * n, h, w, 2)
+    out = F.grid_sample(feat.reshape(b * n, c, h, w), grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+    return out.reshape(b, n, c, h, w)
+
+
+class ResBlock3D(nn.Module):
+    def __init__(self, ch: int):
+        super().__init__()
+        self.body = nn.Sequential(nn.Conv3d(ch, ch, 3, padding=1, bias=False), _act(), nn.Conv3d(ch, ch, 3, padding=1, bias=False))
+
+    def forward(self, x):
+        return x + self.body(x)
+
+
+class DisparityNet(nn.Module):
+    """DistgDisp-like disparity of the reference view of a square U x U light field.
+
+    forward(views [B, U*U, C, H, W] row-major, rel [B, U*U, 2] offsets from the reference view in
+    baselines) -> disparity [B, H, W] in pixels per baseline step, a softmax-weighted mean of the
+    candidates linspace(d_min, d_max, n_disp).
+    """
+
+    def __init__(self, ang: int, d_min: float, d_max: float, n_disp: int = 9, in_ch: int = 3, ch: int = 16, n_blocks: int = 2, cost_ch: int = 32):
+        super().__init__()
+        self.ang = ang
+        self.feature = nn.Sequential(nn.Conv2d(in_ch, ch, 3, padding=ang, dilation=ang, bias=False), _act(), *[DistgBlock(ang, ch) for _ in range(n_blocks)])
+        # DistgDisp's disparity-selective angular feature extractor: one macro-pixel of sheared views
+        self.dsafe = nn.Conv2d(ch, cost_ch, ang, stride=ang, bias=False)
+        self.aggregate = nn.Sequential(nn.Conv3d(cost_ch, cost_ch, 3, padding=1, bias=False), _act(), ResBlock3D(cost_ch), nn.Conv3d(cost_ch, 1, 3, padding=1, bias=False))
+        self.register_buffer("candidates", torch.linspace(float(d_min), float(d_max), int(n_disp)))
+
+    def cost_volume(self, views: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+        b, n, c, h, w = views.shape
+        a = self.ang
+        x = sai_to_macpi(views.reshape(b, a, a, c, h, w).permute(0, 3, 1, 2, 4, 5))
+        f = macpi_to_sai(self.feature(x), a, a)  # B,C,U,V,H,W
+        f = f.permute(0, 2, 3, 1, 4, 5).reshape(b, n, -1, h, w)
+        costs = []
+        for d in self.candidates.tolist():
+            s = shift_views(f, rel, d)
+            costs.append(self.dsafe(sai_to_macpi(s.reshape(b, a, a, -1, h, w).permute(0, 3, 1, 2, 4, 5))))
+        return torch.stack(costs, 2)  # B,C,D,H,W
+
+    def forward(self, views: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+        if views.shape[1] != self.ang * self.ang:
+            raise ValueError(f"DisparityNet({self.ang}x{self.ang}) got {views.shape[1]} views")
+        score = self.aggregate(self.cost_volume(views, rel.to(views.dtype)))[:, 0]  # B,D,H,W
+        p = torch.softmax(score, 1)
+        return (p * self.candidates[None, :, None, None]).sum(1)
+
+
+def blend_corners(corners: torch.Tensor, n: int) -> torch.Tensor:
+    """Angular bilinear blend: corners [B, 4, C, H, W] ((0,0), (0,n-1), (n-1,0), (n-1,n-1)) -> [B, n*n, C, H, W]."""
+    t = torch.linspace(0.0, 1.0, n, device=corners.device, dtype=corners.dtype)
+    ay, ax = torch.meshgrid(t, t, indexing="ij")
+    w = torch.stack([(1 - ay) * (1 - ax), (1 - ay) * ax, ay * (1 - ax), ay * ax], -1).reshape(n * n, 4)
+    return torch.einsum("vk,bkchw->bvchw", w, corners)
+
+
+class ASRNet(nn.Module):
+    """DistgASR-like angular super-resolution: 2x2 corner views -> all n x n views.
+
+    forward(corners [B, 4, C, H, W] row-major) -> [B, n*n, C, H, W] row-major.
+    """
+
+    def __init__(self, n: int, in_ch: int = 3, ch: int = 32, n_blocks: int = 2):
+        super().__init__()
+        self.n = n
+        self.head = nn.Sequential(nn.Conv2d(in_ch, ch, 3, padding=2, dilation=2, bias=False), _act())
+        self.blocks = nn.Sequential(*[DistgBlock(2, ch) for _ in range(n_blocks)])
+        self.upsample = nn.Sequential(
+            nn.Conv2d(ch, ch, 2, stride=2, bias=False),  # angular: one feature per spatial position
+            _act(),
+            nn.Conv2d(ch, ch * n * n, 1, bias=False),
+            nn.PixelShuffle(n),  # -> the n x n output MacPI
+            nn.Conv2d(ch, in_ch, 3, padding=n, dilation=n, bias=False),
+        )
+
+    def forward(self, corners: torch.Tensor) -> torch.Tensor:
+        b, k, c, h, w = corners.shape
+        if k != 4:
+            raise ValueError(f"ASRNet takes the 4 corner views, got {k}")
+        x = sai_to_macpi(corners.reshape(b, 2, 2, c, h, w).permute(0, 3, 1, 2, 4, 5))
+        r = macpi_to_sai(self.upsample(self.blocks(self.head(x))), self.n, self.n)  # B,C,n,n,H,W
+        return blend_corners(corners, self.n) + r.permute(0, 2, 3, 1, 4, 5).reshape(b, self.n * self.n, c, h, w)

@@ -1,0 +1,275 @@
+"""What flow/train_disparity.py and flow/train_asr.py share: arguments, the tiny dataset,
+checkpoints and resume, the JSON training log, the rich progress bar and scoring through
+`lfusd eval` (lfusd.evaluation.score)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from lfusd import LfusdError  # noqa: E402
+from lfusd import layout  # noqa: E402
+
+log = logging.getLogger("lfusd.flow")
+
+# The --tiny dataset: the bundled static boxes seen by a small 3x3 rig, two frames.
+TINY_STAGE = ROOT / "stages" / "static_boxes.usda"
+TINY_RIG = ["--name", "tiny", "--grid", "3x3", "--baseline", "0.25", "--resolution", "48x48", "--at", "0.5,-7,2.2", "--look-at", "0,1,0.6"]
+TINY_RENDER = ["--rig", "tiny", "--frames", "1-2", "--samples", "4", "--quiet"]
+CHECKPOINT = "last.pt"
+
+
+def parse_frames(text: str | None) -> list[int] | None:
+    """'1-5,8' -> [1, 2, 3, 4, 5, 8]; None stays None."""
+    if text is None:
+        return None
+    out = []
+    try:
+        for part in text.split(","):
+            a, _, b = part.partition("-")
+            out += list(range(int(a), int(b or a) + 1))
+    except ValueError:
+        raise LfusdError(f"frames {text!r} are not N, A-B or a list such as 1-5,8") from None
+    return out
+
+
+def common_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", default=None, help="dataset folder (lfusd render-video output); with --tiny, rendered there when it holds none")
+    p.add_argument("--out", required=True, help="run folder: checkpoints/, train_log.json, pred/, eval_*.json")
+    p.add_argument("--rig", default=None, help="rig name, for a dataset with several rigs")
+    p.add_argument("--tiny", action="store_true", help="toy run on CPU: a tiny network on a tiny rendered dataset, ~1 minute")
+    p.add_argument("--train-frames", default=None, help="frames to train on, e.g. 1-40 (default: all but the last; all when there is one)")
+    p.add_argument("--eval-frames", default=None, help="frames to evaluate (default: the last)")
+    p.add_argument("--steps", type=int, default=None, help="total optimiser steps (with --resume: up to this many in all)")
+    p.add_argument("--batch", type=int, default=None, help="batch size")
+    p.add_argument("--crop", type=int, default=None, help="side of the random training crops in pixels")
+    p.add_argument("--lr", type=float, default=None, help="Adam learning rate")
+    p.add_argument("--save-every", type=int, default=None, help="write a checkpoint every N steps (and at the end)")
+    p.add_argument("--log-every", type=int, default=None, help="record the mean loss every N steps in train_log.json")
+    p.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoints/last.pt (model, optimiser, step)")
+    p.add_argument("--no-baselines", action="store_true", help="skip scoring the classical baselines beside the model")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads of torch (default 1 with --tiny: toy tensors gain nothing from more, and on a busy machine extra threads spin)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def start(a, script: str, tiny: dict, full: dict):
+    """Open the run folder (and its checkpoint with --resume), fill unset options with the --tiny or
+    full-size defaults, set torch up and find (or render) the dataset.
+
+    Returns (run, checkpoint state or None, device, dataset folder, reader, train frames, eval frames).
+    """
+    t0 = time.time()
+    run = Run(a.out, script)
+    state = run.load() if a.resume else None
+    if state:  # a resumed run keeps its kind and its data unless told otherwise
+        a.tiny = a.tiny or bool(state["config"].get("tiny"))
+        a.data = a.data or state["config"].get("data")
+        log.info("resuming %s at step %d", run.ckpt, state["step"])
+    fill_defaults(a, tiny, full)
+    torch.manual_seed(a.seed)
+    if state:
+        torch.set_rng_state(state["rng"])
+    device = device_of(a.device, a.threads)
+    data = resolve_data(a)
+    run.log["timing"]["render_s"] = time.time() - t0
+    from lfusd.data.export import open_dataset
+
+    ds = open_dataset(data, a.rig)
+    if state:
+        train, evalf = state["config"]["train_frames"], state["config"]["eval_frames"]
+    else:
+        train, evalf = split_frames(ds, a)
+    return run, state, device, data, ds, train, evalf
+
+
+def fill_defaults(a, tiny: dict, full: dict) -> None:
+    """Unset options take the --tiny or the full-size defaults."""
+    for k, v in (tiny if a.tiny else full).items():
+        if getattr(a, k, None) is None:
+            setattr(a, k, v)
+    if a.threads is None and a.tiny:
+        a.threads = 1
+
+
+def device_of(name: str, threads: int | None = None) -> torch.device:
+    if threads:
+        torch.set_num_threads(threads)
+    if name == "cuda" and not torch.cuda.is_available():
+        raise LfusdError("--device cuda but PyTorch sees no CUDA device; use --device cpu or a CUDA build of torch")
+    return torch.device(name)
+
+
+def lfusd_cli(*args) -> None:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, "-m", "lfusd", *map(str, args)], env=env, capture_output=True, text=True)
+    if r.returncode != 0:
+        last = (r.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise LfusdError(f"rendering the tiny dataset failed ({last}); render one yourself and pass --data")
+
+
+def tiny_dataset(dest: Path) -> Path:
+    """Render the tiny dataset into ``dest`` unless it already holds one; returns ``dest``."""
+    if (dest / layout.MANIFEST).is_file():
+        log.info("reusing the dataset in %s", dest)
+        return dest
+    dest.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    stage = dest.parent / f"{dest.name}_stage.usda"
+    if stage.exists():
+        stage.unlink()
+    lfusd_cli("rig", "add", TINY_STAGE, *TINY_RIG, "-o", stage)
+    lfusd_cli("render-video", stage, "-o", dest, *TINY_RENDER, "--overwrite")
+    log.info("rendered the tiny dataset into %s in %.1f s", dest, time.time() - t0)
+    return dest
+
+
+def resolve_data(a) -> Path:
+    if a.tiny:
+        return tiny_dataset(Path(a.data) if a.data else Path(a.out) / "tiny_data")
+    if not a.data:
+        raise LfusdError("no dataset: give --data OUT (a folder written by lfusd render-video) or --tiny")
+    if not (Path(a.data) / layout.MANIFEST).is_file():
+        raise LfusdError(f"{a.data} holds no lfusd dataset ({layout.MANIFEST} missing); render one with lfusd render-video")
+    return Path(a.data)
+
+
+def split_frames(ds, a) -> tuple[list[int], list[int]]:
+    frames = list(ds.frames)
+    train = parse_frames(a.train_frames) or (frames[:-1] if len(frames) > 1 else frames)
+    evalf = parse_frames(a.eval_frames) or frames[-1:]
+    bad = [f for f in train + evalf if f not in frames]
+    if bad:
+        raise LfusdError(f"frames {bad} are not in the dataset ({frames[0]}..{frames[-1]}); pick --train-frames/--eval-frames inside it")
+    return train, evalf
+
+
+# ---- checkpoints and the training log ----------------------------------------------------------
+
+
+class Run:
+    """The run folder: checkpoints/last.pt and train_log.json (loss history, timing, scores)."""
+
+    def __init__(self, out, script: str):
+        self.out = Path(out)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.ckpt = self.out / "checkpoints" / CHECKPOINT
+        self.log_path = self.out / "train_log.json"
+        self.log = {"script": script, "config": {}, "history": [], "resumed_at": [], "timing": {}}
+
+    def save(self, model, opt, step: int, config: dict) -> None:
+        """Write the checkpoint (atomically) and the log up to ``step``."""
+        self.ckpt.parent.mkdir(exist_ok=True)
+        tmp = self.ckpt.with_suffix(".tmp")
+        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step, "config": config, "rng": torch.get_rng_state()}, tmp)
+        os.replace(tmp, self.ckpt)  # a crash mid-write leaves the previous checkpoint whole
+        self.log["checkpoint_step"] = step
+        self.write_log()
+
+    def load(self) -> dict:
+        if not self.ckpt.is_file():
+            raise LfusdError(f"no checkpoint at {self.ckpt}; run once without --resume first")
+        state = torch.load(self.ckpt, map_location="cpu", weights_only=False)
+        if self.log_path.is_file():
+            self.log = json.loads(self.log_path.read_text())
+        # losses logged after the checkpoint was written are retrained, so they go
+        self.log["history"] = [h for h in self.log["history"] if h["step"] <= state["step"]]
+        self.log["resumed_at"].append(state["step"])
+        return state
+
+    def write_log(self) -> None:
+        self.log_path.write_text(json.dumps(self.log, indent=1, default=float))
+
+
+def progress(quiet: bool):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("loss {task.fields[loss]:.4f}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        disable=quiet,
+        transient=False,
+    )
+
+
+def train_loop(model, opt, batches, step_fn, run: Run, config: dict, start: int, a, description: str) -> None:
+    """Optimise from step ``start`` + 1 to ``a.steps``: ``step_fn(batch) -> loss``; checkpoints every
+    ``a.save_every`` steps and at the end; the mean loss of every ``a.log_every`` steps goes to the log."""
+    model.train()
+    acc, n_acc, t0 = 0.0, 0, time.time()
+    step = start
+    with progress(a.quiet) as bar:
+        task = bar.add_task(description, total=a.steps, completed=start, loss=float("nan"))
+        for batch in batches:
+            if step >= a.steps:
+                break
+            loss = step_fn(batch)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            step += 1
+            acc += float(loss.detach())
+            n_acc += 1
+            if n_acc == a.log_every or step == a.steps:
+                run.log["history"].append({"step": step, "loss": acc / n_acc, "seconds": time.time() - t0})
+                bar.update(task, loss=acc / n_acc)
+                acc, n_acc = 0.0, 0
+            bar.update(task, completed=step)
+            if step % a.save_every == 0 or step == a.steps:
+                run.save(model, opt, step, config)
+    run.log["timing"]["train_s"] = time.time() - t0  # timing is this invocation's
+
+
+def endless(loader):
+    while True:
+        yield from loader
+
+
+# ---- scoring through lfusd eval ----------------------------------------------------------------
+
+
+def pred_name(frame: int, view) -> str:
+    """The name `lfusd eval --pred` reads (lfusd.evaluation.score.find_predictions)."""
+    return f"{frame:04d}_{int(view[0]):02d}_{int(view[1]):02d}"
+
+
+def score(ds, pred_dir: Path, task: str, pixels) -> dict:
+    """`lfusd eval --task TASK --pred pred_dir`: rows (with the pixels each compared) and mean, also
+    written as pred_dir/eval_<task>.json and .csv like the command does."""
+    from lfusd.evaluation.score import evaluate, mean_row, write_results
+
+    rows = evaluate(ds, pred_dir, task)
+    for r in rows:
+        r["pixels"] = int(pixels(r["frame"], (r["row"], r["col"])))
+    write_results(rows, task, pred_dir / f"eval_{task}.json", pred_dir / f"eval_{task}.csv")
+    mean = mean_row(rows)
+    mean["pixels"] = int(sum(r["pixels"] for r in rows))
+    return {"rows": rows, "mean": mean}
+
+
+def main_wrapper(name: str, main, argv=None) -> int:
+    """One-line errors and exit 2 (lfusd's convention)."""
+    logging.basicConfig(level=logging.INFO, format=f"{name}: %(message)s")
+    try:
+        return main(argv)
+    except LfusdError as e:
+        print(f"{name}: error: {e}", file=sys.stderr)
+        return 2
+
