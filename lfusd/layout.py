@@ -54,3 +54,14 @@ def view_key(view: tuple[int, int]) -> str:
 def frame_dir(root: Path, rig: str, frame: int) -> Path:
     """The folder of one frame of one rig: ``OUT/<rig>/f000001``."""
     return Path(root) / rig / f"f{frame:06d}"
+
+
+# A rig study's folder (`lfusd rig-study -o STUDY`): its own files, and the dataset of its renders.
+STUDY_RECORD = "study.json"  # the study's settings; a rerun must match them (resume)
+STUDY_RENDER_LAYER = "render.usda"  # layer over the stage: one union rig of distinct cameras per position
+STUDY_CANDIDATES_LAYER = "candidates.usda"  # layer over the stage: every candidate as an lfusd rig
+STUDY_RENDERS = "renders"  # the lfusd dataset of the union rigs
+STUDY_SCORES = "scores"  # one <candidate>.json per scored candidate (what makes a rerun skip it)
+STUDY_REPORT = "report.md"
+STUDY_HEATMAPS = "heatmaps"  # one <arrangement>.png of per-view redundancy over the grid
+STUDY_PLOT = "score_vs_baseline.png"

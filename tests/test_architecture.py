@@ -24,6 +24,10 @@ ALLOWED = {
     "evaluation": BASE | {"data", "evaluation"},
     "render": BASE | {"author", "data", "truth", "render"},
     "torch": BASE | {"data"},
+    # The rig study is an experiment over the whole pipeline: it authors rigs, renders them, reads
+    # the dataset and scores it, so it sits above author, render, data and evaluation, like the
+    # commands (and, like everything, it does not import them).
+    "study": BASE | {"author", "render", "data", "evaluation", "study"},
     "commands": None,  # the CLI may call anything
     "cli": None,
     "__init__": None,  # the facade (lazy)
