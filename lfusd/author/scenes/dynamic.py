@@ -12,19 +12,32 @@ by animated ones. All randomness comes from a generator seeded with (seed, the t
 key, 1): the static part of the stage is the same as without --dynamic and the seed -> stage
 mapping is stable.
 
-This module holds the building blocks (walkers, traffic, drifting boats); each template's own
-``@<template>.dynamic`` function, in its module, decides where they go.
+This module holds the building blocks (walkers, traffic, drifting boats, performers); each
+template's own ``@<template>.dynamic`` function, in its module, decides where they go.
+
+Choreography (issue 16): every rig must see motion. The template names spots where a person
+may walk a loop (``ctx.spot``); :func:`populate` puts a performer on one spot per set of up to
+three rigs, and :func:`place_rigs` stands each rig of a set 1.8-2.4 m from its performer, looking
+at it, trying candidate placements until one meets the goal of lfusd.author.choreography
+(moving objects over 5 % of the centre view in 90 % of the frames, a person in view in half of
+them) measured by ray casting the stage at sampled frames; among passing candidates it prefers
+one where a moving object passes behind a static one.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from pxr import Usd, UsdGeom
 
 from .. import movers
+from .. import choreography
+from ...camera import RigSpec
 from ..people import add_person
+from ..rigs import add_rig
 from ..rules import Checker
 from ...errors import LfusdError
 from ..human import HumanSpec
@@ -33,6 +46,12 @@ from ..vocabulary import SURFACES
 from . import GAP, Placed, Scene, Site, Template
 from . import objects as kit
 
+RIGS_PER_SET = 3  # rigs that watch one performer
+RIG_DISTANCE = (1.8, 2.4)  # metres from a rig to the centre of its performer's loop
+FAR_DISTANCE = (2.4, 3.4)  # ... where nothing nearer is free
+PLAN_FRAMES = 24  # frames sampled when measuring a candidate rig
+PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
+PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
 PERSON_HEIGHT = 2.1
 
@@ -79,6 +98,10 @@ class Ctx:
     frames: int
     fps: float
     movers: list[str] = field(default_factory=list)
+    # spot(rng) -> (centre xy, ground z, heading degrees, loop length, loop width) or None: where a
+    # performer may walk a loop (set by the template's dynamic function)
+    spot: Callable | None = None
+    performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
 
     @property
     def duration(self) -> float:
@@ -89,9 +112,10 @@ class Ctx:
         return self.scene.stage
 
 
-def populate(scene: Scene, template: Template, site: Site, seed: int) -> Site:
-    """Add people and movers to a freshly built stage of ``template`` (its ``dynamic`` function);
-    returns the site, with the rig samplers that function replaced."""
+def populate(scene: Scene, template: Template, site: Site, seed: int, rigs: int = 10) -> Site:
+    """Add people and movers to a freshly built stage of ``template`` (its ``dynamic`` function)
+    and one performer per set of up to three of the ``rigs`` (at least one); returns the site,
+    with the rig samplers that function replaced. The context is kept as ``scene.ctx``."""
     stage = scene.stage
     first, last = int(stage.GetStartTimeCode()), int(stage.GetEndTimeCode())
     for o in object_table(stage)[0]:  # the static blocky people make way for animated ones
@@ -101,7 +125,12 @@ def populate(scene: Scene, template: Template, site: Site, seed: int) -> Site:
     ctx = Ctx(scene, np.random.default_rng([int(seed), template.seed_key, 1]), Occupancy.of(stage), last - first + 1,
               float(stage.GetTimeCodesPerSecond() or 24.0))
     replaced = template.animate(ctx, site)
+    if ctx.spot is not None:
+        for _ in range(max(1, math.ceil(rigs / RIGS_PER_SET))):
+            performer(ctx)
     settle(stage, ctx.movers, scene)
+    ctx.performers = [p for p in ctx.performers if p[2] in ctx.movers]
+    scene.ctx = ctx
     return replaced or site
 
 
@@ -233,3 +262,105 @@ def run_inside(start, d, lo, hi) -> float:
     """How far one can go from ``start`` along the axis direction ``d`` inside the box lo..hi."""
     k = int(np.argmax(np.abs(d)))
     return float((hi[k] - start[k]) if d[k] > 0 else (start[k] - lo[k]))
+
+
+# -- choreography -----------------------------------------------------------------------------------
+def loop_path(centre, heading_deg: float, length: float, width: float, total: float, clockwise: bool) -> np.ndarray:
+    """Corners of a rectangular loop (``length`` along ``heading_deg``, ``width`` across) around
+    ``centre``, repeated until the path is ``total`` metres long (people turn on fillets)."""
+    h = math.radians(heading_deg)
+    ax, ay = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
+    corners = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+    if clockwise:
+        corners = corners[::-1]
+    pts = [np.asarray(centre, float) + a * length / 2 * ax + b * width / 2 * ay for a, b in corners]
+    lap = 2 * (length + width)
+    laps = int(math.ceil(total / lap)) + 1
+    return np.array((pts * laps)[: 4 * laps + 1])
+
+
+def performer(ctx: Ctx, tries: int = 30) -> bool:
+    """A person walking a loop on a spot the template offers (``ctx.spot``) for the whole clip,
+    if its sweep is free; records it in ``ctx.performers``."""
+    rng = ctx.rng
+    for _ in range(tries):
+        got = ctx.spot(rng)
+        if got is None:
+            continue
+        centre, z, heading, length, width = got
+        centre = np.asarray(centre, float)
+        h = math.radians(heading)
+        ext = np.abs([length / 2 * math.cos(h)]) + np.abs([width / 2 * math.sin(h)])
+        ey = abs(length / 2 * math.sin(h)) + abs(width / 2 * math.cos(h))
+        lo = np.r_[centre - [ext[0], ey] - PERSON_RADIUS, z - 0.05]
+        hi = np.r_[centre + [ext[0], ey] + PERSON_RADIUS, z + PERSON_HEIGHT]
+        if not ctx.occ.free(lo, hi):
+            continue
+        speed = float(rng.uniform(0.9, 1.4))
+        spec = HumanSpec(float(rng.uniform(1.6, 1.9)), float(rng.uniform(0.2, 0.8)))
+        points = loop_path(centre, heading, length, width, speed * ctx.duration + 3.0, bool(rng.random() < 0.5))
+        try:
+            prim = add_person(ctx.stage, points, gait="walk", speed=speed, spec=spec, check=False)
+        except LfusdError:
+            continue
+        path = str(prim.GetPath())
+        ctx.occ.reserve(ctx.scene, path, lo, hi)
+        ctx.movers.append(path)
+        ctx.performers.append((np.r_[centre, z], float(heading), path))
+        return True
+    return False
+
+
+def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int = 12) -> list[choreography.Footage] | None:
+    """Add ``rig_00``... each watching a performer (round robin over ``scene.ctx.performers``): a
+    candidate stands 1.8-2.4 m from the performer's loop (mostly across its long axis; 2.4-3.4 m,
+    then other performers, when nothing there is free), 1.3-2.1 m above its ground, looking at
+    its middle; it must be free (its box and the first metres of its line of sight) and is
+    measured at sampled frames (lfusd.author.choreography.Watch). Of up to ``tries`` free
+    candidates the first that meets the goal with a margin and shows an occlusion wins, else the
+    best. ``fallback(i)`` adds rig i the template's way when no candidate is free. Returns the
+    planning measurements, or None (nothing added) without performers."""
+    ctx = getattr(scene, "ctx", None)
+    if ctx is None or not ctx.performers:
+        return None
+    first, last = int(scene.stage.GetStartTimeCode()), int(scene.stage.GetEndTimeCode())
+    watch = choreography.Watch(scene.stage, first, last)
+    frames = np.unique(np.linspace(first, last, min(PLAN_FRAMES, last - first + 1)).round().astype(int))
+    half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
+    (bx0, by0), (bx1, by1) = scene.bounds
+    rng = ctx.rng
+    out = []
+    n = len(ctx.performers)
+    for i in range(count):
+        best, best_key, free = None, None, 0
+        plan = [(ctx.performers[i % n], RIG_DISTANCE), (ctx.performers[i % n], FAR_DISTANCE)]
+        plan += [(ctx.performers[(i + k) % n], d) for k in range(1, n) for d in (RIG_DISTANCE, FAR_DISTANCE)]
+        for (centre, heading, _), distance in plan:
+            for _ in range(60):
+                # mostly across the loop's long axis, so the performer keeps its distance
+                az = math.radians(heading + (90.0 if rng.random() < 0.5 else -90.0) + float(rng.uniform(-50, 50)))
+                d = float(rng.uniform(*distance))
+                at = centre + [d * math.cos(az), d * math.sin(az), float(rng.uniform(1.3, 2.1))]
+                target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.7, 1.1))]
+                if not (bx0 + half < at[0] < bx1 - half and by0 + half < at[1] < by1 - half):
+                    continue
+                dist = float(np.linalg.norm(target - at))
+                ahead = [at + (target - at) * (s / dist) for s in np.arange(half, min(2.0, dist - 1.0), 0.25)]
+                if not (scene.free(at - half, at + half, margin=0.0) and all(scene.free(p - 0.25, p + 0.25, margin=0.0) for p in ahead)):
+                    continue
+                spec = RigSpec(name=f"rig_{i:02d}", at=tuple(float(v) for v in at), look_at=tuple(float(v) for v in target), **spec_kwargs)
+                foot = watch.footage(spec, frames, width=PLAN_WIDTH)
+                key = (foot.meets_goal(PLAN_MARGIN), bool(foot.occluded.any()), foot.in_view + foot.person_in_view + float(foot.moving.mean()))
+                if best_key is None or key > best_key:
+                    best, best_key = (spec, foot), key
+                free += 1
+                if (key[0] and (key[1] or free >= tries // 3)) or free >= tries:
+                    break
+            if best_key is not None and (best_key[0] or free >= tries):
+                break
+        if best is None:
+            fallback(i)
+            continue
+        add_rig(scene.stage, best[0])
+        out.append(best[1])
+    return out
