@@ -273,6 +273,10 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
                             lambda i: add_rigs(scene, 1, site.rig_position, site.look_at, spec_kwargs, first=i))
     if placed is None:
         add_rigs(scene, rigs, site.rig_position, site.look_at, spec_kwargs)
+    if dynamic:
+        from .dynamic import finish
+
+        finish(scene)  # the rulebook over every frame; a mover that breaks a rule goes
     round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
     return stage

@@ -17,7 +17,7 @@ template's own ``@<template>.dynamic`` function, in its module, decides where th
 
 Choreography (issue 16): every rig must see motion. The template names spots where a person
 may walk a loop (``ctx.spot``); :func:`populate` puts a performer on one spot per set of up to
-three rigs, and :func:`place_rigs` stands each rig of a set 1.8-2.4 m from its performer, looking
+three rigs, and :func:`place_rigs` stands each rig of a set about 2 m from its performer, looking
 at it, trying candidate placements until one meets the goal of lfusd.author.choreography
 (moving objects over 5 % of the centre view in 90 % of the frames, a person in view in half of
 them) measured by ray casting the stage at sampled frames; among passing candidates it prefers
@@ -47,8 +47,8 @@ from . import GAP, Placed, Scene, Site, Template
 from . import objects as kit
 
 RIGS_PER_SET = 3  # rigs that watch one performer
-RIG_DISTANCE = (1.8, 2.4)  # metres from a rig to the centre of its performer's loop
-FAR_DISTANCE = (2.4, 3.4)  # ... where nothing nearer is free
+# Distances from a rig to the centre of its performer's loop, beyond the rig's half size, tried in turn.
+RIG_RINGS = ((1.0, 1.6), (1.6, 2.6), (2.6, 3.6))
 PLAN_FRAMES = 24  # frames sampled when measuring a candidate rig
 PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
 PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
@@ -102,6 +102,7 @@ class Ctx:
     # performer may walk a loop (set by the template's dynamic function)
     spot: Callable | None = None
     performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
+    statics: list | None = None  # (label, lo, hi) of static objects (see beside)
 
     @property
     def duration(self) -> float:
@@ -115,7 +116,8 @@ class Ctx:
 def populate(scene: Scene, template: Template, site: Site, seed: int, rigs: int = 10) -> Site:
     """Add people and movers to a freshly built stage of ``template`` (its ``dynamic`` function)
     and one performer per set of up to three of the ``rigs`` (at least one); returns the site,
-    with the rig samplers that function replaced. The context is kept as ``scene.ctx``."""
+    with the rig samplers that function replaced. The context is kept as ``scene.ctx``; call
+    :func:`finish` once the rigs are placed."""
     stage = scene.stage
     first, last = int(stage.GetStartTimeCode()), int(stage.GetEndTimeCode())
     for o in object_table(stage)[0]:  # the static blocky people make way for animated ones
@@ -128,10 +130,13 @@ def populate(scene: Scene, template: Template, site: Site, seed: int, rigs: int 
     if ctx.spot is not None:
         for _ in range(max(1, math.ceil(rigs / RIGS_PER_SET))):
             performer(ctx)
-    settle(stage, ctx.movers, scene)
-    ctx.performers = [p for p in ctx.performers if p[2] in ctx.movers]
     scene.ctx = ctx
     return replaced or site
+
+
+def finish(scene: Scene) -> None:
+    """The rulebook pass over every frame once movers, performers and rigs are in (:func:`settle`)."""
+    settle(scene.stage, scene.ctx.movers, scene)
 
 
 def settle(stage: Usd.Stage, dynamic: list[str], scene: Scene | None = None, rounds: int = 4) -> None:
@@ -279,6 +284,28 @@ def loop_path(centre, heading_deg: float, length: float, width: float, total: fl
     return np.array((pts * laps)[: 4 * laps + 1])
 
 
+def beside(ctx: Ctx, rng: np.random.Generator, labels, region, gap=(0.9, 1.6)):
+    """A point ``gap`` metres (horizontally) beside a random static object of ``labels`` inside
+    ``region`` ((x0, y0), (x1, y1)), or None: a performer's loop there passes behind the object
+    from some viewpoints (occlusions between movers and static objects)."""
+    if ctx.statics is None:
+        ctx.statics = [(o.label, *next(((p.lo, p.hi) for p in ctx.scene.placed if p.path == o.prim_path), (None, None)))
+                       for o in object_table(ctx.stage)[0] if o.prim_path not in ctx.movers]
+        ctx.statics = [x for x in ctx.statics if x[1] is not None]
+    (x0, y0), (x1, y1) = region
+    near = [(lo, hi) for label, lo, hi in ctx.statics if label in labels and x0 <= (lo[0] + hi[0]) / 2 <= x1
+            and y0 <= (lo[1] + hi[1]) / 2 <= y1]
+    if not near:
+        return None
+    lo, hi = near[int(rng.integers(len(near)))]
+    a = float(rng.uniform(0, 2 * math.pi))
+    d = np.array([math.cos(a), math.sin(a)])
+    # from the box centre out along d to its edge, then the gap
+    half = (hi[:2] - lo[:2]) / 2
+    edge = float(np.min(np.where(np.abs(d) > 1e-9, half / np.maximum(np.abs(d), 1e-9), np.inf)))
+    return (lo[:2] + hi[:2]) / 2 + d * (edge + float(rng.uniform(*gap)))
+
+
 def performer(ctx: Ctx, tries: int = 30) -> bool:
     """A person walking a loop on a spot the template offers (``ctx.spot``) for the whole clip,
     if its sweep is free; records it in ``ctx.performers``."""
@@ -311,15 +338,18 @@ def performer(ctx: Ctx, tries: int = 30) -> bool:
     return False
 
 
-def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int = 12) -> list[choreography.Footage] | None:
-    """Add ``rig_00``... each watching a performer (round robin over ``scene.ctx.performers``): a
-    candidate stands 1.8-2.4 m from the performer's loop (mostly across its long axis; 2.4-3.4 m,
-    then other performers, when nothing there is free), 1.3-2.1 m above its ground, looking at
-    its middle; it must be free (its box and the first metres of its line of sight) and is
-    measured at sampled frames (lfusd.author.choreography.Watch). Of up to ``tries`` free
-    candidates the first that meets the goal with a margin and shows an occlusion wins, else the
-    best. ``fallback(i)`` adds rig i the template's way when no candidate is free. Returns the
-    planning measurements, or None (nothing added) without performers."""
+def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int = 8, extra: int = 2) -> list[choreography.Footage] | None:
+    """Add ``rig_00``... each watching a performer (round robin over ``scene.ctx.performers``).
+
+    A candidate stands 1-1.6 m beyond the rig's own half size from the performer's loop centre
+    (mostly across its long axis; then 1.6-2.6 m, 2.6-3.6 m, then the other performers), 1.3-2.1 m
+    above its ground, looking at its middle; it must be free (its box and the first metres of its
+    line of sight; half the candidates look past a static object near the performer, when there
+    is one) and is measured at sampled frames (lfusd.author.choreography.Watch). Of up to
+    ``tries`` free candidates the first that meets the goal with a margin and shows an occlusion
+    wins, else the best; when none meets the goal, up to ``extra`` more performers per scene are
+    added and tried. ``fallback(i)`` adds rig i the template's way when no candidate is free.
+    Returns the planning measurements, or None (nothing added) without performers."""
     ctx = getattr(scene, "ctx", None)
     if ctx is None or not ctx.performers:
         return None
@@ -327,18 +357,23 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     watch = choreography.Watch(scene.stage, first, last)
     frames = np.unique(np.linspace(first, last, min(PLAN_FRAMES, last - first + 1)).round().astype(int))
     half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
+    rings = [(half + a, half + b) for a, b in RIG_RINGS]
     (bx0, by0), (bx1, by1) = scene.bounds
     rng = ctx.rng
-    out = []
-    n = len(ctx.performers)
-    for i in range(count):
+
+    def search(i, plan):
         best, best_key, free = None, None, 0
-        plan = [(ctx.performers[i % n], RIG_DISTANCE), (ctx.performers[i % n], FAR_DISTANCE)]
-        plan += [(ctx.performers[(i + k) % n], d) for k in range(1, n) for d in (RIG_DISTANCE, FAR_DISTANCE)]
         for (centre, heading, _), distance in plan:
+            beside(ctx, rng, (), ((0, 0), (0, 0)))  # fills ctx.statics
+            behind = [(lo + hi)[:2] / 2 for _, lo, hi in ctx.statics
+                      if 0.5 < np.linalg.norm((lo + hi)[:2] / 2 - centre[:2]) < distance[1] - half]
             for _ in range(60):
-                # mostly across the loop's long axis, so the performer keeps its distance
-                az = math.radians(heading + (90.0 if rng.random() < 0.5 else -90.0) + float(rng.uniform(-50, 50)))
+                if behind and rng.random() < 0.5:
+                    # the rig looks past a static object near the performer (it passes behind it at times)
+                    o = behind[int(rng.integers(len(behind)))] - centre[:2]
+                    az = math.atan2(o[1], o[0]) + math.radians(float(rng.uniform(-15, 15)))
+                else:  # mostly across the loop's long axis, so the performer keeps its distance
+                    az = math.radians(heading + (90.0 if rng.random() < 0.5 else -90.0) + float(rng.uniform(-50, 50)))
                 d = float(rng.uniform(*distance))
                 at = centre + [d * math.cos(az), d * math.sin(az), float(rng.uniform(1.3, 2.1))]
                 target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.7, 1.1))]
@@ -354,10 +389,26 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
                 if best_key is None or key > best_key:
                     best, best_key = (spec, foot), key
                 free += 1
-                if (key[0] and (key[1] or free >= tries // 3)) or free >= tries:
-                    break
-            if best_key is not None and (best_key[0] or free >= tries):
+                if (key[0] and key[1]) or free >= tries:
+                    return best, best_key
+            if best_key is not None and best_key[0]:
                 break
+        return best, best_key
+
+    out = []
+    for i in range(count):
+        n = len(ctx.performers)
+        plan = [(ctx.performers[i % n], ring) for ring in rings]
+        plan += [(ctx.performers[(i + k) % n], ring) for k in range(1, n) for ring in rings[:2]]
+        best, best_key = search(i, plan)
+        while (best_key is None or not best_key[0]) and extra > 0:
+            extra -= 1
+            if not performer(ctx):
+                break
+            watch.refresh()
+            got, got_key = search(i, [(ctx.performers[-1], ring) for ring in rings])
+            if got_key is not None and (best_key is None or got_key > best_key):
+                best, best_key = got, got_key
         if best is None:
             fallback(i)
             continue

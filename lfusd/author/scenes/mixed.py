@@ -82,7 +82,7 @@ def mixed(scene: Scene) -> MixedSite:
 
 @mixed.dynamic
 def _animate(ctx, site: MixedSite) -> None:
-    from .dynamic import boats, traffic
+    from .dynamic import beside, boats, traffic
 
     (ry0, ry1), ((px0, py0), (px1, py1)), level = site.road, site.pond, site.level
     rng = ctx.rng
@@ -95,9 +95,14 @@ def _animate(ctx, site: MixedSite) -> None:
     ctx.occ.boxes.append(("pond", np.array([px0 - 0.3, py0 - 0.3, -5.0]), np.array([px1 + 0.3, py1 + 0.3, 5.0])))
     (nx0, ny0), (nx1, ny1) = site.north
 
-    def spot(r):  # a loop on the grass north of the road (the road's traffic behind it, or the pond)
-        return ((float(r.uniform(nx0 + 3, nx1 - 3)), float(r.uniform(ny0 + 1.5, min(ny1 - 3, py1 + 4)))), GAP,
-                float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7)))
+    def spot(r):  # a loop on the grass north of the road (traffic or the pond behind it), often by a tree, bench or house
+        region = ((nx0 + 3, ny0 + 1.5), (nx1 - 3, min(ny1 - 3, py1 + 4)))
+        centre = (float(r.uniform(region[0][0], region[1][0])), float(r.uniform(region[0][1], region[1][1])))
+        if r.random() < 0.7:
+            near = beside(ctx, r, ("tree", "bench", "building"), region)
+            if near is not None and region[0][0] <= near[0] <= region[1][0] and region[0][1] <= near[1] <= region[1][1]:
+                centre = (float(near[0]), float(near[1]))
+        return (centre, GAP, float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7)))
 
     ctx.spot = spot
 

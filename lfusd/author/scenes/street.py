@@ -113,7 +113,7 @@ def street(scene: Scene) -> StreetSite:
 
 @street.dynamic
 def _animate(ctx, site: StreetSite) -> StreetSite:
-    from .dynamic import traffic
+    from .dynamic import beside, traffic
 
     road_w, walk_w, curb = site.road_w, site.walk_w, site.curb
     rng = ctx.rng
@@ -121,11 +121,15 @@ def _animate(ctx, site: StreetSite) -> StreetSite:
     if rng.random() < 0.7:
         traffic(ctx, road_w / 2, -1, -L / 2, L / 2, int(rng.integers(1, 4)))
 
-    def spot(r):  # a loop along the middle of a pavement, clear of the kerb and the verge
+    def spot(r):  # a loop along the middle of a pavement, clear of the kerb and the verge, often by a tree or a street light
         s = 1 if r.random() < 0.5 else -1
         width = float(min(0.7, walk_w - 2.0))
-        return ((float(r.uniform(-L / 2 + 6, L / 2 - 6)), s * (road_w + walk_w / 2)), curb + GAP, 0.0,
-                float(r.uniform(1.2, 2.0)), width)
+        x = float(r.uniform(-L / 2 + 6, L / 2 - 6))
+        if r.random() < 0.7:
+            band = sorted((s * road_w, s * (road_w + walk_w + 4)))
+            near = beside(ctx, r, ("tree", "street_light", "bench"), ((-L / 2 + 6, band[0]), (L / 2 - 6, band[1])))
+            x = float(near[0]) if near is not None and abs(near[0]) < L / 2 - 6 else x
+        return ((x, s * (road_w + walk_w / 2)), curb + GAP, 0.0, float(r.uniform(1.2, 2.0)), width)
 
     ctx.spot = spot
     return site
