@@ -28,7 +28,7 @@ import numpy as np
 from pxr import Usd, UsdGeom
 
 from ..camera import Camera, RigSpec, pixel_grid, project
-from .geometry import StageGeometry
+from .geometry import StageGeometry, triangulate
 from .labels import object_table
 from .vocabulary import SURFACES
 
@@ -187,8 +187,6 @@ class Watch:
             if any(a.ValueMightBeTimeVarying() for a in attrs):
                 rigid.append(None)
                 continue
-            from .geometry import triangulate
-
             pts = np.array(m.GetPointsAttr().Get(Usd.TimeCode.Default()), np.float64)
             rigid.append((pts, triangulate(m.GetFaceVertexCountsAttr().Get(), m.GetFaceVertexIndicesAttr().Get())))
         return _Mover(path, label, prims, rigid)
@@ -338,6 +336,8 @@ def rig_footage(stage: Usd.Stage, names=None, width: int = MEASURE_WIDTH, frames
     from .rigs import rigs
 
     found = {k: v for k, v in rigs(stage).items() if names is None or k in names}
+    if not found:
+        return {}
     watch = Watch(stage)
     jobs = [(r.spec, lambda f, r=r: r.cam_to_world(stage, r.spec.centre_view, f)) for _, r in sorted(found.items())]
     return {f.rig: f for f in watch.footage_many(jobs, frames, width)}

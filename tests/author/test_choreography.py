@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux
+from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from lfusd import cli
 from lfusd.author.choreography import GOAL_COVERAGE, GOAL_FRAMES, GOAL_PERSON, Watch, rig_footage

@@ -120,7 +120,7 @@ def test_template_content(tmp_path, template):
     lights = {p.GetTypeName() for p in stage.Traverse() if p.HasAPI(UsdLux.LightAPI)}
     # a sky dome always; a sun only when the drawn lighting setup is "sun" (tests/author/test_choreography.py)
     setup = stage.GetDefaultPrim().GetCustomDataByKey("lfusd:lighting")["setup"]
-    assert "DomeLight" in lights and ("DistantLight" in lights) == (setup == "sun") and len(lights) >= 3, lights
+    assert "DomeLight" in lights and ("DistantLight" in lights) == (setup == "sun") and len(lights) >= 2, lights
     for p in stage.Traverse():
         if p.HasAPI(UsdLux.LightAPI):
             assert UsdLux.LightAPI(p).GetNormalizeAttr().Get() is True

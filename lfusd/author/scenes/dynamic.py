@@ -187,17 +187,6 @@ def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_le
     return True
 
 
-def walkers(ctx: Ctx, count: int, sample, tries: int = 40) -> None:
-    """``count`` people from ``sample(rng) -> (start, direction, z, max_len or None)``."""
-    for _ in range(count):
-        for _ in range(tries):
-            start, direction, z, max_len = sample(ctx.rng)
-            run = ctx.rng.random() < 0.25
-            speed = float(ctx.rng.uniform(2.5, 3.5) if run else ctx.rng.uniform(1.0, 1.6))
-            if walker(ctx, start, direction, z, "run" if run else "walk", speed, max_len):
-                break
-
-
 def traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: int) -> None:
     """``cars`` cars in convoy along the lane y = ``lane_y`` heading +x (1) or -x (-1), kept
     inside x0..x1 over the clip; parked cars in the lane make way."""
@@ -258,15 +247,6 @@ def boats(ctx: Ctx, level: float, x0: float, x1: float, y0: float, y1: float, sp
                 ctx.occ.reserve(scene, o.prim_path, lo, hi)
                 ctx.movers.append(o.prim_path)
                 break
-
-
-AXES = [np.array(v, float) for v in ((1, 0), (0, 1), (-1, 0), (0, -1))]
-
-
-def run_inside(start, d, lo, hi) -> float:
-    """How far one can go from ``start`` along the axis direction ``d`` inside the box lo..hi."""
-    k = int(np.argmax(np.abs(d)))
-    return float((hi[k] - start[k]) if d[k] > 0 else (start[k] - lo[k]))
 
 
 # -- choreography -----------------------------------------------------------------------------------

@@ -3,7 +3,7 @@ cars, street lights (sphere lights), trees and people; sun and sky."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
