@@ -45,7 +45,7 @@ def main() -> int:
     rigs_total, rigs_ok, worst = 0, 0, []
     generate("room", out / "warm_up.usda", 0, frames=2, rigs=1, dynamic=args.dynamic)  # imports and first-use caches, not timed
     for k in range(args.scenes):
-        template = TEMPLATES[k % len(TEMPLATES)]
+        template = list(TEMPLATES)[k % len(TEMPLATES)]
         path = out / f"{template}_{k:02d}.usda"
         t0 = time.perf_counter()
         generate(template, path, k, dynamic=args.dynamic)
