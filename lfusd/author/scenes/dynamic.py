@@ -325,10 +325,10 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     (mostly across its long axis; then 1.6-2.6 m, 2.6-3.6 m, then the other performers), 1.3-2.1 m
     above its ground, looking at its middle; it must be free (its box and the first metres of its
     line of sight; half the candidates look past a static object near the performer, when there
-    is one) and is measured at sampled frames (lfusd.author.choreography.Watch). Of up to
+    is one, and some stand near a rig that already watches the performer well) and is measured at sampled frames (lfusd.author.choreography.Watch). Of up to
     ``tries`` free candidates the first that meets the goal with a margin and shows an occlusion
-    wins, else the best; when none meets the goal, up to ``extra`` more performers per scene are
-    added and tried. ``fallback(i)`` adds rig i the template's way when no candidate is free.
+    wins, else the best; when none meets the goal, ``3 * tries`` more are tried, then up to
+    ``extra`` more performers per scene are added and tried. ``fallback(i)`` adds rig i the template's way when no candidate is free.
     Returns the planning measurements, or None (nothing added) without performers."""
     ctx = getattr(scene, "ctx", None)
     if ctx is None or not ctx.performers:
@@ -341,22 +341,29 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     (bx0, by0), (bx1, by1) = scene.bounds
     rng = ctx.rng
 
-    def search(i, plan):
+    def search(i, plan, tries=tries):
         best, best_key, free = None, None, 0
         for (centre, heading, _), distance in plan:
             beside(ctx, rng, (), ((0, 0), (0, 0)))  # fills ctx.statics
             behind = [(lo + hi)[:2] / 2 for _, lo, hi in ctx.statics
                       if 0.5 < np.linalg.norm((lo + hi)[:2] / 2 - centre[:2]) < distance[1] - half]
+            good = accepted.get(id(centre), [])
             for _ in range(60):
-                if behind and rng.random() < 0.5:
+                if good and rng.random() < 0.3:  # near a rig that already watches this performer well
+                    at0, target0 = good[int(rng.integers(len(good)))]
+                    at = at0 + rng.uniform(-0.4, 0.4, 3) * [1.0, 1.0, 0.5]
+                    target = target0 + rng.uniform(-0.2, 0.2, 3)
+                    az = None
+                elif behind and rng.random() < 0.5:
                     # the rig looks past a static object near the performer (it passes behind it at times)
                     o = behind[int(rng.integers(len(behind)))] - centre[:2]
                     az = math.atan2(o[1], o[0]) + math.radians(float(rng.uniform(-15, 15)))
                 else:  # mostly across the loop's long axis, so the performer keeps its distance
                     az = math.radians(heading + (90.0 if rng.random() < 0.5 else -90.0) + float(rng.uniform(-50, 50)))
-                d = float(rng.uniform(*distance))
-                at = centre + [d * math.cos(az), d * math.sin(az), float(rng.uniform(1.3, 2.1))]
-                target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.7, 1.1))]
+                if az is not None:
+                    d = float(rng.uniform(*distance))
+                    at = centre + [d * math.cos(az), d * math.sin(az), float(rng.uniform(1.3, 2.1))]
+                    target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.7, 1.1))]
                 if not (bx0 + half < at[0] < bx1 - half and by0 + half < at[1] < by1 - half):
                     continue
                 dist = float(np.linalg.norm(target - at))
@@ -367,7 +374,7 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
                 foot = watch.footage(spec, frames, width=PLAN_WIDTH)
                 key = (foot.meets_goal(PLAN_MARGIN), bool(foot.occluded.any()), foot.in_view + foot.person_in_view + float(foot.moving.mean()))
                 if best_key is None or key > best_key:
-                    best, best_key = (spec, foot), key
+                    best, best_key = (spec, foot, centre), key
                 free += 1
                 if (key[0] and key[1]) or free >= tries:
                     return best, best_key
@@ -376,11 +383,16 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
         return best, best_key
 
     out = []
+    accepted: dict[int, list] = {}  # performer (by its centre array) -> (at, look_at) of rigs that met the goal
     for i in range(count):
         n = len(ctx.performers)
         plan = [(ctx.performers[i % n], ring) for ring in rings]
         plan += [(ctx.performers[(i + k) % n], ring) for k in range(1, n) for ring in rings[:2]]
         best, best_key = search(i, plan)
+        if best_key is not None and not best_key[0]:  # none passed: a wider look around the same performers
+            got, got_key = search(i, plan, 3 * tries)
+            if got_key is not None and got_key > best_key:
+                best, best_key = got, got_key
         while (best_key is None or not best_key[0]) and extra > 0:
             extra -= 1
             if not performer(ctx):
@@ -394,4 +406,6 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
             continue
         add_rig(scene.stage, best[0])
         out.append(best[1])
+        if best_key[0]:
+            accepted.setdefault(id(best[2]), []).append((np.asarray(best[0].at), np.asarray(best[0].look_at)))
     return out
