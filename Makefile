@@ -13,6 +13,7 @@ setup:
 demo: setup
 	$(LFUSD) render-video $(DEMO_STAGE) -o $(DEMO_OUT) --rig rig_00 --resolution 128x128 --samples 8
 	@echo "dataset written to $(DEMO_OUT); read it with: from lfusd import Dataset; Dataset('$(DEMO_OUT)')"
+	@$(VENV)/bin/python -c "from lfusd.truth.coverage import report; print(*report('$(DEMO_OUT)'), sep='\n')"
 
 test: setup
 	$(VENV)/bin/python -m pytest -q

@@ -39,6 +39,7 @@ WHEEL_RADIUS = "lfusd:wheelRadius"  # double on a car's wheel* mesh
 TEMPLATE = "lfusd:template"
 SEED = "lfusd:seed"
 DYNAMIC = "lfusd:dynamic"
+LIGHTING = "lfusd:lighting"  # dictionary: the drawn lighting setup ("setup": sun|overcast|night|indoor, and its parameters)
 
 # -- customLayerData of a gait clip (animations/*.usda) ----------------------------------------
 GAIT = "lfusd:gait"

@@ -12,10 +12,15 @@ log = logging.getLogger(__name__)
 def register(sub) -> None:
     p = sub.add_parser("check", help="check a stage's semantic constraints and USD validity",
                        description="Evaluate every constraint (default rulebook, rules file, stage rules) at every "
-                                   "frame of the stage's range and run USD's validators; one line per violation.")
+                                   "frame of the stage's range and run USD's validators; one line per violation. "
+                                   "Then, per rig, what its centre view sees move (ray cast at 64 pixels across): the "
+                                   "fraction of frames with moving objects over 5%% of the view, their mean and "
+                                   "minimum coverage, the fraction with a person in view, and the disparity range.")
     p.add_argument("stage", help="the .usda/.usdc/.usd stage")
     p.add_argument("--rules", metavar="FILE", help="extra rules (JSON or TOML) overriding the default rulebook")
     p.add_argument("--no-usd-validation", action="store_true", help="skip pxr.UsdValidation's validators")
+    p.add_argument("--no-coverage", action="store_true",
+                   help="skip the per-rig report of motion in view and disparity range (ray casting every frame)")
     p.set_defaults(func=handler)
 
 
@@ -36,6 +41,11 @@ def handler(args) -> int:
         lines += usd_validation(stage)
     for line in lines:
         print(line)
+    if not args.no_coverage:
+        from ..author.choreography import rig_footage
+
+        for footage in rig_footage(stage).values():
+            print(footage.line())
     first, last = frame_range(stage)
     n_rules = sum(len([k for k in r.rules if k not in ("draft", "tolerance")]) for r in checker.rules)
     summary = (f"{args.stage}: {len(checker.labelled)} labelled objects, {n_rules} rules, frames {first}-{last}"

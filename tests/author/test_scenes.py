@@ -118,7 +118,9 @@ def test_template_content(tmp_path, template):
             asset = UsdShade.Shader(tex.GetPrim()).GetInput("file").Get()
             assert asset.path.startswith("./textures/") and (tmp_path / asset.path).is_file()
     lights = {p.GetTypeName() for p in stage.Traverse() if p.HasAPI(UsdLux.LightAPI)}
-    assert {"DistantLight", "DomeLight"} <= lights and len(lights) >= 3, lights
+    # a sky dome always; a sun only when the drawn lighting setup is "sun" (tests/author/test_choreography.py)
+    setup = stage.GetDefaultPrim().GetCustomDataByKey("lfusd:lighting")["setup"]
+    assert "DomeLight" in lights and ("DistantLight" in lights) == (setup == "sun") and len(lights) >= 2, lights
     for p in stage.Traverse():
         if p.HasAPI(UsdLux.LightAPI):
             assert UsdLux.LightAPI(p).GetNormalizeAttr().Get() is True
@@ -130,7 +132,7 @@ def test_template_content(tmp_path, template):
 
 
 def test_default_rig_spec_and_count(tmp_path):
-    stage = generate("room", tmp_path / "r.usda", 1, frames=2)
+    stage = generate("street", tmp_path / "r.usda", 1, frames=2)  # (rooms take a 0.05 m baseline)
     found = rigs(stage)
     assert sorted(found) == [f"rig_{i:02d}" for i in range(10)]
     s = found["rig_05"].spec
@@ -388,7 +390,7 @@ def test_dynamic_seed_to_stage_is_byte_stable_and_keeps_the_static_scene(tmp_pat
     # the dynamic variant is the static scene plus movers: its surfaces are authored identically
     static = generate("river", tmp_path / "static.usda", 3, **{**DYN, "dynamic": False})
     dyn = Usd.Stage.Open(str(tmp_path / "a" / "s.usda"))
-    for path in ("/World/River", "/World/Bank_N", "/World/Bridge", "/World/Lights/Sun"):
+    for path in ("/World/River", "/World/Bank_N", "/World/Bridge", "/World/Lights/Sky"):
         a, b = static.GetPrimAtPath(path), dyn.GetPrimAtPath(path)
         assert a and b
         for attr in a.GetAttributes():

@@ -31,7 +31,7 @@ from ...camera import RigSpec
 from ..stage import new_stage, round_layer
 from ..rigs import add_rig
 from ..rules import set_class_rule
-from ..vocabulary import BOUNDS, DYNAMIC, SEED, TEMPLATE
+from ..vocabulary import BOUNDS, DYNAMIC, LIGHTING, SEED, TEMPLATE
 from .build import Builder, MeshData
 
 # Rules for the object kit's classes (lfusd.author.scenes.objects), which every generated stage
@@ -72,6 +72,9 @@ class Scene:
     placed: list[Placed] = field(default_factory=list)
     counters: dict[str, int] = field(default_factory=dict)
     bounds: tuple[tuple[float, float], tuple[float, float]] = ((-30.0, -30.0), (30.0, 30.0))
+    baseline: float = 0.125  # the rigs' baseline: the template sets it to the scene's scale
+    lighting: dict = field(default_factory=dict)  # the drawn lighting setup (customData lfusd:lighting)
+    ctx: object = None  # the dynamic variant's state (lfusd.author.scenes.dynamic.Ctx)
 
     @property
     def stage(self) -> Usd.Stage:
@@ -97,13 +100,15 @@ class Scene:
 
     def free(self, lo, hi, margin: float = 0.05, ignore: tuple[str, ...] = ()) -> bool:
         """True when the box [lo, hi] (grown by ``margin``) meets no placed object's box."""
-        lo, hi = np.asarray(lo) - margin, np.asarray(hi) + margin
-        for p in self.placed:
-            if p.path in ignore:
-                continue
-            if np.all(lo < p.hi) and np.all(hi > p.lo):
-                return False
-        return True
+        lo, hi = np.asarray(lo, float) - margin, np.asarray(hi, float) + margin
+        if not self.placed:
+            return True
+        key = tuple(id(p) for p in self.placed)
+        if getattr(self, "_boxes", (None,))[0] != key:  # one array of every box (rebuilt when placed changes)
+            self._boxes = (key, np.array([p.lo for p in self.placed], float), np.array([p.hi for p in self.placed], float))
+        _, los, his = self._boxes
+        meet = np.all(lo < his, axis=1) & np.all(hi > los, axis=1)
+        return not any(self.placed[k].path not in ignore for k in np.flatnonzero(meet))
 
     def place(self, parts: list[tuple[str, MeshData, str]], region, z: float, yaw_choices=None, tries: int = 60,
               margin: float = 0.1, ignore: tuple[str, ...] = ()) -> tuple[tuple[float, float, float], float] | None:
@@ -199,10 +204,10 @@ def stage_rules(t: Template) -> dict[str, dict[str, list[str]]]:
     return {cls: {**TEMPLATE_RULES.get(cls, {}), **t.rules.get(cls, {})} for cls in {**TEMPLATE_RULES, **t.rules}}
 
 
-def add_rigs(scene: Scene, count: int, sample_position, look_at, spec_kwargs: dict, tries: int = 200) -> None:
-    """Add ``rig_00``... placements: each at a sampled free position looking at ``look_at(rng)``."""
+def add_rigs(scene: Scene, count: int, sample_position, look_at, spec_kwargs: dict, tries: int = 200, first: int = 0) -> None:
+    """Add ``rig_NN`` (NN from ``first``) placements: each at a sampled free position looking at ``look_at(rng)``."""
     half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
-    for i in range(count):
+    for i in range(first, first + count):
         for _ in range(tries):
             at = np.asarray(sample_position(scene.rng), float)
             target = np.asarray(look_at(scene.rng), float)
@@ -247,7 +252,7 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     if dynamic:
         from .dynamic import populate
 
-        site = populate(scene, t, site, seed)
+        site = populate(scene, t, site, seed, rigs)
     author_rules(stage, stage_rules(t))
     (bx0, by0), (bx1, by1) = scene.bounds
     world = stage.GetDefaultPrim()
@@ -255,10 +260,23 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         [Gf.Vec3d(bx0, by0, -100.0), Gf.Vec3d(bx1, by1, 100.0)])
     world.SetCustomDataByKey(TEMPLATE, template)
     world.SetCustomDataByKey(SEED, int(seed))
+    if scene.lighting:
+        world.SetCustomDataByKey(LIGHTING, scene.lighting)
     if dynamic:
         world.SetCustomDataByKey(DYNAMIC, True)
-    spec_kwargs = dict(rows=grid[0], cols=grid[1], width=resolution[0], height=resolution[1])
-    add_rigs(scene, rigs, site.rig_position, site.look_at, spec_kwargs)
+    spec_kwargs = dict(rows=grid[0], cols=grid[1], width=resolution[0], height=resolution[1], baseline=scene.baseline)
+    placed = None
+    if dynamic:
+        from .dynamic import place_rigs
+
+        placed = place_rigs(scene, rigs, spec_kwargs,
+                            lambda i: add_rigs(scene, 1, site.rig_position, site.look_at, spec_kwargs, first=i))
+    if placed is None:
+        add_rigs(scene, rigs, site.rig_position, site.look_at, spec_kwargs)
+    if dynamic:
+        from .dynamic import finish
+
+        finish(scene)  # the rulebook over every frame; a mover that breaks a rule goes
     round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
     return stage

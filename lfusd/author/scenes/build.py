@@ -19,6 +19,10 @@ from ..labels import set_class_label
 from .textures import ensure_texture
 
 TEXTURE_DIR = "textures"
+# Lighting setups a template draws from (Builder.lighting): a sun at a varied elevation and
+# azimuth with a sky dome; an overcast sky (dome only); night (a dark sky, the template's street
+# lights, spots and lamps turned up); indoor (the room's area and point lights, a dim fill).
+LIGHTING_SETUPS = ("sun", "overcast", "night", "indoor")
 
 
 # -- mesh data ----------------------------------------------------------------------------
@@ -271,6 +275,39 @@ class Builder:
         light.CreateColorAttr(Gf.Vec3f(*color))
         _aim(light, np.asarray(position, float), np.asarray(target, float) - np.asarray(position, float))
         return light
+
+    def lighting(self, rng: np.random.Generator, setups: tuple[str, ...]) -> dict:
+        """Draw one of ``setups`` (LIGHTING_SETUPS) and author it; return the record that the stage's
+        customData keeps (``lfusd:lighting``). Lights the template authored already (lamps, spots,
+        area lights under /World/Lights) stay: a night multiplies their intensity by 3 to 5
+        (they light the scene), the other setups keep them as they are."""
+        setup = str(setups[int(rng.integers(len(setups)))])
+        record: dict = {"setup": setup}
+        if setup == "sun":
+            az, el = float(rng.uniform(0, 360)), float(rng.uniform(10, 75))
+            self.sun(az, el, float(rng.uniform(0.8, 1.6)))
+            sky = float(rng.uniform(0.3, 0.7))
+            self.dome(sky)
+            record.update(sun_azimuth=az, sun_elevation=el, sky=sky)
+        elif setup == "overcast":
+            sky = float(rng.uniform(0.9, 1.6))
+            self.dome(sky, color=(0.8, 0.82, 0.86))
+            record.update(sky=sky)
+        elif setup == "night":
+            gain = float(rng.uniform(3.0, 5.0))
+            for prim in self.stage.GetPrimAtPath("/World/Lights").GetChildren():
+                attr = UsdLux.LightAPI(prim).GetIntensityAttr()
+                attr.Set(float(attr.Get()) * gain)
+            sky = float(rng.uniform(0.02, 0.06))
+            self.dome(sky, color=(0.15, 0.2, 0.35))
+            record.update(sky=sky, lamp_gain=gain)
+        elif setup == "indoor":  # the area and point lights do the work; a dim fill from outside
+            sky = float(rng.uniform(0.05, 0.15))
+            self.dome(sky, color=(0.9, 0.9, 1.0))
+            record.update(sky=sky)
+        else:
+            raise ValueError(f"unknown lighting setup {setup!r}")
+        return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in record.items()}
 
     def dome(self, intensity: float, color=(0.55, 0.65, 0.85)) -> UsdLux.DomeLight:
         """A uniform-colour DomeLight (sky fill)."""

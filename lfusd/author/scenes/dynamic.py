@@ -12,19 +12,32 @@ by animated ones. All randomness comes from a generator seeded with (seed, the t
 key, 1): the static part of the stage is the same as without --dynamic and the seed -> stage
 mapping is stable.
 
-This module holds the building blocks (walkers, traffic, drifting boats); each template's own
-``@<template>.dynamic`` function, in its module, decides where they go.
+This module holds the building blocks (walkers, traffic, drifting boats, performers); each
+template's own ``@<template>.dynamic`` function, in its module, decides where they go.
+
+Choreography (issue 16): every rig must see motion. The template names spots where a person
+may walk a loop (``ctx.spot``); :func:`populate` puts a performer on one spot per set of up to
+three rigs, and :func:`place_rigs` stands each rig of a set about 2 m from its performer, looking
+at it, trying candidate placements until one meets the goal of lfusd.author.choreography
+(moving objects over 5 % of the centre view in 90 % of the frames, a person in view in half of
+them) measured by ray casting the stage at sampled frames; among passing candidates it prefers
+one where a moving object passes behind a static one.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from pxr import Usd, UsdGeom
 
 from .. import movers
+from .. import choreography
+from ...camera import RigSpec
 from ..people import add_person
+from ..rigs import add_rig
 from ..rules import Checker
 from ...errors import LfusdError
 from ..human import HumanSpec
@@ -33,6 +46,12 @@ from ..vocabulary import SURFACES
 from . import GAP, Placed, Scene, Site, Template
 from . import objects as kit
 
+RIGS_PER_SET = 3  # rigs that watch one performer
+# Distances from a rig to the centre of its performer's loop, beyond the rig's half size, tried in turn.
+RIG_RINGS = ((1.0, 1.6), (1.6, 2.6), (2.6, 3.6))
+PLAN_FRAMES = 24  # frames sampled when measuring a candidate rig
+PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
+PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
 PERSON_HEIGHT = 2.1
 
@@ -79,6 +98,11 @@ class Ctx:
     frames: int
     fps: float
     movers: list[str] = field(default_factory=list)
+    # spot(rng) -> (centre xy, ground z, heading degrees, loop length, loop width) or None: where a
+    # performer may walk a loop (set by the template's dynamic function)
+    spot: Callable | None = None
+    performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
+    statics: list | None = None  # (label, lo, hi) of static objects (see beside)
 
     @property
     def duration(self) -> float:
@@ -89,9 +113,11 @@ class Ctx:
         return self.scene.stage
 
 
-def populate(scene: Scene, template: Template, site: Site, seed: int) -> Site:
-    """Add people and movers to a freshly built stage of ``template`` (its ``dynamic`` function);
-    returns the site, with the rig samplers that function replaced."""
+def populate(scene: Scene, template: Template, site: Site, seed: int, rigs: int = 10) -> Site:
+    """Add people and movers to a freshly built stage of ``template`` (its ``dynamic`` function)
+    and one performer per set of up to three of the ``rigs`` (at least one); returns the site,
+    with the rig samplers that function replaced. The context is kept as ``scene.ctx``; call
+    :func:`finish` once the rigs are placed."""
     stage = scene.stage
     first, last = int(stage.GetStartTimeCode()), int(stage.GetEndTimeCode())
     for o in object_table(stage)[0]:  # the static blocky people make way for animated ones
@@ -101,8 +127,16 @@ def populate(scene: Scene, template: Template, site: Site, seed: int) -> Site:
     ctx = Ctx(scene, np.random.default_rng([int(seed), template.seed_key, 1]), Occupancy.of(stage), last - first + 1,
               float(stage.GetTimeCodesPerSecond() or 24.0))
     replaced = template.animate(ctx, site)
-    settle(stage, ctx.movers, scene)
+    if ctx.spot is not None:
+        for _ in range(max(1, math.ceil(rigs / RIGS_PER_SET))):
+            performer(ctx)
+    scene.ctx = ctx
     return replaced or site
+
+
+def finish(scene: Scene) -> None:
+    """The rulebook pass over every frame once movers, performers and rigs are in (:func:`settle`)."""
+    settle(scene.stage, scene.ctx.movers, scene)
 
 
 def settle(stage: Usd.Stage, dynamic: list[str], scene: Scene | None = None, rounds: int = 4) -> None:
@@ -151,17 +185,6 @@ def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_le
     ctx.occ.reserve(ctx.scene, path, lo, hi)
     ctx.movers.append(path)
     return True
-
-
-def walkers(ctx: Ctx, count: int, sample, tries: int = 40) -> None:
-    """``count`` people from ``sample(rng) -> (start, direction, z, max_len or None)``."""
-    for _ in range(count):
-        for _ in range(tries):
-            start, direction, z, max_len = sample(ctx.rng)
-            run = ctx.rng.random() < 0.25
-            speed = float(ctx.rng.uniform(2.5, 3.5) if run else ctx.rng.uniform(1.0, 1.6))
-            if walker(ctx, start, direction, z, "run" if run else "walk", speed, max_len):
-                break
 
 
 def traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: int) -> None:
@@ -226,10 +249,163 @@ def boats(ctx: Ctx, level: float, x0: float, x1: float, y0: float, y1: float, sp
                 break
 
 
-AXES = [np.array(v, float) for v in ((1, 0), (0, 1), (-1, 0), (0, -1))]
+# -- choreography -----------------------------------------------------------------------------------
+def loop_path(centre, heading_deg: float, length: float, width: float, total: float, clockwise: bool) -> np.ndarray:
+    """Corners of a rectangular loop (``length`` along ``heading_deg``, ``width`` across) around
+    ``centre``, repeated until the path is ``total`` metres long (people turn on fillets)."""
+    h = math.radians(heading_deg)
+    ax, ay = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
+    corners = [(-1, -1), (1, -1), (1, 1), (-1, 1)]
+    if clockwise:
+        corners = corners[::-1]
+    pts = [np.asarray(centre, float) + a * length / 2 * ax + b * width / 2 * ay for a, b in corners]
+    lap = 2 * (length + width)
+    laps = int(math.ceil(total / lap)) + 1
+    return np.array((pts * laps)[: 4 * laps + 1])
 
 
-def run_inside(start, d, lo, hi) -> float:
-    """How far one can go from ``start`` along the axis direction ``d`` inside the box lo..hi."""
-    k = int(np.argmax(np.abs(d)))
-    return float((hi[k] - start[k]) if d[k] > 0 else (start[k] - lo[k]))
+def beside(ctx: Ctx, rng: np.random.Generator, labels, region, gap=(0.9, 1.6)):
+    """A point ``gap`` metres (horizontally) beside a random static object of ``labels`` inside
+    ``region`` ((x0, y0), (x1, y1)), or None: a performer's loop there passes behind the object
+    from some viewpoints (occlusions between movers and static objects)."""
+    if ctx.statics is None:
+        ctx.statics = [(o.label, *next(((p.lo, p.hi) for p in ctx.scene.placed if p.path == o.prim_path), (None, None)))
+                       for o in object_table(ctx.stage)[0] if o.prim_path not in ctx.movers]
+        ctx.statics = [x for x in ctx.statics if x[1] is not None]
+    (x0, y0), (x1, y1) = region
+    near = [(lo, hi) for label, lo, hi in ctx.statics if label in labels and x0 <= (lo[0] + hi[0]) / 2 <= x1
+            and y0 <= (lo[1] + hi[1]) / 2 <= y1]
+    if not near:
+        return None
+    lo, hi = near[int(rng.integers(len(near)))]
+    a = float(rng.uniform(0, 2 * math.pi))
+    d = np.array([math.cos(a), math.sin(a)])
+    # from the box centre out along d to its edge, then the gap
+    half = (hi[:2] - lo[:2]) / 2
+    edge = float(np.min(np.where(np.abs(d) > 1e-9, half / np.maximum(np.abs(d), 1e-9), np.inf)))
+    return (lo[:2] + hi[:2]) / 2 + d * (edge + float(rng.uniform(*gap)))
+
+
+def performer(ctx: Ctx, tries: int = 30) -> bool:
+    """A person walking a loop on a spot the template offers (``ctx.spot``) for the whole clip,
+    if its sweep is free; records it in ``ctx.performers``."""
+    rng = ctx.rng
+    for _ in range(tries):
+        got = ctx.spot(rng)
+        if got is None:
+            continue
+        centre, z, heading, length, width = got
+        centre = np.asarray(centre, float)
+        h = math.radians(heading)
+        ext = np.abs([length / 2 * math.cos(h)]) + np.abs([width / 2 * math.sin(h)])
+        ey = abs(length / 2 * math.sin(h)) + abs(width / 2 * math.cos(h))
+        lo = np.r_[centre - [ext[0], ey] - PERSON_RADIUS, z - 0.05]
+        hi = np.r_[centre + [ext[0], ey] + PERSON_RADIUS, z + PERSON_HEIGHT]
+        if not ctx.occ.free(lo, hi):
+            continue
+        speed = float(rng.uniform(0.9, 1.4))
+        spec = HumanSpec(float(rng.uniform(1.6, 1.9)), float(rng.uniform(0.2, 0.8)))
+        points = loop_path(centre, heading, length, width, speed * ctx.duration + 3.0, bool(rng.random() < 0.5))
+        try:
+            prim = add_person(ctx.stage, points, gait="walk", speed=speed, spec=spec, check=False)
+        except LfusdError:
+            continue
+        path = str(prim.GetPath())
+        ctx.occ.reserve(ctx.scene, path, lo, hi)
+        ctx.movers.append(path)
+        ctx.performers.append((np.r_[centre, z], float(heading), path))
+        return True
+    return False
+
+
+def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int = 8, extra: int = 2) -> list[choreography.Footage] | None:
+    """Add ``rig_00``... each watching a performer (round robin over ``scene.ctx.performers``).
+
+    A candidate stands 1-1.6 m beyond the rig's own half size from the performer's loop centre
+    (mostly across its long axis; then 1.6-2.6 m, 2.6-3.6 m, then the other performers), 1.3-2.1 m
+    above its ground, looking at its middle; it must be free (its box and the first metres of its
+    line of sight; half the candidates look past a static object near the performer, when there
+    is one, and some stand near a rig that already watches the performer well) and is measured at sampled frames (lfusd.author.choreography.Watch). Of up to
+    ``tries`` free candidates the first that meets the goal with a margin and shows an occlusion
+    wins, else the best; when none meets the goal, ``3 * tries`` more are tried, then up to
+    ``extra`` more performers per scene are added and tried. ``fallback(i)`` adds rig i the template's way when no candidate is free.
+    Returns the planning measurements, or None (nothing added) without performers."""
+    ctx = getattr(scene, "ctx", None)
+    if ctx is None or not ctx.performers:
+        return None
+    first, last = int(scene.stage.GetStartTimeCode()), int(scene.stage.GetEndTimeCode())
+    watch = choreography.Watch(scene.stage, first, last)
+    frames = np.unique(np.linspace(first, last, min(PLAN_FRAMES, last - first + 1)).round().astype(int))
+    half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
+    rings = [(half + a, half + b) for a, b in RIG_RINGS]
+    (bx0, by0), (bx1, by1) = scene.bounds
+    rng = ctx.rng
+
+    def search(i, plan, tries=tries):
+        best, best_key, free = None, None, 0
+        for (centre, heading, _), distance in plan:
+            beside(ctx, rng, (), ((0, 0), (0, 0)))  # fills ctx.statics
+            behind = [(lo + hi)[:2] / 2 for _, lo, hi in ctx.statics
+                      if 0.5 < np.linalg.norm((lo + hi)[:2] / 2 - centre[:2]) < distance[1] - half]
+            good = accepted.get(id(centre), [])
+            for _ in range(60):
+                if good and rng.random() < 0.3:  # near a rig that already watches this performer well
+                    at0, target0 = good[int(rng.integers(len(good)))]
+                    at = at0 + rng.uniform(-0.4, 0.4, 3) * [1.0, 1.0, 0.5]
+                    target = target0 + rng.uniform(-0.2, 0.2, 3)
+                    az = None
+                elif behind and rng.random() < 0.5:
+                    # the rig looks past a static object near the performer (it passes behind it at times)
+                    o = behind[int(rng.integers(len(behind)))] - centre[:2]
+                    az = math.atan2(o[1], o[0]) + math.radians(float(rng.uniform(-15, 15)))
+                else:  # mostly across the loop's long axis, so the performer keeps its distance
+                    az = math.radians(heading + (90.0 if rng.random() < 0.5 else -90.0) + float(rng.uniform(-50, 50)))
+                if az is not None:
+                    d = float(rng.uniform(*distance))
+                    at = centre + [d * math.cos(az), d * math.sin(az), float(rng.uniform(1.3, 2.1))]
+                    target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.7, 1.1))]
+                if not (bx0 + half < at[0] < bx1 - half and by0 + half < at[1] < by1 - half):
+                    continue
+                dist = float(np.linalg.norm(target - at))
+                ahead = [at + (target - at) * (s / dist) for s in np.arange(half, min(2.0, dist - 1.0), 0.25)]
+                if not (scene.free(at - half, at + half, margin=0.0) and all(scene.free(p - 0.25, p + 0.25, margin=0.0) for p in ahead)):
+                    continue
+                spec = RigSpec(name=f"rig_{i:02d}", at=tuple(float(v) for v in at), look_at=tuple(float(v) for v in target), **spec_kwargs)
+                foot = watch.footage(spec, frames, width=PLAN_WIDTH)
+                key = (foot.meets_goal(PLAN_MARGIN), bool(foot.occluded.any()), foot.in_view + foot.person_in_view + float(foot.moving.mean()))
+                if best_key is None or key > best_key:
+                    best, best_key = (spec, foot, centre), key
+                free += 1
+                if (key[0] and key[1]) or free >= tries:
+                    return best, best_key
+            if best_key is not None and best_key[0]:
+                break
+        return best, best_key
+
+    out = []
+    accepted: dict[int, list] = {}  # performer (by its centre array) -> (at, look_at) of rigs that met the goal
+    for i in range(count):
+        n = len(ctx.performers)
+        plan = [(ctx.performers[i % n], ring) for ring in rings]
+        plan += [(ctx.performers[(i + k) % n], ring) for k in range(1, n) for ring in rings[:2]]
+        best, best_key = search(i, plan)
+        if best_key is not None and not best_key[0]:  # none passed: a wider look around the same performers
+            got, got_key = search(i, plan, 3 * tries)
+            if got_key is not None and got_key > best_key:
+                best, best_key = got, got_key
+        while (best_key is None or not best_key[0]) and extra > 0:
+            extra -= 1
+            if not performer(ctx):
+                break
+            watch.refresh()
+            got, got_key = search(i, [(ctx.performers[-1], ring) for ring in rings])
+            if got_key is not None and (best_key is None or got_key > best_key):
+                best, best_key = got, got_key
+        if best is None:
+            fallback(i)
+            continue
+        add_rig(scene.stage, best[0])
+        out.append(best[1])
+        if best_key[0]:
+            accepted.setdefault(id(best[2]), []).append((np.asarray(best[0].at), np.asarray(best[0].look_at)))
+    return out

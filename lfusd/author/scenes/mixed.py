@@ -67,10 +67,9 @@ def mixed(scene: Scene) -> MixedSite:
             if pose and not _overlaps(pose, parts, (px0 - 0.3, py0 - 0.3), (px1 + 0.3, py1 + 0.3)):
                 scene.add(scene.name(kind.capitalize()), label, parts, pose[0], pose[1])
 
-    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(20, 70)), float(rng.uniform(0.6, 1.4)))
-    b.dome(float(rng.uniform(0.3, 0.8)))
     b.sphere_light("Lamp", (float(rng.uniform(-10, 10)), ry1 + 0.5, 4.5), 0.15, float(rng.uniform(150, 400)))
     b.rect_light("Porch", (px1 + 3.0, py1 + 3.0, 3.0), (px1 + 3.0, py1 + 3.0, 0.0), 0.6, 0.6, float(rng.uniform(50, 150)))
+    scene.lighting = b.lighting(rng, ("sun", "sun", "overcast", "night"))
 
     def rig_position(r):
         return (r.uniform(-S + 5, S - 5), r.uniform(ry0 + 1.0, py0 - 0.5), r.uniform(1.5, 3.0))
@@ -83,7 +82,7 @@ def mixed(scene: Scene) -> MixedSite:
 
 @mixed.dynamic
 def _animate(ctx, site: MixedSite) -> None:
-    from .dynamic import AXES, boats, run_inside, traffic, walkers
+    from .dynamic import beside, boats, traffic
 
     (ry0, ry1), ((px0, py0), (px1, py1)), level = site.road, site.pond, site.level
     rng = ctx.rng
@@ -96,12 +95,16 @@ def _animate(ctx, site: MixedSite) -> None:
     ctx.occ.boxes.append(("pond", np.array([px0 - 0.3, py0 - 0.3, -5.0]), np.array([px1 + 0.3, py1 + 0.3, 5.0])))
     (nx0, ny0), (nx1, ny1) = site.north
 
-    def on_grass(r):
-        d = AXES[int(r.integers(4))]
-        start = np.array([r.uniform(nx0 + 1, nx1 - 1), r.uniform(ny0 + 1, ny1 - 1)])
-        return start, d, GAP, run_inside(start, d, (nx0 + 1, ny0 + 1), (nx1 - 1, ny1 - 1))
+    def spot(r):  # a loop on the grass north of the road (traffic or the pond behind it), often by a tree, bench or house
+        region = ((nx0 + 3, ny0 + 1.5), (nx1 - 3, min(ny1 - 3, py1 + 4)))
+        centre = (float(r.uniform(region[0][0], region[1][0])), float(r.uniform(region[0][1], region[1][1])))
+        if r.random() < 0.7:
+            near = beside(ctx, r, ("tree", "bench", "building"), region)
+            if near is not None and region[0][0] <= near[0] <= region[1][0] and region[0][1] <= near[1] <= region[1][1]:
+                centre = (float(near[0]), float(near[1]))
+        return (centre, GAP, float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7)))
 
-    walkers(ctx, int(rng.integers(2, 5)), on_grass)
+    ctx.spot = spot
 
 
 def _overlaps(pose, parts, lo, hi) -> bool:

@@ -88,9 +88,8 @@ def river(scene: Scene) -> RiverSite:
         if pose:
             scene.add(scene.name("Bench"), "bench", parts, pose[0], pose[1])
 
-    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(15, 65)), float(rng.uniform(0.6, 1.4)))
-    b.dome(float(rng.uniform(0.3, 0.8)))
     b.disk_light("BridgeSpot", (bx, 0.0, deck_z + 5.0), (bx, 0.0, deck_z), 0.3, float(rng.uniform(100, 300)))
+    scene.lighting = b.lighting(rng, ("sun", "sun", "overcast", "night"))
 
     def rig_position(r):
         s = 1 if r.random() < 0.5 else -1
@@ -104,7 +103,7 @@ def river(scene: Scene) -> RiverSite:
 
 @river.dynamic
 def _animate(ctx, site: RiverSite) -> None:
-    from .dynamic import boats, walker, walkers
+    from .dynamic import beside, boats, walker
 
     half, level, bank = site.half, site.level, site.bank
     bx, bw, span, deck = site.bx, site.bw, site.span, site.deck_z
@@ -119,11 +118,13 @@ def _animate(ctx, site: RiverSite) -> None:
     # the bridge (a surface, so not in the occupancy) is no place for bank walkers to pass under or climb
     ctx.occ.boxes.append(("bridge", np.array([bx - bw / 2 - 0.4, -span - 0.6, -5.0]), np.array([bx + bw / 2 + 0.4, span + 0.6, 5.0])))
 
-    def on_bank(r):
+    def spot(r):  # a loop along a bank, between the water's edge and the trees, often by a tree or a bench
         s = 1 if r.random() < 0.5 else -1
-        y = s * float(r.uniform(half + 1.0, half + bank - 2.0))
-        d = 1 if r.random() < 0.5 else -1
-        x = float(r.uniform(-L / 2 + 1, L / 2 - 1))
-        return (x, y), (d, 0.0), GAP, (L / 2 - 1 - d * x)
+        centre = (float(r.uniform(-L / 2 + 6, L / 2 - 6)), s * float(r.uniform(half + 1.8, half + 5.0)))
+        if r.random() < 0.7:
+            near = beside(ctx, r, ("tree", "bench"), ((-L / 2 + 6, -half - 8.0), (L / 2 - 6, half + 8.0)))
+            if near is not None and half + 1.8 <= abs(near[1]) <= half + 6.0:
+                centre = (float(near[0]), float(near[1]))
+        return (centre, GAP, float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7)))
 
-    walkers(ctx, int(rng.integers(2, 5)), on_bank)
+    ctx.spot = spot

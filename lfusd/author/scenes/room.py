@@ -97,8 +97,9 @@ def room(scene: Scene) -> RoomSite:
     b.disk_light("Downlight", (tx + 0.8, ty, H + 0.2), (tx + 0.8, ty, 0.0), 0.15, float(rng.uniform(30, 90)))
     b.spot_light("Spot", (tx - 0.5, ty - 0.5, H + 0.2), (tx, ty, top_h), 0.05, float(rng.uniform(60, 150)),
                  float(rng.uniform(20, 35)))
-    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(45, 75)), float(rng.uniform(0.4, 1.0)))
-    b.dome(float(rng.uniform(0.2, 0.5)), color=(0.9, 0.9, 1.0))
+    scene.lighting = b.lighting(rng, ("indoor", "indoor", "sun", "night"))
+    # indoor scale: objects 1-4 m away, so a small baseline keeps disparities like the street's
+    scene.baseline = 0.05
 
     def rig_position(r):
         return (r.uniform(-hx + 1.0, hx - 1.0), r.uniform(-hy + 1.0, hy - 1.0), r.uniform(1.4, 2.0))
@@ -111,8 +112,7 @@ def room(scene: Scene) -> RoomSite:
 
 @room.dynamic
 def _animate(ctx, site: RoomSite) -> None:
-    from .dynamic import AXES, run_inside, walkers
-
+    
     hx, hy = site.hx, site.hy
     scene, rng, clip = ctx.scene, ctx.rng, ctx.duration
     objs = object_table(ctx.stage)[0]
@@ -156,9 +156,9 @@ def _animate(ctx, site: RoomSite) -> None:
                 ctx.occ.reserve(scene, o.prim_path, lo, hi)
                 ctx.movers.append(o.prim_path)
 
-    def in_room(r):
-        d = AXES[int(r.integers(4))]
-        start = np.array([r.uniform(-hx + 0.7, hx - 0.7), r.uniform(-hy + 0.7, hy - 0.7)])
-        return start, d, GAP, run_inside(start, d, (-hx + 0.7, -hy + 0.7), (hx - 0.7, hy - 0.7))
+    def spot(r):  # a small loop on the floor, inside the walls
+        length, width = float(r.uniform(0.8, 1.6)), float(r.uniform(0.4, 0.8))
+        return ((float(r.uniform(-hx + 1.4, hx - 1.4)), float(r.uniform(-hy + 1.4, hy - 1.4))), GAP,
+                float(r.choice([0.0, 90.0])), length, width)
 
-    walkers(ctx, int(rng.integers(1, 3)), in_room)
+    ctx.spot = spot

@@ -3,7 +3,7 @@ cars, street lights (sphere lights), trees and people; sun and sky."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -100,8 +100,7 @@ def street(scene: Scene) -> StreetSite:
         if pose:
             scene.add(scene.name("Tree"), "tree", parts, pose[0], pose[1])
 
-    b.sun(float(rng.uniform(0, 360)), float(rng.uniform(20, 70)), float(rng.uniform(0.6, 1.4)))
-    b.dome(float(rng.uniform(0.3, 0.8)))
+    scene.lighting = b.lighting(rng, ("sun", "sun", "overcast", "night"))
 
     def rig_position(r):
         return (r.uniform(-L / 2 + 8, L / 2 - 8), r.uniform(-road_w + 0.8, road_w - 0.8), r.uniform(1.5, 3.0))
@@ -114,29 +113,23 @@ def street(scene: Scene) -> StreetSite:
 
 @street.dynamic
 def _animate(ctx, site: StreetSite) -> StreetSite:
-    from .dynamic import traffic, walkers
+    from .dynamic import beside, traffic
 
     road_w, walk_w, curb = site.road_w, site.walk_w, site.curb
     rng = ctx.rng
-    traffic(ctx, -road_w / 2, 1, -L / 2, L / 2, int(rng.integers(1, 3)))
-    if rng.random() < 0.6:
-        traffic(ctx, road_w / 2, -1, -L / 2, L / 2, int(rng.integers(1, 3)))
+    traffic(ctx, -road_w / 2, 1, -L / 2, L / 2, int(rng.integers(2, 4)))
+    if rng.random() < 0.7:
+        traffic(ctx, road_w / 2, -1, -L / 2, L / 2, int(rng.integers(1, 4)))
 
-    def on_pavement(r):
+    def spot(r):  # a loop along the middle of a pavement, clear of the kerb and the verge, often by a tree or a street light
         s = 1 if r.random() < 0.5 else -1
-        lo, hi = road_w + 1.0, max(road_w + 1.0, road_w + walk_w - 0.6)
-        y = s * float(r.uniform(lo, hi))
-        d = 1 if r.random() < 0.5 else -1
-        x = float(r.uniform(-L / 2 + 1, L / 2 - 1))
-        return (x, y), (d, 0.0), curb + GAP, (L / 2 - 1 - d * x)
+        width = float(min(0.7, walk_w - 2.0))
+        x = float(r.uniform(-L / 2 + 6, L / 2 - 6))
+        if r.random() < 0.7:
+            band = sorted((s * road_w, s * (road_w + walk_w + 4)))
+            near = beside(ctx, r, ("tree", "street_light", "bench"), ((-L / 2 + 6, band[0]), (L / 2 - 6, band[1])))
+            x = float(near[0]) if near is not None and abs(near[0]) < L / 2 - 6 else x
+        return ((x, s * (road_w + walk_w / 2)), curb + GAP, 0.0, float(r.uniform(1.2, 2.0)), width)
 
-    walkers(ctx, int(rng.integers(3, 6)), on_pavement)
-
-    def rig_position(r):  # high on the pavement edge, looking down at the traffic
-        s = 1 if r.random() < 0.5 else -1
-        return (r.uniform(-L / 2 + 8, L / 2 - 8), s * (road_w + r.uniform(0.3, walk_w - 0.3)), r.uniform(2.6, 3.6))
-
-    def look_at(r):
-        return (r.uniform(-10, 10), r.uniform(-road_w - walk_w, road_w + walk_w), r.uniform(0.5, 1.5))
-
-    return replace(site, rig_position=rig_position, look_at=look_at)
+    ctx.spot = spot
+    return site
