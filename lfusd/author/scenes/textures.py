@@ -189,6 +189,56 @@ def _dirt(rng):
     return _mix((0.30, 0.22, 0.14), (0.52, 0.42, 0.30), np.clip(0.8 * n + 0.5 * pebbles, 0, 1))
 
 
+def _glass(rng):
+    # faint streaks and smudges: something for stereo matching on the pane itself
+    n = fbm(rng, base=8, octaves=4)
+    yy, _ = np.mgrid[0:SIZE, 0:SIZE]
+    streaks = 0.5 + 0.5 * np.sin(2 * np.pi * (yy / SIZE * 6 + 0.8 * n))
+    return _mix((0.55, 0.66, 0.72), (0.80, 0.88, 0.92), np.clip(0.6 * n + 0.4 * streaks, 0, 1))
+
+
+def _chrome(rng):
+    n = fbm(rng, base=4, octaves=3)
+    return _mix((0.62, 0.63, 0.65), (0.90, 0.91, 0.93), n)
+
+
+def _tyre(rng):
+    """A wheel: rubber with tread at the texture's border, a silver rim with five spokes in the
+    disc centred on (0.5, 0.5) (the wheel's caps map onto it)."""
+    n = fbm(rng, base=8, octaves=3)
+    yy, xx = (np.mgrid[0:SIZE, 0:SIZE] + 0.5) / SIZE - 0.5
+    r = np.hypot(xx, yy) * 2  # 1 at the disc's edge
+    a = np.arctan2(yy, xx)
+    img = _mix((0.05, 0.05, 0.055), (0.14, 0.14, 0.15), n)
+    tread = (np.floor(((xx + 0.5) * 32) % 2) == 0) & (r > 1.0)
+    img[tread] *= 0.6
+    rim = r < 0.66
+    img[rim] = _mix((0.55, 0.56, 0.58), (0.85, 0.86, 0.88), n)[rim]
+    hole = rim & (r > 0.2) & (r < 0.56) & (np.cos(5 * a) < 0.3)  # between five spokes
+    img[hole] = (0.03, 0.03, 0.035)
+    img[(r > 0.62) & (r < 0.66)] = (0.30, 0.30, 0.32)
+    return img
+
+
+def _books(rng):
+    """Rows of book spines (one shelf board of books spans the texture's height)."""
+    n = fbm(rng, base=8, octaves=3)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    edges = np.cumsum(rng.integers(6, 18, 64))
+    spine = np.searchsorted(edges, xx % SIZE, side="right")
+    palette = np.array([(0.55, 0.10, 0.08), (0.10, 0.25, 0.50), (0.15, 0.40, 0.20), (0.75, 0.65, 0.35),
+                        (0.30, 0.20, 0.15), (0.80, 0.78, 0.72), (0.20, 0.20, 0.22)])
+    colour = palette[(spine * 5 + 3) % len(palette)]
+    tall = 0.55 + 0.4 * ((spine * 37 % 11) / 10.0)
+    up = (SIZE - 1 - yy) / SIZE  # height above the shelf board (row 0 is the top of the image)
+    img = colour * (0.8 + 0.3 * n[..., None])
+    band = (yy % 40 < 3) & (up < tall)
+    img[band] = img[band] * 0.5 + 0.4
+    img[up > tall] = (0.12, 0.09, 0.07)  # the shelf's back above shorter books
+    img[(xx % SIZE) == 0] = (0.05, 0.05, 0.05)
+    return img
+
+
 TEXTURES = {
     "asphalt": _asphalt,
     "paving": lambda rng: _tiles(rng, (0.55, 0.53, 0.50), (0.72, 0.70, 0.66), (0.35, 0.34, 0.32)),
@@ -210,6 +260,17 @@ TEXTURES = {
     "paint_white": _paint((0.82, 0.82, 0.80)),
     "paint_yellow": _paint((0.85, 0.65, 0.08)),
     "paint_dark": _paint((0.12, 0.12, 0.13)),
+    "paint_green": _paint((0.10, 0.38, 0.18)),
+    "paint_silver": _paint((0.62, 0.64, 0.66)),
+    "glass": _glass,
+    "chrome": _chrome,
+    "tyre": _tyre,
+    "books": _books,
+    "leaves_light": lambda rng: _mix((0.16, 0.34, 0.06), (0.52, 0.66, 0.20), np.clip(0.5 * fbm(rng, base=16) + 0.5 * rng.random((SIZE, SIZE)), 0, 1)),
+    "metal": _paint((0.35, 0.37, 0.40)),
+    "skin": _paint((0.78, 0.58, 0.45)),
+    "hair": lambda rng: _mix((0.06, 0.04, 0.03), (0.25, 0.16, 0.09), fbm(rng, base=32, octaves=2)),
+    "denim": lambda rng: _mix((0.10, 0.16, 0.32), (0.30, 0.40, 0.58), np.clip(0.5 * fbm(rng, base=16, octaves=3) + 0.5 * rng.random((SIZE, SIZE)), 0, 1)),
 }
 
 
