@@ -386,11 +386,11 @@ def face_regions(spec: HumanSpec, points: np.ndarray, counts, indices, parts: li
     return region
 
 
-def body_regions(spec: HumanSpec, whole_parts: bool = False) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def body_regions(spec: HumanSpec, whole_parts: bool = False, segments: int = 16) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The body split by clothing region: {region: (points, counts, indices)}, each re-indexed.
     ``whole_parts``: every body part goes wholly to one region (arms to the top, legs to the
     bottom), so each region is a union of closed tubes (for static, unskinned people)."""
-    points, counts, indices, parts = body_mesh(spec)
+    points, counts, indices, parts = body_mesh(spec, segments)
     if whole_parts:
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         part = np.array(parts)[indices[starts]]

@@ -198,7 +198,7 @@ def rod(a, b, radius: float, segments: int = 8, radius_b: float | None = None, t
     return loft([frame_ring(a, b - a, radius, radius, segments), frame_ring(b, b - a, rb, rb, segments)], tile=tile)
 
 
-def blob(centre, radii, rng: np.random.Generator | None = None, segments: int = 10, rings: int = 6,
+def blob(centre, radii, rng: np.random.Generator | None = None, segments: int = 8, rings: int = 4,
          bumpiness: float = 0.15, tile: float = 1.0) -> MeshData:
     """A closed, lumpy ellipsoid (foliage clusters, stones): latitude rings scaled by a smooth
     random radial factor from ``rng`` (none: a plain ellipsoid), poles closed by fans."""

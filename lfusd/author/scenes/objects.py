@@ -128,7 +128,8 @@ def person(rng: np.random.Generator) -> Parts:
     textures = {"skin": "skin", "hair": "hair", "top": _TOPS[int(rng.integers(len(_TOPS)))],
                 "bottom": _BOTTOMS[int(rng.integers(len(_BOTTOMS)))], "shoes": "paint_dark"}
     out = []
-    for garment, (pts, counts, indices) in body_regions(spec, whole_parts=True).items():
+    # 12 segments (a multiple of 4): the rings reach the soles at z = 0
+    for garment, (pts, counts, indices) in body_regions(spec, whole_parts=True, segments=12).items():
         p = np.c_[pts[:, 1], -pts[:, 0], pts[:, 2]]  # the human faces +y; turn it to face +x
         uvs = np.c_[p[:, 0] + p[:, 1], p[:, 2]][np.asarray(indices)] * 4.0  # ~25 cm texture repeats
         out.append((garment, MeshData(p, list(counts), list(indices), uvs), textures[garment]))

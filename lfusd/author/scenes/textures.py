@@ -194,7 +194,8 @@ def _glass(rng):
     n = fbm(rng, base=8, octaves=4)
     yy, _ = np.mgrid[0:SIZE, 0:SIZE]
     streaks = 0.5 + 0.5 * np.sin(2 * np.pi * (yy / SIZE * 6 + 0.8 * n))
-    return _mix((0.55, 0.66, 0.72), (0.80, 0.88, 0.92), np.clip(0.6 * n + 0.4 * streaks, 0, 1))
+    # dark: the pane's own (diffuse) share of the image stays small beside what shows through it
+    return _mix((0.16, 0.21, 0.24), (0.34, 0.41, 0.45), np.clip(0.6 * n + 0.4 * streaks, 0, 1))
 
 
 def _chrome(rng):
@@ -254,7 +255,7 @@ TEXTURES = {
     "concrete": _concrete,
     "ceramic": _ceramic,
     "dirt": _dirt,
-    "floor_tiles": lambda rng: _tiles(rng, (0.62, 0.60, 0.56), (0.80, 0.78, 0.74), (0.30, 0.30, 0.30), 8, True),
+    "floor_tiles": lambda rng: _tiles(rng, (0.50, 0.48, 0.45), (0.66, 0.64, 0.60), (0.26, 0.26, 0.26), 8, True),
     "paint_red": _paint((0.70, 0.08, 0.06)),
     "paint_blue": _paint((0.08, 0.20, 0.62)),
     "paint_white": _paint((0.82, 0.82, 0.80)),
@@ -293,11 +294,29 @@ def ensure_texture(folder: str | Path, name: str) -> Path:
     if key in _VERIFIED and path.exists():
         return path
     pixels = texture_pixels(name)
-    tmp = folder / f".{name}.png.tmp"
-    write_png(tmp, pixels)
-    if path.exists() and path.read_bytes() == tmp.read_bytes():
-        tmp.unlink()
-    else:
+    # Compare decoded pixels (cheap) before compressing anything: most calls find the file right.
+    if not (path.exists() and _same_pixels(path, pixels)):
+        tmp = folder / f".{name}.png.tmp"
+        write_png(tmp, pixels)
         tmp.replace(path)
     _VERIFIED.add(key)
     return path
+
+
+def _same_pixels(path: Path, pixels: np.ndarray) -> bool:
+    """Does the PNG at ``path`` (as :func:`write_png` writes them: 8-bit RGB, no filter) hold ``pixels``?"""
+    data = path.read_bytes()
+    h, w, _ = pixels.shape
+    if data[:8] != b"\x89PNG\r\n\x1a\n" or data[16:26] != struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)[:10]:
+        return False
+    raw, pos = b"", 8
+    while pos + 8 <= len(data):
+        size, tag = struct.unpack(">I", data[pos:pos + 4])[0], data[pos + 4:pos + 8]
+        if tag == b"IDAT":
+            raw += data[pos + 8:pos + 8 + size]
+        pos += 12 + size
+    try:
+        rows = np.frombuffer(zlib.decompress(raw), np.uint8).reshape(h, 1 + w * 3)
+    except (zlib.error, ValueError):
+        return False
+    return bool(np.all(rows[:, 0] == 0)) and np.array_equal(rows[:, 1:].reshape(h, w, 3), pixels)
