@@ -6,7 +6,10 @@ rest transform is a pure translation, which keeps animation maths simple and any
 (see lfusd.author.gait) exact.
 
 Proportions follow standard anthropometric fractions of stature (Drillis & Contini); ``build``
-in [0, 1] widens the body (0 slim, 0.5 average, 1 heavy).
+in [0, 1] widens the body (0 slim, 0.5 average, 1 heavy). ``look`` seeds the rest of a person's
+appearance: hip, waist and chest girth, hair, skin tone and clothes (a top with long, short or no
+sleeves, trousers or shorts, shoes), authored as UsdPreviewSurface materials bound to face subsets
+of the one skinned mesh. Joints depend on stature alone, so every gait fits every look.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
 from ..errors import LfusdError
 from .labels import set_class_label
@@ -53,10 +56,18 @@ ANIMATION_NAME = "Motion"
 
 @dataclass(frozen=True)
 class HumanSpec:
-    """Stature in metres and build in [0, 1]."""
+    """Stature in metres, build in [0, 1] and ``look``, the seed of shape details and clothes
+    (None: derived from stature and build, so people of different sizes look different)."""
 
     height: float = 1.75
     build: float = 0.5
+    look: int | None = None
+
+    def seed(self) -> int:
+        """The look's seed (from stature and build rounded to micrometres when ``look`` is None)."""
+        if self.look is not None:
+            return int(self.look)
+        return int(round(self.height * 1e6)) * 1_000_003 + int(round(self.build * 1e6))
 
     def validate(self) -> None:
         if not 0.5 <= self.height <= 2.5:
@@ -185,6 +196,7 @@ def body_mesh(spec: HumanSpec, segments: int = 16):
     """(points (N,3), faceVertexCounts, faceVertexIndices, part name per point) of the body."""
     H = spec.height
     w = 0.8 + 0.5 * spec.build  # girth factor
+    look = appearance(spec)
     P = rest_positions(spec)
     mb = _MeshBuilder()
     X, Y, Z = np.eye(3)
@@ -194,7 +206,11 @@ def body_mesh(spec: HumanSpec, segments: int = 16):
         (0.62, 0.082, 0.054), (0.66, 0.084, 0.056), (0.70, 0.092, 0.062), (0.74, 0.098, 0.064),
         (0.78, 0.104, 0.060), (0.81, 0.098, 0.050), (0.83, 0.060, 0.040), (0.845, 0.035, 0.032),
     ]
-    rings = [_ring(np.array([0.0, -0.005 * H, z * H]), Z, X, a * H * w, b * H * w, segments, 2.4) for z, a, b in torso]
+    # The look's girth factors: hips (up to 0.58 H), waist (0.6-0.68 H, deeper with a belly), chest.
+    girth = [look["hips"]] * 4 + [look["waist"]] * 2 + [look["chest"]] * 4 + [1.0, 1.0]
+    belly = [1.0] * 4 + [look["belly"]] * 2 + [1.0] * 6
+    rings = [_ring(np.array([0.0, -0.005 * H, z * H]), Z, X, a * H * w * g, b * H * w * g * e, segments, 2.4)
+             for (z, a, b), g, e in zip(torso, girth, belly)]
     mb.tube("torso", rings)
     # Neck and head.
     _profile_tube(mb, "neck", P["neck"] - [0, 0, 0.02 * H], P["head"] + [0, 0, 0.02 * H], Y,
@@ -205,6 +221,14 @@ def body_mesh(spec: HumanSpec, segments: int = 16):
         head_rings.append(_ring(hc + [0, 0, 0.065 * H * np.sin(lat)], Z, X, 0.05 * H * np.cos(lat),
                                 0.06 * H * np.cos(lat), segments))
     mb.tube("head", head_rings)
+    # Hair: a cap over the crown and the back of the head, 2-9 mm proud of it, its top at the stature.
+    if look["hair"] is not None:
+        length = look["hair_length"]
+        hair_rings = []
+        for lat in np.radians(np.linspace(-20 - 50 * length, 78, 7)):
+            c = hc + [0, -0.006 * H, 0.068 * H * np.sin(lat)]
+            hair_rings.append(_ring(c, Z, X, 0.055 * H * np.cos(lat), 0.062 * H * np.cos(lat), segments))
+        mb.tube("hair", hair_rings)
     for side in "lr":
         s = -1.0 if side == "l" else 1.0
         # Leg: from above the hip joint (inside the torso) to just above the ankle.
@@ -246,6 +270,7 @@ _PART_JOINTS = {
     "torso": ["pelvis", "spine", "chest", "neck", "l_shoulder", "r_shoulder", "l_hip", "r_hip"],
     "neck": ["chest", "neck", "head"],
     "head": ["neck", "head"],
+    "hair": ["head"],
 }
 for _s in "lr":
     _PART_JOINTS[f"{_s}_leg"] = ["pelvis", f"{_s}_hip", f"{_s}_knee", f"{_s}_ankle"]
@@ -311,6 +336,81 @@ def skin_weights(spec: HumanSpec, points: np.ndarray, parts: list[str], counts: 
     return order.astype(np.int32), w
 
 
+SKIN_TONES = [(0.87, 0.70, 0.58), (0.80, 0.60, 0.46), (0.68, 0.48, 0.34), (0.55, 0.38, 0.26), (0.40, 0.27, 0.18), (0.28, 0.19, 0.13)]
+HAIR = [(0.05, 0.04, 0.035), (0.18, 0.11, 0.06), (0.35, 0.22, 0.12), (0.70, 0.55, 0.30), (0.55, 0.55, 0.55), (0.45, 0.16, 0.06)]
+TOPS = [(0.70, 0.08, 0.06), (0.08, 0.20, 0.62), (0.85, 0.85, 0.82), (0.85, 0.65, 0.08), (0.10, 0.38, 0.18), (0.12, 0.12, 0.13),
+        (0.55, 0.25, 0.55), (0.95, 0.45, 0.15), (0.35, 0.60, 0.80), (0.55, 0.50, 0.40), (0.85, 0.45, 0.55), (0.30, 0.30, 0.32)]
+BOTTOMS = [(0.12, 0.20, 0.38), (0.08, 0.08, 0.09), (0.55, 0.48, 0.35), (0.35, 0.35, 0.37), (0.30, 0.20, 0.12), (0.15, 0.30, 0.55)]
+SHOES = [(0.05, 0.05, 0.05), (0.85, 0.85, 0.85), (0.30, 0.18, 0.10), (0.20, 0.20, 0.25)]
+REGIONS = ("skin", "hair", "top", "bottom", "shoes")
+
+
+def appearance(spec: HumanSpec) -> dict:
+    """The look of ``spec``: girth factors, colours (linear RGB) of skin, hair and clothes, sleeve
+    length (fraction of the arm covered) and leg cover (trousers 1, shorts 0.45)."""
+    rng = np.random.default_rng([spec.seed() & 0xFFFFFFFF, spec.seed() >> 32, 16])
+    pick = lambda table: tuple(float(c) for c in table[int(rng.integers(len(table)))])  # noqa: E731
+    return {
+        "hips": float(rng.uniform(0.92, 1.12)), "waist": float(rng.uniform(0.9, 1.1)),
+        "chest": float(rng.uniform(0.92, 1.08)), "belly": float(rng.uniform(0.95, 1.25)),
+        "skin": pick(SKIN_TONES), "hair": pick(HAIR) if rng.random() < 0.9 else None,
+        "hair_length": float(rng.uniform(0.0, 1.0)),
+        "top": pick(TOPS), "bottom": pick(BOTTOMS), "shoes": pick(SHOES),
+        "sleeves": float(rng.choice([1.0, 1.0, 0.45, 0.12])), "legs": float(rng.choice([1.0, 1.0, 1.0, 0.45])),
+    }
+
+
+def face_regions(spec: HumanSpec, points: np.ndarray, counts, indices, parts: list[str]) -> np.ndarray:
+    """The clothing region (an index into :data:`REGIONS`) of every face of ``body_mesh``."""
+    look = appearance(spec)
+    P = rest_positions(spec)
+    H = spec.height
+    counts, indices = np.asarray(counts), np.asarray(indices)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    part = np.array(parts)[indices[starts]]
+    centre = np.add.reduceat(points[indices], starts, axis=0) / counts[:, None]
+    region = np.zeros(len(counts), int)  # skin
+    region[part == "hair"] = REGIONS.index("hair")
+    region[np.char.endswith(part, "_foot")] = REGIONS.index("shoes")
+    torso = part == "torso"
+    region[torso] = np.where(centre[torso, 2] < 0.53 * H, REGIONS.index("bottom"), REGIONS.index("top"))
+    for side in "lr":
+        arm = part == f"{side}_arm"
+        sh, wr = P[f"{side}_shoulder"], P[f"{side}_wrist"]
+        along = (centre[arm] - sh) @ (wr - sh) / float((wr - sh) @ (wr - sh))
+        region[arm] = np.where(along < look["sleeves"], REGIONS.index("top"), 0)
+        leg = part == f"{side}_leg"
+        hip, ankle = P[f"{side}_hip"][2], P[f"{side}_ankle"][2]
+        down = (hip - centre[leg, 2]) / (hip - ankle)
+        region[leg] = np.where(down < look["legs"], REGIONS.index("bottom"), 0)
+    return region
+
+
+def body_regions(spec: HumanSpec, whole_parts: bool = False, segments: int = 16) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The body split by clothing region: {region: (points, counts, indices)}, each re-indexed.
+    ``whole_parts``: every body part goes wholly to one region (arms to the top, legs to the
+    bottom), so each region is a union of closed tubes (for static, unskinned people)."""
+    points, counts, indices, parts = body_mesh(spec, segments)
+    if whole_parts:
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        part = np.array(parts)[indices[starts]]
+        by_part = {"hair": "hair", "torso": "top", "l_arm": "top", "r_arm": "top", "l_leg": "bottom", "r_leg": "bottom",
+                   "l_foot": "shoes", "r_foot": "shoes"}
+        region = np.array([REGIONS.index(by_part.get(p, "skin")) for p in part])
+    else:
+        region = face_regions(spec, points, counts, indices, parts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = {}
+    for k, name in enumerate(REGIONS):
+        faces = np.nonzero(region == k)[0]
+        if not len(faces):
+            continue
+        idx = np.concatenate([indices[starts[f]:starts[f] + counts[f]] for f in faces])
+        used, local = np.unique(idx, return_inverse=True)
+        out[name] = (points[used], counts[faces], local)
+    return out
+
+
 def _translation(p) -> Gf.Matrix4d:
     return Gf.Matrix4d(1.0).SetTranslate(Gf.Vec3d(*map(float, p)))
 
@@ -349,7 +449,9 @@ def define_human(stage: Usd.Stage, path: str | Sdf.Path, spec: HumanSpec = Human
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     lo, hi = points.min(axis=0), points.max(axis=0)
     mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
-    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(0.55, 0.42, 0.36)]))
+    look = appearance(spec)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*look["skin"])]))
+    _dress(stage, path, mesh, spec, look, points, counts, indices, parts)
     ji, jw = skin_weights(spec, points, parts, counts, indices)
     binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
     binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
@@ -357,3 +459,27 @@ def define_human(stage: Usd.Stage, path: str | Sdf.Path, spec: HumanSpec = Human
     binding.CreateJointWeightsPrimvar(False, jw.shape[1]).Set(Vt.FloatArray.FromNumpy(jw.ravel().astype(np.float32)))
     binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
     return root
+
+
+_ROUGHNESS = {"skin": 0.5, "hair": 0.6, "top": 0.85, "bottom": 0.8, "shoes": 0.4}
+
+
+def _dress(stage: Usd.Stage, path: Sdf.Path, mesh: UsdGeom.Mesh, spec: HumanSpec, look: dict, points, counts, indices, parts) -> None:
+    """Bind a UsdPreviewSurface per clothing region to a face subset of the body mesh
+    (``<path>/Looks/<region>``; the subsets partition the faces)."""
+    region = face_regions(spec, points, counts, indices, parts)
+    binding = UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim())
+    for k, name in enumerate(REGIONS):
+        faces = np.nonzero(region == k)[0]
+        if not len(faces):
+            continue
+        mat_path = path.AppendChild("Looks").AppendChild(name)
+        mat = UsdShade.Material.Define(stage, mat_path)
+        shader = UsdShade.Shader.Define(stage, mat_path.AppendChild("Surface"))
+        shader.CreateIdAttr("UsdPreviewSurface")
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*look[name]))
+        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(_ROUGHNESS[name])
+        mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+        subset = binding.CreateMaterialBindSubset(name, Vt.IntArray.FromNumpy(faces.astype(np.int32)), UsdGeom.Tokens.face)
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(mat)
+    binding.SetMaterialBindSubsetsFamilyType(UsdGeom.Tokens.partition)

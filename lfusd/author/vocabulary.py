@@ -23,7 +23,7 @@ GROUND = ("road", "pavement", "sidewalk", "ground", "grass", "floor", "bridge", 
 WATER = ("water", "river", "lake", "sea")
 SURFACES = frozenset(GROUND + WATER)
 OBJECTS = ("person", "boat", "car", "building", "tree", "street_light", "bench", "table", "chair", "cabinet",
-           "lamp", "bowl", "wall")
+           "lamp", "bowl", "wall", "bin", "railing", "shelf")
 ANY = "any"  # in rules: every labelled object that is not a surface
 CLASSES = frozenset(GROUND + WATER + OBJECTS)
 

@@ -355,6 +355,10 @@ def setup_scene(job: WorkUnit) -> tuple[object, list[str]]:
     render.pixel_aspect_x = render.pixel_aspect_y = 1.0
     render.use_motion_blur = False
     render.film_transparent = False
+    # Data passes record the first surface a camera ray meets, however transparent (Blender's
+    # default records the first one at least half opaque, chosen per sample): ground truth of a
+    # window is the pane, as Open3D's ray casts in verify see it (CONVENTIONS).
+    scene.view_layers[0].pass_alpha_threshold = 0.0
     render.use_persistent_data = bool(job.persistent)
     render.use_multiview = True
     render.views_format = "MULTIVIEW"

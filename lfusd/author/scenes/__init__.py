@@ -47,6 +47,9 @@ TEMPLATE_RULES: dict[str, dict[str, list[str]]] = {
     "lamp": {"on": ["floor", "table"]},
     "bowl": {"on": ["table"]},
     "wall": {"on": ["floor"]},
+    "bin": {"on": ["sidewalk", "pavement", "grass", "ground"]},
+    "railing": {"on": ["sidewalk", "pavement", "grass", "ground", "bridge"]},
+    "shelf": {"on": ["floor"]},
     # Static things must not interpenetrate either (the default rulebook only covers dynamic ones).
     "any": {"no_interpenetration": ["any"]},
 }
@@ -91,8 +94,8 @@ class Scene:
         """Author an object from named mesh parts (local coordinates) at ``pos`` turned ``yaw_deg``."""
         self.builder.obj(path, label, pos, yaw_deg)
         for part, data, texture in parts:
-            r = (roughness or {}).get(part, 0.7)
-            self.builder.mesh(f"{path}/{part}", data, texture, roughness=r, metallic=0.6 if part == "body" and label == "car" else 0.0)
+            r = (roughness or {}).get(part)  # None: the texture's finish (build.FINISHES)
+            self.builder.mesh(f"{path}/{part}", data, texture, roughness=r, metallic=0.6 if part == "body" and label == "car" else None)
         if track:
             lo, hi = world_box([d for _, d, _ in parts], pos, yaw_deg)
             self.placed.append(Placed(path, lo, hi))

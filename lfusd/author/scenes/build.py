@@ -24,6 +24,15 @@ TEXTURE_DIR = "textures"
 # lights, spots and lamps turned up); indoor (the room's area and point lights, a dim fill).
 LIGHTING_SETUPS = ("sun", "overcast", "night", "indoor")
 
+# Surface finishes by texture name (the rest are matte): glass is see-through and glossy, water
+# and chrome reflect. Ground truth is of the first surface a ray meets whatever its finish (see
+# CONVENTIONS, "Transparency and reflection").
+FINISHES: dict[str, dict[str, float]] = {
+    "glass": {"roughness": 0.05, "opacity": 0.3},
+    "water": {"roughness": 0.05},
+    "chrome": {"roughness": 0.15, "metallic": 1.0},
+}
+
 
 # -- mesh data ----------------------------------------------------------------------------
 @dataclass
@@ -135,6 +144,110 @@ def bowl(radius: float, height: float, segments: int = 16, rings: int = 4, thick
     return MeshData(pts, counts, indices, np.array(uvs))
 
 
+def loft(rings, caps=(True, True), tile: float = 1.0) -> MeshData:
+    """A closed tube through ``rings`` (each (k, 3), the same k, counter-clockwise seen from the
+    last ring's side), closed by triangle fans around each end ring's centroid; UVs: arc length
+    around, distance along (metres / ``tile``). Every face is convex when the rings are."""
+    rings = [np.asarray(r, float) for r in rings]
+    k, n = len(rings[0]), len(rings)
+    pts = np.concatenate(rings)
+    centres = [rings[0].mean(0), rings[-1].mean(0)]
+    arc = [np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.roll(r, -1, 0) - r, axis=1))]) for r in rings]
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm([b.mean(0) - a.mean(0) for a, b in zip(rings, rings[1:])], axis=1))])
+    counts, indices, uvs = [], [], []
+    for i in range(n - 1):
+        for j in range(k):
+            jj = (j + 1) % k
+            counts.append(4)
+            indices += [i * k + j, i * k + jj, (i + 1) * k + jj, (i + 1) * k + j]
+            uvs += [[arc[i][j] / tile, along[i] / tile], [arc[i][j + 1] / tile, along[i] / tile],
+                    [arc[i + 1][j + 1] / tile, along[i + 1] / tile], [arc[i + 1][j] / tile, along[i + 1] / tile]]
+    extra = []
+    for end, cap in ((0, caps[0]), (n - 1, caps[1])):
+        if not cap:
+            continue
+        c = len(pts) + len(extra)
+        extra.append(centres[0 if end == 0 else 1])
+        for j in range(k):
+            a, b = end * k + j, end * k + (j + 1) % k
+            counts.append(3)
+            indices += [c, b, a] if end == 0 else [c, a, b]
+            q = rings[end]
+            uvs += [[float(p[0]) / tile, float(p[1]) / tile] for p in (extra[-1], q[(j + 1) % k] if end == 0 else q[j], q[j] if end == 0 else q[(j + 1) % k])]
+    if extra:
+        pts = np.concatenate([pts, np.asarray(extra)])
+    return MeshData(pts, counts, indices, np.array(uvs))
+
+
+def frame_ring(centre, axis, half_u: float, half_v: float, segments: int, power: float = 2.0, ref=None) -> np.ndarray:
+    """A superellipse ring (half axes ``half_u``, ``half_v``) around ``centre`` in the plane normal
+    to ``axis``, counter-clockwise seen from the tip of ``axis`` (so a :func:`loft` along ``axis``
+    faces outward)."""
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    ref = np.asarray(ref if ref is not None else ((0.0, 0.0, 1.0) if abs(axis[2]) < 0.9 else (1.0, 0.0, 0.0)), float)
+    u = ref - axis * np.dot(ref, axis)
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    t = np.arange(segments) * 2 * np.pi / segments
+    c, s = np.cos(t), np.sin(t)
+    x = half_u * np.sign(c) * np.abs(c) ** (2.0 / power)
+    y = half_v * np.sign(s) * np.abs(s) ** (2.0 / power)
+    return np.asarray(centre, float) + np.outer(x, u) + np.outer(y, v)
+
+
+def rod(a, b, radius: float, segments: int = 8, radius_b: float | None = None, tile: float = 1.0) -> MeshData:
+    """A closed (tapered) cylinder from point ``a`` to point ``b``: branches, arms, slanted legs."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    rb = radius if radius_b is None else radius_b
+    return loft([frame_ring(a, b - a, radius, radius, segments), frame_ring(b, b - a, rb, rb, segments)], tile=tile)
+
+
+def blob(centre, radii, rng: np.random.Generator | None = None, segments: int = 8, rings: int = 4,
+         bumpiness: float = 0.15, tile: float = 1.0) -> MeshData:
+    """A closed, lumpy ellipsoid (foliage clusters, stones): latitude rings scaled by a smooth
+    random radial factor from ``rng`` (none: a plain ellipsoid), poles closed by fans."""
+    radii = np.asarray(radii, float)
+    lat = np.linspace(-np.pi / 2, np.pi / 2, rings + 2)[1:-1]
+    lon = np.arange(segments) * 2 * np.pi / segments
+    bump = np.ones((len(lat), segments))
+    if rng is not None:
+        # a few low-frequency waves: lumps without spikes or self-intersections
+        for _ in range(3):
+            f_lat, f_lon = int(rng.integers(1, 3)), int(rng.integers(1, 4))
+            ph = rng.uniform(0, 2 * np.pi, 2)
+            bump += bumpiness / 3 * np.sin(f_lat * lat[:, None] * 2 + ph[0]) * np.cos(f_lon * lon[None] + ph[1])
+    ring_pts = [np.c_[np.cos(la) * np.cos(lon) * b, np.cos(la) * np.sin(lon) * b, np.full(segments, np.sin(la))] * radii
+                for la, b in zip(lat, bump)]
+    data = loft([r + np.asarray(centre, float) for r in ring_pts], tile=tile)
+    # the caps' centroids are the ring centres; lift them to the poles
+    pts = data.points.copy()
+    pts[-2] = np.asarray(centre, float) + [0.0, 0.0, -radii[2]]
+    pts[-1] = np.asarray(centre, float) + [0.0, 0.0, radii[2]]
+    return MeshData(pts, data.counts, data.indices, data.uvs)
+
+
+def slab(corners, thickness: float, tile: float = 1.0) -> MeshData:
+    """A thin plate: the planar convex quad ``corners`` (4, 3) thickened by ``thickness`` along its
+    normal (to the side the corners' counter-clockwise order faces: that side stays at
+    ``corners``); windows, roofs, pillars, sloped panels."""
+    q = np.asarray(corners, float)
+    n = np.cross(q[1] - q[0], q[3] - q[0])
+    n /= np.linalg.norm(n)
+    back = q - n * thickness
+    # a hexahedron: loft the back quad to the front quad along the normal
+    return loft([back, q], tile=tile)
+
+
+def extrude_y(outline_xz, y0: float, y1: float, tile: float = 1.0) -> MeshData:
+    """A side profile (convex polygon in the x-z plane, counter-clockwise seen from -y) extruded
+    from y = ``y0`` to ``y1``: car bodies, hulls' keels, benches' frames."""
+    # prism() over (x, -z)... is a reflection; instead prism over (x, z) and turn (a, b, c) ->
+    # (a, -c, b), a proper rotation, so the winding stays outward.
+    d = prism(outline_xz, -y1, -y0, tile=tile)
+    p = d.points
+    return MeshData(np.c_[p[:, 0], -p[:, 2], p[:, 1]], d.counts, d.indices, d.uvs)
+
+
 def merge(*parts: MeshData) -> MeshData:
     """One mesh from several (disjoint) parts."""
     pts, counts, indices, uvs, off = [], [], [], [], 0
@@ -156,9 +269,12 @@ class Builder:
     stage_path: Path
     materials: dict[str, UsdShade.Material] = field(default_factory=dict)
 
-    def material(self, texture: str, roughness: float = 0.7, metallic: float = 0.0) -> UsdShade.Material:
-        """A UsdPreviewSurface material whose diffuse colour is ``textures/<texture>.png``."""
-        key = f"{texture}_{roughness:g}_{metallic:g}".replace(".", "p")
+    def material(self, texture: str, roughness: float = 0.7, metallic: float = 0.0, opacity: float = 1.0) -> UsdShade.Material:
+        """A UsdPreviewSurface material whose diffuse colour is ``textures/<texture>.png``;
+        ``opacity`` < 1 makes it see-through (glass, with IOR 1.5; see CONVENTIONS: ground truth
+        is of the first surface hit, transparent or not)."""
+        key = f"{texture}_{roughness:g}_{metallic:g}" + (f"_o{opacity:g}" if opacity < 1.0 else "")
+        key = key.replace(".", "p")
         if key in self.materials:
             return self.materials[key]
         ensure_texture(self.stage_path.parent / TEXTURE_DIR, texture)
@@ -168,6 +284,9 @@ class Builder:
         shader.CreateIdAttr("UsdPreviewSurface")
         shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
         shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(metallic))
+        if opacity < 1.0:
+            shader.CreateInput("opacity", Sdf.ValueTypeNames.Float).Set(float(opacity))
+            shader.CreateInput("ior", Sdf.ValueTypeNames.Float).Set(1.5)
         reader = UsdShade.Shader.Define(self.stage, path.AppendChild("StReader"))
         reader.CreateIdAttr("UsdPrimvarReader_float2")
         reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
@@ -194,8 +313,14 @@ class Builder:
             set_class_label(x.GetPrim(), label)
         return x
 
-    def mesh(self, path: str, data: MeshData, texture: str, roughness: float = 0.7, metallic: float = 0.0) -> UsdGeom.Mesh:
-        """A textured polygon mesh at ``path``."""
+    def mesh(self, path: str, data: MeshData, texture: str, roughness: float | None = None, metallic: float | None = None,
+             opacity: float | None = None) -> UsdGeom.Mesh:
+        """A textured polygon mesh at ``path``; the finish (roughness, metallic, opacity) not given
+        is the texture's (:data:`FINISHES`, else matte: 0.7, 0, 1)."""
+        finish = {"roughness": 0.7, "metallic": 0.0, "opacity": 1.0, **FINISHES.get(texture, {})}
+        roughness = finish["roughness"] if roughness is None else roughness
+        metallic = finish["metallic"] if metallic is None else metallic
+        opacity = finish["opacity"] if opacity is None else opacity
         m = UsdGeom.Mesh.Define(self.stage, path)
         pts = np.asarray(data.points, float)
         m.CreatePointsAttr([Gf.Vec3f(*p) for p in pts.tolist()])
@@ -205,7 +330,7 @@ class Builder:
         m.CreateExtentAttr([Gf.Vec3f(*pts.min(0).tolist()), Gf.Vec3f(*pts.max(0).tolist())])
         st = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
         st.Set([Gf.Vec2f(*uv) for uv in np.asarray(data.uvs, float).tolist()])
-        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(self.material(texture, roughness, metallic))
+        UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(self.material(texture, roughness, metallic, opacity))
         return m
 
     # -- lights ----------------------------------------------------------------------------

@@ -217,7 +217,7 @@ def traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: i
         path = scene.name("Car")
         scene.add(path, "car", parts, (cx, lane_y, GAP), 0.0 if heading > 0 else 180.0, track=False)
         for name, hub, mesh in wheels:
-            movers.make_wheel(scene.builder.mesh(f"{path}/{name}", mesh, "paint_dark").GetPrim(), hub, radius)
+            movers.make_wheel(scene.builder.mesh(f"{path}/{name}", mesh, kit.WHEEL_TEXTURE).GetPrim(), hub, radius)
         movers.drive_car(ctx.stage, path, speed)
         width = float(np.ptp(parts[0][1].points[:, 1]))
         end = cx + heading * speed * ctx.duration

@@ -59,13 +59,14 @@ def mixed(scene: Scene) -> MixedSite:
         pose = scene.place(parts, ((-S + 2, ry0 + 0.3), (S - 2, ry1 - 0.3)), GAP, yaw_choices=[0.0, 180.0], margin=0.8)
         if pose:
             scene.add(scene.name("Car"), "car", parts, pose[0], pose[1])
-    for kind, n, label in (("tree", (3, 8), "tree"), ("bench", (1, 4), "bench"), ("person", (3, 7), "person")):
+    for kind, n, label in (("tree", (3, 8), "tree"), ("bench", (1, 4), "bench"), ("litter_bin", (1, 3), "bin"),
+                           ("person", (3, 7), "person")):
         for _ in range(int(rng.integers(*n))):
             parts = getattr(kit, kind)(rng)
             region = north if kind != "person" or rng.random() < 0.6 else ((-S + 2, ry0 + 0.3), (S - 2, ry1 - 0.3))
             pose = scene.place(parts, region, GAP, margin=0.3)
             if pose and not _overlaps(pose, parts, (px0 - 0.3, py0 - 0.3), (px1 + 0.3, py1 + 0.3)):
-                scene.add(scene.name(kind.capitalize()), label, parts, pose[0], pose[1])
+                scene.add(scene.name(label.capitalize()), label, parts, pose[0], pose[1])
 
     b.sphere_light("Lamp", (float(rng.uniform(-10, 10)), ry1 + 0.5, 4.5), 0.15, float(rng.uniform(150, 400)))
     b.rect_light("Porch", (px1 + 3.0, py1 + 3.0, 3.0), (px1 + 3.0, py1 + 3.0, 0.0), 0.6, 0.6, float(rng.uniform(50, 150)))

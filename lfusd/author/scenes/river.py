@@ -10,7 +10,7 @@ import numpy as np
 
 from . import GAP, Scene, Site, template
 from . import objects as kit
-from .build import box, merge
+from .build import box, merge, moved
 
 L = 60.0
 
@@ -47,9 +47,10 @@ def river(scene: Scene) -> RiverSite:
     deck_z = 0.6
     deck = box((bw, 2 * span, 0.3), (0, 0, deck_z - 0.15), tile=2.0)
     abutments = merge(*[box((bw, 2.5, deck_z - 0.3), (0, s * (span - 1.25), (deck_z - 0.3) / 2), tile=2.0) for s in (1, -1)])
-    rails = merge(*[box((0.08, 2 * span, 0.9), (s * (bw / 2 - 0.04), 0, deck_z + 0.45 + GAP), tile=1.0) for s in (1, -1)])
+    rails = merge(*[moved(d, (s * (bw / 2 - 0.04), 0.0, deck_z + GAP)) for s in (1, -1)
+                    for _, d, _ in kit.railing(2 * span - 0.1, 1.0, 1.5, along="y")])
     scene.add("/World/Bridge", "bridge", [("deck", deck, "concrete"), ("abutments", abutments, "concrete"),
-                                          ("railings", rails, "paint_dark")], (bx, 0.0, GAP))
+                                          ("railings", rails, "metal")], (bx, 0.0, GAP))
     bridge_box = scene.placed[-1]
 
     # Boats float with their draft below the water level; keep them clear of the bridge.
@@ -88,6 +89,21 @@ def river(scene: Scene) -> RiverSite:
         if pose:
             scene.add(scene.name("Bench"), "bench", parts, pose[0], pose[1])
 
+    # Railings along the water's edge and bins on the banks.
+    for _ in range(int(rng.integers(1, 4))):
+        s = 1 if rng.random() < 0.5 else -1
+        parts = kit.railing(float(rng.uniform(5.0, 12.0)))
+        y0, y1 = sorted((s * (half + 0.15), s * (half + 0.45)))
+        pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, yaw_choices=[0.0], margin=0.3)
+        if pose:
+            scene.add(scene.name("Railing"), "railing", parts, pose[0], pose[1])
+    for _ in range(int(rng.integers(1, 3))):
+        parts = kit.litter_bin(rng)
+        s = 1 if rng.random() < 0.5 else -1
+        y0, y1 = sorted((s * (half + 1.0), s * (half + 6.0)))
+        pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)
+        if pose:
+            scene.add(scene.name("Bin"), "bin", parts, pose[0], pose[1])
     b.disk_light("BridgeSpot", (bx, 0.0, deck_z + 5.0), (bx, 0.0, deck_z), 0.3, float(rng.uniform(100, 300)))
     scene.lighting = b.lighting(rng, ("sun", "sun", "overcast", "night"))
 

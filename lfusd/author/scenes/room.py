@@ -65,9 +65,16 @@ def room(scene: Scene) -> RoomSite:
         if pose:
             scene.add(scene.name("Bowl"), "bowl", parts, pose[0], pose[1])
 
-    # Cabinets against the walls (backs to the wall), a floor lamp in a corner region, a person.
-    for _ in range(int(rng.integers(1, 4))):
-        parts = kit.cabinet(rng)
+    if rng.random() < 0.6:  # a table lamp among the bowls
+        parts = kit.table_lamp(rng)
+        pose = scene.place(parts, top, top_h + 2 * GAP, margin=0.05, ignore=(table_path,))
+        if pose:
+            scene.add("/World/TableLamp", "lamp", parts, pose[0], pose[1])
+
+    # Cabinets and bookshelves against the walls (backs to the wall), a floor lamp, a person.
+    for k in range(int(rng.integers(2, 5))):
+        kind = "cabinet" if k % 2 == 0 else "shelf"
+        parts = getattr(kit, kind)(rng)
         side = int(rng.integers(4))
         yaw = [0.0, 180.0, 90.0, 270.0][side]
         if side == 0:
@@ -80,7 +87,7 @@ def room(scene: Scene) -> RoomSite:
             region = ((-hx + 0.3, hy - 0.6), (hx - 0.3, hy - 0.02))
         pose = scene.place(parts, region, GAP, yaw_choices=[yaw], margin=0.05, tries=20)
         if pose:
-            scene.add(scene.name("Cabinet"), "cabinet", parts, pose[0], pose[1])
+            scene.add(scene.name(kind.capitalize()), kind, parts, pose[0], pose[1])
     parts, light_h = kit.floor_lamp(rng)
     pose = scene.place(parts, inner, GAP, margin=0.2)
     if pose:

@@ -101,6 +101,18 @@ def street(scene: Scene) -> StreetSite:
             scene.add(scene.name("Tree"), "tree", parts, pose[0], pose[1])
 
     scene.lighting = b.lighting(rng, ("sun", "sun", "overcast", "night"))
+    # Street furniture on the verge's edge behind the pavement: benches facing the road, bins, railings.
+    for kind, count in (("bench", (1, 4)), ("litter_bin", (1, 4)), ("railing", (1, 3))):
+        for _ in range(int(rng.integers(*count))):
+            s = 1 if rng.random() < 0.5 else -1
+            if kind == "railing":
+                parts, yaw, depth = kit.railing(float(rng.uniform(4.0, 9.0))), 0.0, 0.2
+            else:
+                parts, yaw, depth = getattr(kit, kind)(rng), (270.0 if s > 0 else 90.0), 1.2
+            y0, y1 = sorted((s * (road_w + walk_w + 0.1), s * (road_w + walk_w + 0.1 + depth)))
+            pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, yaw_choices=[yaw], margin=0.3)
+            if pose:
+                scene.add(scene.name(kind.split("_")[-1].capitalize()), kind.split("_")[-1], parts, pose[0], pose[1])
 
     def rig_position(r):
         return (r.uniform(-L / 2 + 8, L / 2 - 8), r.uniform(-road_w + 0.8, road_w - 0.8), r.uniform(1.5, 3.0))

@@ -189,6 +189,57 @@ def _dirt(rng):
     return _mix((0.30, 0.22, 0.14), (0.52, 0.42, 0.30), np.clip(0.8 * n + 0.5 * pebbles, 0, 1))
 
 
+def _glass(rng):
+    # faint streaks and smudges: something for stereo matching on the pane itself
+    n = fbm(rng, base=8, octaves=4)
+    yy, _ = np.mgrid[0:SIZE, 0:SIZE]
+    streaks = 0.5 + 0.5 * np.sin(2 * np.pi * (yy / SIZE * 6 + 0.8 * n))
+    # dark: the pane's own (diffuse) share of the image stays small beside what shows through it
+    return _mix((0.16, 0.21, 0.24), (0.34, 0.41, 0.45), np.clip(0.6 * n + 0.4 * streaks, 0, 1))
+
+
+def _chrome(rng):
+    n = fbm(rng, base=4, octaves=3)
+    return _mix((0.62, 0.63, 0.65), (0.90, 0.91, 0.93), n)
+
+
+def _tyre(rng):
+    """A wheel: rubber with tread at the texture's border, a silver rim with five spokes in the
+    disc centred on (0.5, 0.5) (the wheel's caps map onto it)."""
+    n = fbm(rng, base=8, octaves=3)
+    yy, xx = (np.mgrid[0:SIZE, 0:SIZE] + 0.5) / SIZE - 0.5
+    r = np.hypot(xx, yy) * 2  # 1 at the disc's edge
+    a = np.arctan2(yy, xx)
+    img = _mix((0.05, 0.05, 0.055), (0.14, 0.14, 0.15), n)
+    tread = (np.floor(((xx + 0.5) * 32) % 2) == 0) & (r > 1.0)
+    img[tread] *= 0.6
+    rim = r < 0.66
+    img[rim] = _mix((0.55, 0.56, 0.58), (0.85, 0.86, 0.88), n)[rim]
+    hole = rim & (r > 0.2) & (r < 0.56) & (np.cos(5 * a) < 0.3)  # between five spokes
+    img[hole] = (0.03, 0.03, 0.035)
+    img[(r > 0.62) & (r < 0.66)] = (0.30, 0.30, 0.32)
+    return img
+
+
+def _books(rng):
+    """Rows of book spines (one shelf board of books spans the texture's height)."""
+    n = fbm(rng, base=8, octaves=3)
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+    edges = np.cumsum(rng.integers(6, 18, 64))
+    spine = np.searchsorted(edges, xx % SIZE, side="right")
+    palette = np.array([(0.55, 0.10, 0.08), (0.10, 0.25, 0.50), (0.15, 0.40, 0.20), (0.75, 0.65, 0.35),
+                        (0.30, 0.20, 0.15), (0.80, 0.78, 0.72), (0.20, 0.20, 0.22)])
+    colour = palette[(spine * 5 + 3) % len(palette)]
+    tall = 0.55 + 0.4 * ((spine * 37 % 11) / 10.0)
+    up = (SIZE - 1 - yy) / SIZE  # height above the shelf board (row 0 is the top of the image)
+    img = colour * (0.8 + 0.3 * n[..., None])
+    band = (yy % 40 < 3) & (up < tall)
+    img[band] = img[band] * 0.5 + 0.4
+    img[up > tall] = (0.12, 0.09, 0.07)  # the shelf's back above shorter books
+    img[(xx % SIZE) == 0] = (0.05, 0.05, 0.05)
+    return img
+
+
 TEXTURES = {
     "asphalt": _asphalt,
     "paving": lambda rng: _tiles(rng, (0.55, 0.53, 0.50), (0.72, 0.70, 0.66), (0.35, 0.34, 0.32)),
@@ -204,12 +255,23 @@ TEXTURES = {
     "concrete": _concrete,
     "ceramic": _ceramic,
     "dirt": _dirt,
-    "floor_tiles": lambda rng: _tiles(rng, (0.62, 0.60, 0.56), (0.80, 0.78, 0.74), (0.30, 0.30, 0.30), 8, True),
+    "floor_tiles": lambda rng: _tiles(rng, (0.50, 0.48, 0.45), (0.66, 0.64, 0.60), (0.26, 0.26, 0.26), 8, True),
     "paint_red": _paint((0.70, 0.08, 0.06)),
     "paint_blue": _paint((0.08, 0.20, 0.62)),
     "paint_white": _paint((0.82, 0.82, 0.80)),
     "paint_yellow": _paint((0.85, 0.65, 0.08)),
     "paint_dark": _paint((0.12, 0.12, 0.13)),
+    "paint_green": _paint((0.10, 0.38, 0.18)),
+    "paint_silver": _paint((0.62, 0.64, 0.66)),
+    "glass": _glass,
+    "chrome": _chrome,
+    "tyre": _tyre,
+    "books": _books,
+    "leaves_light": lambda rng: _mix((0.16, 0.34, 0.06), (0.52, 0.66, 0.20), np.clip(0.5 * fbm(rng, base=16) + 0.5 * rng.random((SIZE, SIZE)), 0, 1)),
+    "metal": _paint((0.35, 0.37, 0.40)),
+    "skin": _paint((0.78, 0.58, 0.45)),
+    "hair": lambda rng: _mix((0.06, 0.04, 0.03), (0.25, 0.16, 0.09), fbm(rng, base=32, octaves=2)),
+    "denim": lambda rng: _mix((0.10, 0.16, 0.32), (0.30, 0.40, 0.58), np.clip(0.5 * fbm(rng, base=16, octaves=3) + 0.5 * rng.random((SIZE, SIZE)), 0, 1)),
 }
 
 
@@ -232,11 +294,29 @@ def ensure_texture(folder: str | Path, name: str) -> Path:
     if key in _VERIFIED and path.exists():
         return path
     pixels = texture_pixels(name)
-    tmp = folder / f".{name}.png.tmp"
-    write_png(tmp, pixels)
-    if path.exists() and path.read_bytes() == tmp.read_bytes():
-        tmp.unlink()
-    else:
+    # Compare decoded pixels (cheap) before compressing anything: most calls find the file right.
+    if not (path.exists() and _same_pixels(path, pixels)):
+        tmp = folder / f".{name}.png.tmp"
+        write_png(tmp, pixels)
         tmp.replace(path)
     _VERIFIED.add(key)
     return path
+
+
+def _same_pixels(path: Path, pixels: np.ndarray) -> bool:
+    """Does the PNG at ``path`` (as :func:`write_png` writes them: 8-bit RGB, no filter) hold ``pixels``?"""
+    data = path.read_bytes()
+    h, w, _ = pixels.shape
+    if data[:8] != b"\x89PNG\r\n\x1a\n" or data[16:26] != struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)[:10]:
+        return False
+    raw, pos = b"", 8
+    while pos + 8 <= len(data):
+        size, tag = struct.unpack(">I", data[pos:pos + 4])[0], data[pos + 4:pos + 8]
+        if tag == b"IDAT":
+            raw += data[pos + 8:pos + 8 + size]
+        pos += 12 + size
+    try:
+        rows = np.frombuffer(zlib.decompress(raw), np.uint8).reshape(h, 1 + w * 3)
+    except (zlib.error, ValueError):
+        return False
+    return bool(np.all(rows[:, 0] == 0)) and np.array_equal(rows[:, 1:].reshape(h, w, 3), pixels)
