@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     run.log["timing"]["total_s"] = time.time() - t_start
     run.write_log()
     m = run.log["eval"]["model"]["mean"]
-    log.info("frames %s, novel views: PSNR %.2f dB, SSIM %.4f over %d pixels (log %s)", eval_frames, m["psnr"], m["ssim"], m["pixels"], run.log_path)
+    log.info("frames %s, novel views: PSNR %.2f dB, SSIM %.4f over %d pixels (log %s)", eval_frames, m["psnr_db"], m["ssim"], m["pixels"], run.log_path)
     return 0
 
 

@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     run.log["timing"]["total_s"] = time.time() - t_start
     run.write_log()
     m = run.log["eval"]["model"]["mean"]
-    log.info("frames %s: MSEx100 %.3f, BadPix0.07 %.2f %% over %d pixels (log %s)", eval_frames, m["mse_x100"], m["badpix_0.07"], m["pixels"], run.log_path)
+    log.info("frames %s: MSEx100 %.3f, BadPix0.07 %.2f %% over %d pixels (log %s)", eval_frames, m["mse_x100"], m["badpix_0.07_pct"], m["pixels"], run.log_path)
     return 0
 
 

@@ -250,17 +250,20 @@ def pred_name(frame: int, view) -> str:
     return f"{frame:04d}_{int(view[0]):02d}_{int(view[1]):02d}"
 
 
-def score(ds, pred_dir: Path, task: str, pixels) -> dict:
-    """`lfusd eval --task TASK --pred pred_dir`: rows (with the pixels each compared) and mean, also
-    written as pred_dir/eval_<task>.json and .csv like the command does."""
-    from lfusd.evaluation.score import evaluate, mean_row, write_results
+def score(ds, pred_dir: Path, task: str, pixels=None) -> dict:
+    """`lfusd eval --task TASK --pred pred_dir` (native protocol): rows, each with the pixels it
+    compared, and the summary row, also written as pred_dir/eval_<task>.json and .csv like the
+    command does. ``pixels(frame, view)`` is a fallback count for rows that carry none."""
+    from lfusd.evaluation.score import evaluate, write_results
 
-    rows = evaluate(ds, pred_dir, task)
+    scores = evaluate(ds, pred_dir, task)
+    rows = [dict(r) for r in scores]
     for r in rows:
-        r["pixels"] = int(pixels(r["frame"], (r["row"], r["col"])))
-    write_results(rows, task, pred_dir / f"eval_{task}.json", pred_dir / f"eval_{task}.csv")
-    mean = mean_row(rows)
-    mean["pixels"] = int(sum(r["pixels"] for r in rows))
+        if "pixels" not in r and pixels is not None:
+            r["pixels"] = int(pixels(r["frame"], (r["row"], r["col"])))
+    write_results(scores, pred_dir / f"eval_{task}.json", pred_dir / f"eval_{task}.csv")
+    mean = dict(scores.summary)
+    mean["pixels"] = int(sum(r.get("pixels", 0) for r in rows))
     return {"rows": rows, "mean": mean}
 
 

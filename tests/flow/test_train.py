@@ -123,7 +123,7 @@ def test_train_disparity_tiny(data_dir, tmp_path, capsys):
 @pytest.mark.render
 @pytest.mark.slow
 def test_train_asr_tiny(data_dir, tmp_path, capsys):
-    _check_run("train_asr", "views", data_dir, tmp_path / "asr", "psnr", capsys)
+    _check_run("train_asr", "views", data_dir, tmp_path / "asr", "psnr_db", capsys)
 
 
 def test_errors_are_one_line(tmp_path):
