@@ -11,7 +11,7 @@ ZSTD, 2.50 with HDF5 gzip+shuffle, 3.19 with HTJ2K, 3.29 with ZIPS and 7.45 with
 its image) and every OpenEXR reader since 1.x reads it: ZSTD needs OpenEXR 3.4+ (Blender 5.0
 cannot read it, measured: "unable to decompress data"), and HDF5 leaves the image format every
 other file here uses.
-The header attribute ``lfusd:keys`` lists the keys a file holds. Rounding is where the low bits
+The header attribute ``lfusd.keys`` lists the keys a file holds. Rounding is where the low bits
 are noise: flow on a static surface is 1e-5 px of float noise rather than 0 until rounded, which
 ZIP cannot compress. No pxr, bpy or torch.
 """
@@ -30,7 +30,7 @@ from ..keys import KEYS
 from .formats import file_mode
 
 COMPRESSION = OpenEXR.ZIP_COMPRESSION
-KEYS_ATTR = "lfusd:keys"
+KEYS_ATTR = "lfusd.keys"  # an EXR header attribute, not a USD property (lfusd.author.vocabulary)
 MASKS = "masks"  # the uint32 channel holding every mask key, one bit each
 _COMPONENTS = "XYZW"
 

@@ -449,11 +449,12 @@ def render_video(req: RenderRequest) -> VideoResult:
         return state["scheduler"]
 
     def finish(names: list[str]) -> None:
-        from ..truth.derive import derive_dataset
+        from ..truth.derive import derive_dataset, drop_raw_near
 
         written, left = state["scheduler"].finish()
         for rig, frames in sorted(left.items()):
             written += derive_dataset(req.out, [rig], frames, workers=req.workers)
+        drop_raw_near(req.out, names, req.frames)  # the views derived early kept their raw passes
         state["derived"] = written
 
     manifest, names = _render(req, stage, then=finish, overlap=overlap)

@@ -131,7 +131,7 @@ def redundancy(views: Views, cams: list[int], groups: list[list[int]], bands: Ba
             raise LfusdError("a held-out view needs at least one neighbour; use a grid of at least 1x2")
         pred = reconstruct(views, i, src, n_planes, device=device)
         m = metrics.view_synthesis(pred, views.rgb[i])
-        psnr.append(min(m["psnr"], PSNR_CAP))
+        psnr.append(min(m["psnr_db"], PSNR_CAP))
         ssim.append(m["ssim"])
         err = (metrics.rgb_to_y(pred) - metrics.rgb_to_y(views.rgb[i] / 255.0)) ** 2
         b = bands.of(views.depth[i])

@@ -228,6 +228,18 @@ def drop_raw(ds: Dataset, frames, views) -> int:
     return n
 
 
+def drop_raw_near(root: str | Path, rigs: list[str], frames) -> int:
+    """After an overlapped render (which derived view by view): remove the raw passes nothing needs
+    any more around ``frames`` of ``rigs``, as :func:`derive_dataset` does at its end."""
+    n = 0
+    for rig in rigs:
+        ds = Dataset(root, rig=rig)
+        ds.refresh()
+        near = sorted({g for f in frames for g in range(f - REACH, f + REACH + 1) if g in ds.frames})
+        n += drop_raw(ds, near, ds.views)
+    return n
+
+
 def derive_dataset(
     root: str | Path,
     rigs: list[str] | None = None,

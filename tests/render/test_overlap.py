@@ -38,7 +38,8 @@ def test_view_chunks_keep_each_render_call_within_the_pixel_budget():
 def _render(root, name, caplog) -> tuple[Dataset, list[tuple[int, int, int]]]:
     with caplog.at_level(logging.DEBUG, logger="lfusd.render.executors"):
         caplog.clear()
-        result = render_video(RenderRequest(stage=root / "movers.usda", out=root / name, samples=1, device="cpu", quiet=True))
+        # raw passes kept: the scheduler test derives the motion again from them
+        result = render_video(RenderRequest(stage=root / "movers.usda", out=root / name, samples=1, device="cpu", quiet=True, keep_raw=True))
         events = [tuple(map(int, m.groups())) for r in caplog.records if (m := FRAME_EVENT.search(r.getMessage()))]
     assert result.derived == len(FRAMES) * len(RIG.views)
     return Dataset(root / name), events
