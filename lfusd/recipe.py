@@ -70,6 +70,7 @@ class Recipe:
     workers: int = 1
     verify: str = "all"
     stats_views: str = "centre"
+    thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
 
 
 @dataclass(frozen=True)
@@ -127,7 +128,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     ds = data.get("dataset")
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
-    known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views"}
+    known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -157,6 +158,16 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     stats_views = _get(ds, "stats_views", str, source, w, "must be a string", "centre")
     if stats_views not in STATS_VIEWS:
         raise _bad(source, w + "stats_views", stats_views, f"must be one of {', '.join(STATS_VIEWS)}")
+    raw_thresholds = _get(ds, "thresholds", dict, source, w, "must be a table of KEY = LIMIT", {})
+    from .truth.verify import THRESHOLDS
+
+    thresholds = []
+    for k, v in raw_thresholds.items():
+        if k not in THRESHOLDS:
+            raise _bad(source, f"{w}thresholds.{k}", k, f"must name a verified key ({', '.join(THRESHOLDS)})")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise _bad(source, f"{w}thresholds.{k}", v, "must be a positive number")
+        thresholds.append((k, float(v)))
 
     raw_parts = data.get("part")
     if not isinstance(raw_parts, list) or not raw_parts:
@@ -204,7 +215,8 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     from .render.request import check_rig_size
 
     check_rig_size(grid, resolution)
-    return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views)
+    return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
+                  tuple(sorted(thresholds)))
 
 
 def load_recipe(path) -> Recipe:
@@ -326,7 +338,7 @@ def _read_record(path: Path) -> dict | None:
         return None  # a damaged record: the scene is made again (its render resumes)
 
 
-def _verify_scene(out: Path, mode: str) -> tuple[bool, dict, list[str]]:
+def _verify_scene(out: Path, mode: str, thresholds: dict[str, float]) -> tuple[bool, dict, list[str]]:
     """(ok, pixels compared per key, failure lines) of ``lfusd verify`` on every rig of a scene."""
     from .data.export import open_datasets
     from .truth.verify import verify
@@ -334,7 +346,7 @@ def _verify_scene(out: Path, mode: str) -> tuple[bool, dict, list[str]]:
     ok, compared, failures = True, {}, []
     for ds in open_datasets(out, "all"):
         views = [ds.rig.centre_view] if mode == "centre" else None
-        for rep in verify(out, rig=ds.rig_name, views=views).values():
+        for rep in verify(out, rig=ds.rig_name, views=views, thresholds=thresholds).values():
             ok &= rep.ok
             failures += rep.failures()
             for k, n in rep.compared().items():
@@ -359,8 +371,9 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
         render_video(req)
     else:
         render(req)
-    ok, compared, failures = (True, {}, []) if recipe.verify == "none" else _verify_scene(out, recipe.verify)
+    ok, compared, failures = (True, {}, []) if recipe.verify == "none" else _verify_scene(out, recipe.verify, dict(recipe.thresholds))
     return {"version": RECORD_VERSION, "spec": _spec_dict(spec), "verified": ok, "verify": recipe.verify,
+            "thresholds": dict(recipe.thresholds),
             "compared": compared, "failures": failures, "stats": scene_stats(out, recipe.stats_views)}
 
 
@@ -396,7 +409,7 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
             result.scenes.append(spec.name)
             path = root / layout.RECIPE_SCENES / f"{spec.name}.json"
             rec = _read_record(path)
-            if rec and rec["spec"] == _spec_dict(spec) and rec["verified"] and (root / layout.RECIPE_SCENES / spec.name / layout.MANIFEST).is_file():
+            if rec and rec["spec"] == _spec_dict(spec) and rec["verified"] and rec.get("thresholds") == dict(recipe.thresholds) and (root / layout.RECIPE_SCENES / spec.name / layout.MANIFEST).is_file():
                 result.skipped.append(spec.name)
                 log.info("scene %s: complete and verified, skipped", spec.name)
                 if progress:
@@ -494,7 +507,8 @@ def _plots(root: Path, card: dict, records: dict, specs: list[SceneSpec]) -> lis
     ax.set_xlabel("frame pair")
     ax.set_ylabel("moving pixels (%)")
     ax.set_title("motion coverage per view and frame", fontsize=9)
-    if len(ax.lines) <= 8 and ax.lines:
+    labelled = [ln for ln in ax.lines if not ln.get_label().startswith("_")]
+    if 0 < len(labelled) <= 8:
         ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(folder / "coverage.png", dpi=80)
@@ -518,7 +532,8 @@ def card_markdown(card: dict, plots: list[str]) -> str:
     r = card["recipe"]
     lines = [f"# Dataset card: {card['name']}", "",
              f"{len(card['scenes'])} scenes, {r['grid'][0]}x{r['grid'][1]} views per rig at {r['resolution'][0]}x{r['resolution'][1]}, "
-             f"{r['samples']} samples; verification: {r['verify']} ({'all passed' if card['verified'] else 'SOME FAILED'}). "
+             f"{r['samples']} samples; verification: {r['verify']} ({'all passed' if card['verified'] else 'SOME FAILED'}"
+             f"{', limits replaced: ' + ', '.join(f'{k} {v:g}' for k, v in r['thresholds']) if r['thresholds'] else ''}). "
              f"Statistics over the {card['stats_views']} view(s) of every rig and frame: {card['pixels']} pixels.", "",
              "## Scenes", "", "| scene | part | template | seed | rigs | frames | verified | px compared | disparity (px) | motion: frames moving / >= 5 % / mean |",
              "|---|---|---|---|---|---|---|---|---|---|"]
