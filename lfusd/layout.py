@@ -65,3 +65,11 @@ STUDY_SCORES = "scores"  # one <candidate>.json per scored candidate (what makes
 STUDY_REPORT = "report.md"
 STUDY_HEATMAPS = "heatmaps"  # one <arrangement>.png of per-view redundancy over the grid
 STUDY_PLOT = "score_vs_baseline.png"
+
+# A recipe's dataset folder (`lfusd dataset make RECIPE.toml -o DIR`, lfusd.recipe).
+RECIPE_COPY = "recipe.toml"  # the recipe it was made from; a rerun must match it scene by scene
+RECIPE_STAGES = "stages"  # one <scene>.usda (and textures/) per generated scene
+RECIPE_SCENES = "scenes"  # one lfusd dataset folder per scene, and its record <scene>.json
+RECIPE_CARD = "CARD.md"
+RECIPE_CARD_JSON = "card.json"
+RECIPE_PLOTS = "plots"  # the card's PNG figures

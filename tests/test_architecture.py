@@ -28,6 +28,9 @@ ALLOWED = {
     # the dataset and scores it, so it sits above author, render, data and evaluation, like the
     # commands (and, like everything, it does not import them).
     "study": BASE | {"author", "render", "data", "evaluation", "study"},
+    # A dataset recipe orchestrates the whole pipeline (generate, render, verify, measure), like the
+    # commands, but below them: the CLI calls it, it calls no command.
+    "recipe": BASE | {"author", "render", "data", "truth", "recipe"},
     "commands": None,  # the CLI may call anything
     "cli": None,
     "__init__": None,  # the facade (lazy)

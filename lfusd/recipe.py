@@ -1,0 +1,567 @@
+"""Dataset recipes: ``lfusd dataset make RECIPE.toml -o DIR``.
+
+A recipe (TOML, read with tomllib) names the render settings once and one or more *parts*, each
+a number of scenes drawn from templates and seeds (lfusd.author.scenes.generate, which also adds
+the rigs). Every scene is generated, rendered (``render-video`` for a dynamic part, ``render`` of
+its one frame for a static one; local processes or Ray), verified (lfusd.truth.verify) and
+measured; the dataset card (CARD.md, card.json, plots/*.png) sums the scenes' statistics.
+
+Scene k of a part uses template ``templates[k % len(templates)]`` and seed ``first_seed + k``;
+a rig range ``[lo, hi]`` gives it ``lo + seed % (hi - lo + 1)`` rigs. Each finished scene leaves
+a record ``scenes/<scene>.json`` (its spec, verification and statistics), written last: a rerun
+skips every scene whose record matches its spec and says verified, and finishes the others (the
+render itself resumes view by view).
+
+Statistics, over every rig and frame of a scene and the recipe's ``stats_views`` (the centre
+view, or all): disparity (px per baseline step, pixels with a surface) min/max and histogram;
+|flow_fwd| histogram over valid pixels (frames with a next frame); motion coverage (per view and
+frame, the fraction of pixels with valid |flow_fwd| > 0.01 px, lfusd.truth.coverage's rule);
+class frequencies (pixels per semantic class). Histograms use the fixed edges below, so scenes add.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import layout
+from .errors import LfusdError
+
+log = logging.getLogger(__name__)
+
+DISPARITY_EDGES = [0.0, 0.5, 1, 2, 4, 8, 16, 32, 64, 128, 256, 512, float("inf")]  # px
+FLOW_EDGES = [0.0, 0.01, 0.1, 0.5, 1, 2, 4, 8, 16, 32, 64, 128, float("inf")]  # px
+MOVING = 0.01  # px: lfusd.truth.coverage.THRESHOLD (not imported: truth's coverage module pulls in the readers anyway)
+GOAL_COVERAGE = 0.05
+VERIFY_MODES = ("all", "centre", "none")
+STATS_VIEWS = ("centre", "all")
+EXECUTORS = ("local", "ray")
+RECORD_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Part:
+    """One part of a recipe: ``scenes`` scenes of ``templates`` from ``first_seed`` on."""
+
+    name: str
+    templates: tuple[str, ...]
+    scenes: int
+    first_seed: int = 0
+    rigs: tuple[int, int] = (1, 1)
+    frames: int = 1
+    dynamic: bool = False
+
+
+@dataclass(frozen=True)
+class Recipe:
+    name: str
+    grid: tuple[int, int]
+    resolution: tuple[int, int]
+    parts: tuple[Part, ...]
+    samples: int = 16
+    device: str = "auto"
+    executor: str = "local"
+    ray_address: str | None = None
+    workers: int = 1
+    verify: str = "all"
+    stats_views: str = "centre"
+    thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One scene of a recipe: what generates and renders it (the record's identity)."""
+
+    name: str
+    part: str
+    template: str
+    seed: int
+    rigs: int
+    frames: int
+    dynamic: bool
+    grid: tuple[int, int]
+    resolution: tuple[int, int]
+    samples: int
+
+
+# -- reading and checking a recipe ------------------------------------------------------------
+
+def _bad(source: str, field_: str, got, fix: str) -> LfusdError:
+    return LfusdError(f"recipe {source}: {field_} {fix}, got {got!r}")
+
+
+def _get(table: dict, key: str, kind, source: str, where: str, fix: str, default=...):
+    if key not in table:
+        if default is ...:
+            raise LfusdError(f"recipe {source}: {where}{key} is missing; {fix}")
+        return default
+    v = table[key]
+    if kind is int and (isinstance(v, bool) or not isinstance(v, int)):
+        raise _bad(source, where + key, v, fix)
+    if kind is not int and not isinstance(v, kind):
+        raise _bad(source, where + key, v, fix)
+    return v
+
+
+def _pair(table: dict, key: str, source: str, where: str, fix: str, lo: int = 1, default=...) -> tuple[int, int]:
+    v = _get(table, key, (list, int), source, where, fix, default)
+    if isinstance(v, int) and not isinstance(v, bool):
+        v = [v, v]
+    if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool) and x >= lo for x in v)):
+        raise _bad(source, where + key, table.get(key, v), fix)
+    return int(v[0]), int(v[1])
+
+
+def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
+    """A :class:`Recipe` from parsed TOML; LfusdError in one line naming the bad field and the fix."""
+    from .author.scenes import TEMPLATES
+
+    known_top = {"dataset", "part"}
+    for k in data:
+        if k not in known_top:
+            raise LfusdError(f"recipe {source}: unknown table [{k}]; use [dataset] and [[part]]")
+    ds = data.get("dataset")
+    if not isinstance(ds, dict):
+        raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
+    known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds"}
+    for k in ds:
+        if k not in known:
+            raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
+    w = "dataset."
+    name = _get(ds, "name", str, source, w, "must be a name (a string)")
+    grid = _pair(ds, "grid", source, w, "must be [ROWS, COLS] of positive integers")
+    resolution = _pair(ds, "resolution", source, w, "must be [WIDTH, HEIGHT] of positive integers")
+    samples = _get(ds, "samples", int, source, w, "must be a positive integer", 16)
+    workers = _get(ds, "workers", int, source, w, "must be a positive integer", 1)
+    for k, v in (("samples", samples), ("workers", workers)):
+        if v < 1:
+            raise _bad(source, w + k, v, "must be a positive integer")
+    device = _get(ds, "device", str, source, w, "must be a string", "auto")
+    from .render.request import DEVICES
+
+    if device not in DEVICES:
+        raise _bad(source, w + "device", device, f"must be one of {', '.join(DEVICES)}")
+    executor = _get(ds, "executor", str, source, w, "must be a string", "local")
+    if executor not in EXECUTORS:
+        raise _bad(source, w + "executor", executor, f"must be one of {', '.join(EXECUTORS)}")
+    ray_address = _get(ds, "ray_address", str, source, w, "must be an address string", None)
+    if ray_address and executor != "ray":
+        raise _bad(source, w + "ray_address", ray_address, 'needs dataset.executor = "ray"')
+    verify = _get(ds, "verify", str, source, w, "must be a string", "all")
+    if verify not in VERIFY_MODES:
+        raise _bad(source, w + "verify", verify, f"must be one of {', '.join(VERIFY_MODES)}")
+    stats_views = _get(ds, "stats_views", str, source, w, "must be a string", "centre")
+    if stats_views not in STATS_VIEWS:
+        raise _bad(source, w + "stats_views", stats_views, f"must be one of {', '.join(STATS_VIEWS)}")
+    raw_thresholds = _get(ds, "thresholds", dict, source, w, "must be a table of KEY = LIMIT", {})
+    from .truth.verify import THRESHOLDS
+
+    thresholds = []
+    for k, v in raw_thresholds.items():
+        if k not in THRESHOLDS:
+            raise _bad(source, f"{w}thresholds.{k}", k, f"must name a verified key ({', '.join(THRESHOLDS)})")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+            raise _bad(source, f"{w}thresholds.{k}", v, "must be a positive number")
+        thresholds.append((k, float(v)))
+
+    raw_parts = data.get("part")
+    if not isinstance(raw_parts, list) or not raw_parts:
+        raise LfusdError(f"recipe {source}: no [[part]]; add at least one [[part]] with name, templates and scenes")
+    parts, names = [], set()
+    part_known = {"name", "templates", "scenes", "first_seed", "rigs", "frames", "dynamic"}
+    for i, p in enumerate(raw_parts):
+        w = f"part[{i}]."
+        for k in p:
+            if k not in part_known:
+                raise LfusdError(f"recipe {source}: unknown field {w}{k}; use one of {', '.join(sorted(part_known))}")
+        pname = _get(p, "name", str, source, w, "must be a name (letters, digits, _ or -)")
+        if not pname or not all(c.isalnum() or c in "_-" for c in pname) or pname in names:
+            raise _bad(source, w + "name", pname, "must be a unique name of letters, digits, _ or -")
+        names.add(pname)
+        w = f"part.{pname}."
+        templates = _get(p, "templates", list, source, w, f"must be a list of templates ({', '.join(TEMPLATES)})")
+        for t in templates:
+            if t not in TEMPLATES:
+                raise _bad(source, w + "templates", t, f"must list templates among {', '.join(TEMPLATES)}")
+        if not templates:
+            raise _bad(source, w + "templates", templates, f"must list at least one of {', '.join(TEMPLATES)}")
+        scenes = _get(p, "scenes", int, source, w, "must be a positive integer")
+        first_seed = _get(p, "first_seed", int, source, w, "must be a non-negative integer", 0)
+        frames = _get(p, "frames", int, source, w, "must be a positive integer", 1)
+        dynamic = _get(p, "dynamic", bool, source, w, "must be true or false", False)
+        rigs = _pair(p, "rigs", source, w, "must be a rig count 1-10 or a range [LO, HI] within 1-10", default=1)
+        if scenes < 1:
+            raise _bad(source, w + "scenes", scenes, "must be a positive integer")
+        if first_seed < 0:
+            raise _bad(source, w + "first_seed", first_seed, "must be a non-negative integer")
+        if frames < 1:
+            raise _bad(source, w + "frames", frames, "must be a positive integer")
+        if not (1 <= rigs[0] <= rigs[1] <= 10):
+            raise _bad(source, w + "rigs", p.get("rigs"), "must be a rig count 1-10 or a range [LO, HI] within 1-10")
+        if dynamic:
+            if frames < 2:
+                raise _bad(source, w + "frames", frames, "must be at least 2 for a dynamic part (motion needs a next frame)")
+            static_only = [t for t in templates if TEMPLATES[t].animate is None]
+            if static_only:
+                raise _bad(source, w + "templates", static_only[0], "must have a dynamic variant in a dynamic part; remove it or set dynamic = false")
+        elif frames != 1:
+            raise _bad(source, w + "frames", frames, "must be 1 in a static part (set dynamic = true for a video)")
+        parts.append(Part(pname, tuple(templates), scenes, first_seed, rigs, frames, dynamic))
+    from .render.request import check_rig_size
+
+    check_rig_size(grid, resolution)
+    return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
+                  tuple(sorted(thresholds)))
+
+
+def load_recipe(path) -> Recipe:
+    """Read and check the recipe file at ``path``."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise LfusdError(f"cannot read recipe {path} ({e.strerror or e}); give an existing .toml file") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise LfusdError(f"recipe {path} is not valid TOML ({e}); fix the syntax") from None
+    return parse_recipe(data, str(path))
+
+
+def scene_specs(recipe: Recipe) -> list[SceneSpec]:
+    """Every scene of the recipe, in order (deterministic)."""
+    out = []
+    for p in recipe.parts:
+        for k in range(p.scenes):
+            template, seed = p.templates[k % len(p.templates)], p.first_seed + k
+            lo, hi = p.rigs
+            out.append(SceneSpec(f"{p.name}_{k:03d}_{template}_s{seed}", p.name, template, seed, lo + seed % (hi - lo + 1),
+                                 p.frames, p.dynamic, recipe.grid, recipe.resolution, recipe.samples))
+    return out
+
+
+# -- statistics -------------------------------------------------------------------------------
+
+def histogram(values: np.ndarray, edges) -> list[int]:
+    """Counts of ``values`` in [edges[i], edges[i+1]) (values below edges[0] are left out)."""
+    idx = np.searchsorted(np.asarray(edges, np.float64), np.asarray(values, np.float64).ravel(), side="right") - 1
+    idx = idx[(idx >= 0) & (idx < len(edges) - 1)]
+    return np.bincount(idx, minlength=len(edges) - 1).astype(int).tolist()
+
+
+def scene_stats(root: Path, stats_views: str = "centre") -> dict:
+    """The statistics of one rendered scene folder (see the module docstring), with pixel counts."""
+    from .data.export import open_datasets
+
+    disp_hist = [0] * (len(DISPARITY_EDGES) - 1)
+    flow_hist = [0] * (len(FLOW_EDGES) - 1)
+    dmin, dmax, surface_px, flow_px = float("inf"), 0.0, 0, 0
+    classes: dict[str, int] = {}
+    coverage: dict[str, list[float]] = {}
+    pixels = 0
+    for ds in open_datasets(root, "all"):
+        views = [ds.rig.centre_view] if stats_views == "centre" else [tuple(v) for v in ds.views]
+        done = set(ds.frames)
+        motion = bool(ds.manifest.get("settings", {}).get("motion")) and (ds.keys is None or "flow_fwd" in ds.keys)
+        for view in views:
+            key = f"{ds.rig_name} {view[0]:02d}_{view[1]:02d}"
+            series = coverage.setdefault(key, [])
+            for f in ds.frames:
+                depth = np.asarray(ds.read(f, view, "depth"))
+                pixels += depth.size
+                surface = np.isfinite(depth)
+                d = np.asarray(ds.read(f, view, "disparity"), np.float64)[surface]
+                surface_px += int(d.size)
+                if d.size:
+                    dmin, dmax = min(dmin, float(d.min())), max(dmax, float(d.max()))
+                    disp_hist = [a + b for a, b in zip(disp_hist, histogram(d, DISPARITY_EDGES))]
+                sem = np.asarray(ds.read(f, view, "semantic")).ravel()
+                for cid, n in enumerate(np.bincount(sem, minlength=len(ds.classes))):
+                    if n:
+                        label = ds.classes[cid] if cid < len(ds.classes) else str(cid)
+                        classes[label or "unlabelled"] = classes.get(label or "unlabelled", 0) + int(n)
+                if motion and f + 1 in done:
+                    flow = np.asarray(ds.read(f, view, "flow_fwd"), np.float64)
+                    valid = np.asarray(ds.read(f, view, "valid_fwd"), bool)
+                    mag = np.linalg.norm(flow, axis=-1)
+                    flow_px += int(valid.sum())
+                    flow_hist = [a + b for a, b in zip(flow_hist, histogram(mag[valid], FLOW_EDGES))]
+                    series.append(float((valid & (mag > MOVING)).sum() / valid.size))
+            if not series:
+                del coverage[key]
+    return {
+        "pixels": pixels,
+        "disparity": {"pixels": surface_px, "min": dmin if surface_px else None, "max": dmax if surface_px else None,
+                      "edges": DISPARITY_EDGES, "counts": disp_hist},
+        "flow": {"pixels": flow_px, "edges": FLOW_EDGES, "counts": flow_hist},
+        "coverage": coverage,
+        "classes": classes,
+    }
+
+
+def _coverage_summary(series: list[float]) -> dict:
+    a = np.asarray(series, np.float64)
+    n = int(a.size)
+    return {"frames": n, "any": float(np.mean(a > 0)) if n else 0.0, "goal": float(np.mean(a >= GOAL_COVERAGE)) if n else 0.0,
+            "mean": float(a.mean()) if n else 0.0}
+
+
+# -- making the dataset -----------------------------------------------------------------------
+
+@dataclass
+class MakeResult:
+    """What one `make_dataset` run did."""
+
+    scenes: list[str] = field(default_factory=list)
+    made: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)  # verification failed
+    card: dict = field(default_factory=dict)
+
+
+def _spec_dict(spec: SceneSpec) -> dict:
+    return json.loads(json.dumps(asdict(spec)))  # tuples as lists, as they come back from a record
+
+
+def _read_record(path: Path) -> dict | None:
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+        return rec if isinstance(rec, dict) and rec.get("version") == RECORD_VERSION else None
+    except (OSError, ValueError):
+        return None  # a damaged record: the scene is made again (its render resumes)
+
+
+def _verify_scene(out: Path, mode: str, thresholds: dict[str, float]) -> tuple[bool, dict, list[str]]:
+    """(ok, pixels compared per key, failure lines) of ``lfusd verify`` on every rig of a scene."""
+    from .data.export import open_datasets
+    from .truth.verify import verify
+
+    ok, compared, failures = True, {}, []
+    for ds in open_datasets(out, "all"):
+        views = [ds.rig.centre_view] if mode == "centre" else None
+        for rep in verify(out, rig=ds.rig_name, views=views, thresholds=thresholds).values():
+            ok &= rep.ok
+            failures += rep.failures()
+            for k, n in rep.compared().items():
+                compared[k] = compared.get(k, 0) + n
+    return ok, compared, failures[:20]
+
+
+def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) -> dict:
+    """Generate, render, verify and measure one scene; return its record (written by the caller)."""
+    from .author.scenes import generate
+    from .render.job import render, render_video
+    from .render.request import RenderRequest
+
+    stage = root / layout.RECIPE_STAGES / f"{spec.name}.usda"
+    out = root / layout.RECIPE_SCENES / spec.name
+    if not stage.is_file():
+        generate(spec.template, stage, spec.seed, frames=spec.frames, rigs=spec.rigs, grid=spec.grid,
+                 resolution=spec.resolution, dynamic=spec.dynamic)
+    req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
+                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet)
+    if spec.dynamic:
+        render_video(req)
+    else:
+        render(req)
+    ok, compared, failures = (True, {}, []) if recipe.verify == "none" else _verify_scene(out, recipe.verify, dict(recipe.thresholds))
+    return {"version": RECORD_VERSION, "spec": _spec_dict(spec), "verified": ok, "verify": recipe.verify,
+            "thresholds": dict(recipe.thresholds),
+            "compared": compared, "failures": failures, "stats": scene_stats(out, recipe.stats_views)}
+
+
+def _check_folder(root: Path, recipe_text: str) -> None:
+    """A rerun into ``root`` must use the recipe that made it (same text)."""
+    copy = root / layout.RECIPE_COPY
+    if copy.is_file() and copy.read_text() != recipe_text:
+        raise LfusdError(f"{root} was made from a different recipe ({copy}); rerun with that recipe or choose a new -o folder")
+
+
+def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeResult:
+    """Make (or finish) the dataset of the recipe at ``recipe_path`` in folder ``root`` and write its card.
+
+    ``progress(index, total, scene, action)`` is called per scene ('skip' or 'make')."""
+    from .render.job import atomic_write_text, output_lock
+
+    recipe_path, root = Path(recipe_path), Path(root)
+    recipe = load_recipe(recipe_path)
+    text = recipe_path.read_text()
+    if root.exists() and not root.is_dir():
+        raise LfusdError(f"output {root} is a file; give a folder for the dataset")
+    try:
+        (root / layout.RECIPE_SCENES).mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise LfusdError(f"cannot create {root} ({e.strerror or e}); choose a writable -o folder") from None
+    result = MakeResult()
+    with output_lock(root):
+        _check_folder(root, text)
+        atomic_write_text(root / layout.RECIPE_COPY, text)
+        specs = scene_specs(recipe)
+        records = {}
+        for i, spec in enumerate(specs):
+            result.scenes.append(spec.name)
+            path = root / layout.RECIPE_SCENES / f"{spec.name}.json"
+            rec = _read_record(path)
+            if rec and rec["spec"] == _spec_dict(spec) and rec["verified"] and rec.get("thresholds") == dict(recipe.thresholds) and (root / layout.RECIPE_SCENES / spec.name / layout.MANIFEST).is_file():
+                result.skipped.append(spec.name)
+                log.info("scene %s: complete and verified, skipped", spec.name)
+                if progress:
+                    progress(i, len(specs), spec.name, "skip")
+                records[spec.name] = rec
+                continue
+            if progress:
+                progress(i, len(specs), spec.name, "make")
+            rec = make_scene(recipe, spec, root, quiet=quiet)
+            atomic_write_text(path, json.dumps(rec, indent=1) + "\n")  # last: the scene is done
+            records[spec.name] = rec
+            result.made.append(spec.name)
+            if not rec["verified"]:
+                result.failed.append(spec.name)
+                log.warning("scene %s failed verification: %s", spec.name, rec["failures"][0] if rec["failures"] else "no pixels compared")
+        result.card = write_card(root, recipe, specs, records)
+    return result
+
+
+# -- the card ---------------------------------------------------------------------------------
+
+def summarize(recipe: Recipe, specs: list[SceneSpec], records: dict[str, dict]) -> dict:
+    """card.json: the recipe, the scene list and the statistics summed over scenes."""
+    disp = [0] * (len(DISPARITY_EDGES) - 1)
+    flow = [0] * (len(FLOW_EDGES) - 1)
+    classes: dict[str, int] = {}
+    dmin, dmax, dpx, fpx, pixels = None, None, 0, 0, 0
+    scenes = []
+    for spec in specs:
+        rec = records[spec.name]
+        st = rec["stats"]
+        pixels += st["pixels"]
+        d = st["disparity"]
+        disp = [a + b for a, b in zip(disp, d["counts"])]
+        dpx += d["pixels"]
+        if d["pixels"]:
+            dmin = d["min"] if dmin is None else min(dmin, d["min"])
+            dmax = d["max"] if dmax is None else max(dmax, d["max"])
+        flow = [a + b for a, b in zip(flow, st["flow"]["counts"])]
+        fpx += st["flow"]["pixels"]
+        for k, n in st["classes"].items():
+            classes[k] = classes.get(k, 0) + n
+        all_cov = [x for s in st["coverage"].values() for x in s]
+        scenes.append({"name": spec.name, "part": spec.part, "template": spec.template, "seed": spec.seed, "rigs": spec.rigs,
+                       "frames": spec.frames, "dynamic": spec.dynamic, "verified": rec["verified"], "compared": rec["compared"],
+                       "disparity": [d["min"], d["max"]], "coverage": _coverage_summary(all_cov) if spec.dynamic else None})
+    return {
+        "name": recipe.name,
+        "recipe": json.loads(json.dumps(asdict(recipe))),
+        "scenes": scenes,
+        "stats_views": recipe.stats_views,
+        "pixels": pixels,
+        "disparity": {"pixels": dpx, "min": dmin, "max": dmax, "edges": [str(e) if e == float("inf") else e for e in DISPARITY_EDGES], "counts": disp},
+        "flow": {"pixels": fpx, "edges": [str(e) if e == float("inf") else e for e in FLOW_EDGES], "counts": flow},
+        "coverage": _coverage_summary([x for s in specs if s.dynamic for v in records[s.name]["stats"]["coverage"].values() for x in v]),
+        "classes": dict(sorted(classes.items(), key=lambda kv: -kv[1])),
+        "verified": all(records[s.name]["verified"] for s in specs),
+    }
+
+
+def _plots(root: Path, card: dict, records: dict, specs: list[SceneSpec]) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = root / layout.RECIPE_PLOTS
+    folder.mkdir(exist_ok=True)
+    names = []
+
+    def bars(name, edges, counts, xlabel, title):
+        fig, ax = plt.subplots(figsize=(6, 3.2))
+        labels = [f"{edges[i]:g}" for i in range(len(counts))]
+        ax.bar(range(len(counts)), counts, color="#4878a8")
+        ax.set_xticks(range(len(counts)), labels, rotation=45, fontsize=7)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("pixels")
+        if any(counts):
+            ax.set_yscale("log")
+        ax.set_title(title, fontsize=9)
+        fig.tight_layout()
+        fig.savefig(folder / name, dpi=80)
+        plt.close(fig)
+        names.append(name)
+
+    d, f = card["disparity"], card["flow"]
+    bars("disparity.png", DISPARITY_EDGES, d["counts"], "disparity (px per baseline step), bin from", f"disparity, {d['pixels']} px")
+    bars("flow.png", FLOW_EDGES, f["counts"], "|flow_fwd| (px), bin from", f"forward flow magnitude, {f['pixels']} px")
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    for s in specs:
+        for key, series in records[s.name]["stats"]["coverage"].items():
+            if series:
+                ax.plot(range(1, len(series) + 1), [100 * x for x in series], lw=1, label=f"{s.name} {key}")
+    ax.axhline(100 * GOAL_COVERAGE, color="k", ls="--", lw=0.8)
+    ax.set_xlabel("frame pair")
+    ax.set_ylabel("moving pixels (%)")
+    ax.set_title("motion coverage per view and frame", fontsize=9)
+    labelled = [ln for ln in ax.lines if not ln.get_label().startswith("_")]
+    if 0 < len(labelled) <= 8:
+        ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(folder / "coverage.png", dpi=80)
+    plt.close(fig)
+    names.append("coverage.png")
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    cls = card["classes"]
+    ax.barh(list(cls)[::-1], list(cls.values())[::-1], color="#6a9f58")
+    ax.set_xscale("log" if cls else "linear")
+    ax.set_xlabel("pixels")
+    ax.set_title("class frequencies", fontsize=9)
+    ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    fig.savefig(folder / "classes.png", dpi=80)
+    plt.close(fig)
+    names.append("classes.png")
+    return names
+
+
+def card_markdown(card: dict, plots: list[str]) -> str:
+    r = card["recipe"]
+    lines = [f"# Dataset card: {card['name']}", "",
+             f"{len(card['scenes'])} scenes, {r['grid'][0]}x{r['grid'][1]} views per rig at {r['resolution'][0]}x{r['resolution'][1]}, "
+             f"{r['samples']} samples; verification: {r['verify']} ({'all passed' if card['verified'] else 'SOME FAILED'}"
+             f"{', limits replaced: ' + ', '.join(f'{k} {v:g}' for k, v in r['thresholds']) if r['thresholds'] else ''}). "
+             f"Statistics over the {card['stats_views']} view(s) of every rig and frame: {card['pixels']} pixels.", "",
+             "## Scenes", "", "| scene | part | template | seed | rigs | frames | verified | px compared | disparity (px) | motion: frames moving / >= 5 % / mean |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for s in card["scenes"]:
+        cov = s["coverage"]
+        c = f"{cov['any']:.0%} / {cov['goal']:.0%} / {cov['mean']:.1%} of {cov['frames']}" if cov else "static"
+        dr = f"{s['disparity'][0]:.3g}-{s['disparity'][1]:.3g}" if s["disparity"][0] is not None else "-"
+        lines.append(f"| {s['name']} | {s['part']} | {s['template']} | {s['seed']} | {s['rigs']} | {s['frames']} | "
+                     f"{'yes' if s['verified'] else 'NO'} | {sum(s['compared'].values())} | {dr} | {c} |")
+    d, f, cov = card["disparity"], card["flow"], card["coverage"]
+    lines += ["", "## Statistics", ""]
+    if d["pixels"]:
+        lines.append(f"- disparity: {d['min']:.4g} to {d['max']:.4g} px per baseline step over {d['pixels']} pixels with a surface")
+    lines.append(f"- forward flow: {f['pixels']} valid pixels; |flow| > {MOVING} px on {sum(f['counts'][1:])}")
+    lines.append(f"- motion coverage (dynamic scenes): moving pixels in {cov['any']:.0%} of {cov['frames']} view-frames, "
+                 f">= {GOAL_COVERAGE:.0%} of the view in {cov['goal']:.0%}, mean {cov['mean']:.1%}")
+    total = sum(card["classes"].values()) or 1
+    lines.append("- classes: " + ", ".join(f"{k} {100 * n / total:.1f} %" for k, n in card["classes"].items()))
+    lines += ["", "## Plots", ""] + [f"![{p}]({layout.RECIPE_PLOTS}/{p})" for p in plots]
+    return "\n".join(lines) + "\n"
+
+
+def write_card(root: Path, recipe: Recipe, specs: list[SceneSpec], records: dict[str, dict]) -> dict:
+    """Write card.json, CARD.md and plots/*.png; return the card."""
+    from .render.job import atomic_write_text
+
+    card = summarize(recipe, specs, records)
+    plots = _plots(root, card, records, specs)
+    atomic_write_text(root / layout.RECIPE_CARD_JSON, json.dumps(card, indent=1) + "\n")
+    atomic_write_text(root / layout.RECIPE_CARD, card_markdown(card, plots))
+    return card
