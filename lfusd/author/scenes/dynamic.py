@@ -286,7 +286,7 @@ def beside(ctx: Ctx, rng: np.random.Generator, labels, region, gap=(0.9, 1.6)):
     return (lo[:2] + hi[:2]) / 2 + d * (edge + float(rng.uniform(*gap)))
 
 
-def performer(ctx: Ctx, tries: int = 30) -> bool:
+def performer(ctx: Ctx, tries: int = 100) -> bool:
     """A person walking a loop on a spot the template offers (``ctx.spot``) for the whole clip,
     if its sweep is free; records it in ``ctx.performers``."""
     rng = ctx.rng

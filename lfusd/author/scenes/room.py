@@ -18,12 +18,17 @@ from .build import box
 
 H = 2.7  # wall height
 T = 0.15  # wall thickness
+# Floor kept free for a performer's loop (lfusd.author.scenes.dynamic.performer sweeps the loop
+# grown by its 0.6 m person radius): long and short side, metres; a free gap to the chairs lets them slide.
+WALK = (2.8, 2.1)
+WALK_GAP = 0.45
 
 
 @dataclass(frozen=True)
 class RoomSite(Site):
     hx: float  # inner half sizes
     hy: float
+    walk: tuple | None = None  # ((x0, y0), (x1, y1)) floor kept free of furniture for a performer's loop
 
 
 @template("room", seed_key=2, labels={"floor", "wall", "table", "chair", "bowl", "lamp"}, movers={"cabinet"})
@@ -58,6 +63,19 @@ def room(scene: Scene) -> RoomSite:
         pose = scene.place(parts, ((cx - 0.5, cy - 0.5), (cx + 0.5, cy + 0.5)), GAP, yaw_choices=[cyaw], margin=0.05)
         if pose:
             scene.add(scene.name("Chair"), "chair", parts, pose[0], pose[1])
+    # Reserve floor for a performer's loop before the rest of the furniture comes (the room fills up
+    # otherwise and no rig finds a walker to watch); dropped again once the room is furnished.
+    walk = None
+    for _ in range(60):
+        wx, wy = WALK if rng.random() < 0.5 else WALK[::-1]
+        if wx > 2 * hx - 0.2 or wy > 2 * hy - 0.2:
+            continue
+        x, y = float(rng.uniform(-hx + 0.1 + wx / 2, hx - 0.1 - wx / 2)), float(rng.uniform(-hy + 0.1 + wy / 2, hy - 0.1 - wy / 2))
+        lo, hi = np.array([x - wx / 2, y - wy / 2, 0.0]), np.array([x + wx / 2, y + wy / 2, H])
+        if scene.free(lo, hi, margin=WALK_GAP):
+            walk = ((float(lo[0]), float(lo[1])), (float(hi[0]), float(hi[1])))
+            scene.placed.append(Placed("/World#walk", lo, hi))
+            break
     top = ((tx - ex / 2 + 0.05, ty - ey / 2 + 0.05), (tx + ex / 2 - 0.05, ty + ey / 2 - 0.05))
     for _ in range(int(rng.integers(2, 6))):
         parts = kit.bowl_kit(rng)
@@ -100,6 +118,8 @@ def room(scene: Scene) -> RoomSite:
         if pose:
             scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
 
+    scene.placed = [p for p in scene.placed if p.path != "/World#walk"]
+
     b.rect_light("Ceiling", (0.0, 0.0, H + 0.3), (0.0, 0.0, 0.0), 1.2, 0.6, float(rng.uniform(40, 100)))
     b.disk_light("Downlight", (tx + 0.8, ty, H + 0.2), (tx + 0.8, ty, 0.0), 0.15, float(rng.uniform(30, 90)))
     b.spot_light("Spot", (tx - 0.5, ty - 0.5, H + 0.2), (tx, ty, top_h), 0.05, float(rng.uniform(60, 150)),
@@ -114,7 +134,7 @@ def room(scene: Scene) -> RoomSite:
     def look_at(r):
         return (tx + r.uniform(-0.5, 0.5), ty + r.uniform(-0.5, 0.5), top_h + r.uniform(-0.3, 0.3))
 
-    return RoomSite(rig_position, look_at, hx, hy)
+    return RoomSite(rig_position, look_at, hx, hy, walk)
 
 
 @room.dynamic
@@ -163,9 +183,19 @@ def _animate(ctx, site: RoomSite) -> None:
                 ctx.occ.reserve(scene, o.prim_path, lo, hi)
                 ctx.movers.append(o.prim_path)
 
-    def spot(r):  # a small loop on the floor, inside the walls
+    def spot(r):  # a small loop: on the reserved floor, else anywhere (performer() keeps it off walls and furniture)
+        if site.walk is not None and r.random() < 0.5:
+            (x0, y0), (x1, y1) = site.walk
+            along_x = x1 - x0 >= y1 - y0
+            long, short = (x1 - x0, y1 - y0) if along_x else (y1 - y0, x1 - x0)
+            length = float(r.uniform(0.8, min(1.6, long - 1.25)))
+            width = float(r.uniform(0.4, min(0.8, short - 1.25)))
+            ex, ey = (length, width) if along_x else (width, length)
+            cx = float(r.uniform(x0 + ex / 2 + 0.62, x1 - ex / 2 - 0.62))
+            cy = float(r.uniform(y0 + ey / 2 + 0.62, y1 - ey / 2 - 0.62))
+            return (cx, cy), GAP, 0.0 if along_x else 90.0, length, width
         length, width = float(r.uniform(0.8, 1.6)), float(r.uniform(0.4, 0.8))
-        return ((float(r.uniform(-hx + 1.4, hx - 1.4)), float(r.uniform(-hy + 1.4, hy - 1.4))), GAP,
+        return ((float(r.uniform(-hx + 0.9, hx - 0.9)), float(r.uniform(-hy + 0.9, hy - 0.9))), GAP,
                 float(r.choice([0.0, 90.0])), length, width)
 
     ctx.spot = spot
