@@ -328,6 +328,22 @@ def test_disk_estimate_beyond_free_space_is_refused(monkeypatch, tmp_path, proje
     assert not (tmp_path / "out").exists()
 
 
+def test_raw_passes_are_written_uncompressed_only_while_transient_and_the_disk_has_room(monkeypatch):
+    from lfusd.render import request
+    from lfusd.render.request import RAW_BYTES_PER_PIXEL, RAW_FRAMES_ON_DISK, RenderRequest, raw_codec
+
+    rigs = [("a", 81, 1024, 1024)]
+    need = 81 * 1024 * 1024 * RAW_BYTES_PER_PIXEL[True] * RAW_FRAMES_ON_DISK  # 30 GB: the reference rig
+    req = RenderRequest(stage=Path("s.usda"), out=Path("o"), motion=True)
+    monkeypatch.setattr(request, "_free_disk", lambda path: 4 * need)
+    assert raw_codec(req, rigs) == "NONE"
+    assert raw_codec(RenderRequest(stage=Path("s.usda"), out=Path("o"), motion=True, keep_raw=True), rigs) == "ZIP"  # kept files
+    monkeypatch.setattr(request, "_free_disk", lambda path: 4 * need - 1)
+    assert raw_codec(req, rigs) == "ZIP"
+    monkeypatch.setattr(request, "_free_disk", lambda path: None)
+    assert raw_codec(req, rigs) == "ZIP"
+
+
 def test_workers_are_capped_to_the_cores(caplog):
     from lfusd.render.request import RenderRequest
 

@@ -44,7 +44,7 @@ from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
 from .plan import Plan, StageSetup, plan_units
 from .progress import Progress
-from .request import RenderRequest, check_size
+from .request import RenderRequest, check_size, raw_codec
 
 log = logging.getLogger(__name__)
 
@@ -360,7 +360,8 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
     # an animated stage's range; None for a static stage, which renders over any range.
     settings["stage_frames"] = None if is_static(stage) else list(frame_range(stage))
     world = world_frame(stage).to_dict()
-    check_size(req, [(r.spec.name, len(r.spec.views), r.spec.width, r.spec.height) for r in rigs], frames)
+    sizes = [(r.spec.name, len(r.spec.views), r.spec.width, r.spec.height) for r in rigs]
+    check_size(req, sizes, frames)
     if existing is not None:
         _prepare_output(req, settings, files, remove=False)  # refuse before taking the lock (which writes OUT/.lock)
     try:
@@ -390,6 +391,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
                     req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
                     StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
                                _add_light(req, stage), world),
+                    raw_codec(req, sizes),
                 )
                 report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
                 if scheduler is not None:

@@ -82,10 +82,7 @@ class WorkUnit:
     # anchor's space at stage_range[0], part path] (lfusd.author.geometry.render_instances).
     instanced: list = field(default_factory=list)
     render_pixels: int = 0  # at most this many pixels per render call (0: RENDER_PIXELS); see view_chunks
-    # Blender's codec for the data passes. ZIP while passes.exr is a kept dataset file; where the
-    # raw passes are transient, NONE halves Blender's write (measured at 512x512: 1.2 -> 0.55 s of
-    # CPU per 9 views, out of 2.9 for the whole data render) and the parent's decode (33 -> 21 ms).
-    raw_codec: str = "ZIP"
+    raw_codec: str = "ZIP"  # Blender's codec for the data passes (lfusd.render.request.raw_codec)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -139,8 +136,9 @@ class StageSetup:
 
 
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],
-               setup: StageSetup) -> list[WorkUnit]:
-    """Work units covering every missing (rig, frame, view) of ``plan``."""
+               setup: StageSetup, raw_codec: str = "ZIP") -> list[WorkUnit]:
+    """Work units covering every missing (rig, frame, view) of ``plan``; Blender writes the data
+    passes with ``raw_codec``."""
     units: list[WorkUnit] = []
     for rig_name in sorted({k[0] for k in plan.todo}):
         frames = sorted(f for (r, f) in plan.todo if r == rig_name)
@@ -163,6 +161,6 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                     width=width, height=height, samples=req.samples, device=req.device,
                     # Locally, workers share the cores; on Ray, Blender takes what the node has.
                     threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                    motion=req.motion, render_pixels=RENDER_PIXELS, **asdict(setup),
+                    motion=req.motion, render_pixels=RENDER_PIXELS, raw_codec=raw_codec, **asdict(setup),
                 ))
     return units

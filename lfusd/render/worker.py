@@ -9,7 +9,8 @@ Per frame it renders twice, into a scratch folder the parent owns:
 - beauty: the user's samples and Blender's default pixel filter, linear RGB EXR per view;
 - data: 1 sample with a box filter of tiny width, so every ground-truth pass (depth, normal,
   position, object index, vector) is the exact value at the pixel centre. No pass of it depends on
-  light, so it renders with the lights hidden and no world (measured: a third less time).
+  light or shading, so it renders with the lights hidden, no world and one opaque material in
+  place of the scene's (data_material).
 The views go through these two renders in chunks of at most ``WorkUnit.render_pixels`` pixels
 (lfusd.render.plan.view_chunks): a multiview render result holds every enabled view's passes at
 once, so memory stays bounded whatever the grid. After each chunk the worker hands its files to the
@@ -252,7 +253,7 @@ def fallback_surfaces() -> None:
     """Give every used material that has no surface a mid-grey Principled BSDF, with a warning.
 
     MaterialX-only materials (``outputs:mtlx:surface``) arrive with no nodes; Cycles renders
-    those black, and with the motion AOV outputs alone, transparent."""
+    those black in the beauty (the data render replaces every material, see data_material)."""
     paths = {i.as_pointer(): p for p, ids in PRIM_MAP.items() for i in ids if isinstance(i, bpy.types.Material)}
     for mat in _used_materials():
         if has_surface(mat):
@@ -492,7 +493,7 @@ NEIGHBOUR_AOVS = {"next": "next_position", "prev": "prev_position"}
 
 
 class MotionAttributes:
-    """Per-vertex world positions at t+1 and t-1 on every mesh, read by an AOV in every material.
+    """Per-vertex world positions at t+1 and t-1 on every mesh, read by AOVs of the data material.
 
     At one sample on the pixel centre the AOV is the barycentric blend of the hit triangle's
     vertex positions at t+/-1: the exact position then of the surface point seen at t, visible
@@ -506,37 +507,17 @@ class MotionAttributes:
         # frames evaluate the scene at one new time each (t+1), not two.
         self.cache: dict[int, dict[str, np.ndarray]] = {}
         self.evaluations = 0
-        default = None
         for obj in self.meshes:
             if obj.data.users > 1:  # attributes live on mesh data: give each object its own
                 obj.data = obj.data.copy()
-            if not obj.material_slots or all(s.material is None for s in obj.material_slots):
-                if default is None:
-                    default = bpy.data.materials.new("lfusd_default")
-                obj.data.materials.clear()
-                obj.data.materials.append(default)
             for key in NEIGHBOUR_AOVS:
                 if f"lfusd_{key}" not in obj.data.attributes:
                     obj.data.attributes.new(f"lfusd_{key}", "FLOAT_VECTOR", "POINT")
-        for mat in {s.material for o in self.meshes for s in o.material_slots if s.material}:
-            self._add_aov_nodes(mat)
         vl = scene.view_layers[0]
         for name in NEIGHBOUR_AOVS.values():
             if name not in vl.aovs:
                 aov = vl.aovs.add()
                 aov.name, aov.type = name, "COLOR"
-
-    @staticmethod
-    def _add_aov_nodes(mat) -> None:
-        """Add the AOV outputs beside the surface (``fallback_surfaces`` gave every material one):
-        a material with AOV outputs alone renders transparent."""
-        nodes, links = mat.node_tree.nodes, mat.node_tree.links
-        for key, aov_name in NEIGHBOUR_AOVS.items():
-            attr = nodes.new("ShaderNodeAttribute")
-            attr.attribute_type, attr.attribute_name = "GEOMETRY", f"lfusd_{key}"
-            out = nodes.new("ShaderNodeOutputAOV")
-            out.aov_name = aov_name
-            links.new(attr.outputs["Vector"], out.inputs["Color"])
 
     def _world_vertices(self, frame: int) -> dict[str, np.ndarray]:
         """Every mesh's evaluated vertices at ``frame`` in lfusd's world: matrix_world already
@@ -585,20 +566,49 @@ def _shift_lenses(scene, on: bool) -> None:
         cam.shift_y = -SAMPLE_OFFSET_PX[1] / w if on else 0.0
 
 
+def data_material(motion: bool):
+    """The one material of the data render (a view-layer override): opaque black, with the t+/-1
+    position AOVs when ``motion``.
+
+    No data pass depends on a surface's shading, so the scene's own materials (textures, BSDF
+    layers, transparency chains) need not be evaluated: measured, a third less time for the data
+    render. Normals are then the mesh's interpolated shading normals, without normal or bump maps
+    (docs/CONVENTIONS.md). An opaque surface also ends the camera ray at the first surface, which is
+    the surface every data pass records (pass_alpha_threshold 0)."""
+    mat = bpy.data.materials.new("lfusd_data")
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputMaterial")
+    black = nodes.new("ShaderNodeEmission")
+    black.inputs["Strength"].default_value = 0.0
+    links.new(black.outputs["Emission"], out.inputs["Surface"])
+    for key, aov_name in NEIGHBOUR_AOVS.items() if motion else ():
+        attr = nodes.new("ShaderNodeAttribute")
+        attr.attribute_type, attr.attribute_name = "GEOMETRY", f"lfusd_{key}"
+        aov = nodes.new("ShaderNodeOutputAOV")
+        aov.aov_name = aov_name
+        links.new(attr.outputs["Vector"], aov.inputs["Color"])
+    return mat
+
+
 class Lighting:
-    """The scene's lights and world, switched off for the data render and back on for the beauty.
+    """What the data render leaves out and the beauty needs: lights, world and the scene's own
+    materials (replaced by :func:`data_material`).
 
     No data pass depends on light; with lights and world gone Cycles traces no shadow rays and
     samples no light at the first hit (measured: 0.97 -> 0.55 s of CPU for 3 views at 512x512)."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, motion: bool):
         self.scene, self.world = scene, scene.world
         self.lights = [o for o in scene.objects if o.type == "LIGHT" and not o.hide_render]
+        self.material = data_material(motion)
 
     def set(self, on: bool) -> None:
         for o in self.lights:
             o.hide_render = not on
         self.scene.world = self.world if on else None
+        self.scene.view_layers[0].material_override = None if on else self.material
 
 
 def _render(scene, filepath: str) -> None:
@@ -703,7 +713,7 @@ def main() -> int:
         device = select_device(scene, job.device)
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
         emit("ready", device=device, seconds=time.time() - t0)
-        lighting = Lighting(scene)
+        lighting = Lighting(scene, motion is not None)
         for frame in job.frames:
             render_frame(scene, job, frame, suffixes, motion, lighting)
             _test_kill_hook(frame)
