@@ -576,7 +576,8 @@ def data_material(motion: bool):
     (docs/CONVENTIONS.md). An opaque surface also ends the camera ray at the first surface, which is
     the surface every data pass records (pass_alpha_threshold 0)."""
     mat = bpy.data.materials.new("lfusd_data")
-    mat.use_nodes = True
+    if mat.node_tree is None:  # Blender 5.0 gives new materials a node tree (use_nodes is deprecated)
+        mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
     out = nodes.new("ShaderNodeOutputMaterial")
