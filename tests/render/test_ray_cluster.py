@@ -243,6 +243,10 @@ def test_units_spread_over_two_nodes_and_a_dead_node_loses_at_most_its_frame_in_
     after = {(f, v): (p.stat().st_ino, p.stat().st_mtime_ns)
              for f in kept for v in views for p in [frame_dir(out, RIG.name, f) / v / RGB_EXR]}
     assert after == before, "a view committed before the node died was written again"
+    # Blender's own account (the retry's log replaces the dead attempt's): the frames it rendered.
+    log = (out / "logs" / f"{RIG.name}-unit{first['unit']:04d}.log").read_text()
+    rendered = sorted({int(ln.split()[2]) for ln in log.splitlines() if ln.startswith("lfusd: frame ")})
+    assert rendered == retried[1]["frames"], rendered
     assert all(_complete(out, f, [f"00_0{c}" for c in range(2)]) for f in frames)
 
     verify = subprocess.run([sys.executable, "-m", "lfusd.cli", "verify", str(out)], env=cluster.env,
