@@ -147,7 +147,7 @@ class Cluster:
 
     def stop(self) -> list[str]:
         """Kill both nodes' process groups (as `ray stop --force` would, but only these); the
-        command lines of processes that outlived that (outside the groups: killed one by one)."""
+        command lines of processes that outlived that (killed one by one)."""
         self.processes()
         for node in self.nodes.values():
             try:
@@ -156,12 +156,25 @@ class Cluster:
                 pass
             node.wait(30)
         end = time.time() + 15
-        while _alive(self.seen) and time.time() < end:
+        while self.leftovers() and time.time() < end:
             time.sleep(0.2)
-        left = [_command(p) for p in _alive(self.seen)]
-        for p in _alive(self.seen):
+        left = self.leftovers()
+        for p in left:
             p.kill()
-        return left
+        return [_command(p) for p in left]
+
+    def leftovers(self) -> list[psutil.Process]:
+        """Processes of this cluster still running: those seen in its process groups, and any other
+        with its token in the environment (inherited by every Ray, lfusd and Blender process of it)."""
+        token = self.env["RAY_AUTH_TOKEN"]
+        found = list(self.seen)
+        for p in psutil.process_iter():
+            try:
+                if p.pid != os.getpid() and p not in found and p.environ().get("RAY_AUTH_TOKEN") == token:
+                    found.append(p)
+            except psutil.Error:
+                pass
+        return _alive(found)
 
 
 @pytest.fixture
@@ -213,6 +226,8 @@ def test_units_spread_over_two_nodes_and_a_dead_node_loses_at_most_its_frame_in_
         frames, views = first["frames"], first["views"]
         assert len(frames) == 10 and len(views) == 1, first
         _wait("node_b's first committed frame", lambda: _complete(out, frames[0], views), procs=[lfusd], every=0.05)
+        # The teardown's leftover check sees this cluster's Blender processes (by their environment).
+        assert any("lfusd.render.worker" in _command(p) for p in cluster.leftovers())
         cluster.kill("node_b")
         t_kill = time.time() - t0
         # What node_b committed before it died, as the files stand now (no process of it is left).
