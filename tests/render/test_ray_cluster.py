@@ -2,8 +2,12 @@
 nodes, and killing a node mid-run loses at most its frame in flight.
 
 Both nodes are separate `ray start --block` processes on this machine, each in its own session (so
-its process group holds its raylet, workers and Blender processes), with 1 CPU each: two units
-cannot both run on one node, so both nodes get one. Everything listens on loopback only. Ray
+its process group holds its raylet, workers and Blender processes), with 1 CPU each: a node runs
+one unit at a time, so of the 4 units the second goes to the other node while the first renders,
+whatever the timing. Each attempt of a unit records its node and frames (OUT/logs/*.ray.jsonl).
+node_b's Blender workers pause after each frame (LFUSD_TEST_FRAME_DELAY), so the SIGKILL of its
+process group, sent once its first frame is committed, lands mid-unit. Everything listens on
+loopback only. Ray
 resolves 127.0.0.1 to the machine's address unless RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0 (head,
 driver) or, for the joining node, whose start refuses that setting, `resolve_ip_for_localhost` is
 left out (the shim below). Teardown kills the nodes' process groups rather than `ray stop`, which
@@ -115,7 +119,7 @@ class Cluster:
         ports = [f"--node-manager-port={_free_port()}", f"--object-manager-port={_free_port()}",
                  f"--dashboard-agent-listen-port={_free_port()}", f"--dashboard-agent-grpc-port={_free_port()}",
                  f"--metrics-export-port={_free_port()}", f"--runtime-env-agent-port={_free_port()}"]
-        low = _free_port() // 2 * 2 % 20000 + 30000  # a worker port range unlikely to collide with another Ray
+        low = 30000 + _free_port() % 20000  # not Ray's default worker ports, which another Ray here may use
         self.nodes[name] = subprocess.Popen(
             [*argv, "--block", "--num-cpus=1", f"--resources={json.dumps({name: 1})}", "--disable-usage-stats",
              f"--temp-dir={self.temp / name}", "--object-store-memory=100000000",
