@@ -12,9 +12,12 @@ import json
 import logging
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import threading
+import time
+from dataclasses import replace
 from pathlib import Path
 
 from ..data.passes import read_rgb_linear
@@ -198,14 +201,36 @@ def run_local(units: list[WorkUnit], req: RenderRequest, report) -> str:
     return devices[0] if devices else "cpu"
 
 
-def _ray_unit(unit: WorkUnit, out: str) -> str:
-    return run_unit(unit, Path(out))
+def _ray_unit(unit: WorkUnit, out: str) -> str | None:
+    """A Ray task: render the unit's frames that are not complete yet; return the device used (None
+    when nothing was left). Ray retries a task whose node died; the dead attempt's committed views
+    are kept, so a node loss costs at most its frame in flight."""
+    import ray
+
+    from ..data import integrity
+
+    root = Path(out)
+    todo = [f for f in unit.frames if not all(integrity.view_complete(frame_dir(root, unit.rig, f) / k) for k in unit.cameras)]
+    record_attempt(root, unit, ray.get_runtime_context().get_node_id(), todo)
+    if not todo:
+        return None
+    return run_unit(replace(unit, frames=todo), root)
+
+
+def record_attempt(out: Path, unit: WorkUnit, node_id: str, frames: list[int]) -> None:
+    """Append one line per Ray attempt of a unit to OUT/logs/<rig>-unit<n>.ray.jsonl: the node it
+    ran on and the frames it rendered (the unit's others were complete). Where a unit ran, and what a
+    retry rendered again, is then on record; one attempt of a unit runs at a time, so no two writers."""
+    logs = out / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    line = {"unit": unit.unit, "node_id": node_id, "host": socket.gethostname(), "pid": os.getpid(),
+            "frames": frames, "views": sorted(unit.cameras), "time": time.time()}
+    with open(logs / f"{unit.rig}-unit{unit.unit:04d}.ray.jsonl", "a") as f:
+        f.write(json.dumps(line) + "\n")
 
 
 def check_ray_address(address: str) -> None:
     """Fail fast, in one line, when nothing listens at a host:port Ray address."""
-    import socket
-
     host, _, port = address.rpartition(":")
     if "://" in address or not port.isdigit():
         return  # ray:// client addresses and 'auto' are Ray's to resolve
@@ -237,7 +262,7 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
             done, _ = ray.wait(list(refs), num_returns=1)
             unit = refs.pop(done[0])
             try:
-                device = ray.get(done[0])
+                device = ray.get(done[0]) or device  # None: a retry found its frames complete
             except ray.exceptions.RayTaskError as e:
                 cause = getattr(e, "cause", None)
                 msg = str(cause) if isinstance(cause, LfusdError) else f"a Ray task of rig {unit.rig} failed after retries ({str(e).splitlines()[0]}); rerun to resume"

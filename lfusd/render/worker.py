@@ -692,6 +692,11 @@ def _test_kill_hook(frame: int) -> None:
     # Tests simulate a worker killed mid-run (SIGKILL: no clean-up) after a given frame.
     if os.environ.get("LFUSD_TEST_KILL_AFTER_FRAME") == str(frame):
         os.kill(os.getpid(), 9)
+    # Tests that kill a whole Ray node mid-unit slow that node's worker down, so that the kill
+    # lands after its first frame and before its last (a tiny frame renders in a fraction of a second).
+    delay = os.environ.get("LFUSD_TEST_FRAME_DELAY")
+    if delay:
+        time.sleep(float(delay))
 
 
 def main() -> int:

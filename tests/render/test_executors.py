@@ -51,3 +51,35 @@ def test_a_finished_pool_does_not_stop_later_workers(tmp_path, monkeypatch, capl
     with caplog.at_level(logging.WARNING, logger="lfusd.render.executors"):
         assert executors.run_unit(unit(), tmp_path / "b") == "cpu"
     assert any("material Foo has no surface" in r.getMessage() for r in caplog.records)
+
+
+def test_a_retried_ray_unit_renders_only_its_incomplete_frames(tmp_path, monkeypatch):
+    """Ray runs a unit again when its node died: frames whose views of the unit are all complete
+    are not rendered again (a node loss costs at most its frame in flight), and every attempt
+    records its node and frames in OUT/logs/<rig>-unit<n>.ray.jsonl."""
+    from types import SimpleNamespace
+
+    import ray
+
+    from lfusd.data import integrity
+    from lfusd.layout import frame_dir
+
+    def complete(frame, key):
+        d = frame_dir(tmp_path, "main", frame) / key
+        d.mkdir(parents=True)
+        for name in integrity.RENDER_FILES:
+            (d / name).write_bytes(b"rendered")
+        integrity.record_render(d)
+
+    complete(1, "00_00"), complete(1, "00_01"), complete(2, "00_00")  # frame 2 lacks view 00_01
+    rendered = []
+    monkeypatch.setattr(executors, "run_unit", lambda u, out: rendered.append(u.frames) or "cuda")
+    monkeypatch.setattr(ray, "get_runtime_context", lambda: SimpleNamespace(get_node_id=lambda: "node-1"))
+    u = unit(cameras={"00_00": "/Rigs/main/cam_00_00", "00_01": "/Rigs/main/cam_00_01"}, frames=[1, 2, 3])
+    assert executors._ray_unit(u, str(tmp_path)) == "cuda"
+    assert rendered == [[2, 3]]
+    complete(2, "00_01"), complete(3, "00_00"), complete(3, "00_01")
+    assert executors._ray_unit(u, str(tmp_path)) is None  # nothing left: no Blender started
+    assert rendered == [[2, 3]]
+    lines = [json.loads(ln) for ln in (tmp_path / "logs" / "main-unit0007.ray.jsonl").read_text().splitlines()]
+    assert [(a["node_id"], a["frames"]) for a in lines] == [("node-1", [2, 3]), ("node-1", [])]
