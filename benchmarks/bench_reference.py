@@ -53,15 +53,20 @@ def reference_layer(stage: Path, pose: str, out: Path, grid: tuple[int, int], re
 
 
 def phases(logs: Path) -> dict[str, float]:
-    """Seconds per phase summed over the workers' logs ("lfusd: frame N views V seconds beauty .. data ..")."""
-    total: dict[str, float] = {}
+    """Seconds per phase over the workers' logs. A worker prints one line per chunk of views,
+    "lfusd: frame N views V seconds beauty .. data ..", with the frame's totals so far: the last
+    line of each frame counts."""
+    last: dict[tuple[str, int], dict[str, float]] = {}
     for f in logs.glob("*.log"):
         for line in f.read_text(errors="replace").splitlines():
             m = PHASE.match(line)
             if m:
                 words = m.group(3).split()
-                for k, v in zip(words[::2], words[1::2]):
-                    total[k] = total.get(k, 0.0) + float(v)
+                last[(f.name, int(m.group(1)))] = {k: float(v) for k, v in zip(words[::2], words[1::2])}
+    total: dict[str, float] = {}
+    for frame in last.values():
+        for k, v in frame.items():
+            total[k] = total.get(k, 0.0) + v
     return total
 
 
@@ -115,7 +120,7 @@ def main() -> None:
         print(f"{VIDEO_FRAMES} frames at this rate: {hours:.1f} hours, {tb:.3f} TB")
         if not args.no_verify:
             v = subprocess.run([sys.executable, "-m", "lfusd", "verify", str(out)], cwd=ROOT, capture_output=True, text=True)
-            summary = [line for line in (v.stdout + v.stderr).splitlines() if "pixels" in line or "PASS" in line or "FAIL" in line]
+            summary = [line for line in (v.stdout + v.stderr).splitlines() if "compared" in line]
             print(f"lfusd verify: exit {v.returncode}; " + (summary[-1] if summary else "(no summary line)"))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
