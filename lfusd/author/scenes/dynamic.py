@@ -375,22 +375,21 @@ def _by_prop(rng: np.random.Generator, prop, centre: np.ndarray, body: float, dr
     a low prop in view. None when no draw fits."""
     _, lo, hi = prop
     reach = body + 0.25
-    thin = float(np.max(hi[:2] - lo[:2])) <= 0.6
-    cos30 = math.cos(math.radians(30))
-    for _ in range(draws):
-        xy = rng.uniform(lo[:2] - reach, hi[:2] + reach)
-        q = np.clip(xy, lo[:2], hi[:2])  # the prop's nearest point
-        gap = float(np.linalg.norm(q - xy))
-        to_c = centre[:2] - xy
-        d = float(np.linalg.norm(to_c))
-        if not (body + 0.02 <= gap <= reach and 1.5 <= d <= 3.4 and np.dot(q - xy, to_c) >= cos30 * gap * d):
-            continue
-        if not thin and hi[2] - centre[2] > 1.2 and _crosses(xy, centre[:2], lo, hi):
-            continue
-        top = float(hi[2] - centre[2])
-        z = float(rng.uniform(1.2, 1.9)) if top > 1.5 else max(body + 0.05, top + float(rng.uniform(0.15, 0.5)))
-        return np.r_[xy, centre[2] + z]
-    return None
+    xy = rng.uniform(lo[:2] - reach, hi[:2] + reach, (draws, 2))
+    q = np.clip(xy, lo[:2], hi[:2])  # the prop's nearest points
+    gap = np.linalg.norm(q - xy, axis=1)
+    to_c = centre[:2] - xy
+    d = np.linalg.norm(to_c, axis=1)
+    ok = ((body + 0.02 <= gap) & (gap <= reach) & (1.5 <= d) & (d <= 3.4)
+          & (np.sum((q - xy) * to_c, axis=1) >= math.cos(math.radians(30)) * gap * d))
+    if float(np.max(hi[:2] - lo[:2])) > 0.6 and hi[2] - centre[2] > 1.2:
+        ok &= ~_crosses(xy, np.broadcast_to(centre[:2], xy.shape), lo[None, :2], hi[None, :2])[:, 0]
+    k = np.flatnonzero(ok)
+    if not len(k):
+        return None
+    top = float(hi[2] - centre[2])
+    z = float(rng.uniform(1.2, 1.9)) if top > 1.5 else max(body + 0.05, top + float(rng.uniform(0.15, 0.5)))
+    return np.r_[xy[k[0]], centre[2] + z]
 
 
 def _peek(rng: np.random.Generator, screens, corners, centre: np.ndarray, distance, clear: float,
@@ -399,24 +398,28 @@ def _peek(rng: np.random.Generator, screens, corners, centre: np.ndarray, distan
     the loop's ``corners`` (xy) pass one of the static boxes ``screens`` ((lo, hi)) and the lines to
     others do not: the performer passes behind the object for part of each lap; ``clear`` metres
     from every screen. None when no draw fits."""
-    for _ in range(draws):
-        a = float(rng.uniform(0, 2 * math.pi))
-        xy = centre[:2] + float(rng.uniform(*distance)) * np.array([math.cos(a), math.sin(a)])
-        hidden = [any(_crosses(xy, c, lo, hi) for lo, hi in screens) for c in corners]
-        if any(hidden) and not all(hidden) and not any(np.all(lo[:2] - clear < xy) and np.all(xy < hi[:2] + clear) for lo, hi in screens):
-            return np.r_[xy, centre[2] + float(rng.uniform(1.3, 2.1))]
-    return None
+    a = rng.uniform(0, 2 * math.pi, draws)
+    xy = centre[:2] + rng.uniform(*distance, draws)[:, None] * np.stack([np.cos(a), np.sin(a)], axis=1)
+    lo, hi = np.array([s[0][:2] for s in screens]), np.array([s[1][:2] for s in screens])
+    hidden = np.stack([_crosses(xy, np.broadcast_to(c, xy.shape), lo, hi).any(axis=1) for c in corners], axis=1)
+    inside = np.any(np.all((lo[None] - clear < xy[:, None]) & (xy[:, None] < hi[None] + clear), axis=2), axis=1)
+    k = np.flatnonzero(hidden.any(axis=1) & ~hidden.all(axis=1) & ~inside)
+    if not len(k):
+        return None
+    return np.r_[xy[k[0]], centre[2] + float(rng.uniform(1.3, 2.1))]
 
 
-def _crosses(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
-    """True when the segment a..b (xy) meets the box lo..hi (xy)."""
-    d = b - a
+def _crosses(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(N, M) bool: whether segment a[i]..b[i] (xy, N of each) meets box lo[j]..hi[j] (xy, M of each)."""
+    a, d = a[:, None, :], (b - a)[:, None, :]
+    lo, hi = lo[None, :, :], hi[None, :, :]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t1, t2 = (lo[:2] - a) / d, (hi[:2] - a) / d
-    t1 = np.where(d == 0, np.where((lo[:2] <= a) & (a <= hi[:2]), -np.inf, np.inf), t1)
-    t2 = np.where(d == 0, np.where((lo[:2] <= a) & (a <= hi[:2]), np.inf, -np.inf), t2)
-    near, far = np.max(np.minimum(t1, t2)), np.min(np.maximum(t1, t2))
-    return bool(near <= far and far >= 0 and near <= 1)
+        t1, t2 = (lo - a) / d, (hi - a) / d
+    inside = (lo <= a) & (a <= hi)
+    t1 = np.where(d == 0, np.where(inside, -np.inf, np.inf), t1)
+    t2 = np.where(d == 0, np.where(inside, np.inf, -np.inf), t2)
+    near, far = np.max(np.minimum(t1, t2), axis=2), np.min(np.maximum(t1, t2), axis=2)
+    return (near <= far) & (far >= 0) & (near <= 1)
 
 
 def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int = 8, extra: int = 2) -> list[choreography.Footage] | None:
@@ -429,7 +432,8 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     sight to part of the loop pass a static object (:func:`_peek`); or past a static object near
     the performer; or near a rig that already watches it with an occlusion. A candidate must be free
     (its box and the first metres of its line of sight) and is measured at sampled frames
-    (lfusd.author.choreography.Watch). Candidates rank by (meets the goal with a margin, shows an
+    (lfusd.author.choreography.Watch). Candidates rank by (meets the goal with a margin, also at
+    the frames halfway between the sampled ones if it shows an occlusion; shows an
     occlusion and a near foreground, an occlusion, a near foreground, coverage); of up to ``tries``
     free candidates the first with the first two wins, else the best; when none meets the goal,
     ``3 * tries`` more are tried, then up to ``extra`` more performers per scene are added and
@@ -442,6 +446,7 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     first, last = int(scene.stage.GetStartTimeCode()), int(scene.stage.GetEndTimeCode())
     watch = choreography.Watch(scene.stage, first, last)
     frames = np.unique(np.linspace(first, last, min(PLAN_FRAMES, last - first + 1)).round().astype(int))
+    between = np.setdiff1d((frames[:-1] + frames[1:]) // 2, frames)  # where a candidate with an occlusion is checked again
     half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
     rings = [(half + a, half + b) for a, b in RIG_RINGS]
     (bx0, by0), (bx1, by1) = scene.bounds
@@ -513,7 +518,12 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
                 foot = watch.footage(spec, frames, width=PLAN_WIDTH)
                 occluded = bool(foot.occluded.any())
                 fore = near is None or near[0] <= foot.reference_disparity()[1] <= near[1]
-                key = (foot.meets_goal(PLAN_MARGIN), occluded and fore, occluded, fore,
+                passed = foot.meets_goal(PLAN_MARGIN)
+                if passed and occluded and len(between):
+                    # a static object that hides the movers at times may hide them between the sampled
+                    # frames too: such a candidate must also pass at the frames halfway between them
+                    passed = watch.footage(spec, between, width=PLAN_WIDTH).meets_goal(PLAN_MARGIN)
+                key = (passed, occluded and fore, occluded, fore,
                        foot.in_view + foot.person_in_view + float(foot.moving.mean()))
                 if best_key is None or key > best_key:
                     best, best_key = (spec, foot, centre), key
