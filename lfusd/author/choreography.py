@@ -192,6 +192,7 @@ class Watch:
                 static += [(p, o.label) for p in parts]
         if set(movers) != set(self.movers):
             self._scenes: dict[int, tuple] = {}
+        self._box_cache: dict[tuple, tuple] = {}
         self.movers = movers
         key = tuple(sorted(str(getattr(p, "path", None) or p.GetPath()) for p, _ in static))
         if self._static is None or self._static[0] != key:
@@ -242,6 +243,15 @@ class Watch:
         entry = (v, t, v.min(0) if len(v) else np.zeros(3), v.max(0) if len(v) else np.zeros(3))
         mv.cache[frame] = entry
         return entry
+
+    def _boxes(self, frame: int, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), (N, 3) each: the boxes of the movers ``names`` at ``frame`` (cached per frame)."""
+        key = (frame, tuple(names))
+        hit = self._box_cache.get(key)
+        if hit is None:
+            boxes = [self._mesh(self.movers[n], frame)[2:4] for n in names]
+            hit = self._box_cache[key] = (np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes]))
+        return hit
 
     def _frame_scene(self, frame: int, keep: bool):
         """(scene, mover names by geometry id) of every mover at ``frame``; kept for later calls
@@ -301,7 +311,11 @@ class Watch:
                     r = self._cast(static, origin, dirs)
                     self._static_rays[key] = (dirs, r["t_hit"].numpy().astype(np.float64), r["geometry_ids"].numpy().astype(np.int64))
                 dirs, ts, gs = self._static_rays[key]
-                visible = [n for n in names if _in_frustum(*self._mesh(self.movers[n], f)[2:4], cam, job["w"], job["h"])]
+                if names:
+                    lo, hi = self._boxes(f, names)
+                    visible = _any_in_frustum(lo, hi, cam, job["w"], job["h"])
+                else:
+                    visible = False
                 if visible:
                     r = self._cast(scene, origin, dirs)
                     t = r["t_hit"].numpy().astype(np.float64)
@@ -343,20 +357,24 @@ def _directions(u: np.ndarray, v: np.ndarray, K: np.ndarray, cam_to_world: np.nd
     return cam @ cam_to_world[:3, :3].T
 
 
-def _in_frustum(lo: np.ndarray, hi: np.ndarray, cam: Camera, w: int, h: int) -> bool:
-    """False when the box lo..hi lies wholly behind the camera or beyond one image border."""
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+def _any_in_frustum(lo: np.ndarray, hi: np.ndarray, cam: Camera, w: int, h: int) -> bool:
+    """False when every box lo[i]..hi[i] ((N, 3) each) lies wholly behind the camera or beyond one
+    image border (a box across the camera plane may span the whole view)."""
+    pick = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)])  # (8, 3): lo (0) or hi (1) per axis
+    corners = np.where(pick[None] == 0, lo[:, None, :], hi[:, None, :])  # (N, 8, 3)
     R, C = cam.world_to_cam()
     pc = (corners - C) @ R.T
-    if np.all(pc[:, 2] <= 1e-6):
-        return False
-    K = cam.K
-    # clip to the near plane: corners behind the camera make the box span the whole view
-    if np.any(pc[:, 2] <= 1e-6):
+    ahead = pc[..., 2] > 1e-6
+    if np.any(np.any(ahead, axis=1) & ~np.all(ahead, axis=1)):
         return True
-    x = K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2]
-    y = K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]
-    return not (x.max() < -0.5 or x.min() > w - 0.5 or y.max() < -0.5 or y.min() > h - 0.5)
+    some = np.all(ahead, axis=1)
+    if not np.any(some):
+        return False
+    K, pc = cam.K, pc[some]
+    x = K[0, 0] * pc[..., 0] / pc[..., 2] + K[0, 2]
+    y = K[1, 1] * pc[..., 1] / pc[..., 2] + K[1, 2]
+    out = (x.max(1) < -0.5) | (x.min(1) > w - 0.5) | (y.max(1) < -0.5) | (y.min(1) > h - 0.5)
+    return bool(np.any(~out))
 
 
 def rig_footage(stage: Usd.Stage, names=None, width: int = MEASURE_WIDTH, frames=None) -> dict[str, Footage]:

@@ -57,7 +57,7 @@ PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
 PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
 PROP_REACH = 3.5  # m: props whose box lies this near a performer's loop centre may stand in front of a rig
 PROP_SHARE = 0.6  # share of candidates placed just behind a prop
-FOCUS_TRIES = 6  # candidates tried behind props / past static objects when the best shows no occlusion
+FOCUS_TRIES = 4  # candidates tried behind props / past static objects when the best shows no occlusion
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
 PERSON_HEIGHT = 2.1
 
@@ -437,8 +437,8 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     occlusion and a near foreground, an occlusion, a near foreground, coverage); of up to ``tries``
     free candidates the first with the first two wins, else the best; when none meets the goal,
     ``3 * tries`` more are tried, then up to ``extra`` more performers per scene are added and
-    tried; when the best shows no occlusion or near foreground, FOCUS_TRIES more behind props and
-    past static objects. ``fallback(i)`` adds rig i the template's way when no candidate is free.
+    tried; when the best shows no occlusion, FOCUS_TRIES more behind props and past static
+    objects. ``fallback(i)`` adds rig i the template's way when no candidate is free.
     Returns the planning measurements, or None (nothing added) without performers."""
     ctx = getattr(scene, "ctx", None)
     if ctx is None or not ctx.performers:
@@ -518,13 +518,13 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
                 foot = watch.footage(spec, frames, width=PLAN_WIDTH)
                 occluded = bool(foot.occluded.any())
                 fore = near is None or near[0] <= foot.reference_disparity()[1] <= near[1]
-                passed = foot.meets_goal(PLAN_MARGIN)
-                if passed and occluded and len(between):
-                    # a static object that hides the movers at times may hide them between the sampled
-                    # frames too: such a candidate must also pass at the frames halfway between them
-                    passed = watch.footage(spec, between, width=PLAN_WIDTH).meets_goal(PLAN_MARGIN)
-                key = (passed, occluded and fore, occluded, fore,
+                key = (foot.meets_goal(PLAN_MARGIN), occluded and fore, occluded, fore,
                        foot.in_view + foot.person_in_view + float(foot.moving.mean()))
+                if key[0] and occluded and len(between) and (best_key is None or key > best_key):
+                    # a static object that hides the movers at times may hide them between the sampled
+                    # frames too: such a candidate, if it would lead, must also pass at the frames halfway
+                    if not watch.footage(spec, between, width=PLAN_WIDTH).meets_goal(PLAN_MARGIN):
+                        key = (False, *key[1:])
                 if best_key is None or key > best_key:
                     best, best_key = (spec, foot, centre), key
                 free += 1
@@ -553,9 +553,9 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
             got, got_key = search(i, [(ctx.performers[-1], ring) for ring in rings])
             if got_key is not None and (best_key is None or got_key > best_key):
                 best, best_key = got, got_key
-        if best_key is not None and best_key[0] and not best_key[1]:
-            # it meets the goal but shows no occlusion (or no near foreground): a few more candidates behind
-            # props and past static objects around its own performer
+        if best_key is not None and best_key[0] and not best_key[2]:
+            # it meets the goal but shows no occlusion: a few more candidates behind props and past static
+            # objects around its own performer
             got, got_key = search(i, plan[:len(rings)], FOCUS_TRIES, focus=True)
             if got_key is not None and got_key > best_key:
                 best, best_key = got, got_key
