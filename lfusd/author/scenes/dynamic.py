@@ -108,7 +108,7 @@ class Ctx:
     # performer may walk a loop (set by the template's dynamic function)
     spot: Callable | None = None
     performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
-    statics: list | None = None  # (label, lo, hi) of static objects (see beside)
+    statics: list | None = None  # (label, lo, hi) of static objects (see prop_near)
 
     @property
     def duration(self) -> float:
@@ -283,22 +283,6 @@ def prop_near(ctx: Ctx, rng: np.random.Generator, labels, region):
     return near[int(rng.integers(len(near)))] if near else None
 
 
-def beside(ctx: Ctx, rng: np.random.Generator, labels, region, gap=(0.9, 1.6)):
-    """A point ``gap`` metres (horizontally) beside a random static object of ``labels`` inside
-    ``region`` ((x0, y0), (x1, y1)), or None: a performer's loop there passes behind the object
-    from some viewpoints (occlusions between movers and static objects)."""
-    got = prop_near(ctx, rng, labels, region)
-    if got is None:
-        return None
-    lo, hi, _ = got
-    a = float(rng.uniform(0, 2 * math.pi))
-    d = np.array([math.cos(a), math.sin(a)])
-    # from the box centre out along d to its edge, then the gap
-    half = (hi[:2] - lo[:2]) / 2
-    edge = float(np.min(np.where(np.abs(d) > 1e-9, half / np.maximum(np.abs(d), 1e-9), np.inf)))
-    return (lo[:2] + hi[:2]) / 2 + d * (edge + float(rng.uniform(*gap)))
-
-
 def loop_beside(ctx: Ctx, rng: np.random.Generator, labels, region, length: float, width: float,
                 gap=(0.05, 0.5), tries: int = 8, props=None):
     """(centre, heading): a loop (``length`` along ``heading``, 0 or 90 degrees, ``width`` across)
@@ -366,13 +350,13 @@ def _props(scene: Scene, ctx: Ctx) -> list[tuple[str, np.ndarray, np.ndarray]]:
 
 
 def _by_prop(rng: np.random.Generator, prop, centre: np.ndarray, body: float, draws: int = 80) -> np.ndarray | None:
-    """A rig position 1.5-3.4 m from the performer's loop ``centre`` (nearer, it keeps a large share
-    of the view) with ``prop`` (path, lo, hi) in
-    front of it: the prop's box 0.02-0.25 m beyond the rig's own half size ``body`` (its nearest
-    surface about 0.6-0.9 m away: 150-230 px per step at the reference rig), its nearest point within
-    30 degrees of the direction to the loop, so the performer passes behind it at times; a prop wider
-    than 0.6 m and taller than 1.2 m stays off the line to the loop's centre (it must not hide it all). Low enough to keep
-    a low prop in view. None when no draw fits."""
+    """A rig position 1.5-3.4 m from the performer's loop ``centre`` (nearer, the performer keeps a
+    large share of the view) with ``prop`` (path, lo, hi) in front of it: the prop's box 0.02-0.25 m
+    beyond the rig's own half size ``body`` (its nearest surface about 0.6-0.9 m away: 150-230 px
+    per step at the reference rig), its nearest point within 30 degrees of the direction to the
+    loop, so the performer passes behind it at times; a prop wider than 0.6 m and taller than 1.2 m
+    stays off the line to the loop's centre (it must not hide it all). Low enough to keep a low prop
+    in view. None when no draw fits."""
     _, lo, hi = prop
     reach = body + 0.25
     xy = rng.uniform(lo[:2] - reach, hi[:2] + reach, (draws, 2))
