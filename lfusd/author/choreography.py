@@ -38,6 +38,21 @@ GOAL_FRAMES = 0.9  # ... in at least this fraction of the frames,
 GOAL_PERSON = 0.5  # and a person is in view in at least this fraction of the frames
 FLOW_EPS = 0.01  # px: a surface point moving less than this in the image does not count as moving
 MEASURE_WIDTH = 64  # pixels across of the measuring resolution (same field of view as the rig)
+# The reference rig (issue 16): a preview-size stage reports what its full-size render would give.
+REFERENCE = dict(rows=9, cols=9, baseline=0.125, width=1024, height=1024, focal_length_mm=39.0, sensor_mm=36.0)
+# Per-step disparity at the reference rig that outdoor rig placement aims its nearest surface at.
+DISPARITY_GOAL = (150.0, 250.0)
+
+
+def reference_spec(spec: RigSpec) -> RigSpec:
+    """The reference rig at ``spec``'s pose (its spacing and layout kept)."""
+    return RigSpec(**{**spec.to_dict(), **REFERENCE, "at": tuple(spec.at), "look_at": tuple(spec.look_at)})
+
+
+def same_view(a: RigSpec, b: RigSpec) -> bool:
+    """True when the centre views of ``a`` and ``b`` see the same field of view (lens and aspect)."""
+    return (abs(a.focal_length_mm / a.sensor_mm - b.focal_length_mm / b.sensor_mm) < 1e-9
+            and a.width * b.height == b.width * a.height)
 
 
 @dataclass
@@ -55,6 +70,8 @@ class Footage:
     depth: tuple[float, float]
     pixels: int
     spec: RigSpec
+    reference_depth: tuple[float, float] | None = None  # depth range of the reference rig's view at the same
+    # pose, when its field of view differs from the rig's (else ``depth`` is that range)
 
     @property
     def in_view(self) -> float:
@@ -84,14 +101,24 @@ class Footage:
         span = abs(s.offsets((0, s.cols - 1))[0] - s.offsets((0, 0))[0])
         return dmin, dmax, dmax * span
 
+    def reference_disparity(self) -> tuple[float, float]:
+        """(min, max) disparity in px per baseline step that the reference rig (REFERENCE: 9x9 views,
+        0.125 m, 1024 px, 39 mm lens on 36 mm) would see at this rig's pose."""
+        f_b = REFERENCE["focal_length_mm"] / REFERENCE["sensor_mm"] * REFERENCE["width"] * REFERENCE["baseline"]
+        zmin, zmax = self.reference_depth or self.depth
+        return (f_b / zmax if np.isfinite(zmax) and zmax > 0 else 0.0,
+                f_b / zmin if np.isfinite(zmin) and zmin > 0 else 0.0)
+
     def summary(self) -> dict:
         dmin, dmax, span = self.disparity()
+        rmin, rmax = self.reference_disparity()
         return {"rig": self.rig, "frames": len(self.frames), "pixels": self.pixels,
                 "motion_frames": self.in_view, "any_motion_frames": self.any_motion,
                 "coverage_mean": float(self.moving.mean()) if len(self.frames) else 0.0,
                 "coverage_min": float(self.moving.min()) if len(self.frames) else 0.0,
                 "person_frames": self.person_in_view, "occlusion_frames": float(np.mean(self.occluded)) if len(self.frames) else 0.0,
-                "disparity_min_px": dmin, "disparity_max_px": dmax, "disparity_span_px": span}
+                "disparity_min_px": dmin, "disparity_max_px": dmax, "disparity_span_px": span,
+                "reference_disparity_min_px": rmin, "reference_disparity_max_px": rmax}
 
     def line(self) -> str:
         s = self.summary()
@@ -99,7 +126,9 @@ class Footage:
                 f"{s['frames']} frames (any motion {s['any_motion_frames']:.0%}), covering mean {s['coverage_mean']:.1%} "
                 f"min {s['coverage_min']:.1%}; person in view {s['person_frames']:.0%}; occlusions {s['occlusion_frames']:.0%}; "
                 f"disparity {s['disparity_min_px']:.1f}-{s['disparity_max_px']:.1f} px per step, up to "
-                f"{s['disparity_span_px']:.0f} px over the rig ({s['pixels']} rays per frame)")
+                f"{s['disparity_span_px']:.0f} px over the rig; at the reference rig (9x9, 0.125 m, 1024 px) "
+                f"{s['reference_disparity_min_px']:.1f}-{s['reference_disparity_max_px']:.1f} px per step "
+                f"({s['pixels']} rays per frame)")
 
 
 def measuring_spec(spec: RigSpec, width: int = MEASURE_WIDTH) -> RigSpec:
@@ -163,6 +192,7 @@ class Watch:
                 static += [(p, o.label) for p in parts]
         if set(movers) != set(self.movers):
             self._scenes: dict[int, tuple] = {}
+        self._box_cache: dict[tuple, tuple] = {}
         self.movers = movers
         key = tuple(sorted(str(getattr(p, "path", None) or p.GetPath()) for p, _ in static))
         if self._static is None or self._static[0] != key:
@@ -213,6 +243,15 @@ class Watch:
         entry = (v, t, v.min(0) if len(v) else np.zeros(3), v.max(0) if len(v) else np.zeros(3))
         mv.cache[frame] = entry
         return entry
+
+    def _boxes(self, frame: int, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), (N, 3) each: the boxes of the movers ``names`` at ``frame`` (cached per frame)."""
+        key = (frame, tuple(names))
+        hit = self._box_cache.get(key)
+        if hit is None:
+            boxes = [self._mesh(self.movers[n], frame)[2:4] for n in names]
+            hit = self._box_cache[key] = (np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes]))
+        return hit
 
     def _frame_scene(self, frame: int, keep: bool):
         """(scene, mover names by geometry id) of every mover at ``frame``; kept for later calls
@@ -272,7 +311,11 @@ class Watch:
                     r = self._cast(static, origin, dirs)
                     self._static_rays[key] = (dirs, r["t_hit"].numpy().astype(np.float64), r["geometry_ids"].numpy().astype(np.int64))
                 dirs, ts, gs = self._static_rays[key]
-                visible = [n for n in names if _in_frustum(*self._mesh(self.movers[n], f)[2:4], cam, job["w"], job["h"])]
+                if names:
+                    lo, hi = self._boxes(f, names)
+                    visible = _any_in_frustum(lo, hi, cam, job["w"], job["h"])
+                else:
+                    visible = False
                 if visible:
                     r = self._cast(scene, origin, dirs)
                     t = r["t_hit"].numpy().astype(np.float64)
@@ -314,20 +357,24 @@ def _directions(u: np.ndarray, v: np.ndarray, K: np.ndarray, cam_to_world: np.nd
     return cam @ cam_to_world[:3, :3].T
 
 
-def _in_frustum(lo: np.ndarray, hi: np.ndarray, cam: Camera, w: int, h: int) -> bool:
-    """False when the box lo..hi lies wholly behind the camera or beyond one image border."""
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+def _any_in_frustum(lo: np.ndarray, hi: np.ndarray, cam: Camera, w: int, h: int) -> bool:
+    """False when every box lo[i]..hi[i] ((N, 3) each) lies wholly behind the camera or beyond one
+    image border (a box across the camera plane may span the whole view)."""
+    pick = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)])  # (8, 3): lo (0) or hi (1) per axis
+    corners = np.where(pick[None] == 0, lo[:, None, :], hi[:, None, :])  # (N, 8, 3)
     R, C = cam.world_to_cam()
     pc = (corners - C) @ R.T
-    if np.all(pc[:, 2] <= 1e-6):
-        return False
-    K = cam.K
-    # clip to the near plane: corners behind the camera make the box span the whole view
-    if np.any(pc[:, 2] <= 1e-6):
+    ahead = pc[..., 2] > 1e-6
+    if np.any(np.any(ahead, axis=1) & ~np.all(ahead, axis=1)):
         return True
-    x = K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2]
-    y = K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]
-    return not (x.max() < -0.5 or x.min() > w - 0.5 or y.max() < -0.5 or y.min() > h - 0.5)
+    some = np.all(ahead, axis=1)
+    if not np.any(some):
+        return False
+    K, pc = cam.K, pc[some]
+    x = K[0, 0] * pc[..., 0] / pc[..., 2] + K[0, 2]
+    y = K[1, 1] * pc[..., 1] / pc[..., 2] + K[1, 2]
+    out = (x.max(1) < -0.5) | (x.min(1) > w - 0.5) | (y.max(1) < -0.5) | (y.min(1) > h - 0.5)
+    return bool(np.any(~out))
 
 
 def rig_footage(stage: Usd.Stage, names=None, width: int = MEASURE_WIDTH, frames=None) -> dict[str, Footage]:
@@ -340,4 +387,10 @@ def rig_footage(stage: Usd.Stage, names=None, width: int = MEASURE_WIDTH, frames
         return {}
     watch = Watch(stage)
     jobs = [(r.spec, lambda f, r=r: r.cam_to_world(stage, r.spec.centre_view, f)) for _, r in sorted(found.items())]
-    return {f.rig: f for f in watch.footage_many(jobs, frames, width)}
+    # the reference rig's view at the same pose, where its field of view differs (depth range only)
+    extra = [(reference_spec(spec), poses) for spec, poses in jobs if not same_view(spec, reference_spec(spec))]
+    feet = watch.footage_many(jobs + extra, frames, width)
+    out = {f.rig: f for f in feet[: len(jobs)]}
+    for f in feet[len(jobs):]:
+        out[f.rig].reference_depth = f.depth
+    return out

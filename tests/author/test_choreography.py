@@ -11,7 +11,7 @@ import pytest
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from lfusd import cli
-from lfusd.author.choreography import GOAL_COVERAGE, GOAL_FRAMES, GOAL_PERSON, Watch, rig_footage
+from lfusd.author.choreography import DISPARITY_GOAL, GOAL_COVERAGE, GOAL_FRAMES, GOAL_PERSON, Watch, rig_footage
 from lfusd.author.labels import set_class_label
 from lfusd.author.rigs import add_rig
 from lfusd.author.scenes import TEMPLATES, generate
@@ -89,6 +89,17 @@ def test_footage_matches_closed_form_ray_casts(tmp_path):
     assert foot.occluded.any() and foot.moving[0] > GOAL_COVERAGE and foot.moving[3] == 0
     # disparity per step from the nearest visible surface, d = f_px * b / z (b = 0.125 m)
     assert foot.disparity()[1] == pytest.approx(f_px * 0.125 / zmin, rel=1e-4)
+    # the reference rig (1024x1024, 39 mm on 36 mm) at the same pose sees a taller (square) view: its
+    # nearest surface from the same closed-form casts through a 40x40 grid, at its own focal length
+    jj, ii = np.meshgrid(np.arange(40), np.arange(40))
+    cam = np.stack([(jj.ravel() - 19.5) / f_px, (ii.ravel() - 19.5) / f_px, np.ones(1600)], axis=1)
+    dirs = cam @ np.stack([x, y, z], axis=1).T
+    t_post = _slab(origin, dirs, np.array([-0.033, -1.58, 0.0]), np.array([0.267, -1.28, 2.0]))
+    t_ground = np.where(dirs[:, 2] < 0, -origin[2] / np.where(dirs[:, 2] < 0, dirs[:, 2], -1), np.inf)
+    zref = min(float(np.min(np.minimum(np.minimum(_slab(origin, dirs, centres[f] - 0.5, centres[f] + 0.5), t_post), t_ground)))
+               for f in range(1, 6))
+    assert zref < zmin  # the taller view reaches nearer ground
+    assert foot.reference_disparity()[1] == pytest.approx(39.0 / 36.0 * 1024 * 0.125 / zref, rel=1e-4)
     log.info("compared %d pixels over 5 frames", 1200 * 5)
 
 
@@ -100,8 +111,11 @@ GOAL_ARGS = dict(frames=24, rigs=2, grid=(9, 9), resolution=(64, 64), dynamic=Tr
 @pytest.mark.parametrize("template", [t for t in TEMPLATES if TEMPLATES[t].animate is not None])
 def test_every_rig_of_every_dynamic_scene_sees_motion_and_people(tmp_path, template):
     """10 seeds of each dynamic template (reference 9x9 rigs, 24 frames): every rig's centre view
-    has moving objects over 5 % of the image in >= 90 % of the frames and a person in >= 50 %."""
-    short = []
+    has moving objects over 5 % of the image in >= 90 % of the frames and a person in >= 50 %; at
+    least 80 % of the rigs see a mover pass behind a static object (not a ground or water surface)
+    in some frame; and outdoors (the reference 0.125 m baseline) the nearest visible surface of most
+    street rigs gives >= 150 px per baseline step at the reference rig (DISPARITY_GOAL)."""
+    short, occluded, disparity = [], [], []
     for seed in range(10):
         stage = generate(template, tmp_path / f"{template}_{seed}.usda", seed, **GOAL_ARGS)
         feet = rig_footage(stage, width=32)
@@ -109,8 +123,18 @@ def test_every_rig_of_every_dynamic_scene_sees_motion_and_people(tmp_path, templ
         for foot in feet.values():
             if foot.in_view < GOAL_FRAMES or foot.person_in_view < GOAL_PERSON:
                 short.append(f"seed {seed} {foot.line()}")
+            occluded.append(bool(foot.occluded.any()))
+            disparity.append(foot.reference_disparity()[1])
             log.info("%s seed %d %s", template, seed, foot.line())
     assert not short, "\n".join(short)
+    d = np.array(disparity)
+    log.info("%s: %.0f%% of %d rigs see a mover pass behind a static object; max disparity per step at the reference "
+             "rig: median %.0f px, 10-90%% %.0f-%.0f px, %.0f%% of rigs >= %.0f px, %.0f%% > %.0f px", template,
+             100 * np.mean(occluded), len(occluded), np.median(d), *np.percentile(d, [10, 90]),
+             100 * np.mean(d >= DISPARITY_GOAL[0]), DISPARITY_GOAL[0], 100 * np.mean(d > DISPARITY_GOAL[1]), DISPARITY_GOAL[1])
+    assert np.mean(occluded) >= 0.8, (template, occluded)
+    if template == "street":
+        assert np.mean(d >= DISPARITY_GOAL[0]) > 0.5, np.round(d)
 
 
 # -- projected coverage against a render -----------------------------------------------------------------
@@ -173,5 +197,6 @@ def test_check_reports_motion_and_disparity_per_rig(tmp_path, capsys):
     for rig in ("rig_00", "rig_01"):
         line = next(l for l in out.splitlines() if l.startswith(f"rig {rig}:"))
         assert "of the centre view in" in line and "person in view" in line and "px per step" in line
+        assert "at the reference rig (9x9, 0.125 m, 1024 px)" in line
     assert cli.main(["check", str(path), "--no-usd-validation", "--no-coverage"]) == 0
     assert "person in view" not in capsys.readouterr().out

@@ -76,6 +76,9 @@ class Scene:
     counters: dict[str, int] = field(default_factory=dict)
     bounds: tuple[tuple[float, float], tuple[float, float]] = ((-30.0, -30.0), (30.0, 30.0))
     baseline: float = 0.125  # the rigs' baseline: the template sets it to the scene's scale
+    # dynamic rig placement prefers a near foreground (per-step disparity in choreography.DISPARITY_GOAL
+    # at the reference rig); indoor templates with a small baseline turn it off
+    near_foreground: bool = True
     lighting: dict = field(default_factory=dict)  # the drawn lighting setup (customData lfusd:lighting)
     ctx: object = None  # the dynamic variant's state (lfusd.author.scenes.dynamic.Ctx)
 

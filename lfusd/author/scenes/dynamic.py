@@ -16,12 +16,15 @@ This module holds the building blocks (walkers, traffic, drifting boats, perform
 template's own ``@<template>.dynamic`` function, in its module, decides where they go.
 
 Choreography (issue 16): every rig must see motion. The template names spots where a person
-may walk a loop (``ctx.spot``); :func:`populate` puts a performer on one spot per set of up to
-three rigs, and :func:`place_rigs` stands each rig of a set about 2 m from its performer, looking
-at it, trying candidate placements until one meets the goal of lfusd.author.choreography
-(moving objects over 5 % of the centre view in 90 % of the frames, a person in view in half of
-them) measured by ray casting the stage at sampled frames; among passing candidates it prefers
-one where a moving object passes behind a static one.
+may walk a loop (``ctx.spot``, mostly just clear of a prop: :func:`loop_beside`); :func:`populate`
+puts a performer on one spot per set of up to three rigs, and :func:`place_rigs` stands each rig of
+a set 1.5-3.5 m from its performer, looking at it, trying candidate placements until one meets the
+goal of lfusd.author.choreography (moving objects over 5 % of the centre view in 90 % of the
+frames, a person in view in half of them) measured by ray casting the stage at sampled frames;
+among passing candidates it prefers one where a moving object passes behind a static one and
+(outdoors, ``Scene.near_foreground``) whose nearest surface gives choreography.DISPARITY_GOAL
+pixels per baseline step at the reference rig: a rig just behind a prop (:func:`_by_prop`) has
+both.
 """
 
 from __future__ import annotations
@@ -52,6 +55,9 @@ RIG_RINGS = ((1.0, 1.6), (1.6, 2.6), (2.6, 3.6))
 PLAN_FRAMES = 24  # frames sampled when measuring a candidate rig
 PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
 PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
+PROP_REACH = 3.5  # m: props whose box lies this near a performer's loop centre may stand in front of a rig
+PROP_SHARE = 0.6  # share of candidates placed just behind a prop
+FOCUS_TRIES = 4  # candidates tried behind props / past static objects when the best shows no occlusion
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
 PERSON_HEIGHT = 2.1
 
@@ -102,7 +108,7 @@ class Ctx:
     # performer may walk a loop (set by the template's dynamic function)
     spot: Callable | None = None
     performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
-    statics: list | None = None  # (label, lo, hi) of static objects (see beside)
+    statics: list | None = None  # (label, lo, hi) of static objects (see prop_near)
 
     @property
     def duration(self) -> float:
@@ -264,26 +270,42 @@ def loop_path(centre, heading_deg: float, length: float, width: float, total: fl
     return np.array((pts * laps)[: 4 * laps + 1])
 
 
-def beside(ctx: Ctx, rng: np.random.Generator, labels, region, gap=(0.9, 1.6)):
-    """A point ``gap`` metres (horizontally) beside a random static object of ``labels`` inside
-    ``region`` ((x0, y0), (x1, y1)), or None: a performer's loop there passes behind the object
-    from some viewpoints (occlusions between movers and static objects)."""
+def prop_near(ctx: Ctx, rng: np.random.Generator, labels, region):
+    """(lo, hi, label): the box of a random static object of ``labels`` whose centre lies inside
+    ``region`` ((x0, y0), (x1, y1)), or None."""
     if ctx.statics is None:
         ctx.statics = [(o.label, *next(((p.lo, p.hi) for p in ctx.scene.placed if p.path == o.prim_path), (None, None)))
                        for o in object_table(ctx.stage)[0] if o.prim_path not in ctx.movers]
         ctx.statics = [x for x in ctx.statics if x[1] is not None]
     (x0, y0), (x1, y1) = region
-    near = [(lo, hi) for label, lo, hi in ctx.statics if label in labels and x0 <= (lo[0] + hi[0]) / 2 <= x1
+    near = [(lo, hi, label) for label, lo, hi in ctx.statics if label in labels and x0 <= (lo[0] + hi[0]) / 2 <= x1
             and y0 <= (lo[1] + hi[1]) / 2 <= y1]
-    if not near:
-        return None
-    lo, hi = near[int(rng.integers(len(near)))]
-    a = float(rng.uniform(0, 2 * math.pi))
-    d = np.array([math.cos(a), math.sin(a)])
-    # from the box centre out along d to its edge, then the gap
-    half = (hi[:2] - lo[:2]) / 2
-    edge = float(np.min(np.where(np.abs(d) > 1e-9, half / np.maximum(np.abs(d), 1e-9), np.inf)))
-    return (lo[:2] + hi[:2]) / 2 + d * (edge + float(rng.uniform(*gap)))
+    return near[int(rng.integers(len(near)))] if near else None
+
+
+def loop_beside(ctx: Ctx, rng: np.random.Generator, labels, region, length: float, width: float,
+                gap=(0.05, 0.5), tries: int = 8, props=None):
+    """(centre, heading): a loop (``length`` along ``heading``, 0 or 90 degrees, ``width`` across)
+    centred inside ``region`` ((x0, y0), (x1, y1)) whose sweep passes ``gap`` metres from one side of a
+    random static object of ``labels`` in that region (or in ``props``, another region), along that
+    side; or None. A rig just behind the object then has it as a near foreground that the performer
+    passes behind, mostly across the object's short side (nearer the loop)."""
+    (x0, y0), (x1, y1) = region
+    for _ in range(tries):
+        got = prop_near(ctx, rng, labels, props or region)
+        if got is None:
+            return None
+        lo, hi, _ = got
+        thin = int(np.argmin(hi[:2] - lo[:2]))
+        axis, sign = thin if rng.random() < 0.75 else 1 - thin, 1 if rng.random() < 0.5 else -1
+        heading = 90.0 if axis == 0 else 0.0  # the loop runs along the side it is on
+        ext = np.array([length, width] if heading == 0.0 else [width, length]) / 2 + PERSON_RADIUS
+        c = (lo[:2] + hi[:2]) / 2
+        c[1 - axis] += float(rng.uniform(-0.5, 0.5)) * (hi[1 - axis] - lo[1 - axis])  # along the side
+        c[axis] = (hi if sign > 0 else lo)[axis] + sign * (ext[axis] + float(rng.uniform(*gap)))
+        if x0 <= c[0] <= x1 and y0 <= c[1] <= y1:
+            return c, heading
+    return None
 
 
 def performer(ctx: Ctx, tries: int = 100) -> bool:
@@ -318,17 +340,89 @@ def performer(ctx: Ctx, tries: int = 100) -> bool:
     return False
 
 
+def _props(scene: Scene, ctx: Ctx) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(path, lo, hi) of the static objects a rig may stand just behind: not surfaces, buildings or
+    walls (too big to look past), nor movers."""
+    boxes = {p.path: p for p in scene.placed}
+    return [(o.prim_path, boxes[o.prim_path].lo, boxes[o.prim_path].hi) for o in object_table(ctx.stage)[0]
+            if o.prim_path in boxes and o.prim_path not in ctx.movers and o.label not in SURFACES
+            and o.label not in ("building", "wall", "person")]
+
+
+def _by_prop(rng: np.random.Generator, prop, centre: np.ndarray, body: float, draws: int = 80) -> np.ndarray | None:
+    """A rig position 1.5-3.4 m from the performer's loop ``centre`` (nearer, the performer keeps a
+    large share of the view) with ``prop`` (path, lo, hi) in front of it: the prop's box 0.02-0.25 m
+    beyond the rig's own half size ``body`` (its nearest surface about 0.6-0.9 m away: 150-230 px
+    per step at the reference rig), its nearest point within 30 degrees of the direction to the
+    loop, so the performer passes behind it at times; a prop wider than 0.6 m and taller than 1.2 m
+    stays off the line to the loop's centre (it must not hide it all). Low enough to keep a low prop
+    in view. None when no draw fits."""
+    _, lo, hi = prop
+    reach = body + 0.25
+    xy = rng.uniform(lo[:2] - reach, hi[:2] + reach, (draws, 2))
+    q = np.clip(xy, lo[:2], hi[:2])  # the prop's nearest points
+    gap = np.linalg.norm(q - xy, axis=1)
+    to_c = centre[:2] - xy
+    d = np.linalg.norm(to_c, axis=1)
+    ok = ((body + 0.02 <= gap) & (gap <= reach) & (1.5 <= d) & (d <= 3.4)
+          & (np.sum((q - xy) * to_c, axis=1) >= math.cos(math.radians(30)) * gap * d))
+    if float(np.max(hi[:2] - lo[:2])) > 0.6 and hi[2] - centre[2] > 1.2:
+        ok &= ~_crosses(xy, np.broadcast_to(centre[:2], xy.shape), lo[None, :2], hi[None, :2])[:, 0]
+    k = np.flatnonzero(ok)
+    if not len(k):
+        return None
+    top = float(hi[2] - centre[2])
+    z = float(rng.uniform(1.2, 1.9)) if top > 1.5 else max(body + 0.05, top + float(rng.uniform(0.15, 0.5)))
+    return np.r_[xy[k[0]], centre[2] + z]
+
+
+def _peek(rng: np.random.Generator, screens, corners, centre: np.ndarray, distance, clear: float,
+          draws: int = 30) -> np.ndarray | None:
+    """A rig position ``distance`` (a range) from the loop ``centre`` from where the lines to some of
+    the loop's ``corners`` (xy) pass one of the static boxes ``screens`` ((lo, hi)) and the lines to
+    others do not: the performer passes behind the object for part of each lap; ``clear`` metres
+    from every screen. None when no draw fits."""
+    a = rng.uniform(0, 2 * math.pi, draws)
+    xy = centre[:2] + rng.uniform(*distance, draws)[:, None] * np.stack([np.cos(a), np.sin(a)], axis=1)
+    lo, hi = np.array([s[0][:2] for s in screens]), np.array([s[1][:2] for s in screens])
+    hidden = np.stack([_crosses(xy, np.broadcast_to(c, xy.shape), lo, hi).any(axis=1) for c in corners], axis=1)
+    inside = np.any(np.all((lo[None] - clear < xy[:, None]) & (xy[:, None] < hi[None] + clear), axis=2), axis=1)
+    k = np.flatnonzero(hidden.any(axis=1) & ~hidden.all(axis=1) & ~inside)
+    if not len(k):
+        return None
+    return np.r_[xy[k[0]], centre[2] + float(rng.uniform(1.3, 2.1))]
+
+
+def _crosses(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(N, M) bool: whether segment a[i]..b[i] (xy, N of each) meets box lo[j]..hi[j] (xy, M of each)."""
+    a, d = a[:, None, :], (b - a)[:, None, :]
+    lo, hi = lo[None, :, :], hi[None, :, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - a) / d, (hi - a) / d
+    inside = (lo <= a) & (a <= hi)
+    t1 = np.where(d == 0, np.where(inside, -np.inf, np.inf), t1)
+    t2 = np.where(d == 0, np.where(inside, np.inf, -np.inf), t2)
+    near, far = np.max(np.minimum(t1, t2), axis=2), np.min(np.maximum(t1, t2), axis=2)
+    return (near <= far) & (far >= 0) & (near <= 1)
+
+
 def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int = 8, extra: int = 2) -> list[choreography.Footage] | None:
     """Add ``rig_00``... each watching a performer (round robin over ``scene.ctx.performers``).
 
-    A candidate stands 1-1.6 m beyond the rig's own half size from the performer's loop centre
-    (mostly across its long axis; then 1.6-2.6 m, 2.6-3.6 m, then the other performers), 1.3-2.1 m
-    above its ground, looking at its middle; it must be free (its box and the first metres of its
-    line of sight; half the candidates look past a static object near the performer, when there
-    is one, and some stand near a rig that already watches the performer well) and is measured at sampled frames (lfusd.author.choreography.Watch). Of up to
-    ``tries`` free candidates the first that meets the goal with a margin and shows an occlusion
-    wins, else the best; when none meets the goal, ``3 * tries`` more are tried, then up to
-    ``extra`` more performers per scene are added and tried. ``fallback(i)`` adds rig i the template's way when no candidate is free.
+    Candidates: 1-1.6 m beyond the rig's own half size from the performer's loop centre (mostly
+    across its long axis; then 1.6-2.6 m, 2.6-3.6 m, then the other performers), 1.3-2.1 m above its
+    ground, looking at its middle; or just behind a prop near the loop (:func:`_by_prop`, the prop
+    0.6-0.85 m from the rig, which then needs only its own extent free); or where the lines of
+    sight to part of the loop pass a static object (:func:`_peek`); or past a static object near
+    the performer; or near a rig that already watches it with an occlusion. A candidate must be free
+    (its box and the first metres of its line of sight) and is measured at sampled frames
+    (lfusd.author.choreography.Watch). Candidates rank by (meets the goal with a margin, also at
+    the frames halfway between the sampled ones if it shows an occlusion; shows an
+    occlusion and a near foreground, an occlusion, a near foreground, coverage); of up to ``tries``
+    free candidates the first with the first two wins, else the best; when none meets the goal,
+    ``3 * tries`` more are tried, then up to ``extra`` more performers per scene are added and
+    tried; when the best shows no occlusion, FOCUS_TRIES more behind props and past static
+    objects. ``fallback(i)`` adds rig i the template's way when no candidate is free.
     Returns the planning measurements, or None (nothing added) without performers."""
     ctx = getattr(scene, "ctx", None)
     if ctx is None or not ctx.performers:
@@ -336,24 +430,54 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
     first, last = int(scene.stage.GetStartTimeCode()), int(scene.stage.GetEndTimeCode())
     watch = choreography.Watch(scene.stage, first, last)
     frames = np.unique(np.linspace(first, last, min(PLAN_FRAMES, last - first + 1)).round().astype(int))
+    between = np.setdiff1d((frames[:-1] + frames[1:]) // 2, frames)  # where a candidate with an occlusion is checked again
     half = max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) * spec_kwargs.get("baseline", 0.125) / 2 + 0.3
     rings = [(half + a, half + b) for a, b in RIG_RINGS]
     (bx0, by0), (bx1, by1) = scene.bounds
     rng = ctx.rng
 
-    def search(i, plan, tries=tries):
+    body = (max(spec_kwargs.get("rows", 9), spec_kwargs.get("cols", 9)) - 1) * spec_kwargs.get("baseline", 0.125) / 2 + 0.1
+    near = choreography.DISPARITY_GOAL if scene.near_foreground else None
+    props = _props(scene, ctx)
+
+    def search(i, plan, tries=tries, focus=False):
         best, best_key, free = None, None, 0
-        for (centre, heading, _), distance in plan:
-            beside(ctx, rng, (), ((0, 0), (0, 0)))  # fills ctx.statics
+        for (centre, heading, who), distance in plan:
+            prop_near(ctx, rng, (), ((0, 0), (0, 0)))  # fills ctx.statics
             behind = [(lo + hi)[:2] / 2 for _, lo, hi in ctx.statics
                       if 0.5 < np.linalg.norm((lo + hi)[:2] / 2 - centre[:2]) < distance[1] - half]
+            close = [p for p in props if np.linalg.norm(np.clip(centre[:2], p[1][:2], p[2][:2]) - centre[:2]) < PROP_REACH]
             good = accepted.get(id(centre), [])
+            sweep = next((b for b in scene.placed if b.path == who), None)
+            corners = [] if sweep is None else [np.array([x, y]) for x in (sweep.lo[0] + PERSON_RADIUS, sweep.hi[0] - PERSON_RADIUS)
+                                                for y in (sweep.lo[1] + PERSON_RADIUS, sweep.hi[1] - PERSON_RADIUS)]
+            screens = [(lo, hi) for label, lo, hi in ctx.statics if label not in SURFACES
+                       and np.linalg.norm(np.clip(centre[:2], lo[:2], hi[:2]) - centre[:2]) < PROP_REACH]
             for _ in range(60):
+                prop, clear = None, half
                 if good and rng.random() < 0.3:  # near a rig that already watches this performer well
                     at0, target0 = good[int(rng.integers(len(good)))]
                     at = at0 + rng.uniform(-0.4, 0.4, 3) * [1.0, 1.0, 0.5]
                     target = target0 + rng.uniform(-0.2, 0.2, 3)
                     az = None
+                elif close and rng.random() < PROP_SHARE:
+                    # just behind a prop, on the far side from the performer: a near foreground (large
+                    # disparity) that the performer passes behind at times (an occlusion)
+                    prop = close[int(rng.integers(len(close)))]
+                    at = _by_prop(rng, prop, centre, body)
+                    if at is None:
+                        continue
+                    target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.6, 1.1))]
+                    clear, az = body, None
+                elif screens and corners and rng.random() < 0.5:
+                    # the lines of sight to some corners of the loop pass a static object, to others not
+                    at = _peek(rng, screens, corners, centre, distance, half)
+                    if at is None:
+                        continue
+                    target = centre + [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.3, 0.3)), float(rng.uniform(0.7, 1.1))]
+                    az = None
+                elif focus:  # only candidates made to see an occlusion
+                    continue
                 elif behind and rng.random() < 0.5:
                     # the rig looks past a static object near the performer (it passes behind it at times)
                     o = behind[int(rng.integers(len(behind)))] - centre[:2]
@@ -367,12 +491,24 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
                 if not (bx0 + half < at[0] < bx1 - half and by0 + half < at[1] < by1 - half):
                     continue
                 dist = float(np.linalg.norm(target - at))
-                ahead = [at + (target - at) * (s / dist) for s in np.arange(half, min(2.0, dist - 1.0), 0.25)]
-                if not (scene.free(at - half, at + half, margin=0.0) and all(scene.free(p - 0.25, p + 0.25, margin=0.0) for p in ahead)):
+                # the line of sight's first metres are free (the performer's own sweep aside: a rig looking
+                # along its loop sees it come near; a prop candidate may look past its prop)
+                ignore = (who,) if prop is None else (who, prop[0])
+                ahead = [at + (target - at) * (s / dist) for s in np.arange(clear, min(2.0, dist - 1.0), 0.25)]
+                if not (scene.free(at - clear, at + clear, margin=0.0)
+                        and all(scene.free(p - 0.25, p + 0.25, margin=0.0, ignore=ignore) for p in ahead)):
                     continue
                 spec = RigSpec(name=f"rig_{i:02d}", at=tuple(float(v) for v in at), look_at=tuple(float(v) for v in target), **spec_kwargs)
                 foot = watch.footage(spec, frames, width=PLAN_WIDTH)
-                key = (foot.meets_goal(PLAN_MARGIN), bool(foot.occluded.any()), foot.in_view + foot.person_in_view + float(foot.moving.mean()))
+                occluded = bool(foot.occluded.any())
+                fore = near is None or near[0] <= foot.reference_disparity()[1] <= near[1]
+                key = (foot.meets_goal(PLAN_MARGIN), occluded and fore, occluded, fore,
+                       foot.in_view + foot.person_in_view + float(foot.moving.mean()))
+                if key[0] and occluded and len(between) and (best_key is None or key > best_key):
+                    # a static object that hides the movers at times may hide them between the sampled
+                    # frames too: such a candidate, if it would lead, must also pass at the frames halfway
+                    if not watch.footage(spec, between, width=PLAN_WIDTH).meets_goal(PLAN_MARGIN):
+                        key = (False, *key[1:])
                 if best_key is None or key > best_key:
                     best, best_key = (spec, foot, centre), key
                 free += 1
@@ -383,7 +519,7 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
         return best, best_key
 
     out = []
-    accepted: dict[int, list] = {}  # performer (by its centre array) -> (at, look_at) of rigs that met the goal
+    accepted: dict[int, list] = {}  # performer (by its centre array) -> (at, look_at) of rigs that met the goal with an occlusion
     for i in range(count):
         n = len(ctx.performers)
         plan = [(ctx.performers[i % n], ring) for ring in rings]
@@ -401,11 +537,17 @@ def place_rigs(scene: Scene, count: int, spec_kwargs: dict, fallback, tries: int
             got, got_key = search(i, [(ctx.performers[-1], ring) for ring in rings])
             if got_key is not None and (best_key is None or got_key > best_key):
                 best, best_key = got, got_key
+        if best_key is not None and best_key[0] and not best_key[2]:
+            # it meets the goal but shows no occlusion: a few more candidates behind props and past static
+            # objects around its own performer
+            got, got_key = search(i, plan[:len(rings)], FOCUS_TRIES, focus=True)
+            if got_key is not None and got_key > best_key:
+                best, best_key = got, got_key
         if best is None:
             fallback(i)
             continue
         add_rig(scene.stage, best[0])
         out.append(best[1])
-        if best_key[0]:
+        if best_key[0] and best_key[2]:  # rigs near it will likely see the same occlusion
             accepted.setdefault(id(best[2]), []).append((np.asarray(best[0].at), np.asarray(best[0].look_at)))
     return out

@@ -83,7 +83,7 @@ def mixed(scene: Scene) -> MixedSite:
 
 @mixed.dynamic
 def _animate(ctx, site: MixedSite) -> None:
-    from .dynamic import beside, boats, traffic
+    from .dynamic import boats, loop_beside, traffic
 
     (ry0, ry1), ((px0, py0), (px1, py1)), level = site.road, site.pond, site.level
     rng = ctx.rng
@@ -96,14 +96,25 @@ def _animate(ctx, site: MixedSite) -> None:
     ctx.occ.boxes.append(("pond", np.array([px0 - 0.3, py0 - 0.3, -5.0]), np.array([px1 + 0.3, py1 + 0.3, 5.0])))
     (nx0, ny0), (nx1, ny1) = site.north
 
-    def spot(r):  # a loop on the grass north of the road (traffic or the pond behind it), often by a tree, bench or house
+    def spot(r):  # a loop on the grass north of the road (traffic or the pond behind it), beside a bench or bin, else a tree or house
         region = ((nx0 + 3, ny0 + 1.5), (nx1 - 3, min(ny1 - 3, py1 + 4)))
         centre = (float(r.uniform(region[0][0], region[1][0])), float(r.uniform(region[0][1], region[1][1])))
-        if r.random() < 0.7:
-            near = beside(ctx, r, ("tree", "bench", "building"), region)
-            if near is not None and region[0][0] <= near[0] <= region[1][0] and region[0][1] <= near[1] <= region[1][1]:
-                centre = (float(near[0]), float(near[1]))
-        return (centre, GAP, float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7)))
+        heading, length, width = float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7))
+        # just clear of a prop (a rig behind it has a near foreground the performer passes behind): a bench or
+        # bin (small enough for a rig near the loop to look past), else a tree or a house
+        # a bin first half the time: the smallest prop, so a rig behind it stands nearest the loop; by a small
+        # prop, anywhere on the north grass
+        wide = ((nx0 + 3, ny0 + 1.5), (nx1 - 3, ny1 - 3))
+        near = loop_beside(ctx, r, ("bin",), wide, length, width, props=site.north) if r.random() < 0.5 else None
+        if near is None:
+            near = loop_beside(ctx, r, ("bench", "bin"), wide, length, width, props=site.north)
+        if near is None:
+            near = loop_beside(ctx, r, ("tree", "building"), region, length, width)
+        if near is not None:  # loop_beside keeps the centre inside the region
+            centre, heading = (float(near[0][0]), float(near[0][1])), near[1]
+        elif r.random() < 0.8:
+            return None  # performer() asks again: a spot by a prop is worth several tries
+        return (centre, GAP, heading, length, width)
 
     ctx.spot = spot
 

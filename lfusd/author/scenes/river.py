@@ -119,7 +119,7 @@ def river(scene: Scene) -> RiverSite:
 
 @river.dynamic
 def _animate(ctx, site: RiverSite) -> None:
-    from .dynamic import beside, boats, walker
+    from .dynamic import boats, loop_beside, walker
 
     half, level, bank = site.half, site.level, site.bank
     bx, bw, span, deck = site.bx, site.bw, site.span, site.deck_z
@@ -134,13 +134,20 @@ def _animate(ctx, site: RiverSite) -> None:
     # the bridge (a surface, so not in the occupancy) is no place for bank walkers to pass under or climb
     ctx.occ.boxes.append(("bridge", np.array([bx - bw / 2 - 0.4, -span - 0.6, -5.0]), np.array([bx + bw / 2 + 0.4, span + 0.6, 5.0])))
 
-    def spot(r):  # a loop along a bank, between the water's edge and the trees, often by a tree or a bench
+    def spot(r):  # a loop along a bank, between the water's edge and the trees, beside a bench, bin or tree if any
         s = 1 if r.random() < 0.5 else -1
         centre = (float(r.uniform(-L / 2 + 6, L / 2 - 6)), s * float(r.uniform(half + 1.8, half + 5.0)))
-        if r.random() < 0.7:
-            near = beside(ctx, r, ("tree", "bench"), ((-L / 2 + 6, -half - 8.0), (L / 2 - 6, half + 8.0)))
-            if near is not None and half + 1.8 <= abs(near[1]) <= half + 6.0:
-                centre = (float(near[0]), float(near[1]))
-        return (centre, GAP, float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7)))
+        heading, length, width = float(r.choice([0.0, 90.0])), float(r.uniform(1.2, 2.0)), float(r.uniform(0.4, 0.7))
+        # just clear of a prop (a rig behind it has a near foreground the performer passes behind): a bench or
+        # bin (small enough for a rig near the loop to look past), else a tree
+        region = ((-L / 2 + 6, -half - 8.0), (L / 2 - 6, half + 8.0))
+        near = loop_beside(ctx, r, ("bench", "bin"), region, length, width)
+        if near is None:
+            near = loop_beside(ctx, r, ("tree",), region, length, width, gap=(0.9, 1.6))
+        if near is not None and half + 1.8 <= abs(near[0][1]) <= half + 6.0:
+            centre, heading = (float(near[0][0]), float(near[0][1])), near[1]
+        elif r.random() < 0.8:
+            return None  # performer() asks again: a spot by a prop is worth several tries
+        return (centre, GAP, heading, length, width)
 
     ctx.spot = spot

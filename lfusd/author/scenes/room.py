@@ -127,6 +127,7 @@ def room(scene: Scene) -> RoomSite:
     scene.lighting = b.lighting(rng, ("indoor", "indoor", "sun", "night"))
     # indoor scale: objects 1-4 m away, so a small baseline keeps disparities like the street's
     scene.baseline = 0.05
+    scene.near_foreground = False
 
     def rig_position(r):
         return (r.uniform(-hx + 1.0, hx - 1.0), r.uniform(-hy + 1.0, hy - 1.0), r.uniform(1.4, 2.0))

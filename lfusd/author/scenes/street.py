@@ -125,7 +125,7 @@ def street(scene: Scene) -> StreetSite:
 
 @street.dynamic
 def _animate(ctx, site: StreetSite) -> StreetSite:
-    from .dynamic import beside, traffic
+    from .dynamic import PERSON_RADIUS, prop_near, traffic
 
     road_w, walk_w, curb = site.road_w, site.walk_w, site.curb
     rng = ctx.rng
@@ -133,15 +133,36 @@ def _animate(ctx, site: StreetSite) -> StreetSite:
     if rng.random() < 0.7:
         traffic(ctx, road_w / 2, -1, -L / 2, L / 2, int(rng.integers(1, 4)))
 
-    def spot(r):  # a loop along the middle of a pavement, clear of the kerb and the verge, often by a tree or a street light
+    def spot(r):  # a loop along the middle of a pavement, clear of the kerb and the verge, beside a prop if any
         s = 1 if r.random() < 0.5 else -1
         width = float(min(0.7, walk_w - 2.0))
+        length = float(r.uniform(1.2, 2.0))
         x = float(r.uniform(-L / 2 + 6, L / 2 - 6))
-        if r.random() < 0.7:
-            band = sorted((s * road_w, s * (road_w + walk_w + 4)))
-            near = beside(ctx, r, ("tree", "street_light", "bench"), ((-L / 2 + 6, band[0]), (L / 2 - 6, band[1])))
-            x = float(near[0]) if near is not None and abs(near[0]) < L / 2 - 6 else x
-        return ((x, s * (road_w + walk_w / 2)), curb + GAP, 0.0, float(r.uniform(1.2, 2.0)), width)
+        y = road_w + walk_w / 2
+        # beside a tree, street light, bench or bin: a rig can stand just behind the prop, a near foreground
+        # that the performer passes behind. Verge props stand clear of the loop; a lamp post on the pavement
+        # has the loop's sweep end 0.05-0.3 m clear of it along the pavement.
+        band = sorted((s * (road_w - 1.5), s * (road_w + walk_w + 4)))  # a street light's box reaches over the road
+        region = ((-L / 2 + 6, band[0]), (L / 2 - 6, band[1]))
+        # half the time a street light: a rig behind its post looks along the pavement at the performer walking
+        # towards it and away (near, so a large share of the view), the post in front
+        near = prop_near(ctx, r, ("street_light",), region) if r.random() < 0.5 else None
+        near = near or prop_near(ctx, r, ("tree", "street_light", "bench", "bin"), region)
+        if near is not None:
+            lo, hi, label = near
+            cx, side = (lo[0] + hi[0]) / 2, 1 if r.random() < 0.5 else -1
+            if label == "street_light":  # a short loop: the performer stays near a rig behind the post
+                length = float(r.uniform(0.8, 1.2))
+                shift = (hi[0] - lo[0]) / 2 + length / 2 + PERSON_RADIUS + float(r.uniform(0.05, 0.3))
+            else:  # and the loop near the verge's edge of the pavement, the prop (behind that edge) 0.05-0.4 m beyond its sweep
+                shift = float(r.uniform(0.0, 0.6))
+                y = max(y, road_w + walk_w - width / 2 - PERSON_RADIUS - float(r.uniform(0.05, 0.4)))
+            side = side if abs(cx + side * shift) < L / 2 - 6 else -side  # the side that stays on the street
+            if abs(cx + side * shift) < L / 2 - 6:
+                return ((float(cx + side * shift), s * y), curb + GAP, 0.0, length, width)
+        if r.random() < 0.8:
+            return None  # performer() asks again: a spot by a prop is worth several tries
+        return ((x, s * y), curb + GAP, 0.0, length, width)
 
     ctx.spot = spot
     return site
