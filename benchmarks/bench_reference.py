@@ -81,13 +81,13 @@ def main() -> None:
     ap.add_argument("--grid", type=pair, default=(9, 9))
     ap.add_argument("--resolution", type=pair, default=(1024, 1024))
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--out", type=Path, help="keep the dataset here (default: a temporary folder, removed)")
+    ap.add_argument("--out", type=Path, help="keep the dataset here, and its stage layer as OUT.usda (default: a temporary folder, removed)")
     ap.add_argument("--no-verify", action="store_true")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="lfusd-ref-"))
     out = args.out or tmp / "out"
     try:
-        layer = tmp / "reference.usda"
+        layer = out.parent / f"{out.name}.usda" if args.out else tmp / "reference.usda"  # kept with a kept dataset (verify reads it)
         reference_layer(args.stage.resolve(), args.pose, layer, args.grid, args.resolution)
         last = args.first + args.frames - 1
         views = args.grid[0] * args.grid[1]
