@@ -38,8 +38,9 @@ GOAL_FRAMES = 0.9  # ... in at least this fraction of the frames,
 GOAL_PERSON = 0.5  # and a person is in view in at least this fraction of the frames
 FLOW_EPS = 0.01  # px: a surface point moving less than this in the image does not count as moving
 MEASURE_WIDTH = 64  # pixels across of the measuring resolution (same field of view as the rig)
-# The reference rig (issue 16): a preview-size stage reports what its full-size render would give.
-REFERENCE = dict(rows=9, cols=9, baseline=0.125, width=1024, height=1024, focal_length_mm=39.0, sensor_mm=36.0)
+# The reference rig (RigSpec's defaults: 9x9 views, 0.125 m, 1024x1024, 39 mm lens on 36 mm): a
+# preview-size stage reports what its full-size render would give.
+REFERENCE = {k: getattr(RigSpec(), k) for k in ("rows", "cols", "baseline", "width", "height", "focal_length_mm", "sensor_mm")}
 # Per-step disparity at the reference rig that outdoor rig placement aims its nearest surface at.
 DISPARITY_GOAL = (150.0, 250.0)
 
