@@ -5,12 +5,12 @@
                 fixed point), masks (UINT, bit ``Storage.bits`` per mask key)
 
 Single-part scanline OpenEXR, ZIP. Measured on the default scene at 1024x1024
-(benchmarks/bench_storage.py): these channels take 3.02 bytes per pixel with ZIP against 2.61 with
-ZSTD, 2.50 with HDF5 gzip+shuffle, 3.19 with HTJ2K, 3.29 with ZIPS and 7.45 with PIZ. ZIP costs
-0.4-0.5 bytes per pixel more than the best (about 7 % of a whole view, 6.7 bytes per pixel with
-its image) and every OpenEXR reader since 1.x reads it: ZSTD needs OpenEXR 3.4+ (Blender 5.0
-cannot read it, measured: "unable to decompress data"), and HDF5 leaves the image format every
-other file here uses.
+(benchmarks/bench_storage.py, README's Storage section): these channels take 4.58 bytes per pixel
+with ZIP against 3.87 with ZSTD, 3.67 with HDF5 gzip+shuffle, 7.44 with HTJ2K, 5.06 with ZIPS and
+9.33 with PIZ. ZIP costs about 0.9 bytes per pixel more than the best (about 10 % of a whole
+view, 8.7 bytes per pixel with its image) and every OpenEXR reader since 1.x reads it: ZSTD needs
+OpenEXR 3.4+ (Blender 5.0 cannot read it, measured: "unable to decompress data"), and HDF5
+leaves the image format every other file here uses.
 The header attribute ``lfusd.keys`` lists the keys a file holds. Rounding is where the low bits
 are noise: flow on a static surface is 1e-5 px of float noise rather than 0 until rounded, which
 ZIP cannot compress. No pxr, bpy or torch.
