@@ -27,6 +27,7 @@ import OpenEXR
 import pytest
 from pxr import Sdf, UsdShade
 from support.cli import assert_one_line_error, run_cli
+from support.processes import alive
 from support.scenes import write_box_stage
 
 from lfusd import Dataset
@@ -644,24 +645,6 @@ def _wait_for_child(proc: subprocess.Popen, needle: str, count: int = 1, timeout
     raise AssertionError(f"no {needle} process within {timeout} s")
 
 
-def _alive(procs: list, timeout: float) -> list:
-    """The processes still running (zombies count as gone) after up to ``timeout`` seconds."""
-    import psutil
-
-    end = time.time() + timeout
-    while True:
-        alive = []
-        for p in procs:
-            try:
-                if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
-                    alive.append(p)
-            except psutil.Error:
-                pass
-        if not alive or time.time() > end:
-            return alive
-        time.sleep(0.1)
-
-
 def _render_args(stage, out, *extra):
     return ("render-video", stage, "-o", out, "--resolution", "64x48", *TINY, *extra)
 
@@ -674,7 +657,7 @@ def test_sigterm_stops_the_workers_and_exits_143(stage, tmp_path):
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err
     assert err.splitlines()[-1] == "lfusd: terminated; rerun the same command to resume" and "Traceback" not in err, err
-    assert not _alive(kids, 5), "workers outlived lfusd"
+    assert not alive(kids, 5), "workers outlived lfusd"
 
 
 @pytest.mark.render
@@ -685,7 +668,7 @@ def test_ctrl_c_during_derivation_stops_the_pool_and_exits_130(stage, tmp_path):
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert err.splitlines()[-1] == "lfusd: interrupted; rerun the same command to resume" and "Traceback" not in err, err
-    assert not _alive(kids, 5), "derivation processes outlived lfusd"
+    assert not alive(kids, 5), "derivation processes outlived lfusd"
 
 
 @pytest.mark.render
@@ -702,10 +685,10 @@ def test_ctrl_c_under_ray_exits_130_and_leaves_no_ray_or_blender_process(stage, 
 
 def _reap(procs: list) -> list[str]:
     """Kill what is still alive (a failed test must not leave it running); their command lines."""
-    alive = _alive(procs, 3)
-    for p in alive:
+    left = alive(procs, 3)
+    for p in left:
         p.kill()
-    return [" ".join(p.cmdline())[:120] for p in alive]
+    return [" ".join(p.cmdline())[:120] for p in left]
 
 
 PARENT = """
@@ -722,8 +705,6 @@ def test_a_blender_worker_dies_with_its_parent():
     """SIGKILL: no clean-up runs in lfusd. A Blender worker that writes nothing for a while (a long
     frame: the pipe it would die on is not written) must not render on; here it waits for its job on
     a stdin the test keeps open, and must die when its parent does."""
-    import psutil
-
     r, w = os.pipe()
     try:
         parent = subprocess.Popen([sys.executable, "-c", PARENT, str(r)], pass_fds=(r,), env={**os.environ, "PYTHONPATH": str(ROOT)})

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import psutil
 import pytest
+from support.processes import alive
 
 from lfusd.camera import RigSpec
 from lfusd.data import integrity
@@ -77,17 +78,6 @@ def _tree(proc: subprocess.Popen) -> list[psutil.Process]:
         return [root, *root.children(recursive=True)]
     except psutil.Error:
         return []
-
-
-def _alive(procs) -> list[psutil.Process]:
-    out = []
-    for p in procs:
-        try:
-            if p.is_running() and p.status() != psutil.STATUS_ZOMBIE:
-                out.append(p)
-        except psutil.Error:
-            pass
-    return out
 
 
 def _command(p: psutil.Process) -> str:
@@ -147,7 +137,7 @@ class Cluster:
         procs = self.processes(name)
         os.killpg(self.nodes[name].pid, signal.SIGKILL)
         self.nodes[name].wait(30)
-        _wait(f"{name}'s processes to end", lambda: not _alive(procs), timeout=30)
+        _wait(f"{name}'s processes to end", lambda: not alive(procs), timeout=30)
 
     def stop(self) -> list[str]:
         """Kill both nodes' process groups (as `ray stop --force` would, but only these); the
@@ -178,7 +168,7 @@ class Cluster:
                     found.append(p)
             except psutil.Error:
                 pass
-        return _alive(found)
+        return alive(found)
 
 
 @pytest.fixture
