@@ -2,8 +2,8 @@
 
 Per view (format version 2, lfusd.layout): the static keys go from Blender's ``passes.exr`` into
 ``gt.exr``, the motion keys of frame t (from the raw passes of t-1, t and t+1) into
-``motion.exr``, each in its stored encoding (lfusd.data.store) and read back and compared with
-what was derived before it counts (the pixels compared go into the view's record). Then, unless
+``motion.exr``, each in its stored encoding (lfusd.data.store) and read back and compared bit for
+bit with what was encoded before it counts (the pixels compared go into the view's record). Then, unless
 the render kept them (``--keep-raw``), the raw passes of frame t are removed once nothing can
 need them again: gt.exr of t is written, the motion of t-1, t and t+1 is current, and no frame
 within two of t is still to come (inside an animated stage's range but not rendered, or any
@@ -79,7 +79,7 @@ def wants_motion(ds: Dataset) -> bool:
 def write_motion(ds: Dataset, frame: int, view: View) -> Path:
     """Derive and store the motion keys of one view, atomically, and record them with their inputs.
 
-    Format version 2: motion.exr holds the keys asked for, read back and compared before it is
+    Format version 2: motion.exr holds the keys asked for, read back and compared bit for bit before it is
     recorded. Version 1: motion.npz (np.savez)."""
     return _write_motion(ds, frame, view)[0]
 
@@ -102,10 +102,9 @@ def _write_motion(ds: Dataset, frame: int, view: View) -> tuple[Path, int]:
         integrity.record_motion(d, inputs)
         return d / MOTION_FILE_V1, 0
     keep = {k: v for k, v in keys.items() if k in _wanted(ds)}
-    path = store.write(d / MOTION_FILE, keep)
-    checked = store.check(path, keep)
+    path, checked = store.write_checked(d / MOTION_FILE, keep)
     integrity.record_motion(d, inputs, {"checked": checked})
-    log.debug("%s: motion keys read back within their storage error (%d pixels compared)", path, checked)
+    log.debug("%s: motion keys read back as written (%d pixels compared)", path, checked)
     return path, checked
 
 
@@ -124,10 +123,9 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
     if gt_keys and not integrity.present(rec, GT_FILE):
         raw = ds._raw(str(d))
         arrays = {k: raw[k] for k in gt_keys}
-        path = store.write(d / GT_FILE, arrays)
-        checked = store.check(path, arrays)
+        path, checked = store.write_checked(d / GT_FILE, arrays)
         add[GT_FILE] = {"checked": checked}
-        log.debug("%s: static keys read back within their storage error (%d pixels compared)", path, checked)
+        log.debug("%s: static keys read back as written (%d pixels compared)", path, checked)
     if integrity.present(rec, RGB_EXR):
         if "rgb" in keep and not integrity.present(rec, RGB_PNG):
             from ..data.formats import write_png
@@ -303,7 +301,7 @@ def derive_dataset(
         near = sorted({g for f in wanted for g in range(f - REACH, f + REACH + 1) if g in ds.frames})
         dropped += drop_raw(ds, near, vs)
     if written or dropped:
-        log.info("%s: ground truth written for %d views (read back and compared with what was derived on %d pixels x keys), "
+        log.info("%s: ground truth written for %d views (read back and compared with what was encoded on %d pixels x keys), "
                  "raw passes removed from %d", root, len(written), checked, dropped)
     return len(written)
 

@@ -82,6 +82,9 @@ def test_every_stored_key_round_trips_within_its_storage_error(tmp_path):
     for name, arrays in (("gt.exr", static), ("motion.exr", motion)):
         path = store.write(tmp_path / name, arrays)
         assert store.check(path, arrays) == len(arrays) * PLANE_RIG.width * PLANE_RIG.height
+        # what derivation writes: checked bit for bit (NaN normals included), counted as check counts
+        assert store.write_checked(tmp_path / f"checked_{name}", arrays)[1] == len(arrays) * PLANE_RIG.width * PLANE_RIG.height
+        assert (tmp_path / f"checked_{name}").read_bytes() == path.read_bytes()
         back = store.read(path)
         assert set(back) == set(arrays)
         for key, want in arrays.items():
@@ -109,6 +112,20 @@ def test_a_file_that_reads_back_different_fails_the_check(tmp_path):
     store.write(path, {"flow_fwd": truth["flow_fwd"] + 0.01, "valid_fwd": truth["valid_fwd"]})
     with pytest.raises(LfusdError, match="flow_fwd read back off by") as e:
         store.check(path, arrays)
+    assert "\n" not in str(e.value)
+
+
+def test_a_file_written_other_than_encoded_fails_the_bitwise_check(tmp_path, monkeypatch):
+    truth, *_ = analytic_view()
+    arrays = {"flow_fwd": truth["flow_fwd"], "valid_fwd": truth["valid_fwd"]}
+    real = store._write
+
+    def one_step_off(path, arrays, channels):  # a write that lands one stored step off on one channel
+        return real(path, arrays, {**channels, "flow_fwd.X": channels["flow_fwd.X"] + np.float32(2.0**-8)})
+
+    monkeypatch.setattr(store, "_write", one_step_off)
+    with pytest.raises(LfusdError, match="channel flow_fwd.X did not read back as written") as e:
+        store.write_checked(tmp_path / "motion.exr", arrays)
     assert "\n" not in str(e.value)
 
 
