@@ -620,9 +620,12 @@ def test_verify_fails_on_a_missing_motion_file_or_view(whole, tmp_path):
 
 
 def _start(*argv) -> subprocess.Popen:
-    """The CLI in its own session, as a terminal runs it (Ctrl-C goes to its whole process group)."""
+    """The CLI in its own session, as a terminal runs it (Ctrl-C goes to its whole process group).
+    SIGINT is reset to its default first: a test run started in the background by a shell without
+    job control inherits it ignored, and Python then installs no KeyboardInterrupt handler."""
     return subprocess.Popen([sys.executable, "-m", "lfusd.cli", *map(str, argv)], env={**os.environ, "PYTHONPATH": str(ROOT)},
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 WORKER, POOL = "lfusd.render.worker", "spawn_main"  # command-line marks of a Blender worker and a derivation pool process
