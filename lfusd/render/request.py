@@ -16,12 +16,18 @@ LIGHTS = ("auto", "none")  # auto: a stage without lights gets a neutral sky and
 
 log = logging.getLogger(__name__)
 
-# Bytes per pixel of one view and frame, for the up-front size estimate. Disk: rgb.png (3),
-# rgb.exr (half RGBA, 8), passes.exr (12 float32 channels, 48; 18 with the motion AOVs, 72),
-# motion.npz (about 10 float32 values, 40), halved for the files' compression. Memory: Blender's
-# render result and film buffers of one view, about 200 (a lower bound).
-DISK_BYTES_PER_PIXEL = {False: (3 + 8 + 48) / 2, True: (3 + 8 + 72 + 40) / 2}
+# Bytes per pixel of one view and frame, for the up-front size estimate. Disk: the stored dataset
+# (format version 2, measured on the default scene at 1024x1024: 6.6 without and 8.7 with the
+# motion keys, README's Storage; rounded up), and the raw passes (passes.exr) while they are on
+# disk: 12 float32 channels uncompressed, 18 with the motion AOVs, about half that with ZIP
+# (measured at the reference rig: 33 of 72). Memory: Blender's render result and film buffers of
+# one view, about 200 (a lower bound).
+DISK_BYTES_PER_PIXEL = {False: 8, True: 10}
+RAW_BYTES_PER_PIXEL = {False: 48, True: 72}
 MEMORY_BYTES_PER_PIXEL = 200
+# Frames of a view whose raw passes may be on disk at once while motion is derived from them
+# (lfusd.truth.derive.REACH frames on either side of the one being derived).
+RAW_FRAMES_ON_DISK = 5
 # Beyond these a rig is a mistake more often than a plan (authoring a million cameras takes
 # hours); `--force` lifts them. 64x64 views; 16384x16384 pixels (Blender's render result alone
 # is about 50 GB there).
@@ -118,19 +124,16 @@ def _memory() -> int | None:
         return None
 
 
-def size_estimate(rigs: list[tuple[str, int, int, int]], frames: int, motion: bool, workers: int) -> tuple[float, float]:
+def size_estimate(rigs: list[tuple[str, int, int, int]], frames: int, motion: bool, workers: int,
+                  keep_raw: bool = False) -> tuple[float, float]:
     """(disk bytes, memory bytes) a render of ``rigs`` (name, views, width, height) over
-    ``frames`` frames needs: the dataset's files, and the render results of ``workers`` views at once."""
-    disk = sum(views * w * h for _, views, w, h in rigs) * frames * DISK_BYTES_PER_PIXEL[motion]
+    ``frames`` frames needs: the dataset's files with the raw passes on disk at once (every frame's
+    with ``keep_raw``, ZIP), and the render results of ``workers`` views at once."""
+    raw_frames = frames if keep_raw else min(frames, RAW_FRAMES_ON_DISK)
+    disk = sum(views * w * h for _, views, w, h in rigs) * (
+        frames * DISK_BYTES_PER_PIXEL[motion] + raw_frames * RAW_BYTES_PER_PIXEL[motion] / 2)
     memory = max((w * h for _, _, w, h in rigs), default=0) * MEMORY_BYTES_PER_PIXEL * workers
     return disk, memory
-
-
-# Raw passes (passes.exr) of one view, uncompressed: 12 float32 channels, 18 with the motion AOVs.
-RAW_BYTES_PER_PIXEL = {False: 48, True: 72}
-# Frames of a view whose raw passes may be on disk at once while motion is derived from them
-# (lfusd.truth.derive.REACH frames on either side of the one being derived).
-RAW_FRAMES_ON_DISK = 5
 
 
 def raw_codec(req: RenderRequest, rigs: list[tuple[str, int, int, int]]) -> str:
@@ -151,7 +154,7 @@ def check_size(req: RenderRequest, rigs: list[tuple[str, int, int, int]], frames
     ``req.out`` or whose views cannot fit in this machine's memory (``--force`` renders anyway)."""
     if req.force:
         return
-    disk, memory = size_estimate(rigs, len(frames), req.motion, req.workers if req.executor == "local" else 1)
+    disk, memory = size_estimate(rigs, len(frames), req.motion, req.workers if req.executor == "local" else 1, req.keep_raw)
     free, ram = _free_disk(req.out), _memory()
     what = ", ".join(f"{name} {views} views of {w}x{h}" for name, views, w, h in rigs)
     if ram is not None and memory > ram:
