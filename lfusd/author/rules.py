@@ -426,6 +426,7 @@ class Checker:
                 break
             self._update(frame, is_first)
             scene, owner = self._scene(list(range(len(self.objs))))
+            self._support_cache = {}  # this frame's supports: an object's "on" and "not_on" rules cast the same rays
             for r in self.rules:
                 i = self.index[r.prim_path]
                 o = self.objs[i]
@@ -445,6 +446,7 @@ class Checker:
                         found.setdefault((v.prim_path, v.rule), v)
             if progress:
                 progress(frame)
+        self._support_cache = None
         for path, v in self.unusable.items():
             found[(path, "geometry")] = v
         return sorted(found.values(), key=lambda v: (v.frame, v.prim_path, v.rule))
@@ -501,6 +503,9 @@ class Checker:
     def _supports(self, i: int, scene, owner, up: float):
         """For each contact point p: (class of the first surface below p + ``up`` or None, its height, p),
         ignoring the object itself."""
+        cache = getattr(self, "_support_cache", None)  # set by check() for one frame's scene
+        if cache is not None and (i, up) in cache:
+            return cache[(i, up)]
         pts = self._contacts(self.objs[i])
         out = []
         for p, hits in zip(pts, self._cast(i, pts + [0.0, 0.0, up], (0.0, 0.0, -1.0), scene, owner)):
@@ -509,6 +514,8 @@ class Checker:
             else:
                 t, j = hits[0]
                 out.append((self.objs[j].label, float(p[2] + up - t), p))
+        if cache is not None:
+            cache[(i, up)] = out
         return out
 
     @rule("on")
