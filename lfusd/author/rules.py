@@ -427,6 +427,7 @@ class Checker:
             self._update(frame, is_first)
             scene, owner = self._scene(list(range(len(self.objs))))
             self._support_cache = {}  # this frame's supports: an object's "on" and "not_on" rules cast the same rays
+            self._moving = self._moving_columns()
             for r in self.rules:
                 i = self.index[r.prim_path]
                 o = self.objs[i]
@@ -446,17 +447,23 @@ class Checker:
                         found.setdefault((v.prim_path, v.rule), v)
             if progress:
                 progress(frame)
-        self._support_cache = None
+        self._support_cache = self._moving = None
         for path, v in self.unusable.items():
             found[(path, "geometry")] = v
         return sorted(found.values(), key=lambda v: (v.frame, v.prim_path, v.rule))
+
+    def _moving_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi), (N, 2) each: the horizontal boxes of the dynamic objects now."""
+        moving = [x for x in self.objs if x.dynamic]
+        return (np.array([x.lo[:2] for x in moving]).reshape(-1, 2), np.array([x.hi[:2] for x in moving]).reshape(-1, 2))
 
     def _may_change(self, o: _Obj, kind: str, r: ObjectRules) -> bool:
         if o.dynamic:
             return True
         if kind in ("on", "not_on", "floats_on"):
             # only something moving through the column above or below it can change its support
-            return any(x.dynamic and np.all(x.lo[:2] <= o.hi[:2]) and np.all(x.hi[:2] >= o.lo[:2]) for x in self.objs)
+            lo, hi = getattr(self, "_moving", None) or self._moving_columns()
+            return bool(np.any(np.all(lo <= o.hi[:2], axis=1) & np.all(hi >= o.lo[:2], axis=1)))
         if kind == "inside":
             return any(self.objs[self.index[t]].dynamic for t in r.rules["inside"] if t in self.index)
         return False
@@ -507,12 +514,25 @@ class Checker:
         if cache is not None and (i, up) in cache:
             return cache[(i, up)]
         pts = self._contacts(self.objs[i])
+        rays = np.zeros((len(pts), 6), np.float32)
+        rays[:, :3] = pts + [0.0, 0.0, up]
+        rays[:, 5] = -1.0
+        hits = scene.list_intersections(self.o3d.core.Tensor(rays))
+        splits, gids, ts = hits["ray_splits"].numpy(), hits["geometry_ids"].numpy(), hits["t_hit"].numpy()
+        # the first hit of each ray that is not on object i (ties: the lower object index), as _cast's first
+        ray, own = np.repeat(np.arange(len(pts)), np.diff(splits)), owner[gids]
+        keep = own != i
+        ray, t, own = ray[keep], ts[keep], own[keep]
+        order = np.lexsort((own, t, ray))
+        ray, t, own = ray[order], t[order], own[order]
+        first = np.r_[True, ray[1:] != ray[:-1]] if len(ray) else np.zeros(0, bool)
+        found = {int(k): (float(tk), int(j)) for k, tk, j in zip(ray[first], t[first], own[first])}
         out = []
-        for p, hits in zip(pts, self._cast(i, pts + [0.0, 0.0, up], (0.0, 0.0, -1.0), scene, owner)):
-            if not hits:
+        for k, p in enumerate(pts):
+            if k not in found:
                 out.append((None, None, p))
             else:
-                t, j = hits[0]
+                t, j = found[k]
                 out.append((self.objs[j].label, float(p[2] + up - t), p))
         if cache is not None:
             cache[(i, up)] = out
