@@ -492,15 +492,17 @@ class Checker:
         o.contacts = pts
         return pts
 
-    def _cast(self, i: int, origins: np.ndarray, direction, scene, owner) -> list[list[tuple[float, int]]]:
-        """Per ray from ``origins`` along ``direction``: sorted (distance, object) hits, not on object i."""
+    def _intersections(self, origins: np.ndarray, direction, scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every hit of the rays from ``origins`` along ``direction``: (ray splits, geometry ids, distances)."""
         rays = np.zeros((len(origins), 6), np.float32)
         rays[:, :3] = origins
         rays[:, 3:] = direction
         hits = scene.list_intersections(self.o3d.core.Tensor(rays))
-        splits = hits["ray_splits"].numpy()
-        gids = hits["geometry_ids"].numpy()
-        ts = hits["t_hit"].numpy()
+        return hits["ray_splits"].numpy(), hits["geometry_ids"].numpy(), hits["t_hit"].numpy()
+
+    def _cast(self, i: int, origins: np.ndarray, direction, scene, owner) -> list[list[tuple[float, int]]]:
+        """Per ray from ``origins`` along ``direction``: sorted (distance, object) hits, not on object i."""
+        splits, gids, ts = self._intersections(origins, direction, scene)
         out = []
         for k in range(len(origins)):
             sel = slice(splits[k], splits[k + 1])
@@ -514,11 +516,7 @@ class Checker:
         if cache is not None and (i, up) in cache:
             return cache[(i, up)]
         pts = self._contacts(self.objs[i])
-        rays = np.zeros((len(pts), 6), np.float32)
-        rays[:, :3] = pts + [0.0, 0.0, up]
-        rays[:, 5] = -1.0
-        hits = scene.list_intersections(self.o3d.core.Tensor(rays))
-        splits, gids, ts = hits["ray_splits"].numpy(), hits["geometry_ids"].numpy(), hits["t_hit"].numpy()
+        splits, gids, ts = self._intersections(pts + [0.0, 0.0, up], (0.0, 0.0, -1.0), scene)
         # the first hit of each ray that is not on object i (ties: the lower object index), as _cast's first
         ray, own = np.repeat(np.arange(len(pts)), np.diff(splits)), owner[gids]
         keep = own != i

@@ -24,12 +24,14 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
 from ..processes import die_with_parent
+from . import request
 
 log = logging.getLogger(__name__)
 
-# Decoded raw passes of one view and frame (lfusd.data.passes.read_raw with the motion AOVs):
-# depth 4, normal 12, position 12, instance 4, vector 16, next/prev position 12 + 12 bytes per pixel.
-RAW_BYTES_PER_PIXEL = 72
+# Decoded raw passes of one view and frame (lfusd.data.passes.read_raw with the motion AOVs): the
+# file's 18 channels as float32/int32, depth 4, normal 12, position 12, instance 4, vector 16,
+# next/prev position 12 + 12 bytes per pixel.
+RAW_BYTES_PER_PIXEL = request.RAW_BYTES_PER_PIXEL[True]
 RAW_CACHE_BYTES = 1 << 30  # per lane: at 512x512 about 14 views' windows, at 1024x1024 3
 RAW_PER_VIEW = 4  # a Dataset keeps its 4 most recent raw passes (t-1, t, t+1 and the one before)
 
