@@ -11,6 +11,8 @@
         motion.exr                    the motion keys (render-video, ``lfusd flow``)
         passes.exr                    Blender's raw passes: removed once the keys above are written and
                                       checked, kept with ``--keep-raw``
+        geometry.npz                  (render-video) the frame's world triangles as Blender rendered them,
+                                      for exact occlusion; a raw file like passes.exr, removed with it
         view.json                     the completion record: size and sha256 of each file (lfusd.data.integrity)
 
 Format version 1 (lfusd before the storage format, still read by ``Dataset``): rgb.png, rgb.exr,
@@ -38,10 +40,11 @@ OWN_ENTRIES = (OBJECTS, LOGS, SCRATCH)
 RGB_PNG = "rgb.png"
 RGB_EXR = "rgb.exr"
 PASSES_EXR = "passes.exr"
+GEOMETRY = "geometry.npz"  # the frame's triangles as rendered (render-video): raw, removed with passes.exr
 GT_FILE = "gt.exr"
 MOTION_FILE = "motion.exr"
 VIEW_RECORD = "view.json"  # written last: the view is complete only if its files match it
-VIEW_FILES = (RGB_EXR, RGB_PNG, GT_FILE, MOTION_FILE, PASSES_EXR, VIEW_RECORD)
+VIEW_FILES = (RGB_EXR, RGB_PNG, GT_FILE, MOTION_FILE, PASSES_EXR, GEOMETRY, VIEW_RECORD)
 MOTION_FILE_V1 = "motion.npz"  # format version 1's motion keys (np.savez)
 VIEW_FILES_V1 = (RGB_PNG, RGB_EXR, PASSES_EXR, MOTION_FILE_V1, VIEW_RECORD)
 

@@ -90,6 +90,8 @@ def record_render(view_dir: str | Path) -> dict:
         if entry is None:
             raise FileNotFoundError(f"{d / name} is missing")
         files[name] = entry
+    if (d / layout.GEOMETRY).is_file():  # render-video's triangles of the frame (exact occlusion)
+        files[layout.GEOMETRY] = file_entry(d / layout.GEOMETRY)
     record = {"version": VERSION, "files": files}
     write_record(d, record)
     return record

@@ -96,6 +96,12 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
     tmp.mkdir(parents=True)
     for name, final_name in (("rgb", layout.RGB_EXR), ("passes", layout.PASSES_EXR)):
         os.replace(sources[name], tmp / final_name)
+    geometry = scratch / layout.GEOMETRY  # one per chunk of views: linked into each (copied where links fail)
+    if geometry.is_file():
+        try:
+            os.link(geometry, tmp / layout.GEOMETRY)
+        except OSError:
+            shutil.copyfile(geometry, tmp / layout.GEOMETRY)
     integrity.record_render(tmp)  # rgb.png, gt.exr and motion.exr come from lfusd.truth.derive
     if final.exists():  # damaged: move it aside (a stale-tmp name, cleaned by the next run if we die here)
         old = final.parent / f".{key}.tmp-old-{os.getpid()}-{threading.get_ident()}"

@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import sys
 import tempfile
 import time
@@ -503,6 +504,8 @@ class MotionAttributes:
     def __init__(self, scene, first: int, last: int):
         self.scene, self.first, self.last = scene, first, last
         self.meshes = [o for o in scene.objects if o.type == "MESH"]
+        self.names = {o.as_pointer(): p for p, ids in PRIM_MAP.items() for o in ids if isinstance(o, bpy.types.Object)}
+        self.unknown: dict[str, set[int]] = {}  # mesh name -> frames whose t+/-1 motion is unknown (topology changed)
         # World vertices by frame. Frame t needs t-1 and t+1; t-1 was frame t-2's t+1, so consecutive
         # frames evaluate the scene at one new time each (t+1), not two.
         self.cache: dict[int, dict[str, np.ndarray]] = {}
@@ -533,27 +536,83 @@ class MotionAttributes:
                 co = np.empty(len(me.vertices) * 3, np.float64)
                 me.vertices.foreach_get("co", co)
                 m = np.array(ev.matrix_world, dtype=np.float64)
-                out[obj.name] = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+                corners = np.empty(len(me.loops), np.int32)  # face-vertex indices: the topology
+                me.loops.foreach_get("vertex_index", corners)
+                sizes = np.empty(len(me.polygons), np.int32)
+                me.polygons.foreach_get("loop_total", sizes)
+                out[obj.name] = (co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3], corners, sizes)
                 ev.to_mesh_clear()
             self.cache[frame] = out
         return self.cache[frame]
 
+    def _prim(self, obj) -> str:
+        return self.names.get(obj.as_pointer(), obj.name)
+
     def set_frame(self, frame: int) -> None:
-        """Fill the attributes for ``frame`` (NaN where t+/-1 is outside the stage) and go there."""
+        """Fill the attributes for ``frame`` and go there. NaN where t+/-1 is outside the stage, and
+        on a mesh whose topology (vertex count, face sizes or face-vertex indices) differs between t
+        and t+/-1: vertex i at t is then not vertex i at t+/-1, so its motion is unknown (the
+        derivation flags those pixels invalid; one warning names the prim)."""
+        here = self._world_vertices(frame)
         for key, other in (("next", frame + 1), ("prev", frame - 1)):
             known = self.first <= other <= self.last
             verts = self._world_vertices(other) if known else None
             for obj in self.meshes:
                 attr = obj.data.attributes[f"lfusd_{key}"]
                 n = len(obj.data.vertices)
-                v = verts[obj.name] if known else np.full((n, 3), np.nan)
-                if len(v) != n:
-                    raise RuntimeError(f"mesh {obj.name} changes its vertex count over time; lfusd needs fixed topology")
+                v = verts[obj.name][0] if known else None
+                if known and not _same_topology(here[obj.name], verts[obj.name], n):
+                    v = None
+                    if obj.name not in self.unknown:
+                        warn(f"mesh {self._prim(obj)} changes its topology (face-vertex indices) between frames {min(frame, other)} "
+                             f"and {max(frame, other)}; its motion there is unknown and its pixels are flagged invalid")
+                    self.unknown.setdefault(obj.name, set()).add(frame)
+                if v is None:
+                    v = np.full((n, 3), np.nan)
                 attr.data.foreach_set("vector", v.astype(np.float32).ravel())
         for obj in self.meshes:
             obj.data.update()
         self.cache = {f: v for f, v in self.cache.items() if f >= frame}  # t and t+1: the next frame's t-1 and t
         self.scene.frame_set(frame)
+
+
+def _same_topology(a: tuple, b: tuple, n: int) -> bool:
+    """Whether two evaluations of one mesh (world vertices, face-vertex indices, face sizes) share
+    their topology and have the original mesh's ``n`` vertices (what the attributes index)."""
+    return len(a[0]) == len(b[0]) == n and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+
+
+def write_geometry(path: str, meshes: list) -> None:
+    """The world-space triangles of every rendered mesh at the current frame, as Cycles renders
+    them (Blender's loop triangles of the evaluated mesh), with each triangle's object index:
+    lfusd.truth.motion casts the visibility rays of exact occlusion against them.
+
+    npz: ``vertices`` (N,3) float32 metres in lfusd's world, ``triangles`` (M,3) int32,
+    ``instance`` (M,) int32."""
+    dg = bpy.context.evaluated_depsgraph_get()
+    verts, tris, inst, base = [], [], [], 0
+    for obj in meshes:
+        if obj.hide_render or not obj.visible_get():
+            continue
+        ev = obj.evaluated_get(dg)
+        me = ev.to_mesh()
+        me.calc_loop_triangles()
+        co = np.empty(len(me.vertices) * 3, np.float64)
+        me.vertices.foreach_get("co", co)
+        t = np.empty(len(me.loop_triangles) * 3, np.int32)
+        me.loop_triangles.foreach_get("vertices", t)
+        m = np.array(ev.matrix_world, dtype=np.float64)
+        ev.to_mesh_clear()
+        if not len(t):
+            continue
+        verts.append((co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]).astype(np.float32))
+        tris.append(t.reshape(-1, 3) + base)
+        inst.append(np.full(len(t) // 3, obj.pass_index, np.int32))
+        base += len(co) // 3
+    cat = lambda parts, shape, dtype: np.concatenate(parts) if parts else np.zeros(shape, dtype)  # noqa: E731
+    tmp = path + ".tmp.npz"
+    np.savez(tmp, vertices=cat(verts, (0, 3), np.float32), triangles=cat(tris, (0, 3), np.int32), instance=cat(inst, (0,), np.int32))
+    os.replace(tmp, path)
 
 
 def _shift_lenses(scene, on: bool) -> None:
@@ -679,14 +738,31 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
     else:
         scene.frame_set(frame)
     phases = {"scene": time.perf_counter() - t}
+    geometry = None
     for k, chunk in enumerate(view_chunks(suffixes, job.width, job.height, job.render_pixels)):
         scratch = os.path.join(job.scratch, f"f{frame:06d}_c{k:03d}")
         os.makedirs(scratch, exist_ok=True)
+        if motion is not None:  # the frame's triangles, for exact occlusion (written once, linked per chunk)
+            t = time.perf_counter()
+            path = os.path.join(scratch, "geometry.npz")
+            if geometry is None:
+                write_geometry(path, motion.meshes)
+                geometry = path
+            else:
+                _link_or_copy(geometry, path)
+            phases["geometry"] = phases.get("geometry", 0.0) + time.perf_counter() - t
         _use_views(scene, chunk)
         render_chunk(scene, job, scratch, lighting, phases)
         print(f"lfusd: frame {frame} views {len(chunk)} seconds " + " ".join(f"{k} {v:.3f}" for k, v in phases.items()), file=sys.stderr, flush=True)
         emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in chunk], seconds=time.perf_counter() - t,
              phases={k: round(v, 4) for k, v in phases.items()}, evaluations=motion.evaluations if motion is not None else 0)
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
 
 
 def _test_kill_hook(frame: int) -> None:

@@ -185,7 +185,7 @@ def inverse_depth_and_back(depth_o, vec_o, forward, bg):
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, back_o, forward,
-              A_cur, C_cur, M_o, R2_o, C_o, A_o, fb, bg, fb_abs, fb_rel, depth_rel, edge_rel,
+              A_cur, C_cur, M_cur, M_o, R2_o, C_o, A_o, fb, bg, fb_abs, fb_rel, depth_rel, edge_rel,
               flow, scene_flow, dchange, valid, occl):
     """Fused per-pixel derivation of one direction (see lfusd.truth.motion's module docstring).
 
@@ -210,14 +210,28 @@ def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, bac
                 fu, fv = vec[i, j, 0], -vec[i, j, 1]
             if has_opos:
                 px, py, pz = opos[i, j, 0], opos[i, j, 1], opos[i, j, 2]
-                if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
-                    ex = True
-                    dx, dy, dz = px - C_o[0], py - C_o[1], pz - C_o[2]
-                    hx = M_o[0, 0] * dx + M_o[0, 1] * dy + M_o[0, 2] * dz
-                    hy = M_o[1, 0] * dx + M_o[1, 1] * dy + M_o[1, 2] * dz
-                    hz = M_o[2, 0] * dx + M_o[2, 1] * dy + M_o[2, 2] * dz
-                    fu, fv = hx / hz - j, hy / hz - i
-                    ze = R2_o[0] * dx + R2_o[1] * dy + R2_o[2] * dz
+                if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+                    # Unknown (the mesh changed its topology): flagged invalid, never guessed.
+                    flow[i, j, 0] = 0.0
+                    flow[i, j, 1] = 0.0
+                    valid[i, j] = False
+                    occl[i, j] = False
+                    continue
+                ex = True
+                dx, dy, dz = px - C_o[0], py - C_o[1], pz - C_o[2]
+                hx = M_o[0, 0] * dx + M_o[0, 1] * dy + M_o[0, 2] * dz
+                hy = M_o[1, 0] * dx + M_o[1, 1] * dy + M_o[1, 2] * dz
+                hz = M_o[2, 0] * dx + M_o[2, 1] * dy + M_o[2, 2] * dz
+                # From the point that was sampled (the position pass), not the pixel centre: on a
+                # sliver triangle Blender's sample lands off the pixel's ray; a static point gets 0.
+                u0, v0 = float(j), float(i)
+                if has_pos and math.isfinite(pos[i, j, 0]) and math.isfinite(pos[i, j, 1]) and math.isfinite(pos[i, j, 2]):
+                    ex0, ey0, ez0 = pos[i, j, 0] - C_cur[0], pos[i, j, 1] - C_cur[1], pos[i, j, 2] - C_cur[2]
+                    gz = M_cur[2, 0] * ex0 + M_cur[2, 1] * ey0 + M_cur[2, 2] * ez0
+                    u0 = (M_cur[0, 0] * ex0 + M_cur[0, 1] * ey0 + M_cur[0, 2] * ez0) / gz
+                    v0 = (M_cur[1, 0] * ex0 + M_cur[1, 1] * ey0 + M_cur[1, 2] * ez0) / gz
+                fu, fv = hx / hz - u0, hy / hz - v0
+                ze = R2_o[0] * dx + R2_o[1] * dy + R2_o[2] * dz
             flow[i, j, 0] = fu
             flow[i, j, 1] = fv
             xj, yj = j + fu, i + fv

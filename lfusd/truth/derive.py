@@ -36,7 +36,7 @@ from ..data.dataset import Dataset
 from ..camera import View
 from ..errors import LfusdError
 from ..keys import KEYS, MOTION, STATIC, RAW, stored
-from ..layout import GT_FILE, MOTION_FILE, MOTION_FILE_V1, PASSES_EXR, RGB_EXR, RGB_PNG, frame_dir, view_key
+from ..layout import GEOMETRY, GT_FILE, MOTION_FILE, MOTION_FILE_V1, PASSES_EXR, RGB_EXR, RGB_PNG, frame_dir, view_key
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +53,25 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
     try:
         nxt = ds.raw_passes(frame + 1, view) if frame + 1 in frames else None
         prv = ds.raw_passes(frame - 1, view) if frame - 1 in frames else None
-        return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline)
+        occluders = {key: occluders_of(ds, g, view) for key, g, other in (("next", frame + 1, nxt), ("prev", frame - 1, prv))
+                     if other is not None}
+        return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline, occluders=occluders)
     except LfusdError as e:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
+
+
+def occluders_of(ds: Dataset, frame: int, view: View):
+    """The rendered triangles of ``frame`` (its view's geometry.npz) for exact occlusion; None for a
+    dataset rendered before lfusd wrote them (its occlusion is then the image-space test)."""
+    from .visibility import Occluders
+
+    path = frame_dir(ds.root, ds.rig_name, frame) / view_key(view) / GEOMETRY
+    if not path.is_file():
+        return None
+    try:
+        return Occluders.load(path)
+    except (OSError, ValueError, KeyError) as e:
+        raise LfusdError(f"{path} is unreadable ({e}); rerun the render command to repair it") from None
 
 
 def _passes_of(ds: Dataset, frame: int, view: View) -> dict[str, Path | None]:
@@ -220,8 +236,11 @@ def drop_raw(ds: Dataset, frames, views) -> int:
             d = frame_dir(ds.root, ds.rig_name, f) / view_key(v)
             if not (d / PASSES_EXR).is_file() or f not in ds.frames or raw_needed(ds, f, v):
                 continue
-            integrity.record_files(d, remove=(PASSES_EXR,))  # the record keeps its digest: the neighbours' inputs
-            (d / PASSES_EXR).unlink()
+            rec = integrity.read_record(d) or {"files": {}}
+            raw = (PASSES_EXR,) + ((GEOMETRY,) if integrity.present(rec, GEOMETRY) else ())
+            integrity.record_files(d, remove=raw)  # the record keeps their digests: the neighbours' inputs
+            for name in raw:
+                (d / name).unlink(missing_ok=True)
             n += 1
     return n
 

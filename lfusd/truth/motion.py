@@ -220,7 +220,7 @@ def _visibility_numpy(x, y, fl, z_exp, exact, inst_cur, inst_other, inv_other, b
     return visible, vector_ok, inv_pt.astype(np.float32)
 
 
-def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position, forward: bool):
+def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position, forward: bool, pos_t: np.ndarray):
     """Flow towards ``other``, the point's depth there where knowable, occlusion and masks.
 
     Returns (flow (H,W,2), z_other (N,), exact (N,), visible (N,), vector_ok (N,), idx (N,), (x, y)),
@@ -237,9 +237,12 @@ def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position,
     if other_position is not None:
         P1 = np.asarray(other_position, dtype=np.float32).reshape(-1, 3)[idx]
         exact = np.isfinite(P1).all(axis=1)
-        pu, pv, pz = project(P1[exact], other.camera)
-        uu, vv = u.ravel()[idx][exact], v.ravel()[idx][exact]
-        fl[exact, 0], fl[exact, 1] = pu - uu, pv - vv
+        pu, pv, pz = project(P1[exact].astype(np.float64), other.camera)
+        # From the point that was sampled, not the pixel centre: on a sliver triangle Blender's
+        # sample lands off the pixel's ray, and a static point must get zero flow.
+        u0, v0, _ = project(pos_t.reshape(-1, 3)[idx][exact].astype(np.float64), cur.camera)
+        fl[exact, 0], fl[exact, 1] = pu - u0, pv - v0
+        fl[~exact] = 0  # unknown (the mesh changed its topology): flagged invalid, never guessed
         z_exp[exact] = pz
         flow.reshape(-1, 2)[idx] = fl
     x = u.ravel()[idx] + fl[:, 0]
@@ -253,6 +256,8 @@ def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position,
         x.astype(np.float32), y.astype(np.float32), fl, z_exp, exact, inst_cur.astype(np.int32),
         np.ascontiguousarray(inst_other, dtype=np.int32), inv_other, np.ascontiguousarray(back),
     )
+    if other_position is not None:
+        vector_ok[:] = False  # the position AOV is the route; where it is NaN the motion is unknown
     with np.errstate(divide="ignore", invalid="ignore"):
         z_exp[vector_ok] = 1.0 / inv_pt[vector_ok]
     return flow, z_exp, exact, visible, vector_ok, idx, (x, y)
@@ -273,6 +278,7 @@ def derive_motion(
     prv: RawPasses | None = None,
     baseline: float | None = None,
     backend: str | None = None,
+    occluders: dict | None = None,
 ) -> dict[str, np.ndarray]:
     """All motion keys of CONVENTIONS.md for one view at frame t (see the module docstring).
 
@@ -280,6 +286,8 @@ def derive_motion(
     ``baseline``: the rig baseline b in metres for disparity d = f_px * b / z (K[0,0] is f_px);
     without it ``disparity_change`` is 0 and only the other keys are meaningful.
     ``backend``: 'numba' (compiled, default when numba is installed) or 'numpy' (reference).
+    ``occluders``: {"next": Occluders, "prev": Occluders}, the triangles of t+1 / t-1 as rendered
+    (lfusd.truth.visibility): occlusion is then exact ray-cast visibility, not the image-space test.
     """
     backend = backend or BACKEND
     if backend not in ("numba", "numpy") or (backend == "numba" and _flow_numba is None):
@@ -297,10 +305,35 @@ def derive_motion(
     fb = float(cur.camera.K[0, 0]) * float(baseline) if baseline else 0.0
     if backend == "numba":
         _derive_numba(cur, nxt, prv, fb, out)
-        return out
+    else:
+        _derive_numpy(cur, nxt, prv, fb, fg, out)
+    for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position)):
+        if other is not None and opos is not None and (occluders or {}).get(key) is not None:
+            exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
+    return out
+
+
+def exact_occlusion(cur: RawPasses, other: RawPasses, other_position: np.ndarray, occluders, out: dict, fwd: bool) -> None:
+    """Replace ``occlusion_fwd`` (``fwd``) or ``occlusion_bwd`` with ray-cast visibility of each valid
+    pixel's point at t+1 / t-1 against that frame's rendered triangles (lfusd.truth.visibility)."""
+    from .visibility import visibility
+
+    sfx = "fwd" if fwd else "bwd"
+    known = out[f"valid_{sfx}"]
+    idx = np.flatnonzero(known)
+    pts = np.asarray(other_position, np.float64).reshape(-1, 3)[idx]
+    h, w = cur.shape
+    visible, _ = visibility(pts, other.camera, h, w, occluders)
+    occ = np.zeros(h * w, bool)
+    occ[idx] = ~visible
+    out[f"occlusion_{sfx}"] = occ.reshape(h, w)
+
+
+def _derive_numpy(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, fg: np.ndarray, out: dict) -> None:
+    """derive_motion's NumPy reference path, writing into ``out``."""
     pos_t = world_position(cur, fg)
     if nxt is not None:
-        flow, z1, exact, visible, route, idx, (x, y) = _direction(cur, nxt, fg, cur.next_position, True)
+        flow, z1, exact, visible, route, idx, (x, y) = _direction(cur, nxt, fg, cur.next_position, True, pos_t)
         out["flow_fwd"] = flow
         P0 = pos_t.reshape(-1, 3)[idx]
         P1 = np.zeros_like(P0)
@@ -316,13 +349,13 @@ def derive_motion(
             dc = np.where(known, fb / z1 - fb / z0, 0).astype(np.float32)
         out["disparity_change"].ravel()[idx] = dc
         out["valid_fwd"].ravel()[idx] = known
-        out["occlusion_fwd"].ravel()[idx] = ~visible
+        out["occlusion_fwd"].ravel()[idx] = ~visible & (exact if cur.next_position is not None else True)
     if prv is not None:
-        flow, _, exact, visible, _, idx, _ = _direction(cur, prv, fg, cur.prev_position, False)
+        flow, _, exact, visible, _, idx, _ = _direction(cur, prv, fg, cur.prev_position, False, pos_t)
         out["flow_bwd"] = flow
-        out["valid_bwd"].ravel()[idx] = True
-        out["occlusion_bwd"].ravel()[idx] = ~visible
-    return out
+        known = exact if cur.prev_position is not None else np.ones(idx.size, bool)
+        out["valid_bwd"].ravel()[idx] = known
+        out["occlusion_bwd"].ravel()[idx] = ~visible & known
 
 
 def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, out: dict) -> None:
@@ -334,6 +367,7 @@ def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, 
     inst = np.ascontiguousarray(cur.instance if cur.instance is not None else foreground(depth), dtype=np.int32)
     R, C = cur.camera.world_to_cam()
     A_cur = R.T @ np.linalg.inv(np.asarray(cur.camera.K, np.float64))
+    M_cur = np.asarray(cur.camera.K, np.float64) @ R
     for other, opos, forward in ((nxt, cur.next_position, True), (prv, cur.prev_position, False)):
         if other is None:
             continue
@@ -347,7 +381,7 @@ def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, 
             depth, f32(cur.vector), pos, has_pos, inst,
             f32(opos) if has_opos else np.zeros((1, 1, 3), np.float32), has_opos,
             inst_o, inv_o, back_o, forward,
-            A_cur, C, Ko @ Ro, Ro[2].copy(), Co, Ro.T @ np.linalg.inv(Ko), fb, BACKGROUND_DEPTH,
+            A_cur, C, M_cur, Ko @ Ro, Ro[2].copy(), Co, Ro.T @ np.linalg.inv(Ko), fb, BACKGROUND_DEPTH,
             FB_ABS, FB_REL, DEPTH_REL, EDGE_REL,
             out[f"flow_{sfx}"], out["scene_flow"], out["disparity_change"], out[f"valid_{sfx}"], out[f"occlusion_{sfx}"],
         )

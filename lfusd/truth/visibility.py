@@ -1,0 +1,80 @@
+"""Exact visibility of surface points: rays cast against a frame's triangles as Blender rendered them.
+
+A point P seen at frame t is *visible* at frame t' (= t+1 or t-1) in a view when it projects
+inside that view's image at t' (u' in [-0.5, W-0.5], v' in [-0.5, H-0.5], in front of the camera)
+and the ray from the view's camera centre C' at t' towards P meets no surface before P: Open3D's
+``RaycastingScene`` casts it against every rendered triangle at t' (``geometry.npz``, written by
+the render worker from Blender's evaluated meshes) and the first hit lies at a ray parameter of at
+least ``1 - VISIBLE_EPS`` (the parameter of P itself is 1).
+
+Tie rule: a surface within ``VISIBLE_EPS`` (1e-4) of the distance in front of P does not hide
+it. Float32 positions and triangles put P a few 1e-7 of the distance off its own surface, more on
+surfaces seen at a grazing angle, and the verifier's independent geometry differs from Blender's by
+as much: within that band the two surfaces cannot be told apart, and both verify and the
+derivation call the point visible. docs/CONVENTIONS.md ("Occlusion") states the definition.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera, project
+
+VISIBLE_EPS = 1e-4
+
+_CACHE: dict[tuple, "Occluders"] = {}
+
+
+class Occluders:
+    """A frame's triangles (world space) in an Open3D ray-casting scene."""
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, instance: np.ndarray | None = None):
+        import open3d as o3d
+
+        self.vertices = np.ascontiguousarray(vertices, np.float32)
+        self.triangles = np.ascontiguousarray(triangles, np.uint32)
+        self.instance = instance
+        self.scene = o3d.t.geometry.RaycastingScene()
+        if len(self.triangles):
+            self.scene.add_triangles(o3d.core.Tensor(self.vertices), o3d.core.Tensor(self.triangles))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Occluders":
+        """Read ``geometry.npz`` (cached per process by file identity: the views of one chunk share
+        one file through hard links, so their scene is built once)."""
+        st = os.stat(path)
+        key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+        if key not in _CACHE:
+            with np.load(path) as z:
+                occ = cls(z["vertices"], z["triangles"], z["instance"] if "instance" in z else None)
+            if len(_CACHE) >= 4:  # frames t-1, t, t+1 of one view, and one more
+                _CACHE.pop(next(iter(_CACHE)))
+            _CACHE[key] = occ
+        return _CACHE[key]
+
+    def first_hit(self, origins: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """Ray parameter of the first surface on the segment origin -> target (1 = at the target;
+        inf when nothing is hit)."""
+        import open3d as o3d
+
+        if len(origins) == 0:
+            return np.zeros(0, np.float32)
+        rays = np.concatenate([origins, targets - origins], axis=-1).astype(np.float32)
+        return self.scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))["t_hit"].numpy()
+
+
+def visibility(points: np.ndarray, camera: Camera, h: int, w: int, occluders: Occluders,
+               eps: float = VISIBLE_EPS) -> tuple[np.ndarray, np.ndarray]:
+    """(visible, t_hit) of world points (N,3) in ``camera`` at the occluders' frame (see the module
+    docstring); t_hit is the first hit's ray parameter (NaN for points outside the image)."""
+    pts = np.asarray(points, np.float64)
+    u, v, z = project(pts, camera)
+    inside = np.isfinite(u) & np.isfinite(v) & (z > 0) & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+    t_hit = np.full(len(pts), np.nan, np.float32)
+    idx = np.flatnonzero(inside)
+    C = np.asarray(camera.cam_to_world, np.float64)[:3, 3]
+    t_hit[idx] = occluders.first_hit(np.broadcast_to(C, (idx.size, 3)), pts[idx])
+    return inside & (t_hit >= 1 - eps), t_hit

@@ -1,0 +1,93 @@
+"""Exact occlusion: ray-cast visibility of each pixel's point against the other frame's triangles,
+checked on every foreground pixel (silhouettes included) against the closed-form box oracle."""
+
+import numpy as np
+import pytest
+from support.motion_scenes import Box
+from test_flow import BACKENDS, exact_truth, occluder_scene
+
+from lfusd.truth.motion import derive_motion
+from lfusd.truth.visibility import Occluders
+
+_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+# 12 triangles of a box whose corner k has bits (x, y, z) = (k >> 2, k >> 1 & 1, k & 1)
+_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+
+
+def box_triangles(boxes: list[Box], frame: int) -> Occluders:
+    """The boxes' 12 triangles each at ``frame``, in world space (as the render worker writes them)."""
+    verts, tris, inst = [], [], []
+    for k, b in enumerate(boxes):
+        P = b.poses[frame]
+        verts.append((_CORNERS * np.asarray(b.half)) @ P[:3, :3].T + P[:3, 3])
+        tris.append(_FACES + 8 * k)
+        inst.append(np.full(12, b.instance))
+    return Occluders(np.concatenate(verts), np.concatenate(tris), np.concatenate(inst))
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("name", ["sliding", "spinning", "moving-rig"])
+def test_exact_occlusion_agrees_with_ray_cast_visibility_on_every_pixel(name, backend):
+    from test_flow import SCENES
+
+    scene = occluder_scene(**SCENES[name])
+    occ = {"next": box_triangles(scene.boxes, 3), "prev": box_triangles(scene.boxes, 1)}
+    m = derive_motion(scene.raw(2, True), scene.raw(3, True), scene.raw(1, True), baseline=scene.baseline,
+                      backend=backend, occluders=occ)
+    fg = exact_truth(scene)["fg"]
+    for key, step in (("occlusion_fwd", 1), ("occlusion_bwd", -1)):
+        hidden = fg & ~scene.visible_at(2, step)
+        assert hidden.sum() > 20, "the scene must have occlusions for this test to mean anything"
+        wrong = np.flatnonzero((m[key] != hidden) & fg)
+        assert wrong.size == 0, f"{key} differs from ray-cast visibility on {wrong.size} of {fg.sum()} px (e.g. {wrong[:5]})"
+        assert m[f"valid_{key.split('_')[1]}"][fg].all()
+
+
+def test_the_image_space_test_it_replaces_was_wrong_at_silhouettes():
+    """The heuristic (no triangles given) misses pixels near silhouettes that the exact test gets right:
+    the exact test is what makes the difference (guards against a test that passes with either)."""
+    scene = occluder_scene(spin=True, cam_motion=True)
+    m = derive_motion(scene.raw(2, True), scene.raw(3, True), scene.raw(1, True), baseline=scene.baseline)
+    fg = exact_truth(scene)["fg"]
+    hidden = fg & ~scene.visible_at(2, 1)
+    assert ((m["occlusion_fwd"] != hidden) & fg).sum() > 0
+
+
+def test_unknown_next_position_is_flagged_invalid_not_guessed():
+    """NaN next/prev positions (the worker's mark of a mesh whose topology changed) make the
+    pixels invalid with zero flow, on both backends, never the vector pass's guess."""
+    scene = occluder_scene(spin=True)
+    cur = scene.raw(2, True)
+    fg = exact_truth(scene)["fg"]
+    bad = fg.copy()
+    bad[:, : scene.W // 2] = False
+    cur.next_position = np.where(bad[..., None], np.nan, cur.next_position).astype(np.float32)
+    cur.prev_position = np.where(bad[..., None], np.nan, cur.prev_position).astype(np.float32)
+    for backend in BACKENDS:
+        m = derive_motion(cur, scene.raw(3, True), scene.raw(1, True), baseline=scene.baseline, backend=backend)
+        for sfx in ("fwd", "bwd"):
+            assert not m[f"valid_{sfx}"][bad].any() and m[f"valid_{sfx}"][fg & ~bad].all()
+            assert not m[f"occlusion_{sfx}"][bad].any()
+            assert (m[f"flow_{sfx}"][bad] == 0).all()
+        assert (m["scene_flow"][bad] == 0).all()
+
+
+def test_static_point_off_the_pixel_ray_has_zero_flow():
+    """Blender's sample on a sliver triangle lands off the pixel's ray: flow is measured from the
+    point sampled, so a static point seen by a static camera has exactly zero flow."""
+    scene = occluder_scene()
+    cur, nxt, prv = (scene.raw(f, True) for f in (2, 3, 1))
+    # a static point: next = prev = position, moved off the pixel ray by up to 0.3 px sideways
+    rng = np.random.default_rng(0)
+    pos = cur.position.astype(np.float64)
+    pos = pos + rng.uniform(-1, 1, pos.shape) * 0.3 * pos[..., 2:3] / scene.K[0, 0]
+    for a in ("position", "next_position", "prev_position"):
+        setattr(cur, a, np.where(np.isfinite(cur.position), pos, np.nan).astype(np.float32))
+    for c in (cur, nxt, prv):
+        c.camera = cur.camera
+    for backend in BACKENDS:
+        m = derive_motion(cur, nxt, prv, baseline=scene.baseline, backend=backend)
+        fg = np.isfinite(cur.position).all(-1)
+        assert np.abs(m["flow_fwd"][fg]).max() < 1e-9 and np.abs(m["flow_bwd"][fg]).max() < 1e-9
+        assert np.abs(m["scene_flow"][fg]).max() == 0
