@@ -139,9 +139,9 @@ _TABLE = (
     Key("valid_bwd", "bool", (), "mask", "where the backward motion ground truth is defined", _MOTION, MOTION, step=-1,
         storage=Storage("mask", 1)),
     Key("occlusion_fwd", "bool", (), "mask", "the point is hidden or outside the image at t+1", _MOTION, MOTION,
-        step=1, accuracy=0.01, accuracy_unit="frac", storage=Storage("mask", 2)),
+        step=1, accuracy=1e-3, accuracy_unit="frac", storage=Storage("mask", 2)),
     Key("occlusion_bwd", "bool", (), "mask", "the point is hidden or outside the image at t-1", _MOTION, MOTION,
-        step=-1, accuracy=0.01, accuracy_unit="frac", storage=Storage("mask", 3)),
+        step=-1, accuracy=1e-3, accuracy_unit="frac", storage=Storage("mask", 3)),
 )
 
 KEYS: dict[str, Key] = {k.name: k for k in _TABLE}

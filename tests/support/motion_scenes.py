@@ -13,6 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+# the 12 triangles of a box whose corner k has (x, y, z) bits (k >> 2, k >> 1 & 1, k & 1)
+_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+
+
 def rot(axis, deg):
     a = np.asarray(axis, float) / np.linalg.norm(axis)
     t = math.radians(deg)
@@ -130,6 +136,32 @@ class Scene:
             next_position=f32(t.get("next_position")) if exact else None,
             prev_position=f32(t.get("prev_position")) if exact else None,
         )
+
+    def triangles(self, frame):
+        """Every box's 12 triangles at ``frame`` in world space, with each triangle's instance id
+        (what the render worker writes as geometry.npz)."""
+        verts, tris, inst = [], [], []
+        for k, b in enumerate(self.boxes):
+            P = b.poses[frame]
+            verts.append((_CORNERS * np.asarray(b.half)) @ P[:3, :3].T + P[:3, 3])
+            tris.append(_FACES + 8 * k)
+            inst.append(np.full(12, b.instance))
+        return np.concatenate(verts), np.concatenate(tris), np.concatenate(inst)
+
+    def occluders(self, frame):
+        """:meth:`triangles` as lfusd.truth.visibility.Occluders."""
+        from lfusd.truth.visibility import Occluders
+
+        return Occluders(*self.triangles(frame))
+
+    def derive(self, frame, exact=True, backend=None):
+        """lfusd.truth.motion.derive_motion of ``frame`` from this scene's raw passes, with exact occlusion."""
+        from lfusd.truth.motion import derive_motion
+
+        nxt = self.raw(frame + 1, exact) if frame + 1 in self.cams else None
+        prv = self.raw(frame - 1, exact) if frame - 1 in self.cams else None
+        occ = {k: self.occluders(g) for k, g in (("next", frame + 1), ("prev", frame - 1)) if g in self.cams}
+        return derive_motion(self.raw(frame, exact), nxt, prv, baseline=self.baseline, backend=backend, occluders=occ)
 
     def visible_at(self, frame, step):
         """Oracle: is the point seen at each pixel at ``frame`` in the image and unoccluded at frame+step?"""

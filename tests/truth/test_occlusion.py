@@ -3,28 +3,9 @@ checked on every foreground pixel (silhouettes included) against the closed-form
 
 import numpy as np
 import pytest
-from support.motion_scenes import Box
 from test_flow import BACKENDS, exact_truth, occluder_scene
 
 from lfusd.truth.motion import derive_motion
-from lfusd.truth.visibility import Occluders
-
-_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-# 12 triangles of a box whose corner k has bits (x, y, z) = (k >> 2, k >> 1 & 1, k & 1)
-_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-
-
-def box_triangles(boxes: list[Box], frame: int) -> Occluders:
-    """The boxes' 12 triangles each at ``frame``, in world space (as the render worker writes them)."""
-    verts, tris, inst = [], [], []
-    for k, b in enumerate(boxes):
-        P = b.poses[frame]
-        verts.append((_CORNERS * np.asarray(b.half)) @ P[:3, :3].T + P[:3, 3])
-        tris.append(_FACES + 8 * k)
-        inst.append(np.full(12, b.instance))
-    return Occluders(np.concatenate(verts), np.concatenate(tris), np.concatenate(inst))
-
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("name", ["sliding", "spinning", "moving-rig"])
@@ -32,9 +13,7 @@ def test_exact_occlusion_agrees_with_ray_cast_visibility_on_every_pixel(name, ba
     from test_flow import SCENES
 
     scene = occluder_scene(**SCENES[name])
-    occ = {"next": box_triangles(scene.boxes, 3), "prev": box_triangles(scene.boxes, 1)}
-    m = derive_motion(scene.raw(2, True), scene.raw(3, True), scene.raw(1, True), baseline=scene.baseline,
-                      backend=backend, occluders=occ)
+    m = scene.derive(2, backend=backend)
     fg = exact_truth(scene)["fg"]
     for key, step in (("occlusion_fwd", 1), ("occlusion_bwd", -1)):
         hidden = fg & ~scene.visible_at(2, step)
