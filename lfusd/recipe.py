@@ -343,15 +343,36 @@ def _verify_scene(out: Path, mode: str, thresholds: dict[str, float]) -> tuple[b
     from .data.export import open_datasets
     from .truth.verify import verify
 
+    from .truth.verify import record_certificate
+
     ok, compared, failures = True, {}, []
     for ds in open_datasets(out, "all"):
         views = [ds.rig.centre_view] if mode == "centre" else None
-        for rep in verify(out, rig=ds.rig_name, views=views, thresholds=thresholds).values():
+        reports = verify(out, rig=ds.rig_name, views=views, thresholds=thresholds)
+        record_certificate(out, reports)  # the scene's manifest carries verify's per-key figures
+        for rep in reports.values():
             ok &= rep.ok
             failures += rep.failures()
             for k, n in rep.compared().items():
                 compared[k] = compared.get(k, 0) + n
     return ok, compared, failures[:20]
+
+
+def _certificate(out: Path) -> dict:
+    """Per key over a scene's rigs, from its manifest's certificate: pixels compared, worst max, over the limit, ties."""
+    try:
+        cert = json.loads((out / layout.MANIFEST).read_text()).get("certificate") or {}
+    except (OSError, ValueError):
+        return {}
+    keys: dict[str, dict] = {}
+    for rig in cert.values():
+        for k, e in rig.get("keys", {}).items():
+            t = keys.setdefault(k, {"count": 0, "max": 0.0, "over": 0, "ties": 0, "threshold": e["threshold"]})
+            t["count"] += e["count"]
+            t["max"] = max(t["max"], e["max"])
+            t["over"] += e["over"]
+            t["ties"] += e["ties"]
+    return keys
 
 
 def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) -> dict:
@@ -374,7 +395,7 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
     ok, compared, failures = (True, {}, []) if recipe.verify == "none" else _verify_scene(out, recipe.verify, dict(recipe.thresholds))
     return {"version": RECORD_VERSION, "spec": _spec_dict(spec), "verified": ok, "verify": recipe.verify,
             "thresholds": dict(recipe.thresholds),
-            "compared": compared, "failures": failures, "stats": scene_stats(out, recipe.stats_views)}
+            "compared": compared, "failures": failures, "certificate": _certificate(out), "stats": scene_stats(out, recipe.stats_views)}
 
 
 def _check_folder(root: Path, recipe_text: str) -> None:
@@ -455,6 +476,7 @@ def summarize(recipe: Recipe, specs: list[SceneSpec], records: dict[str, dict]) 
         all_cov = [x for s in st["coverage"].values() for x in s]
         scenes.append({"name": spec.name, "part": spec.part, "template": spec.template, "seed": spec.seed, "rigs": spec.rigs,
                        "frames": spec.frames, "dynamic": spec.dynamic, "verified": rec["verified"], "compared": rec["compared"],
+                       "certificate": rec.get("certificate") or {},
                        "disparity": [d["min"], d["max"]], "coverage": _coverage_summary(all_cov) if spec.dynamic else None})
     return {
         "name": recipe.name,
@@ -543,6 +565,17 @@ def card_markdown(card: dict, plots: list[str]) -> str:
         dr = f"{s['disparity'][0]:.3g}-{s['disparity'][1]:.3g}" if s["disparity"][0] is not None else "-"
         lines.append(f"| {s['name']} | {s['part']} | {s['template']} | {s['seed']} | {s['rigs']} | {s['frames']} | "
                      f"{'yes' if s['verified'] else 'NO'} | {sum(s['compared'].values())} | {dr} | {c} |")
+    cert: dict[str, dict] = {}
+    for s in card["scenes"]:
+        for k, e in (s.get("certificate") or {}).items():
+            t = cert.setdefault(k, {"count": 0, "max": 0.0, "over": 0, "ties": 0, "threshold": e["threshold"]})
+            t["count"], t["max"] = t["count"] + e["count"], max(t["max"], e["max"])
+            t["over"], t["ties"] = t["over"] + e["over"], t["ties"] + e["ties"]
+    if cert:
+        lines += ["", "## Verification certificate", "",
+                  "Every foreground pixel compared with independently traced geometry (`lfusd verify`; per scene in its manifest.json):", "",
+                  "| key | pixels compared | max error | limit | over the limit | ties |", "|---|---|---|---|---|---|"]
+        lines += [f"| {k} | {e['count']} | {e['max']:.3g} | {e['threshold']:g} | {e['over']} | {e['ties']} |" for k, e in cert.items()]
     d, f, cov = card["disparity"], card["flow"], card["coverage"]
     lines += ["", "## Statistics", ""]
     if d["pixels"]:

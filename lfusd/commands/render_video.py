@@ -30,8 +30,10 @@ def run(args) -> int:
     print(f"lfusd: {args.out}: rig {', '.join(result.rigs)}, frames {first}-{last}, device {result.manifest['device']}, "
           f"motion derived for {result.derived} views")
     if args.verify:
-        from ..truth.verify import verify
+        from ..truth.verify import record_certificate, verify
         from .verify import progress, show
 
-        return show(verify(args.out, rig=result.rigs[0] if len(result.rigs) == 1 else "all", frames=result.frames, progress=progress))
+        reports = verify(args.out, rig=result.rigs[0] if len(result.rigs) == 1 else "all", frames=result.frames, progress=progress)
+        record_certificate(args.out, reports)  # the dataset carries verify's figures (manifest.json "certificate")
+        return show(reports)
     return 0

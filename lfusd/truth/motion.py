@@ -11,7 +11,8 @@ Which route produces which key
 *Exact route* (used at every pixel where ``next_position`` / ``prev_position`` is finite: an AOV
 holding the world position at t+1 / t-1 of the very surface point seen at t):
 
-- ``flow_fwd`` = projection of ``next_position`` with the camera at t+1, minus (u, v);
+- ``flow_fwd`` = projection of ``next_position`` with the camera at t+1, minus the projection of
+  ``position`` (the point sampled) with the camera at t;
 - ``scene_flow`` = ``next_position`` - ``position`` (``position`` from the position pass, or the
   depth back-projected when the pass is absent);
 - ``disparity_change`` = f*b/z(t+1) - f*b/z(t), z(t+1) the point's depth in the camera at t+1;
@@ -33,28 +34,26 @@ foreground pixel of a frame that has a next frame, and ``occlusion_fwd`` says wh
   ``scene_flow`` / ``disparity_change`` are 0. ``valid_bwd`` is foreground & a previous frame
   exists (flow_bwd is the only backward key).
 
-Occlusion (both routes)
------------------------
+Occlusion
+---------
+With the other frame's rendered triangles (``occluders``: render-video writes them per frame,
+``geometry.npz``), occlusion is exact ray-cast visibility of each valid pixel's point at t+1 / t-1
+(:mod:`lfusd.truth.visibility`; the definition and its tie rule are in docs/CONVENTIONS.md).
+Unknown motion (a NaN ``next_position`` / ``prev_position`` where the AOV exists: the worker's
+mark of a mesh whose topology changed) makes the pixel invalid with zero flow, never guessed.
+
+Without triangles (datasets rendered before lfusd wrote them, and the vector route) an image-space
+test decides, exact inside planar patches and within about half a pixel of edges:
 ``occlusion_fwd`` is set on a foreground pixel unless its point at t+1, at (u', v'):
 
 1. projects inside the image (u' in [-0.5, W-0.5], v' in [-0.5, H-0.5]) and in front of the camera;
 2. the pixel of frame t+1 nearest (u', v') shows the point's instance, or a surface behind the
    point (then the point sits on a silhouette in front of what that pixel centre sees);
 3. forward-backward consistency holds from at least one of the four pixels around (u', v') on
-   the point's instance: -flow_fwd lies within that pixel's backward flow (frame t+1's vector
-   pass) extrapolated to (u', v') with its two one-sided slopes, or within the range of the
-   same-instance pixels' backward flows, widened by ``FB_ABS`` + ``FB_REL`` * |flow_fwd|
-   (0.05 px + 1 %); and
-4. (exact route only, where z(t+1) is known) the depth test holds from that same pixel: 1/z(t+1)
-   lies within its extrapolated inverse depth, or the range of the same-instance pixels',
-   widened by ``DEPTH_REL`` (0.1 %). A surface nearer than the point (another object, or the
-   same one folding over it) breaks it.
-One-sided slopes ignore neighbours across an instance edge or an inverse-depth jump above
-``EDGE_REL`` (50 %). The tests are exact inside planar patches and decide within about half a
-pixel of edges; points on a face thinner than a pixel at t+1 (seen edge-on) are reported
-occluded, since no pixel of frame t+1 shows them. ``occlusion_bwd`` is the same test against
-frame t-1 (its forward vector and prev_position). On the last frame (no ``nxt``) every forward key
-is 0 and masked invalid, likewise backward keys on the first frame (no ``prv``).
+   the point's instance (within ``FB_ABS`` + ``FB_REL`` * |flow_fwd|); and
+4. (exact route only) the depth test holds from that same pixel within ``DEPTH_REL``.
+On the last frame (no ``nxt``) every forward key is 0 and masked invalid, likewise backward keys
+on the first frame (no ``prv``).
 """
 
 from __future__ import annotations

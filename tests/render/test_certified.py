@@ -41,13 +41,13 @@ def _grid(nx, ny, x0, x1, z0, z1, y):
     return pts, faces
 
 
-def _render(tmp_path, stage_path, frames="1-3"):
+def _render(tmp_path, stage_path, frames="1-3", *extra):
     import subprocess
     import sys
 
     out = tmp_path / "out"
     res = subprocess.run([sys.executable, "-m", "lfusd", "render-video", str(stage_path), "-o", str(out), "--samples", "1",
-                          "--device", "cpu", "--frames", frames], capture_output=True, text=True)
+                          "--device", "cpu", "--frames", frames, *extra], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     return out, res.stderr
 
@@ -63,8 +63,14 @@ def test_static_thin_pole_has_zero_flow_and_verify_passes(tmp_path):
         op.Set(Gf.Vec3d(0.1 * f, 0, 0), f)
     add_rig(stage, RIG)
     stage.Save()
-    out, _ = _render(tmp_path, tmp_path / "pole.usda")
+    out, _ = _render(tmp_path, tmp_path / "pole.usda", "1-3", "--verify")
     ds = Dataset(out)
+    # render-video --verify leaves verify's figures in the manifest: the dataset carries its proof
+    cert = ds.manifest["certificate"]["main"]
+    assert cert["ok"] and cert["unchecked"] == 0
+    for key in ("depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "occlusion_fwd", "occlusion_bwd"):
+        assert cert["keys"][key]["count"] > 0 and cert["keys"][key]["over"] == 0, key
+    assert cert["keys"]["depth"]["coverage"] >= 0.99
     pole = [i for i, o in ds.objects.items() if o.label == "pole"][0]
     box = [i for i, o in ds.objects.items() if o.label == "box"][0]
     seen = 0
