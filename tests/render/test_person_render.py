@@ -14,7 +14,7 @@ from lfusd.camera import RigSpec
 from lfusd.author.scenes.build import Builder, box
 from lfusd.author.stage import new_stage
 from lfusd.author.rigs import add_rig
-from lfusd.truth.verify import _dilate, trace_motion
+from lfusd.truth.verify import trace_motion
 
 pytestmark = pytest.mark.render
 
@@ -61,7 +61,8 @@ def test_walking_person_flow_matches_traced_motion(walked):
             traced_person = mine[tr["mesh"]]  # mesh index -1 (background) picks the trailing False
             sel = (inst == ids[0]) & traced_person & tr["valid"] & ~tr["occluded"] & ds.read(frame, view, "valid_fwd")
             # away from the silhouette by one pixel (a ray grazing it may hit the ground in the other tracer)
-            sel &= ~_dilate(inst != ids[0], 1)
+            other = np.pad(inst != ids[0], 1, constant_values=True)
+            sel &= ~(other[1:-1, 1:-1] | other[:-2, 1:-1] | other[2:, 1:-1] | other[1:-1, :-2] | other[1:-1, 2:])
             assert sel.sum() >= 40, (frame, view, int(sel.sum()))
             flow = ds.read(frame, view, "flow_fwd")
             errs.append(np.linalg.norm(flow[sel] - tr["flow"][sel], axis=-1))
@@ -75,9 +76,8 @@ def test_lfusd_verify_accepts_the_walking_persons_depth_flow_and_scene_flow(walk
     from lfusd.truth.verify import verify_dataset
 
     _, _, out = walked
-    report = verify_dataset(Dataset(out))
-    assert report.rows and all(r.ok for r in report.rows if r.key in ("depth", "flow_fwd", "flow_bwd", "scene_flow",
-                                                                       "disparity_change", "instance"))
+    report = verify_dataset(Dataset(out))  # every pixel, occlusion included, default limits
+    assert report.ok, report.failures()
     # At tiny sizes only the occlusion masks may disagree, on the person's 1 px silhouette.
     assert all(line.startswith(("occlusion_fwd", "occlusion_bwd")) for line in report.failures()), report.failures()
 
