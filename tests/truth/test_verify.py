@@ -364,7 +364,6 @@ def test_verify_passes_on_a_blender_render_of_rigid_skinned_and_rig_motion(blend
 def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_video, tmp_path, monkeypatch, capsys):
     import shutil
 
-    import lfusd.truth.verify as verify_mod
     from lfusd import Dataset
     from lfusd.cli import main
 
