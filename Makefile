@@ -6,7 +6,7 @@ DEMO_OUT ?= out/default
 # as a 3x3 light-field video at a preview size, with every ground-truth key.
 DEMO_STAGE ?= stages/street_dynamic_00.usda
 
-.PHONY: setup demo test test-fast clean
+.PHONY: setup demo test test-fast docs clean
 setup:
 	@bash scripts/setup.sh
 
@@ -22,5 +22,9 @@ test: setup
 test-fast: setup
 	$(VENV)/bin/python -m pytest -q -m "not render and not slow"
 
+# The documentation site (mkdocs.yml, docs/) into site/; `make test` builds it too (tests/test_docs.py).
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/python -m mkdocs build --strict
+
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out site .pytest_cache

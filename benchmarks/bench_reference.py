@@ -4,10 +4,10 @@
         [--device cpu|cuda|optix|auto] [--stage stages/street_dynamic_00.usda] [--pose rig_00]
         [--grid 9x9] [--resolution 1024x1024] [--workers 1] [--out DIR]
 
-A rig of the reference shape (the README's default rig: 0.125 m baseline, 39 mm lens on a 36 mm
+A rig of the reference shape (the default rig of ``lfusd rig add``: 0.125 m baseline, 39 mm lens on a 36 mm
 sensor) is authored at the pose of ``--pose`` (a rig of the stage) in a layer over the stage, and
 ``lfusd render-video`` renders frames first..first+K-1 of it with the default settings (RGB and
-every ground-truth key, format version 2, samples as README's render-video default). Prints
+every ground-truth key, format version 2, samples as render-video's default). Prints
 views per second, seconds per frame, the worker's own split of each frame (beauty render, data
 render, scene evaluation), bytes per view and per pixel on disk, peak resident memory of the
 largest process and of the whole process tree (polled with psutil), and the hours and terabytes

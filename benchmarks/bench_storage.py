@@ -87,7 +87,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--frames", default="1-3")
-    ap.add_argument("--samples", type=int, default=16, help="beauty samples (the README's default: 16)")
+    ap.add_argument("--samples", type=int, default=16, help="beauty samples (render-video's default: 16)")
     ap.add_argument("--out", default=None, help="dataset folder (kept; default: a temporary folder)")
     ap.add_argument("--verify", action="store_true", help="run lfusd verify on the stored dataset")
     args = ap.parse_args()

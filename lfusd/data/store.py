@@ -5,7 +5,7 @@
                 fixed point), masks (UINT, bit ``Storage.bits`` per mask key)
 
 Single-part scanline OpenEXR, ZIP. Measured on the default scene at 1024x1024
-(benchmarks/bench_storage.py, README's Storage section): these channels take 4.58 bytes per pixel
+(benchmarks/bench_storage.py, docs/storage.md): these channels take 4.58 bytes per pixel
 with ZIP against 3.87 with ZSTD, 3.67 with HDF5 gzip+shuffle, 7.44 with HTJ2K, 5.06 with ZIPS and
 9.33 with PIZ. ZIP costs about 0.9 bytes per pixel more than the best (about 10 % of a whole
 view, 8.7 bytes per pixel with its image) and every OpenEXR reader since 1.x reads it: ZSTD needs

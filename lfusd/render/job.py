@@ -1,6 +1,6 @@
 """Render a stage's light-field rig(s) into a dataset folder, with Blender in worker processes.
 
-Dataset layout (see README.md):
+Dataset layout (docs/layout.md has the whole of it):
 
     OUT/manifest.json                 stage path and hash, rigs, frames, settings, versions
     OUT/logs/                         Blender's output of each worker

@@ -18,7 +18,7 @@ log = logging.getLogger(__name__)
 
 # Bytes per pixel of one view and frame, for the up-front size estimate. Disk: the stored dataset
 # (format version 2, measured on the default scene at 1024x1024: 6.6 without and 8.7 with the
-# motion keys, README's Storage; rounded up), and the raw passes (passes.exr) while they are on
+# motion keys, docs/storage.md; rounded up), and the raw passes (passes.exr) while they are on
 # disk: 12 float32 channels uncompressed, 18 with the motion AOVs, about half that with ZIP
 # (measured at the reference rig: 33 of 72). Memory: Blender's render result and film buffers of
 # one view, about 200 (a lower bound).
