@@ -5,7 +5,10 @@ Usage: .venv/bin/python benchmarks/bench_flow.py [--size 1024] [--repeat 3] [--c
 Writes a synthetic Blender-style multilayer EXR (depth, vector, position, object index and the
 next/previous position AOVs, float32, the channel names Blender uses) with OpenEXR, times reading
 it back (the inputs of one frame of one view), times deriving every motion key of one view from
-three such frames in memory, and prints Mpixel/s of both and the ratio derive / read (goal <= 0.5).
+three such frames in memory, and prints Mpixel/s of both and the ratio derive / read (goal <= 0.5);
+then the same derivation with exact occlusion (visibility rays cast with Open3D against the frames'
+triangles: the wall tessellated into ``--triangles`` triangles and the block's 12), side by side,
+and the cost per view in core-seconds of each.
 Wall time is the figure of merit; "cpu ms" is process CPU time summed over all threads (numba's
 parallel workers included, so it also counts their spin-waiting). NUMBA_NUM_THREADS=1 gives the
 single-core cost.
@@ -58,6 +61,28 @@ def synthetic_frames(n: int):
     return frame(-1), frame(0), frame(1)
 
 
+def synthetic_triangles(n: int, shift: int, count: int):
+    """The synthetic scene's triangles at frame ``shift``: the tilted wall as a grid of about
+    ``count`` triangles and the sliding block (what the render worker writes as geometry.npz)."""
+    from lfusd.truth.visibility import Occluders
+
+    f = 1.1 * n
+    K = np.array([[f, 0, (n - 1) / 2], [0, f, (n - 1) / 2], [0, 0, 1.0]])
+    cam = Camera(K, np.eye(4))
+    k = max(1, int(np.sqrt(count / 2)))
+    gu, gv = np.meshgrid(np.linspace(-0.5, n - 0.5, k + 1), np.linspace(-0.5, n - 0.5, k + 1))
+    wall = backproject(gu, gv, 6.0 + 0.0005 * gv, cam).reshape(-1, 3)
+    idx = np.arange((k + 1) * (k + 1)).reshape(k + 1, k + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    x0 = int(n * (0.3 + 0.02 * shift))
+    corners = np.array([[x0 - 0.5, n // 4 + 0.5], [x0 + n // 3 - 0.5, n // 4 + 0.5], [x0 + n // 3 - 0.5, 3 * n // 4 - 0.5], [x0 - 0.5, 3 * n // 4 - 0.5]])
+    front = backproject(corners[:, 0], corners[:, 1], np.full(4, 3.5), cam)
+    box = np.concatenate([front, front + [0, 0, 0.3]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6], [0, 4, 5], [0, 5, 1], [1, 5, 6], [1, 6, 2], [2, 6, 7], [2, 7, 3], [3, 7, 4], [3, 4, 0]])
+    return Occluders(np.concatenate([wall, box]), np.concatenate([tris, faces + len(wall)]))
+
+
 def write_exr(path: str, p: RawPasses, codec) -> None:
     ch = {"ViewLayer.Depth.Z": p.depth}
     for i, c in enumerate("XYZW"):
@@ -91,6 +116,7 @@ def main() -> int:
     ap.add_argument("--codec", choices=sorted(CODECS), default="zip", help="EXR compression (Blender's default is zip)")
     ap.add_argument("--backend", default=BACKEND, choices=["numba", "numpy"], help="derivation backend (default: numba when installed)")
     ap.add_argument("--no-aov", action="store_true", help="derive by the vector+depth route only (no position AOVs)")
+    ap.add_argument("--triangles", type=int, default=100_000, help="triangles of the scene the exact occlusion casts against")
     a = ap.parse_args()
     prv, cur, nxt = synthetic_frames(a.size)
     mpx = a.size * a.size / 1e6
@@ -114,6 +140,16 @@ def main() -> int:
     print(f"{'read EXR inputs':<18}{t_read * 1e3:9.1f}{mpx / t_read:8.2f}{c_read * 1e3:9.1f}")
     print(f"{'derive motion':<18}{t_derive * 1e3:9.1f}{mpx / t_derive:8.2f}{c_derive * 1e3:9.1f}")
     print(f"ratio derive/read: wall {t_derive / t_read:.2f}, cpu {c_derive / c_read:.2f} (goal <= 0.5)")
+    if not a.no_aov:
+        occ = {"next": synthetic_triangles(a.size, 1, a.triangles), "prev": synthetic_triangles(a.size, -1, a.triangles)}
+        exact = lambda: derive_motion(cur, nxt, prv, baseline=0.1, backend=a.backend, occluders=occ)  # noqa: E731
+        exact()
+        t_exact = best_of(exact, a.repeat)
+        c_exact = best_of(exact, a.repeat, time.process_time)
+        print(f"{'derive + exact occlusion':<26}{t_exact * 1e3:9.1f} ms wall, {c_exact * 1e3:9.1f} ms cpu "
+              f"({2 * a.size * a.size} visibility rays, {occ['next'].triangles.shape[0]} triangles per frame)")
+        print(f"core-seconds per view: image-space occlusion {c_derive:.3f}, exact occlusion {c_exact:.3f} "
+              f"(ratio {c_exact / c_derive:.2f})")
     return 0
 
 

@@ -479,6 +479,42 @@ def _candidates(traces: list, u: np.ndarray, v: np.ndarray):
     yield [trace_pixels(t_["ctx"], u, v, hits=(m, k)) for t_ in traces]
 
 
+def _clear_visibility_ties(err: dict, traces: dict) -> np.ndarray:
+    """Accept occlusion disagreements that are visibility ties (:func:`_visibility_tie`): set their
+    error to 0 in ``err`` and return the positions accepted. ``traces``: name -> (the full trace
+    with its ``ctx``, its flat values at the positions of ``err``)."""
+    accepted = []
+    for name, (full, t) in traces.items():
+        key = f"occlusion_{name}"
+        if full is None or t is None or key not in err:
+            continue
+        with np.errstate(invalid="ignore"):
+            left = np.flatnonzero(err[key] > 0.5)
+        if left.size:
+            flip = _visibility_tie(full["ctx"], t, left)
+            err[key][left[flip]] = 0.0
+            accepted.append(left[flip])
+    return np.concatenate(accepted) if accepted else np.zeros(0, np.int64)
+
+
+def _visibility_tie(ctx: dict, tr: dict, idx: np.ndarray) -> np.ndarray:
+    """Whether the visibility of each traced point (flat pixels ``idx``) at the other frame changes
+    when its target moves ``TIE_PX`` pixels sideways in the other frame's image (a grazing ray)."""
+    cam1 = Camera(ctx["K"], ctx["c2w1"])
+    P = tr["next_position"][idx]
+    base = tr["occluded"][idx]
+    _, _, z = project(P, cam1)
+    R = cam1.cam_to_world[:3, :3]
+    step = TIE_PX * np.abs(z)[:, None] / float(ctx["K"][0, 0])
+    flip = np.zeros(idx.size, bool)
+    for axis in (0, 1):
+        for sign in (1, -1):
+            Q = P + sign * step * R[:, axis]
+            vis, _ = visibility_of(ctx["s1"], cam1, Q, tr["valid"][idx], ctx["H"], ctx["W"])
+            flip |= (tr["valid"][idx] & ~vis) != base
+    return flip
+
+
 def compare_view(
     data: dict[str, np.ndarray | None],
     fwd: dict | None,
@@ -514,14 +550,15 @@ def compare_view(
     idx = np.arange(H * W)
     err = _errors(ds, idx, st, fw, bw, ids, thr)
     ties = np.zeros(H * W, bool)
+    ties[_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)})] = True
     bad = np.flatnonzero(_over(err, thr))
     if bad.size:
         v, u = np.divmod(bad, W)
-        sub = {k: None if a is None else a for k, a in ds.items()}
         traced = [t for t in (fwd, bwd, still) if t is not None]
         for cand in _candidates(traced, u.astype(np.float64), v.astype(np.float64)):
             c = dict(zip([n for n, t in (("fwd", fwd), ("bwd", bwd), ("still", still)) if t is not None], cand))
-            e = _errors(sub, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr)
+            e = _errors(ds, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr)
+            _clear_visibility_ties(e, {"fwd": (fwd, c.get("fwd")), "bwd": (bwd, c.get("bwd"))})
             # a candidate that sees nothing where the centre saw a surface cannot explain the pixel
             fine = ~_over(e, thr) & (e["depth"] == e["depth"]) if "depth" in e else ~_over(e, thr)
             fine &= ~ties[bad]
