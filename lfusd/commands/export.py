@@ -1,4 +1,5 @@
-"""`lfusd export FORMAT OUT DEST`: write a dataset in a research layout (HCI, KITTI, Spring, .flo, PFM, LF HDF5)."""
+"""`lfusd export FORMAT OUT DEST`: write a dataset in a research layout (HCI, KITTI, Spring, .flo, PFM, LF HDF5)
+or as WebDataset / Hugging Face shards with Croissant metadata."""
 
 from __future__ import annotations
 
@@ -8,10 +9,11 @@ from . import args as argtypes
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export",
-        help="export a dataset to HCI, KITTI, Spring, .flo, PFM or HDF5 LF layouts",
+        help="export a dataset to HCI, KITTI, Spring, .flo, PFM, HDF5 LF layouts or WebDataset / Hugging Face shards",
         description="Export a rendered dataset OUT into DEST (which must not exist yet).",
     )
-    p.add_argument("format", choices=["hci", "kitti", "spring", "flo", "pfm", "lfmat"], help="target layout")
+    p.add_argument("format", choices=["hci", "kitti", "spring", "flo", "pfm", "lfmat", "hf", "webdataset"],
+                   help="target layout (hf, webdataset: tar shards of one sample per frame and view, Croissant metadata.json; hf adds a dataset card)")
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
     p.add_argument("dest", help="new folder to write")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")

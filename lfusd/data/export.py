@@ -43,7 +43,7 @@ from .. import layout
 from ..errors import LfusdError
 from ..keys import get
 
-FORMATS = ("hci", "kitti", "spring", "flo", "pfm", "lfmat")
+FORMATS = ("hci", "kitti", "spring", "flo", "pfm", "lfmat", "hf", "webdataset")
 UNKNOWN_FLOW = 1e10
 # HCI's focus distance for lfusd's unshifted parallel rigs (focus at infinity), finite so that the
 # toolkit's formulas (which divide by it) run: its 1/F term changes their depth by under 1e-9
@@ -505,6 +505,20 @@ def export_lfmat(ds, dest, frame: int | None = None, matlab: bool = False) -> li
         formats.write_lf_h5(p, rgb.astype(np.float32) / np.float32(np.iinfo(rgb.dtype).max), matlab=matlab, attrs=attrs)
         out.append(p)
     return out
+
+
+def export_webdataset(ds, dest, frame: int | None = None, **kw) -> list[Path]:
+    """WebDataset tar shards with Croissant metadata (:mod:`lfusd.data.export_hf`)."""
+    from .export_hf import export_webdataset as run
+
+    return run(ds, dest, frame=frame, **kw)
+
+
+def export_hf(ds, dest, frame: int | None = None, **kw) -> list[Path]:
+    """The WebDataset export plus a Hugging Face dataset card (:mod:`lfusd.data.export_hf`)."""
+    from .export_hf import export_hf as run
+
+    return run(ds, dest, frame=frame, **kw)
 
 
 def export(ds, fmt: str, dest, frame: int | None = None, **kw):
