@@ -28,6 +28,7 @@ into ``lfusd_verification.json``.
 
 from __future__ import annotations
 
+import datetime
 import hashlib
 import io
 import json
@@ -121,8 +122,9 @@ def _field_description(name: str) -> str:
     return f"{k.meaning} (unit: {k.unit}; array {shape} {k.dtype}; stored as {k.storage.describe(k.unit)} in lfusd)"
 
 
-def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification: dict) -> dict:
-    """The Croissant 1.0 JSON-LD of an export (see the module docstring)."""
+def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification: dict, license: str | None = None) -> dict:
+    """The Croissant 1.0 JSON-LD of an export (see the module docstring). Only what lfusd knows
+    goes in: no URL, and a license only when given (the data's owner decides it)."""
     scene = Path(getattr(ds, "root", "scene")).name
     rig = ds.rig
     desc = (f"lfusd light-field video dataset '{scene}', rig '{getattr(ds, 'rig_name', 'rig')}': {rig.rows}x{rig.cols} views at "
@@ -151,34 +153,35 @@ def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification
             {"@type": "cr:Field", "@id": f"{name}/{name}", "name": name, "description": text, "dataType": dtype,
              "source": src | {"extract": {"fileProperty": "content"}}},
         ]})
-    return {
+    doc = {
         "@context": _CONTEXT,
         "@type": "sc:Dataset",
         "conformsTo": "http://mlcommons.org/croissant/1.0",
         "name": f"{scene}-{getattr(ds, 'rig_name', 'rig')}".replace(" ", "_"),
         "description": desc,
-        "url": "https://github.com/lfusd/lfusd",
-        "license": "https://creativecommons.org/licenses/by/4.0/",
-        "version": "1.0.0",
-        "citeAs": f"lfusd dataset {scene}",
-        "creator": {"@type": "sc:Organization", "name": "lfusd"},
-        "datePublished": "2026-01-01",
+        "version": "1.0.0",  # the export's; raise it when publishing a changed dataset
+        "citeAs": f"{scene}: a light-field video dataset rendered with lfusd",
+        "datePublished": datetime.date.today().isoformat(),  # the export's date
         "distribution": files + sets,
         "recordSet": records,
     }
+    if license:
+        doc["license"] = license
+    return doc
 
 
-def hf_card(ds, croissant_doc: dict) -> str:
+def hf_card(ds, croissant_doc: dict, license: str | None = None) -> str:
     """README.md of a Hugging Face dataset folder: YAML configs pointing at the shards, and the description."""
-    return ("---\nlicense: cc-by-4.0\nconfigs:\n- config_name: default\n  data_files:\n  - split: train\n"
+    return (f"---\nlicense: {license or 'unknown'}\nconfigs:\n- config_name: default\n  data_files:\n  - split: train\n"
             f"    path: {SHARDS}/*.tar\ntags:\n- light-field\n- optical-flow\n- scene-flow\n- depth\n---\n\n"
             f"# {croissant_doc['name']}\n\n{croissant_doc['description']}\n\nCroissant metadata: `{CROISSANT}`. Load with "
             "`datasets.load_dataset(\"webdataset\", data_files={\"train\": \"shards/*.tar\"})` or `datasets.load_dataset(PATH)`.\n")
 
 
-def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool = False) -> list[Path]:
+def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool = False, license: str | None = None) -> list[Path]:
     """Write tar shards of one sample per frame x view under ``dest/shards`` and ``dest/metadata.json``
-    (and with ``hf`` a dataset card ``README.md``); returns the shards."""
+    (and with ``hf`` a dataset card ``README.md``); returns the shards. ``license``: the data's
+    license (an SPDX id or URL) for the metadata; none is claimed without it."""
     from .export import _frames, _new_dest
 
     frames = _frames(ds, frame)
@@ -201,7 +204,7 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
         # so a re-export under the old name would read the old samples
         shards.append(p.rename(p.with_name(f"{p.stem}-{_sha256(p)[:12]}.tar")))
     verification = verification_figures(ds)
-    doc = croissant(ds, dest, shards, names, verification)
+    doc = croissant(ds, dest, shards, names, verification, license)
     (dest / CROISSANT).write_text(json.dumps(doc, indent=1))
     if verification:
         (dest / VERIFICATION).write_text(json.dumps(verification, indent=1))
@@ -209,7 +212,7 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
     if objects.is_file():  # the class and instance tables that `instance` and `semantic` index
         (dest / layout.OBJECTS).write_bytes(objects.read_bytes())
     if hf:
-        (dest / CARD).write_text(hf_card(ds, doc))
+        (dest / CARD).write_text(hf_card(ds, doc, license))
     log.info("wrote %d samples in %d shard(s) to %s", len(frames) * len(views), len(shards), dest)
     return shards
 
@@ -247,9 +250,9 @@ class _ShardWriter:
         self.size += nbytes
 
 
-def export_hf(ds, dest, frame: int | None = None, views=None) -> list[Path]:
+def export_hf(ds, dest, frame: int | None = None, views=None, license: str | None = None) -> list[Path]:
     """:func:`export_webdataset` plus the Hugging Face dataset card (``datasets.load_dataset(dest)``)."""
-    return export_webdataset(ds, dest, frame=frame, views=views, hf=True)
+    return export_webdataset(ds, dest, frame=frame, views=views, hf=True, license=license)
 
 
 _CONTEXT = {

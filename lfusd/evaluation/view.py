@@ -72,8 +72,8 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
     centre = tuple(ds.rig.centre_view)
     K = np.asarray(ds.intrinsics(centre), float)
     w, h = ds.resolution
-    colours = np.asarray(getattr(ds, "classes", []) or [])
-    rec.log(entity(rig, centre, "semantic"), rr.AnnotationContext([(i, str(name)) for i, name in enumerate(colours)]), static=True)
+    classes = list(getattr(ds, "classes", []) or [])  # class id = index (0 = unlabelled)
+    rec.log(entity(rig, centre, "semantic"), rr.AnnotationContext([(i, str(name)) for i, name in enumerate(classes)]), static=True)
     counts = {"frames": 0, "images": 0, "points": 0, "arrows": 0}
     for t in frames:
         rec.set_time(TIMELINE, sequence=int(t))

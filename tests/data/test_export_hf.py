@@ -131,3 +131,26 @@ def test_rendered_dataset_round_trips(box_dataset, tmp_path):
     check_round_trip(ds, tmp_path / "wds", rig="main")
     objects = json.loads((tmp_path / "wds" / "objects.json").read_text())
     assert objects["classes"] == ds.classes
+
+
+def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_path):
+    """A recipe's scene record (scenes/<scene>.json) and card (card.json) go into the Croissant
+    description and lfusd_verification.json; no license is claimed unless given."""
+    root = tmp_path / "recipe"
+    (root / "scenes" / "street_000").mkdir(parents=True)
+    (root / "scenes" / "street_000.json").write_text(json.dumps({"verified": True, "compared": 12345, "stats": {}}))
+    (root / "card.json").write_text(json.dumps({"name": "streets", "verified": True, "pixels": 999, "scenes": []}))
+    ds = FakeDataset(root=root / "scenes" / "street_000", rows=1, cols=2, width=16, height=12, frames=(1,))
+    ds.keys = ("rgb", "depth")
+    export.export(ds, "hf", tmp_path / "a")
+    meta = json.loads((tmp_path / "a" / "metadata.json").read_text())
+    figures = json.loads((tmp_path / "a" / "lfusd_verification.json").read_text())
+    assert figures == {"scene_record": {"verified": True, "compared": 12345}, "card": {"name": "streets", "verified": True, "pixels": 999}}
+    assert '"compared": 12345' in meta["description"] and "license" not in meta and "url" not in meta
+    assert "license: unknown" in (tmp_path / "a" / "README.md").read_text()
+    export.export_hf(ds, tmp_path / "b", license="cc-by-4.0")
+    assert json.loads((tmp_path / "b" / "metadata.json").read_text())["license"] == "cc-by-4.0"
+    assert "license: cc-by-4.0" in (tmp_path / "b" / "README.md").read_text()
+    # the metadata's keys and their descriptions come from lfusd.keys
+    depth = next(r for r in meta["recordSet"] if r["name"] == "depth")
+    assert keyreg.get("depth").meaning in depth["description"] and "H,W float32" in depth["description"]
