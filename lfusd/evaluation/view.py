@@ -64,6 +64,22 @@ def _rr():
     return rr
 
 
+def _spawn_viewer(rr, rec) -> None:
+    """Start the rerun viewer for ``rec``: the one installed beside this Python (a virtual
+    environment's bin/ need not be on PATH), or one line saying how to save a recording instead."""
+    import sys
+
+    if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise LfusdError("no display to open the rerun viewer on (DISPLAY and WAYLAND_DISPLAY are unset); write a recording "
+                         "with --save FILE.rrd and open it with 'rerun FILE.rrd' where a display is")
+    exe = Path(sys.executable).with_name("rerun")
+    try:
+        rr.spawn(recording=rec, executable_path=str(exe) if exe.is_file() else None)
+    except (RuntimeError, OSError) as e:
+        raise LfusdError(f"cannot start the rerun viewer ({str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__}); "
+                         "write a recording with --save FILE.rrd and open it with 'rerun FILE.rrd' where a display is") from None
+
+
 def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: int = MAX_POINTS, max_arrows: int = MAX_ARROWS) -> dict:
     """Log one rig of a dataset to rerun recording ``rec``; returns counts of what was logged."""
     from .preview import flow_to_color
@@ -155,11 +171,14 @@ def view(out, save=None, rig: str | None = None, views=None, frames=None, every:
         partial = save.with_name(f".{save.name}.partial-{os.getpid()}")
         rec.save(str(partial))
     else:
-        rec.spawn()
+        _spawn_viewer(rr, rec)
     try:
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         result = {ds.rig_name: log_dataset(rec, ds, ds.rig_name, fs, vs, max_points, max_arrows) for ds, fs, vs in plan}
-        rec.flush()
+        try:
+            rec.flush()
+        except RuntimeError as e:  # the viewer went away (closed, or could not open a window)
+            raise LfusdError(f"the rerun viewer did not take the recording ({str(e).strip()}); save it with --save FILE.rrd instead") from None
         rec.disconnect()
         if partial is not None:
             partial.rename(save)  # the recording appears only when complete

@@ -169,3 +169,18 @@ def test_view_saves_a_recording_of_a_rendered_video(moving, tmp_path, capsys):
     assert set(rec[(entity("main", (0, 0), "rgb"), "Image:buffer")]) == {1, 3}
     assert (entity("main", (0, 1), "rgb"), "Image:buffer") not in rec
     assert main(["view", str(moving), "--save", str(light)]) == 2
+
+
+@pytest.mark.render
+def test_view_without_a_display_says_to_save_instead(tmp_path, monkeypatch, capsys, box_dataset):
+    """Headless (no DISPLAY / WAYLAND_DISPLAY): one line pointing at --save, nothing spawned."""
+    from lfusd.cli import main
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the display check is Linux's")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    _, out = box_dataset
+    assert main(["view", str(out), "--rig", "main"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("lfusd: error: no display") and "--save FILE.rrd" in err[0]
