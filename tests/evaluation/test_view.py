@@ -184,3 +184,20 @@ def test_view_without_a_display_says_to_save_instead(tmp_path, monkeypatch, caps
     assert main(["view", str(out), "--rig", "main"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("lfusd: error: no display") and "--save FILE.rrd" in err[0]
+
+
+@pytest.mark.render
+def test_view_of_a_still_dataset_with_two_rigs(tmp_path, box_dataset, capsys):
+    """Every rig under its own path (a planar 3x3 and a spherical 2x3 rig), no arrows without motion."""
+    from lfusd import Dataset
+    from lfusd.cli import main
+
+    _, out = box_dataset
+    assert main(["view", str(out), "--save", str(tmp_path / "boxes.rrd"), "--max-points", "500"]) == 0
+    printed = capsys.readouterr().out
+    rec = read_rrd(tmp_path / "boxes.rrd")
+    for rig in ("main", "dome"):
+        ds = Dataset(out, rig=rig)
+        assert f"{rig}: {len(ds.frames)} frames, {len(ds.frames) * len(ds.views)} images" in printed
+        check_cameras_and_cloud(ds, rec, rig, ds.frames, ds.views, 500)
+        assert (entity(rig, None, "scene_flow"), "Arrows3D:origins") not in rec
