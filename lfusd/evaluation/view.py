@@ -180,6 +180,7 @@ def view(out, save=None, rig: str | None = None, views=None, frames=None, every:
         except RuntimeError as e:  # the viewer went away (closed, or could not open a window)
             raise LfusdError(f"the rerun viewer did not take the recording ({str(e).strip()}); save it with --save FILE.rrd instead") from None
         rec.disconnect()
+        log.info("logged %s", "; ".join(f"{rig}: {c}" for rig, c in result.items()))
         if partial is not None:
             partial.rename(save)  # the recording appears only when complete
     finally:
