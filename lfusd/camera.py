@@ -230,12 +230,13 @@ def parse_point(text: str, what: str) -> tuple[float, float, float]:
 
 
 def parse_frames(text: str) -> list[int]:
-    """'1-5,8' -> [1, 2, 3, 4, 5, 8]: frames N, inclusive ranges A-B and comma lists of both, sorted."""
+    """'1-5,8' -> [1, 2, 3, 4, 5, 8]: frames N, inclusive ranges A-B and comma lists of both, sorted.
+    Time codes may be negative: '-3', '-5--2', '-2-1'."""
     frames: set[int] = set()
     for part in str(text).split(","):
-        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", part)
         if not m:
-            raise LfusdError(f"frames {text!r} is not N, A-B or a list of them such as 1-5,8")
+            raise LfusdError(f"frames {text!r} is not N, A-B or a list of them such as 1-5,8 (negative time codes: -5--2)")
         a, b = int(m[1]), int(m[2] or m[1])
         if b < a:
             raise LfusdError(f"frames {text!r}: range {a}-{b} is reversed; write A-B with A <= B ({b}-{a})")

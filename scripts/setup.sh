@@ -34,3 +34,8 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/python -m pip install -q -e ".[test]"
   touch "$stamp"
 fi
+# rerun-sdk (lfusd view) declares numpy>=2, which bpy's numpy<2 forbids; 0.41.0 runs with NumPy 1.26,
+# so it is installed without its declared dependencies (pyproject.toml lists the ones it needs).
+if ! .venv/bin/python -c "import rerun, sys; sys.exit(rerun.__version__ != '0.41.0')" 2>/dev/null; then
+  .venv/bin/python -m pip install -q --no-deps rerun-sdk==0.41.0
+fi

@@ -15,6 +15,9 @@ from lfusd.errors import LfusdError
     ("1-5,8", [1, 2, 3, 4, 5, 8]),
     (" 8, 2-3 ,3", [2, 3, 8]),  # sorted, each frame once
     ("4-4", [4]),
+    ("-3", [-3]),  # time codes may be negative
+    ("-2-1", [-2, -1, 0, 1]),
+    ("-5--4,0", [-5, -4, 0]),
 ])
 def test_frame_grammar(text, frames):
     assert parse_frames(text) == frames
@@ -25,8 +28,9 @@ def test_frame_grammar(text, frames):
     ("1-", "not N, A-B"),
     ("a", "not N, A-B"),
     ("1,,2", "not N, A-B"),
-    ("-3", "not N, A-B"),
     ("1-2-3", "not N, A-B"),
+    ("--3", "not N, A-B"),
+    ("-1--3", "range -1--3 is reversed"),
 ])
 def test_frame_grammar_refuses_on_one_line(text, needle):
     with pytest.raises(LfusdError, match=needle) as e:

@@ -10,6 +10,7 @@ apertures are in tenths of a scene unit.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
@@ -102,6 +103,83 @@ def add_rig(stage: Usd.Stage, spec: RigSpec, parent: str = RIGS_ROOT) -> Usd.Pri
     return prim
 
 
+def _camera_prim(stage: Usd.Stage, prim_path: str) -> UsdGeom.Camera:
+    prim = stage.GetPrimAtPath(prim_path) if Sdf.Path.IsValidPathString(prim_path) else None
+    if not prim or not prim.IsA(UsdGeom.Camera):
+        cams = [str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Camera) and not p.HasAttribute(RIG_VIEW)]
+        what = "is not a UsdGeom.Camera" if prim else "does not exist"
+        raise LfusdError(f"--from-camera {prim_path} {what} on the stage; "
+                         + (f"its cameras are: {', '.join(cams[:8])}" if cams else "the stage has no camera of its own, so place the rig with --at and --look-at"))
+    cam = UsdGeom.Camera(prim)
+    if cam.GetProjectionAttr().Get() not in (None, UsdGeom.Tokens.perspective):
+        raise LfusdError(f"camera {prim_path} is orthographic; a light-field rig needs a perspective camera, so place the rig with --at and --look-at")
+    return cam
+
+
+def _time_varying(prim: Usd.Prim) -> bool:
+    """Whether the prim's world transform may change over time (its own ops or an ancestor's)."""
+    while prim and not prim.IsPseudoRoot():
+        x = UsdGeom.Xformable(prim)
+        if x and x.TransformMightBeTimeVarying():
+            return True
+        prim = prim.GetParent()
+    return False
+
+
+def camera_pose(stage: Usd.Stage, prim_path: str, time=Usd.TimeCode.Default()) -> np.ndarray:
+    """The 4x4 OpenCV camera-to-world pose (lfusd's world, metres) of a stage camera; any scale
+    in its transform is left out (the nearest rotation)."""
+    cam = _camera_prim(stage, prim_path)
+    pose = world_frame(stage).pose(cam.ComputeLocalToWorldTransform(time)) @ FLIP_YZ
+    u, _, vt = np.linalg.svd(pose[:3, :3])
+    pose[:3, :3] = u @ vt
+    return pose
+
+
+def camera_lens(stage: Usd.Stage, prim_path: str, time=Usd.TimeCode.Default()) -> tuple[float, float, float]:
+    """(focal length, horizontal aperture, vertical aperture) of a stage camera in millimetres:
+    USD states them in tenths of a scene unit."""
+    cam = _camera_prim(stage, prim_path)
+    to_mm = 100.0 * world_frame(stage).meters_per_unit
+    return tuple(float(a.Get(time)) * to_mm for a in (cam.GetFocalLengthAttr(), cam.GetHorizontalApertureAttr(), cam.GetVerticalApertureAttr()))
+
+
+def add_rig_at_camera(stage: Usd.Stage, spec: RigSpec, prim_path: str, parent: str = RIGS_ROOT) -> tuple[Usd.Prim, RigSpec]:
+    """Author ``spec`` (grid, baseline, spacing, layout, resolution) as a rig whose centre view is
+    the stage's own camera ``prim_path``: its pose at every frame it moves in, its focal length
+    and horizontal aperture (read at the stage's first frame; a rig has one lens). ``spec``'s
+    pose and lens are replaced; returns the rig prim and the spec authored."""
+    from .stage import frame_range
+
+    world = world_frame(stage)
+    first, last = frame_range(stage)
+    t0 = Usd.TimeCode(first)
+    focal, h_ap, _ = camera_lens(stage, prim_path, t0)
+    if not (focal > 0 and h_ap > 0):
+        raise LfusdError(f"camera {prim_path} has focal length {focal:g} mm and aperture {h_ap:g} mm; author positive values on it first")
+    pose = camera_pose(stage, prim_path, t0)
+    r = world.rotation
+    at = r.T @ pose[:3, 3]  # metres along the stage's axes, as --at
+    spec = replace(spec, focal_length_mm=focal, sensor_mm=h_ap, at=tuple(float(x) for x in at),
+                   look_at=tuple(float(x) for x in at + r.T @ pose[:3, 2]))
+    prim = add_rig(stage, spec, parent)
+    centre_in_rig = np.linalg.inv(spec.view_in_rig(spec.centre_view))
+
+    def local(t) -> Gf.Matrix4d:  # the rig prim's transform that puts the centre view at the camera
+        rig_to_world = camera_pose(stage, prim_path, t) @ centre_in_rig
+        m = np.eye(4)
+        m[:3, :3] = r.T @ rig_to_world[:3, :3]
+        m[:3, 3] = r.T @ rig_to_world[:3, 3] / world.meters_per_unit
+        return _gf(m)
+
+    op = UsdGeom.Xformable(prim).GetOrderedXformOps()[0]
+    op.Set(local(t0))
+    if _time_varying(stage.GetPrimAtPath(prim_path)):
+        for f in range(first, last + 1):
+            op.Set(local(Usd.TimeCode(f)), Usd.TimeCode(f))
+    return prim, spec
+
+
 @dataclass(frozen=True)
 class StageRig:
     """A rig read back from a stage: its spec and the camera prim of every view."""
@@ -151,7 +229,10 @@ def select_rigs(stage: Usd.Stage, name: str | None, stage_path: str) -> list[Sta
     """The rigs that ``--rig NAME|all`` names; the only rig when NAME is omitted."""
     found = rigs(stage)
     if not found:
-        raise LfusdError(f"stage {stage_path} has no light-field rig; add one with 'lfusd rig add {stage_path} --name main'")
+        new = f"{Path(stage_path).stem}_rig.usda"
+        cams = [str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
+        hint = f"'lfusd rig add {stage_path} -o {new} --from-camera {cams[0]}'" if cams else f"'lfusd rig add {stage_path} -o {new} --name main'"
+        raise LfusdError(f"stage {stage_path} has no light-field rig; add one in a new layer over it with {hint}, then render {new}")
     if name in (None, ""):
         if len(found) > 1:
             raise LfusdError(f"stage {stage_path} has {len(found)} rigs ({', '.join(sorted(found))}); choose one with --rig NAME or --rig all")

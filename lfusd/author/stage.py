@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
+import re
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,22 +15,57 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdUtils, Vt
 
 from ..errors import LfusdError
 
+log = logging.getLogger(__name__)
+
+
+def _one_line(text: str) -> str:
+    """A pxr diagnostic on one line: whitespace runs folded, object addresses dropped."""
+    return re.sub(r"\s*<0x[0-9a-fA-F]+>", "", " ".join(str(text).split()))
+
+
+@contextmanager
+def usd_warnings():
+    """Report the warnings pxr posts inside the block as one ``lfusd: warning:`` line each (through
+    logging) instead of its own multi-line output on stderr; errors stay pxr's (they raise)."""
+    with Tf.DiagnosticTrap() as trap:
+        try:
+            yield
+        finally:
+            for w in trap.GetWarnings():
+                log.warning("USD: %s", _one_line(w.commentary))
+            for st in trap.GetStatuses():
+                log.info("USD: %s", _one_line(st.commentary))
+            trap.ClearWarnings()
+            trap.ClearStatuses()
+
+
+def check_up_axis(stage: Usd.Stage, where) -> None:
+    """Refuse an authored upAxis other than "Y" or "Z" (USD allows no other) before anything uses it."""
+    if stage.HasAuthoredMetadata("upAxis"):
+        up = str(stage.GetMetadata("upAxis"))
+        if up not in ("Y", "Z"):
+            raise LfusdError(f"stage {where} has upAxis {up!r}, which USD does not allow; set upAxis to \"Z\" or \"Y\" in its "
+                             "layer metadata (re-export a .usdz)")
+
 
 def open_stage(path: str | Path) -> Usd.Stage:
-    """Open a USD stage, or raise LfusdError naming the file and what is wrong with it."""
+    """Open a USD stage, or raise LfusdError naming the file and what is wrong with it. pxr's
+    warnings while composing it come out as one line each (:func:`usd_warnings`)."""
     p = Path(path)
     if not p.exists():
         raise LfusdError(f"stage {p} does not exist; give the path of a .usda/.usdc/.usdz/.usd file")
     if p.is_dir():
         raise LfusdError(f"stage {p} is a folder; give the path of a .usda/.usdc/.usdz/.usd file")
     try:
-        stage = Usd.Stage.Open(str(p))
+        with usd_warnings():
+            stage = Usd.Stage.Open(str(p))
     except Tf.ErrorException as e:
         first = str(e).strip().splitlines()
         reason = next((ln.strip() for ln in first if ln.strip().startswith(("Error", "Failed", "syntax", "unexpected"))), "")
         raise LfusdError(f"stage {p} is not a readable USD file ({reason or 'parse error'}); fix or regenerate it") from None
     if stage is None:
         raise LfusdError(f"stage {p} is not a readable USD file; fix or regenerate it")
+    check_up_axis(stage, p)
     return stage
 
 
@@ -68,7 +106,8 @@ def layer_over(asset: str | Path, out: str | Path) -> Usd.Stage:
         if base.HasInfo(key):
             layer.pseudoRoot.SetInfo(key, base.GetInfo(key))
     layer.subLayerPaths.append(_sublayer_path(asset_path, out_path))
-    return Usd.Stage.Open(layer)
+    with usd_warnings():
+        return Usd.Stage.Open(layer)
 
 
 def open_for_edit(path: str | Path, out: str | Path | None = None) -> Usd.Stage:
@@ -257,6 +296,7 @@ class WorldFrame:
 
 def world_frame(stage: Usd.Stage) -> WorldFrame:
     """The stage's :class:`WorldFrame` (its upAxis and metersPerUnit, USD's defaults where unauthored)."""
+    check_up_axis(stage, stage.GetRootLayer().identifier)
     return WorldFrame(str(UsdGeom.GetStageUpAxis(stage)), meters_per_unit(stage))
 
 

@@ -5,7 +5,7 @@ The grammars themselves are pure functions in :mod:`lfusd.camera` (``parse_frame
 CLI; this module turns them into argparse types, so a bad value is a one-line usage error naming
 the option before any work starts.
 
-- frames: ``N``, ``A-B`` and comma lists ``1-5,8`` (:data:`frames`); commands that need one
+- frames: ``N``, ``A-B`` and comma lists ``1-5,8``, negative time codes too (``-5--2``) (:data:`frames`); commands that need one
   contiguous range use :data:`frame_range`, which says so;
 - views: ``R,C`` or ``R_C`` (:data:`view`);
 - points: ``X,Y,Z`` in metres, negative coordinates included (:data:`point`);
@@ -21,8 +21,8 @@ import re
 from ..camera import parse_frames, parse_grid, parse_point, parse_resolution, parse_view
 from ..errors import LfusdError
 
-# Values such as -3, -.5, -0.05,0.6,3 are numbers and coordinates, never options.
-NEGATIVE_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d*,")
+# Values such as -3, -.5, -0.05,0.6,3 are numbers and coordinates, and -5--2, -2-3 frame ranges: never options.
+NEGATIVE_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d*,|^-\d+\s*-")
 
 
 class Parser(argparse.ArgumentParser):

@@ -1,4 +1,4 @@
-"""`lfusd eval --task disparity|flow|sceneflow|views --pred DIR --gt OUT [--protocol lfusd|hci|kitti|sintel|spring|basiclfsr]`.
+"""`lfusd eval --task disparity|flow|sceneflow|views --pred DIR --gt OUT [--protocol lfusd|hci|kitti|sintel|spring|basiclfsr|distgasr]`.
 
 Prints a table whose last row is the protocol's summary (pooled or mean, as the caption says) and
 writes JSON and CSV (default DIR/eval_<task>[_<protocol>].json and .csv).

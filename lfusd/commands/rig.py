@@ -20,9 +20,12 @@ def register(sub) -> None:
     add.add_argument("--name", default="main", help="rig prim name (default: main)")
     add.add_argument("--grid", type=argtypes.grid, default=f"{d.rows}x{d.cols}", help="views as ROWSxCOLS (default 9x9)")
     add.add_argument("--baseline", type=float, default=d.baseline, help="metres between neighbouring cameras (default 0.125)")
-    add.add_argument("--focal-length", type=float, default=d.focal_length_mm, help="lens in mm (default 39)")
-    add.add_argument("--sensor", type=float, default=d.sensor_mm, help="sensor width in mm (default 36)")
-    add.add_argument("--resolution", type=argtypes.resolution, default=f"{d.width}x{d.height}", help="WIDTHxHEIGHT pixels (default 1024x1024)")
+    add.add_argument("--focal-length", type=float, default=None, help=f"lens in mm (default {d.focal_length_mm:g})")
+    add.add_argument("--sensor", type=float, default=None, help=f"sensor width in mm (default {d.sensor_mm:g})")
+    add.add_argument("--resolution", type=argtypes.resolution, default=None,
+                     help=f"WIDTHxHEIGHT pixels (default {d.width}x{d.height}; with --from-camera {d.width} wide at the camera's aspect)")
+    add.add_argument("--from-camera", default=None, metavar="PRIM",
+                     help="centre the rig on the stage's own UsdGeom.Camera PRIM: its pose (animated too), focal length and aperture")
     add.add_argument("--at", type=argtypes.point, default=None,
                      help="rig centre X,Y,Z: metres along the stage's own axes, its up axis the rig's up "
                           f"(default: {d.at[2]:g} m up, {-d.at[1]:g} m back from the origin)")
@@ -42,27 +45,43 @@ def run_add(args) -> int:
 
     from ..render.request import check_rig_size
 
-    check_rig_size(args.grid, args.resolution, args.force)  # a million cameras take hours to author: refuse first
+    d = RigSpec()
+    if args.from_camera is not None:
+        given = [o for o, v in (("--at", args.at), ("--look-at", args.look_at), ("--focal-length", args.focal_length), ("--sensor", args.sensor)) if v is not None]
+        if given:
+            raise LfusdError(f"--from-camera takes the pose and lens from the camera; drop {given[0]}")
+    check_rig_size(args.grid, args.resolution or (d.width, d.height), args.force)  # a million cameras take hours to author: refuse first
     rows, cols = args.grid
-    width, height = args.resolution
     axes = args.axes or ("converge" if args.layout == "sphere" else "parallel")
     stage = open_for_edit(args.stage, args.out)
+    width, height = args.resolution or (d.width, d.height)
+    if args.from_camera is not None and args.resolution is None:
+        from ..author.rigs import camera_lens
+
+        _, h_ap, v_ap = camera_lens(stage, args.from_camera)
+        height = max(1, round(width * v_ap / h_ap)) if h_ap > 0 and v_ap > 0 else height
     # The default pose is stated in lfusd's world (Z up); on a stage with another up axis it is
     # turned into the stage's axes, so the default rig stands upright on any stage.
-    d, turn = RigSpec(), world_frame(stage).rotation.T
+    turn = world_frame(stage).rotation.T
     at = args.at if args.at is not None else tuple(float(x) for x in turn @ d.at)
     look_at = args.look_at if args.look_at is not None else tuple(float(x) for x in turn @ d.look_at)
     spec = RigSpec(
-        name=args.name, rows=rows, cols=cols, baseline=args.baseline, focal_length_mm=args.focal_length,
-        sensor_mm=args.sensor, width=width, height=height, at=at, look_at=look_at, spacing=args.spacing,
+        name=args.name, rows=rows, cols=cols, baseline=args.baseline, focal_length_mm=args.focal_length or d.focal_length_mm,
+        sensor_mm=args.sensor or d.sensor_mm, width=width, height=height, at=at, look_at=look_at, spacing=args.spacing,
         layout=args.layout, radius=args.radius, axes=axes,
     )
-    add_rig(stage, spec)
+    if args.from_camera is not None:
+        from ..author.rigs import add_rig_at_camera
+
+        _, spec = add_rig_at_camera(stage, spec, args.from_camera)
+    else:
+        add_rig(stage, spec)
     target = args.out or args.stage
     try:
         stage.GetRootLayer().Save()
     except Exception as e:
         raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
     over = f" (a new layer over {args.stage})" if args.out else ""
-    print(f"added rig {spec.name} ({rows}x{cols} views, {width}x{height} px) to {target}{over}")
+    cam = f", centre view at camera {args.from_camera} ({spec.focal_length_mm:g} mm lens, {spec.sensor_mm:g} mm aperture)" if args.from_camera else ""
+    print(f"added rig {spec.name} ({rows}x{cols} views, {width}x{height} px){cam} to {target}{over}")
     return 0

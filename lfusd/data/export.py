@@ -43,7 +43,7 @@ from .. import layout
 from ..errors import LfusdError
 from ..keys import get
 
-FORMATS = ("hci", "kitti", "spring", "flo", "pfm", "lfmat")
+FORMATS = ("hci", "kitti", "spring", "flo", "pfm", "lfmat", "hf", "webdataset")
 UNKNOWN_FLOW = 1e10
 # HCI's focus distance for lfusd's unshifted parallel rigs (focus at infinity), finite so that the
 # toolkit's formulas (which divide by it) run: its 1/F term changes their depth by under 1e-9
@@ -201,7 +201,9 @@ def export_hci(ds, dest, frame: int | None = None, all_views: bool = False) -> l
         depth = ds.read(t, centre, "depth")
         formats.write_pfm(sd / "gt_disp_lowres.pfm", disp)
         formats.write_pfm(sd / "gt_depth_lowres.pfm", depth)
-        formats.write_png(sd / "valid_mask.png", np.where(np.isfinite(depth) & np.isfinite(disp), 255, 0).astype(np.uint8))
+        # three equal channels: DistgDisp's loader reads channel 2 of valid_mask.png
+        valid = np.where(np.isfinite(depth) & np.isfinite(disp), 255, 0).astype(np.uint8)
+        formats.write_png(sd / "valid_mask.png", np.repeat(valid[..., None], 3, axis=-1))
         folders.append(sd)
     return folders
 
@@ -270,19 +272,69 @@ def stereo_visible(ds, frame: int, view, other, flow=None, disparity=None) -> np
     return visible_in_view(x, y, d, ds.read(frame, other, "disparity")) & np.isfinite(d)
 
 
+def inside_image(x, y, width: int, height: int) -> np.ndarray:
+    """Whether sub-pixel positions (x, y) fall on a pixel of a width x height image (its area,
+    [-0.5, W - 0.5) x [-0.5, H - 0.5)); NaN is outside."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    with np.errstate(invalid="ignore"):
+        return (x >= -0.5) & (x < width - 0.5) & (y >= -0.5) & (y < height - 0.5)
+
+
+def kitti_noc(d0, d1, flow, occ_0, occ_1) -> tuple[np.ndarray, np.ndarray]:
+    """(noc_0, noc_1) as the KITTI 2015 devkit readme defines 'noc': the pixels of ``occ_0`` /
+    ``occ_1`` whose matching correspondences fall inside the image domain. ``noc_0``: the right
+    image's (u - d0, v); ``noc_1``: the left image at t+1, (u + du, v + dv), and the right one at
+    t+1, (u + du - d1, v + dv). A correspondence that is occluded there still counts (the
+    readme's 'occ' and 'noc' differ only by points leaving the image)."""
+    h, w = np.shape(d0)
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    d0, d1, flow = (np.asarray(a, np.float64) for a in (d0, d1, flow))
+    noc_0 = np.asarray(occ_0, bool) & inside_image(u - d0, v, w, h)
+    u1, v1 = u + flow[..., 0], v + flow[..., 1]
+    noc_1 = np.asarray(occ_1, bool) & inside_image(u1, v1, w, h) & inside_image(u1 - d1, v1, w, h)
+    return noc_0, noc_1
+
+
 def kitti_masks(ds, t: int, left, right) -> dict[str, np.ndarray]:
     """The KITTI validity masks of frame pair (t, t+1): ``occ_0`` / ``noc_0`` (disparity at t:
-    known / also visible in the right image), ``occ_fwd`` / ``noc_fwd`` (flow: known / also visible
-    in the left image at t+1), ``noc_1`` (disparity at t+1: noc_fwd and visible in the right
-    image at t+1)."""
+    known / its right-image correspondence inside the image), ``occ_fwd`` / ``noc_fwd`` (flow: known
+    / also visible in the left image at t+1), ``occ_1`` / ``noc_1`` (disparity at t+1: known / its
+    correspondences at t+1 inside both images; :func:`kitti_noc`)."""
     d0 = np.asarray(ds.read(t, left, "disparity"), np.float64)
     occ_0 = np.isfinite(d0) & (d0 > 0) & np.isfinite(ds.read(t, left, "depth"))
     occ_fwd = np.asarray(ds.read(t, left, "valid_fwd"), bool) & occ_0
     noc_fwd = occ_fwd & ~np.asarray(ds.read(t, left, "occlusion_fwd"), bool)
     flow = np.asarray(ds.read(t, left, "flow_fwd"), np.float64)
     d1 = d0 + ds.read(t, left, "disparity_change")
-    noc_1 = noc_fwd & stereo_visible(ds, t + 1, left, right, flow=np.nan_to_num(flow), disparity=np.where(occ_fwd, d1, np.nan))
-    return {"occ_0": occ_0, "noc_0": occ_0 & stereo_visible(ds, t, left, right), "occ_fwd": occ_fwd, "noc_fwd": noc_fwd, "noc_1": noc_1}
+    with np.errstate(invalid="ignore"):
+        occ_1 = occ_fwd & np.isfinite(d1) & (d1 > 0)
+    noc_0, noc_1 = kitti_noc(d0, d1, flow, occ_0, occ_1)
+    return {"occ_0": occ_0, "noc_0": noc_0, "occ_fwd": occ_fwd, "noc_fwd": noc_fwd, "occ_1": occ_1, "noc_1": noc_1}
+
+
+MOVING_M = 1e-5  # m per frame: above the stored scene flow's rounding (2^-18 m), far below any motion
+
+
+def kitti_object_map(ds, t: int, view) -> np.ndarray:
+    """KITTI's ``obj_map`` of frame pair (t, t+1) in ``view``: uint8, 0 = background, k > 0 the
+    k-th object that moves between t and t+1 (capped at 255), the devkit's foreground
+    (``evaluate_scene_flow.cpp``: ``O_map`` 0 background, > 0 foreground). An object moves when its
+    world pose changes or a pixel of it has scene flow above :data:`MOVING_M` (a skinned body
+    moves under a fixed pose)."""
+    inst = np.asarray(ds.read(t, view, "instance"))
+    moving = set()
+    for oid, obj in ds.objects.items():
+        poses = getattr(obj, "poses", {})
+        if t in poses and t + 1 in poses and np.max(np.abs(np.asarray(poses[t + 1]) - np.asarray(poses[t]))) > MOVING_M:
+            moving.add(int(oid))
+    sf = np.asarray(ds.read(t, view, "scene_flow"), np.float64)
+    ok = np.asarray(ds.read(t, view, "valid_fwd"), bool) & np.all(np.isfinite(sf), axis=-1)
+    moving |= {int(i) for i in np.unique(inst[ok & (np.linalg.norm(np.where(ok[..., None], sf, 0.0), axis=-1) > MOVING_M)])}
+    moving.discard(0)
+    out = np.zeros(inst.shape, np.uint8)
+    for k, oid in enumerate(sorted(moving), start=1):
+        out[inst == oid] = min(k, 255)
+    return out
 
 
 def export_kitti(ds, dest, frame: int | None = None) -> Path:
@@ -297,7 +349,7 @@ def export_kitti(ds, dest, frame: int | None = None) -> Path:
         raise LfusdError("KITTI pairs need frame t and t+1; pick a frame that has a next frame")
     dest = _new_dest(dest)
     tr = dest / "training"
-    for sub in ("image_2", "image_3", "disp_occ_0", "disp_noc_0", "disp_occ_1", "disp_noc_1", "flow_occ", "flow_noc"):
+    for sub in ("image_2", "image_3", "disp_occ_0", "disp_noc_0", "disp_occ_1", "disp_noc_1", "flow_occ", "flow_noc", "obj_map"):
         (tr / sub).mkdir(parents=True)
     for i, t in enumerate(frames):
         name = f"{i:06d}_10.png"
@@ -310,10 +362,11 @@ def export_kitti(ds, dest, frame: int | None = None) -> Path:
         flow = ds.read(t, left, "flow_fwd")
         formats.write_kitti_disparity(tr / "disp_occ_0" / name, d0, m["occ_0"])
         formats.write_kitti_disparity(tr / "disp_noc_0" / name, d0, m["noc_0"])
-        formats.write_kitti_disparity(tr / "disp_occ_1" / name, d1, m["occ_fwd"])
+        formats.write_kitti_disparity(tr / "disp_occ_1" / name, d1, m["occ_1"])
         formats.write_kitti_disparity(tr / "disp_noc_1" / name, d1, m["noc_1"])
         formats.write_kitti_flow(tr / "flow_occ" / name, flow, m["occ_fwd"])
         formats.write_kitti_flow(tr / "flow_noc" / name, flow, m["noc_fwd"])
+        formats.write_png(tr / "obj_map" / name, kitti_object_map(ds, t, left))
     (dest / "frames.txt").write_text("".join(f"{i:06d} frame {t} -> {t + 1}\n" for i, t in enumerate(frames)))
     return tr
 
@@ -452,6 +505,20 @@ def export_lfmat(ds, dest, frame: int | None = None, matlab: bool = False) -> li
         formats.write_lf_h5(p, rgb.astype(np.float32) / np.float32(np.iinfo(rgb.dtype).max), matlab=matlab, attrs=attrs)
         out.append(p)
     return out
+
+
+def export_webdataset(ds, dest, frame: int | None = None, **kw) -> list[Path]:
+    """WebDataset tar shards with Croissant metadata (:mod:`lfusd.data.export_hf`)."""
+    from .export_hf import export_webdataset as run
+
+    return run(ds, dest, frame=frame, **kw)
+
+
+def export_hf(ds, dest, frame: int | None = None, **kw) -> list[Path]:
+    """The WebDataset export plus a Hugging Face dataset card (:mod:`lfusd.data.export_hf`)."""
+    from .export_hf import export_hf as run
+
+    return run(ds, dest, frame=frame, **kw)
 
 
 def export(ds, fmt: str, dest, frame: int | None = None, **kw):

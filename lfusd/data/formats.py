@@ -213,6 +213,17 @@ def write_png(path, rgb) -> None:
     _imwrite(path, np.ascontiguousarray(a))
 
 
+def encode_png(rgb) -> bytes:
+    """The PNG file of an (H,W,3) RGB or (H,W) grey uint8/uint16 image, as bytes (lossless)."""
+    a = np.asarray(rgb)
+    if a.dtype not in (np.uint8, np.uint16):
+        raise LfusdError(f"PNG images must be uint8 or uint16, got {a.dtype}")
+    ok, buf = _cv2().imencode(".png", np.ascontiguousarray(a[..., ::-1] if a.ndim == 3 else a))
+    if not ok:
+        raise LfusdError(f"could not encode a {a.shape} {a.dtype} image as PNG; report it")
+    return buf.tobytes()
+
+
 def read_png(path) -> np.ndarray:
     """Read a PNG as (H,W,3) RGB or (H,W) grey, keeping its bit depth."""
     cv2 = _cv2()

@@ -27,9 +27,10 @@ Definitions (the literature's; see the docstrings for the exact formulas):
   (not sample) statistics, averaged over the 'valid' windows only (no padding). The same value
   comes from ``skimage.metrics.structural_similarity(a, b, gaussian_weights=True, sigma=1.5,
   use_sample_covariance=False, data_range=1)`` (its reflect padding only touches the border it
-  crops). BasicLFSR / DistgASR call ``structural_similarity(a, b, gaussian_weights=True)`` on float
-  Y: sample covariance (x 121/120) and, in scikit-image 0.19, data_range 2 (the float dtype's
-  -1..1; newer releases raise); ``--protocol basiclfsr`` reproduces that value.
+  crops). BasicLFSR calls ``structural_similarity(a, b, gaussian_weights=True)`` on float Y:
+  sample covariance (x 121/120) and, in scikit-image 0.19, data_range 2 (the float dtype's -1..1;
+  newer releases raise); ``--protocol basiclfsr`` reproduces that value. DistgASR crops 22 px per
+  side and passes ``sigma=1.5, use_sample_covariance=False`` (``--protocol distgasr``).
 """
 
 from __future__ import annotations

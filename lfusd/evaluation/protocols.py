@@ -32,8 +32,9 @@ exists, all pooled over the set as the devkit accumulates them; ``epe_occ_px`` i
 ``kitti-epe``: per-image mean EPE over flow_occ, then the mean over images. Ground truth: a
 dataset gives the masks ``lfusd export kitti`` writes, unrounded; a KITTI folder
 (``--gt DEST/training``) gives the exported PNGs, rounded to 1/64 px (flow) and 1/256 px
-(disparity), so the numbers are the official pipeline's. ``disp_noc_0`` needs visibility in the
-right view, which only the export computes: d1/sf ``_noc`` come from a KITTI folder only.
+(disparity), so the numbers are the official pipeline's. ``noc`` is the devkit readme's: ground truth
+whose correspondences (right image at t; left and right images at t+1) fall inside the image,
+the same masks in both modes (:func:`lfusd.data.export.kitti_noc`).
 
 ``sintel`` -- RAFT ``validate_sintel``: EPE over every pixel with ground truth (Sintel has it
 everywhere; lfusd where ``valid_fwd``), pooled over the set (``np.mean(np.concatenate(...))``);
@@ -50,11 +51,23 @@ truth is 2x the image resolution and it takes the smallest error of the 4 sub-pi
 one sample per pixel, so that minimum is the error itself. NaN predictions are refused for flow and
 disparity (Spring refuses them) and set to 0 for scene flow (Spring's ``np.nan_to_num``).
 
-``basiclfsr`` -- BasicLFSR / DistgASR ``cal_metrics``: Y of ``rgb2ycbcr`` clipped to [0, 1], PSNR
-with peak 1 (skimage's data_range for non-negative floats) and ``ssim_range2``: skimage 0.19's
-``structural_similarity(gt, pred, gaussian_weights=True)`` on float images, i.e. data_range 2 and
-sample covariance (x 121/120); summary: mean over views. BasicLFSR computes in float32 and
-stores per-view values in float32; lfusd computes in float64 (they differ by about 1e-6).
+``basiclfsr`` -- BasicLFSR ``cal_metrics``: Y of ``rgb2ycbcr``, not clipped (a float prediction
+outside [0, 1] is scored as it is), PSNR with peak 1 (skimage's data_range for non-negative floats)
+and ``ssim_range2``: skimage 0.19's ``structural_similarity(gt, pred, gaussian_weights=True)`` on
+float images, i.e. data_range 2 and sample covariance (x 121/120); summary: mean over views.
+BasicLFSR computes in float32 and stores per-view values in float32; lfusd computes in float64
+(they differ by about 1e-6).
+
+``distgasr`` -- DistgASR ``utils/utils.py`` ``cal_metrics_RE``: the same unclipped Y, cropped by
+:data:`DISTGASR_BORDER` (22) px on each side (``bd = 22``), PSNR as skimage's
+``peak_signal_noise_ratio`` (peak 1 for a non-negative ground truth, else 2) and ``ssim_range2``:
+``structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False)``
+(population covariance, data_range 2 of skimage 0.19's float images); summary: mean over the
+views scored (DistgASR leaves its input views out by giving them no prediction here).
+
+Spring stores its ground truth (``create_evalfiles.py``: ``.astype(np.float16)``) and the
+submissions as float16: ``spring`` rounds both to float16 before taking differences as
+``evaluation.py`` does (flow differences in float16, disparity differences in float32).
 """
 
 from __future__ import annotations
@@ -64,7 +77,7 @@ import numpy as np
 from ..errors import LfusdError
 from . import metrics
 
-PROTOCOLS = ("lfusd", "hci", "kitti", "sintel", "spring", "basiclfsr")
+PROTOCOLS = ("lfusd", "hci", "kitti", "sintel", "spring", "basiclfsr", "distgasr")
 TASKS_OF = {
     "lfusd": ("disparity", "flow", "sceneflow", "views"),
     "hci": ("disparity",),
@@ -72,7 +85,9 @@ TASKS_OF = {
     "sintel": ("flow",),
     "spring": ("disparity", "flow", "sceneflow"),
     "basiclfsr": ("views",),
+    "distgasr": ("views",),
 }
+DISTGASR_BORDER = 22  # px cropped on each side (DistgASR cal_metrics_RE: bd = 22)
 HCI_BORDER = 15  # px on each side (BaseScene boundary_offset)
 HCI_BADPIX = (0.01, 0.03, 0.07)
 KITTI_ABS, KITTI_REL = 3.0, 0.05  # devkit ABS_THRESH, REL_THRESH
@@ -265,13 +280,19 @@ def kitti_masks(truth: dict) -> dict:
         occ = np.asarray(truth["valid"], bool) & np.all(np.isfinite(f), -1) & (surface if surface is not None else True)
         out |= {"flow": f, "flow_occ": occ, "flow_noc": occ & ~np.asarray(truth["occluded"], bool)}
     if "disparity" in truth:
+        from ..data.export import kitti_noc
+
         d0 = _f64(truth["disparity"])
         with np.errstate(invalid="ignore"):
-            out |= {"disp0": d0, "disp0_occ": np.isfinite(d0) & (d0 > 0) & (surface if surface is not None else True), "disp0_noc": None}
+            out |= {"disp0": d0, "disp0_occ": np.isfinite(d0) & (d0 > 0) & (surface if surface is not None else True)}
+            # noc as `lfusd export kitti` writes it (one definition, the devkit readme's)
             if "disparity2" in truth:
                 d1 = _f64(truth["disparity2"])
                 ok1 = np.isfinite(d1) & (d1 > 0)
-                out |= {"disp1": d1, "disp1_occ": out["flow_occ"] & ok1, "disp1_noc": out["flow_noc"] & ok1}
+                out |= {"disp1": d1, "disp1_occ": out["flow_occ"] & ok1}
+                out["disp0_noc"], out["disp1_noc"] = kitti_noc(d0, d1, np.nan_to_num(out["flow"]), out["disp0_occ"], out["disp1_occ"])
+            else:
+                out["disp0_noc"] = kitti_noc(d0, d0, np.zeros(d0.shape + (2,)), out["disp0_occ"], out["disp0_occ"])[0]
     return out
 
 
@@ -356,51 +377,67 @@ def _spring_no_nan(what, p):
         raise LfusdError(f"{what} prediction holds NaN; the Spring benchmark refuses NaN submissions: predict every pixel")
 
 
-def _spring_disp_epe(gt, p):
+def _f16(x) -> np.ndarray:
+    """As Spring stores ground truth and submissions: float16."""
+    return np.asarray(x).astype(np.float16)
+
+
+def _spring_disp_epe(gt16, p16):
     # evaluation.py: np.abs(gt.astype(np.float32) - submission.astype(np.float32)), then float64
-    return np.abs(np.asarray(gt).astype(np.float32) - np.asarray(p).astype(np.float32)).astype(np.float64)
+    return np.abs(gt16.astype(np.float32) - p16.astype(np.float32)).astype(np.float64)
+
+
+def _spring_flow_epe(gt16, p16):
+    # evaluation.py: (gt_flow - submission) in float16, then float64 and the norm
+    return np.linalg.norm((gt16 - p16).astype(np.float64), axis=-1)
+
+
+def _spring_d_out(epe, gt16):
+    # evaluation.py: epe > 0.05 * np.abs(gt) with gt float16, so the threshold is float16 too
+    return (epe > SPRING_ABS) & (epe > (np.float16(SPRING_REL) * np.abs(gt16)).astype(np.float64))
+
+
+def _spring_f_out(epe, gt16):
+    return (epe > SPRING_ABS) & (epe > SPRING_REL * np.linalg.norm(gt16.astype(np.float64), axis=-1))
 
 
 def _spring(task, pred, truth):
     tally: Tally = {}
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):
         if task == "flow":
             p = _f64(pred)
             _spring_no_nan("flow", p)
             gt = np.where(np.asarray(truth["valid"], bool)[..., None], _f64(truth["flow"]), np.nan)
             _same_shape("optical flow", p, gt)
-            epe = np.linalg.norm(gt - p, axis=-1)
+            epe = _spring_flow_epe(_f16(gt), _f16(p))
             n = int((~np.isnan(epe)).sum())
-            mag = np.linalg.norm(gt, axis=-1)
             tally["epe_px"] = _pooled(np.nansum(epe), n)
-            tally["fl_pct"] = _pooled(((epe > SPRING_ABS) & (epe > SPRING_REL * mag)).sum(), n, 100)
+            tally["fl_pct"] = _pooled(_spring_f_out(epe, _f16(gt)).sum(), n, 100)
             tally["epe_gt_1px_pct"] = _pooled((epe > 1).sum(), n, 100)
         elif task == "disparity":
             p = np.asarray(pred)
             _spring_no_nan("disparity", _f64(p))
             gt = np.asarray(truth["disparity"])
             _same_shape("disparity", _f64(p), _f64(gt))
-            epe = _spring_disp_epe(gt, p)
+            epe = _spring_disp_epe(_f16(gt), _f16(p))
             n = int((~np.isnan(epe)).sum())
             tally["abs_px"] = _pooled(np.nansum(epe), n)
-            tally["d1_pct"] = _pooled(((epe > SPRING_ABS) & (epe > SPRING_REL * np.abs(_f64(gt)))).sum(), n, 100)
+            tally["d1_pct"] = _pooled(_spring_d_out(epe, _f16(gt)).sum(), n, 100)
             tally["epe_gt_1px_pct"] = _pooled((epe > 1).sum(), n, 100)
         else:
             if pred.get("disp") is None:
                 raise LfusdError("the Spring scene-flow protocol needs disparity at t, disparity at t+1 and flow: put <stem>_disp, <stem>_disp2 and <stem>_flow beside the scene flow")
             valid = np.asarray(truth["valid"], bool)
-            d1p, d2p = np.nan_to_num(_f64(pred["disp"])), np.nan_to_num(_f64(pred["disp2"]))
-            fp = np.nan_to_num(_f64(pred["flow"]))
-            g1 = _f64(truth["disparity"])
-            g2 = np.where(valid, _f64(truth["disparity2"]), np.nan)
-            gf = np.where(valid[..., None], _f64(truth["flow"]), np.nan)
+            # the submission is stored as float16, then np.nan_to_num'd (evaluate_submission_sceneflow)
+            d1p, d2p, fp = (np.nan_to_num(_f16(pred[k])) for k in ("disp", "disp2", "flow"))
+            g1 = _f16(truth["disparity"])
+            g2 = _f16(np.where(valid, _f64(truth["disparity2"]), np.nan))
+            gf = _f16(np.where(valid[..., None], _f64(truth["flow"]), np.nan))
             for what, a, b in (("disp", d1p, g1), ("disp2", d2p, g2), ("flow", fp, gf)):
                 _same_shape(f"scene flow {what}", a, b)
             e1, e2 = _spring_disp_epe(g1, d1p), _spring_disp_epe(g2, d2p)
-            ef = np.linalg.norm(gf - fp, axis=-1)
-            o1 = (e1 > SPRING_ABS) & (e1 > SPRING_REL * np.abs(g1))
-            o2 = (e2 > SPRING_ABS) & (e2 > SPRING_REL * np.abs(g2))
-            of = (ef > SPRING_ABS) & (ef > SPRING_REL * np.linalg.norm(gf, axis=-1))
+            ef = _spring_flow_epe(gf, fp)
+            o1, o2, of = _spring_d_out(e1, g1), _spring_d_out(e2, g2), _spring_f_out(ef, gf)
             n = int((~np.isnan(e1 + e2 + ef)).sum())
             tally["sf_pct"] = _pooled((o1 | o2 | of).sum(), n, 100)
             tally["sf_epe_gt_1px_pct"] = _pooled(((e1 > 1) | (e2 > 1) | (ef > 1)).sum(), n, 100)
@@ -410,18 +447,33 @@ def _spring(task, pred, truth):
 # ---- BasicLFSR / DistgASR -----------------------------------------------------------------------
 
 
+def _unit_y(x) -> np.ndarray:
+    """Luma Y of RGB (uint8 scaled by 1/255), not clipped: neither BasicLFSR nor DistgASR clips."""
+    x = np.asarray(x)
+    return metrics.rgb_to_y(x.astype(np.float64) / 255.0 if x.dtype == np.uint8 else _f64(x))
+
+
 def _basiclfsr(task, pred, truth):
-    p = np.asarray(pred)
-    p = p.astype(np.float64) / 255.0 if p.dtype == np.uint8 else _f64(p)
-    g = np.asarray(truth["rgb"])
-    g = g.astype(np.float64) / 255.0 if g.dtype == np.uint8 else _f64(g)
-    _same_shape("view synthesis", p, g)
-    yp = np.clip(metrics.rgb_to_y(p), 0, 1)
-    yg = np.clip(metrics.rgb_to_y(g), 0, 1)
+    yp, yg = _unit_y(pred), _unit_y(truth["rgb"])
+    _same_shape("view synthesis", yp, yg)
     n = metrics.SSIM_WINDOW**2
     out = {"psnr_db": metrics.psnr(yg, yp), "ssim_range2": metrics.ssim(yg, yp, data_range=2.0, cov_norm=n / (n - 1.0))}
     return out | {"pixels": int(yp.size)}, {}
 
 
-_SCORERS = {"lfusd": _lfusd, "hci": _hci, "kitti": _kitti, "sintel": _sintel, "spring": _spring, "basiclfsr": _basiclfsr}
+def _distgasr(task, pred, truth):
+    yp, yg = _unit_y(pred), _unit_y(truth["rgb"])
+    _same_shape("view synthesis", yp, yg)
+    b = DISTGASR_BORDER
+    h, w = yg.shape
+    if h - 2 * b < metrics.SSIM_WINDOW or w - 2 * b < metrics.SSIM_WINDOW:
+        raise LfusdError(f"images of {w}x{h} px leave less than an SSIM window inside DistgASR's {b}-px border; "
+                         f"render at least {2 * b + metrics.SSIM_WINDOW}x{2 * b + metrics.SSIM_WINDOW} px or use --protocol basiclfsr")
+    yp, yg = yp[b:-b, b:-b], yg[b:-b, b:-b]
+    peak = 1.0 if yg.min() >= 0 else 2.0  # skimage: the float dtype's range, halved for a non-negative truth
+    out = {"psnr_db": metrics.psnr(yg, yp, data_range=peak), "ssim_range2": metrics.ssim(yg, yp, data_range=2.0)}
+    return out | {"pixels": int(yp.size)}, {}
+
+
+_SCORERS = {"lfusd": _lfusd, "hci": _hci, "kitti": _kitti, "sintel": _sintel, "spring": _spring, "basiclfsr": _basiclfsr, "distgasr": _distgasr}
 assert set(_SCORERS) == set(PROTOCOLS)

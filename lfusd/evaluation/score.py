@@ -12,7 +12,7 @@ Predictions are files in DIR named by frame and view, ``<frame:04d>_<row:02d>_<c
 
 Masks, NaN policy, percentiles and pooling follow ``--protocol`` (lfusd.evaluation.protocols):
 ``lfusd`` (default, native) scores disparity over pixels with a surface (finite depth), flow and
-scene flow over valid_fwd; ``hci``, ``kitti``, ``sintel``, ``spring`` and ``basiclfsr`` reproduce
+scene flow over valid_fwd; ``hci``, ``kitti``, ``sintel``, ``spring``, ``basiclfsr`` and ``distgasr`` reproduce
 those benchmarks' official code. The summary row pools or averages as each protocol does.
 
 ``--gt`` may also be a KITTI folder written by ``lfusd export kitti`` (DEST or DEST/training), with

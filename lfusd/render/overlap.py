@@ -96,6 +96,9 @@ class MotionScheduler:
         self.error: BaseException | None = None
         self.lock = threading.Lock()
         self.lane_of = {(rig, v): i for rig, (views, _) in views_of.items() for i, v in enumerate(views)}
+        from ..truth.motion import announce_compile
+
+        announce_compile()  # the lanes' first derivation may compile for minutes: say so
         # spawn, not fork: forking after numba's, BLAS's or the executor's threads have run can kill the child
         ctx = multiprocessing.get_context("spawn")
         handler = None

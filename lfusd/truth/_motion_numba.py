@@ -263,3 +263,14 @@ def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, bac
             scene_flow[i, j, 1] = py - p0y
             scene_flow[i, j, 2] = pz - p0z
             dchange[i, j] = fb / z1 - fb / z0
+
+
+def kernels_cached() -> bool:
+    """Whether numba's on-disk cache holds the kernels (else their first call compiles them, which
+    takes minutes): the cache index files of both entry points exist."""
+    from pathlib import Path
+
+    try:
+        return all(Path(k._cache._cache_file._index_path).is_file() for k in (direction, inverse_depth_and_back))
+    except AttributeError:  # another numba's internals: say nothing rather than guess
+        return True

@@ -311,6 +311,10 @@ def derive_dataset(
                      or integrity.motion_problem(ds.view_dir(f, v), integrity.motion_inputs(_passes_of(ds, f, v)))]
             # Runs of frames of one view: consecutive frames share t+/-1 in the dataset's raw-pass cache.
             todo += [(str(root), ds.rig_name, tuple(v), [], stale[i : i + RUN]) for i in range(0, len(stale), RUN)]
+    if todo:
+        from .motion import announce_compile
+
+        announce_compile()
     checked += _run(todo, workers, progress, written)
     # Raw passes go in this process, after every derivation: one view's removal depends on its
     # neighbours' motion, which other tasks write.

@@ -271,6 +271,23 @@ except ImportError:  # pragma: no cover - numba is optional
     BACKEND = "numpy"
 
 
+_ANNOUNCED = False
+
+
+def announce_compile() -> None:
+    """Say once, in one line, that the motion kernels are being compiled when numba has not cached
+    them yet: the first derivation otherwise sits silent for about two minutes."""
+    global _ANNOUNCED
+    if _ANNOUNCED or _flow_numba is None:
+        return
+    _ANNOUNCED = True
+    if not _flow_numba.kernels_cached():
+        import logging
+
+        logging.getLogger(__name__).warning("compiling the motion kernels (numba, once per installation, about 2 minutes); "
+                                            "later runs load them from numba's cache")
+
+
 def derive_motion(
     cur: RawPasses,
     nxt: RawPasses | None = None,

@@ -147,9 +147,10 @@ def raft_sintel(pairs):
 
 
 def spring_flow(subs, gts):
-    """evaluation.py get_errors_flow on the concatenated pixels (one ground-truth sample each)."""
-    sub = np.concatenate([s.reshape(-1, 2) for s in subs])
-    gt = np.concatenate([g.reshape(-1, 1, 2) for g in gts])
+    """evaluation.py get_errors_flow on the concatenated pixels (one ground-truth sample each);
+    ground truth and submission stored as float16 (create_evalfiles.py, the submission files)."""
+    sub = np.concatenate([s.reshape(-1, 2) for s in subs]).astype(np.float16)
+    gt = np.concatenate([g.reshape(-1, 1, 2) for g in gts]).astype(np.float16)
     gt_veclen = np.linalg.norm(gt.astype(np.float64), axis=-1)
     epe = np.min(np.linalg.norm((gt - sub[:, None, :]).astype(np.float64), axis=2), axis=1)
     fl = (epe > 3) & (epe > 0.05 * gt_veclen.max(axis=1))
@@ -157,8 +158,8 @@ def spring_flow(subs, gts):
 
 
 def spring_disp(subs, gts):
-    sub = np.concatenate([s.reshape(-1) for s in subs])
-    gt = np.concatenate([g.reshape(-1, 1) for g in gts])
+    sub = np.concatenate([s.reshape(-1) for s in subs]).astype(np.float16)
+    gt = np.concatenate([g.reshape(-1, 1) for g in gts]).astype(np.float16)
     epe = np.min(np.abs(gt.astype(np.float32) - sub.astype(np.float32)[:, None]), axis=-1).astype(np.float64)
     d1 = (epe > 3) & (epe > 0.05 * np.abs(gt).max(axis=-1))
     return {"abs_px": np.nanmean(epe), "d1_pct": 100 * d1.sum() / (~np.isnan(epe)).sum(), "epe_gt_1px_pct": 100 * (epe > 1).sum() / (~np.isnan(epe)).sum()}
@@ -326,7 +327,8 @@ def test_kitti_relative_threshold_on_large_motion():
     assert res["fl_all_occ_pct"] == pytest.approx(ref) == pytest.approx(25.0)
     d = np.full((4, 5), 100.0)
     res, _ = protocols.score("kitti", "disparity", d + p[..., 0] - 100, {"disparity": d, "depth": np.ones((4, 5))})
-    assert res["d1_all_occ_pct"] == pytest.approx(25.0) and "d1_all_noc_pct" not in res
+    # noc (the devkit readme's): every right-image correspondence u - 100 leaves the 5-px image
+    assert res["d1_all_occ_pct"] == pytest.approx(25.0) and math.isnan(res["d1_all_noc_pct"])
 
 
 def test_kitti_interpolation_matches_the_devkit_loops():
@@ -355,7 +357,7 @@ def test_ssim_docstring_call_and_basiclfsr_range2():
     rgb_p = (rng.random((20, 23, 3)) * 255).astype(np.uint8)
     rgb_g = np.clip(rgb_p.astype(int) + rng.integers(-20, 20, rgb_p.shape), 0, 255).astype(np.uint8)
     res, _ = protocols.score("basiclfsr", "views", rgb_p, {"rgb": rgb_g})
-    yp, yg = (np.clip((16 + 65.481 * x[..., 0] + 128.553 * x[..., 1] + 24.966 * x[..., 2]) / 255, 0, 1) for x in (rgb_p / 255.0, rgb_g / 255.0))
+    yp, yg = ((16 + 65.481 * x[..., 0] + 128.553 * x[..., 1] + 24.966 * x[..., 2]) / 255 for x in (rgb_p / 255.0, rgb_g / 255.0))
     assert res["ssim_range2"] == pytest.approx(skimage_ssim(yg, yp, 2.0, True), abs=1e-12)
     assert res["psnr_db"] == pytest.approx(10 * math.log10(1 / np.mean((yg - yp) ** 2)), abs=1e-9)
 
@@ -620,7 +622,15 @@ def test_portrait_sceneflow_views_and_native(portrait, tmp_path):
     e1, _ = devkit_disp_pred(p1.astype(np.float64))
     ef, _ = devkit_flow_pred(pf.astype(np.float64))
     occ = valid & surface
-    masks = {"occ": (surface & (g0 > 0), occ & (g1 > 0), occ), "noc": (None, occ & ~occl & (g1 > 0), occ & ~occl)}
+    # noc per the devkit readme: the correspondences (right image at t, left and right at t+1) inside the image
+    h, w = g0.shape
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    inside = lambda x, y: (x >= -0.5) & (x < w - 0.5) & (y >= -0.5) & (y < h - 0.5)  # noqa: E731
+    with np.errstate(invalid="ignore"):
+        u1, v1 = uu + np.nan_to_num(gf[..., 0]), vv + np.nan_to_num(gf[..., 1])
+        noc0 = surface & (g0 > 0) & inside(uu - g0, vv)
+        noc1 = occ & (g1 > 0) & inside(u1, v1) & inside(u1 - g1, v1)
+    masks = {"occ": (surface & (g0 > 0), occ & (g1 > 0), occ), "noc": (noc0, noc1, occ & ~occl)}
     acc = Acc()
     for area, (m0, m1, mf) in masks.items():
         for (i, j) in zip(*np.nonzero(np.ones(g0.shape, bool))):
@@ -639,14 +649,16 @@ def test_portrait_sceneflow_views_and_native(portrait, tmp_path):
     assert_close(kitti.summary, acc.pct())
     assert 0 < kitti.summary["sf_all_occ_pct"] < 100
     # Spring: evaluation.py get_errors_sceneflow (nan_to_num of the submission)
-    s0, s1, sf = (np.nan_to_num(x.astype(np.float64)) for x in (p0, p1, pf))
-    G2 = np.where(valid, g1, np.nan)
-    GF = np.where(valid[..., None], gf, np.nan)
+    # (ground truth and submissions stored as float16, as Spring's pipeline does)
+    s0, s1, sf = (np.nan_to_num(x.astype(np.float16)) for x in (p0, p1, pf))
+    g0 = g0.astype(np.float16)
+    G2 = np.where(valid, g1, np.nan).astype(np.float16)
+    GF = np.where(valid[..., None], gf, np.nan).astype(np.float16)
     d1e = np.abs(g0.astype(np.float32) - s0.astype(np.float32)).astype(np.float64)
     d2e = np.abs(G2.astype(np.float32) - s1.astype(np.float32)).astype(np.float64)
-    fle = np.linalg.norm(GF - sf, axis=-1)
+    fle = np.linalg.norm((GF - sf).astype(np.float64), axis=-1)
     with np.errstate(invalid="ignore"):
-        sfo = ((d1e > 3) & (d1e > 0.05 * np.abs(g0))) | ((d2e > 3) & (d2e > 0.05 * np.abs(G2))) | ((fle > 3) & (fle > 0.05 * np.linalg.norm(GF, axis=-1)))
+        sfo = ((d1e > 3) & (d1e > 0.05 * np.abs(g0))) | ((d2e > 3) & (d2e > 0.05 * np.abs(G2))) | ((fle > 3) & (fle > 0.05 * np.linalg.norm(GF.astype(np.float64), axis=-1)))
     n = (~np.isnan(d1e + d2e + fle)).sum()
     spring = evaluate(out, pred, "sceneflow", protocol="spring")
     assert_close(spring.summary, {"sf_pct": 100 * sfo.sum() / n, "sf_epe_gt_1px_pct": 100 * ((d1e > 1) | (d2e > 1) | (fle > 1)).sum() / n})
@@ -656,7 +668,7 @@ def test_portrait_sceneflow_views_and_native(portrait, tmp_path):
     formats.write_flo(fdir / f"{stem}.flo", pf)
     row = evaluate(out, fdir, "flow")[0]
     assert math.isinf(row["epe_px"]) and row["pixels"] == int(valid.sum())
-    # BasicLFSR views: per-view PSNR / SSIM(range 2, sample covariance) on clipped Y, mean over views
+    # BasicLFSR views: per-view PSNR / SSIM(range 2, sample covariance) on Y (not clipped), mean over views
     vdir = tmp_path / "v"
     vdir.mkdir()
     refs = []
@@ -664,7 +676,7 @@ def test_portrait_sceneflow_views_and_native(portrait, tmp_path):
         g = ds.read(1, w, "rgb")
         p = np.clip(g.astype(int) + np.random.default_rng(k).integers(-12, 12, g.shape), 0, 255).astype(np.uint8)
         formats.write_png(vdir / f"0001_{w[0]:02d}_{w[1]:02d}.png", p)
-        yp, yg = (np.clip((16 + 65.481 * x[..., 0] + 128.553 * x[..., 1] + 24.966 * x[..., 2]) / 255, 0, 1) for x in (p / 255.0, g / 255.0))
+        yp, yg = ((16 + 65.481 * x[..., 0] + 128.553 * x[..., 1] + 24.966 * x[..., 2]) / 255 for x in (p / 255.0, g / 255.0))
         refs.append({"psnr_db": 10 * math.log10(1 / np.mean((yg - yp) ** 2)), "ssim_range2": skimage_ssim(yg, yp, 2.0, True)})
     views = evaluate(out, vdir, "views", protocol="basiclfsr")
     for r, ref in zip(views, refs):
