@@ -55,6 +55,7 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
         prv = ds.raw_passes(frame - 1, view) if frame - 1 in frames else None
         occluders = {key: occluders_of(ds, g, view) for key, g, other in (("next", frame + 1, nxt), ("prev", frame - 1, prv))
                      if other is not None}
+        occluders["here"] = occluders_of(ds, frame, view)
         return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline, occluders=occluders)
     except LfusdError as e:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None

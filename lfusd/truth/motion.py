@@ -302,8 +302,9 @@ def derive_motion(
     ``baseline``: the rig baseline b in metres for disparity d = f_px * b / z (K[0,0] is f_px);
     without it ``disparity_change`` is 0 and only the other keys are meaningful.
     ``backend``: 'numba' (compiled, default when numba is installed) or 'numpy' (reference).
-    ``occluders``: {"next": Occluders, "prev": Occluders}, the triangles of t+1 / t-1 as rendered
-    (lfusd.truth.visibility): occlusion is then exact ray-cast visibility, not the image-space test.
+    ``occluders``: {"next": Occluders, "prev": Occluders, "here": Occluders}, the triangles of t+1 /
+    t-1 / t as rendered (lfusd.truth.visibility): occlusion is then exact ray-cast visibility, not
+    the image-space test, and ``mixed`` (2x2 sub-pixel rays) is computed from "here".
     """
     backend = backend or BACKEND
     if backend not in ("numba", "numpy") or (backend == "numba" and _flow_numba is None):
@@ -326,6 +327,11 @@ def derive_motion(
     for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position)):
         if other is not None and opos is not None and (occluders or {}).get(key) is not None:
             exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
+    if (occluders or {}).get("here") is not None:
+        from .visibility import mixed_footprint
+
+        out["mixed"] = mixed_footprint(cur.camera, h, w, occluders["here"], (occluders or {}).get("next"),
+                                       nxt.camera if nxt is not None else None)
     return out
 
 

@@ -55,6 +55,16 @@ class Occluders:
             _CACHE[key] = occ
         return _CACHE[key]
 
+    def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t_hit, triangle index (-1 where none), barycentric (u, v) of the hit) per ray."""
+        import open3d as o3d
+
+        rays = np.ascontiguousarray(np.concatenate([origins, dirs], axis=-1), np.float32)
+        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        t = ans["t_hit"].numpy()
+        tri = np.where(np.isfinite(t), ans["primitive_ids"].numpy().astype(np.int64), -1)
+        return t, tri, ans["primitive_uvs"].numpy()
+
     def first_hit(self, origins: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """Ray parameter of the first surface on the segment origin -> target (1 = at the target;
         inf when nothing is hit)."""
@@ -78,3 +88,52 @@ def visibility(points: np.ndarray, camera: Camera, h: int, w: int, occluders: Oc
     C = np.asarray(camera.cam_to_world, np.float64)[:3, 3]
     t_hit[idx] = occluders.first_hit(np.broadcast_to(C, (idx.size, 3)), pts[idx])
     return inside & (t_hit >= 1 - eps), t_hit
+
+
+MIXED_DEPTH_REL = 0.01  # sub-samples whose depths differ by more than this see different surfaces
+MIXED_FLOW_PX = 0.5  # ... or whose forward flows differ by more than this move differently
+SUBSAMPLES = ((-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25))
+
+
+def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occluders | None = None,
+                    camera_next: Camera | None = None) -> np.ndarray:
+    """(H, W) bool: the pixel's footprint holds more than one surface or motion (key ``mixed``).
+
+    Four rays per pixel at (u +- 1/4, v +- 1/4) are cast against the frame's rendered triangles
+    (``here``): they differ when their hits differ in instance (or hit and miss), or in depth by
+    more than ``MIXED_DEPTH_REL``; with the next frame's triangles (``nxt``, same triangles in the
+    same order: same count) each hit is carried to t+1 on its triangle (same barycentric
+    coordinates) and projected with ``camera_next``, and forward flows more than ``MIXED_FLOW_PX``
+    apart differ too."""
+    from ..camera import pixel_grid, ray_directions
+
+    u, v = pixel_grid(h, w, np.float64)
+    C = np.asarray(camera.cam_to_world, np.float64)[:3, 3]
+    inst, depth, flow = [], [], []
+    carry = nxt is not None and camera_next is not None and len(nxt.triangles) == len(here.triangles)
+    for du, dv in SUBSAMPLES:
+        d = ray_directions(u + du, v + dv, camera).reshape(-1, 3)  # camera-z 1: t is planar depth
+        t, tri, uv = here.cast(np.broadcast_to(C, d.shape), d)
+        hit = tri >= 0
+        ids = np.zeros(tri.size, np.int64)
+        if here.instance is not None:
+            ids[hit] = np.asarray(here.instance)[tri[hit]]
+        inst.append(np.where(hit, ids, -1))
+        depth.append(np.where(hit, t, np.inf))
+        if carry:
+            P1 = np.full((tri.size, 3), np.nan)
+            V = nxt.vertices.astype(np.float64)[nxt.triangles[tri[hit]].astype(np.int64)]  # (n, 3, 3)
+            b1, b2 = uv[hit, 0].astype(np.float64), uv[hit, 1].astype(np.float64)
+            P1[hit] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
+            pu, pv, _ = project(P1, camera_next)
+            flow.append(np.stack([pu - (u + du).ravel(), pv - (v + dv).ravel()], -1))
+    inst, depth = np.stack(inst), np.stack(depth)
+    mixed = (inst != inst[:1]).any(axis=0)
+    with np.errstate(invalid="ignore"):
+        lo, hi = depth.min(axis=0), depth.max(axis=0)
+        mixed |= np.isfinite(lo) & (hi - lo > MIXED_DEPTH_REL * lo)
+        if carry:
+            fl = np.stack(flow)  # (4, N, 2)
+            spread = np.linalg.norm(fl[:, None] - fl[None], axis=-1).max(axis=(0, 1))
+            mixed |= spread > MIXED_FLOW_PX
+    return mixed.reshape(h, w)

@@ -160,7 +160,7 @@ class Scene:
 
         nxt = self.raw(frame + 1, exact) if frame + 1 in self.cams else None
         prv = self.raw(frame - 1, exact) if frame - 1 in self.cams else None
-        occ = {k: self.occluders(g) for k, g in (("next", frame + 1), ("prev", frame - 1)) if g in self.cams}
+        occ = {k: self.occluders(g) for k, g in (("next", frame + 1), ("prev", frame - 1), ("here", frame)) if g in self.cams}
         return derive_motion(self.raw(frame, exact), nxt, prv, baseline=self.baseline, backend=backend, occluders=occ)
 
     def visible_at(self, frame, step):

@@ -70,3 +70,38 @@ def test_static_point_off_the_pixel_ray_has_zero_flow():
         fg = np.isfinite(cur.position).all(-1)
         assert np.abs(m["flow_fwd"][fg]).max() < 1e-9 and np.abs(m["flow_bwd"][fg]).max() < 1e-9
         assert np.abs(m["scene_flow"][fg]).max() == 0
+
+
+@pytest.mark.parametrize("name", ["sliding", "spinning", "moving-rig"])
+def test_mixed_marks_footprints_with_more_than_one_surface_or_motion(name):
+    """``mixed`` against the closed-form oracle: four sub-pixel rays (+-1/4 px) cast at the boxes,
+    their instances, depths and forward flows (hits moved with their box to t+1) compared."""
+    from test_flow import SCENES
+
+    from lfusd.truth.visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX, SUBSAMPLES
+
+    scene = occluder_scene(**SCENES[name])
+    m = scene.derive(2)
+    H, W = scene.H, scene.W
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    c2w = scene.cams[2]
+    inst, depth, flow = [], [], []
+    for du, dv in SUBSAMPLES:
+        pix = np.stack([u + du, v + dv, np.ones_like(u)], -1)
+        d = pix @ np.linalg.inv(scene.K).T @ c2w[:3, :3].T
+        s, which, local = scene.cast(np.broadcast_to(c2w[:3, 3], d.shape), d, 2)
+        inst.append(np.where(which >= 0, np.array([b.instance for b in scene.boxes] + [0])[which], -1))
+        depth.append(s)
+        X1 = scene.to_world(which, local, 3)
+        pu, pv, _ = scene.project(X1, 3)
+        flow.append(np.stack([pu - (u + du), pv - (v + dv)], -1))
+    inst, depth, flow = np.stack(inst), np.stack(depth), np.stack(flow)
+    with np.errstate(invalid="ignore"):
+        lo, hi = depth.min(0), depth.max(0)
+        spread = np.linalg.norm(flow[:, None] - flow[None], axis=-1).max(axis=(0, 1))
+    want = (inst != inst[:1]).any(0) | (np.isfinite(lo) & (hi - lo > MIXED_DEPTH_REL * lo)) | (spread > MIXED_FLOW_PX)
+    assert want.sum() > 20 and (~want).sum() > 20
+    # exact, bar sub-samples within float tolerance of a threshold
+    near = (np.abs(spread - MIXED_FLOW_PX) < 1e-6) | (np.abs(hi - lo - MIXED_DEPTH_REL * lo) < 1e-9)
+    wrong = (m["mixed"] != want) & ~near
+    assert not wrong.any(), f"mixed differs from the oracle on {wrong.sum()} px"
