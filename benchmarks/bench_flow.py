@@ -7,8 +7,8 @@ next/previous position AOVs, float32, the channel names Blender uses) with OpenE
 it back (the inputs of one frame of one view), times deriving every motion key of one view from
 three such frames in memory, and prints Mpixel/s of both and the ratio derive / read (goal <= 0.5);
 then the same derivation with exact occlusion (visibility rays cast with Open3D against the frames'
-triangles: the wall tessellated into ``--triangles`` triangles and the block's 12), side by side,
-and the cost per view in core-seconds of each.
+triangles: the wall tessellated into ``--triangles`` triangles and the block's 12) and the ``mixed``
+mask (four sub-pixel rays per pixel), side by side, and the cost per view in core-seconds of each.
 Wall time is the figure of merit; "cpu ms" is process CPU time summed over all threads (numba's
 parallel workers included, so it also counts their spin-waiting). NUMBA_NUM_THREADS=1 gives the
 single-core cost.
@@ -141,14 +141,15 @@ def main() -> int:
     print(f"{'derive motion':<18}{t_derive * 1e3:9.1f}{mpx / t_derive:8.2f}{c_derive * 1e3:9.1f}")
     print(f"ratio derive/read: wall {t_derive / t_read:.2f}, cpu {c_derive / c_read:.2f} (goal <= 0.5)")
     if not a.no_aov:
-        occ = {"next": synthetic_triangles(a.size, 1, a.triangles), "prev": synthetic_triangles(a.size, -1, a.triangles)}
+        occ = {"next": synthetic_triangles(a.size, 1, a.triangles), "prev": synthetic_triangles(a.size, -1, a.triangles),
+               "here": synthetic_triangles(a.size, 0, a.triangles)}
         exact = lambda: derive_motion(cur, nxt, prv, baseline=0.1, backend=a.backend, occluders=occ)  # noqa: E731
         exact()
         t_exact = best_of(exact, a.repeat)
         c_exact = best_of(exact, a.repeat, time.process_time)
-        print(f"{'derive + exact occlusion':<26}{t_exact * 1e3:9.1f} ms wall, {c_exact * 1e3:9.1f} ms cpu "
-              f"({2 * a.size * a.size} visibility rays, {occ['next'].triangles.shape[0]} triangles per frame)")
-        print(f"core-seconds per view: image-space occlusion {c_derive:.3f}, exact occlusion {c_exact:.3f} "
+        print(f"{'derive + exact occlusion + mixed':<34}{t_exact * 1e3:9.1f} ms wall, {c_exact * 1e3:9.1f} ms cpu "
+              f"({2 * a.size * a.size} visibility rays, {4 * a.size * a.size} sub-pixel rays, {occ['next'].triangles.shape[0]} triangles per frame)")
+        print(f"core-seconds per view: image-space occlusion {c_derive:.3f}, exact occlusion and mixed {c_exact:.3f} "
               f"(ratio {c_exact / c_derive:.2f})")
     return 0
 
