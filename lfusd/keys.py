@@ -208,7 +208,7 @@ def accuracy_units() -> dict[str, str]:
 def markdown_table() -> str:
     """The key table of docs/CONVENTIONS.md (a test keeps the two identical)."""
     rows = [
-        "| key | shape, dtype | unit | meaning | file | produced by | stored as | verified to (p99) |",
+        "| key | shape, dtype | unit | meaning | file | produced by | stored as | verify limit (per pixel) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for k in _TABLE:
