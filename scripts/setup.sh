@@ -39,3 +39,8 @@ fi
 if ! .venv/bin/python -c "import rerun, sys; sys.exit(rerun.__version__ != '0.41.0')" 2>/dev/null; then
   .venv/bin/python -m pip install -q --no-deps rerun-sdk==0.41.0
 fi
+# numba's motion kernels, compiled once into its cache here rather than silently in a first render
+if .venv/bin/python -c "import sys; from lfusd.truth import _motion_numba as k; sys.exit(k.kernels_cached())" 2>/dev/null; then
+  echo "lfusd setup: compiling the motion kernels (numba, about 2 minutes, once)"
+  .venv/bin/python -c "from lfusd.truth.motion import compile_kernels; compile_kernels()"
+fi

@@ -288,6 +288,19 @@ def announce_compile() -> None:
                                             "later runs load them from numba's cache")
 
 
+def compile_kernels() -> bool:
+    """Compile numba's motion kernels into its on-disk cache (scripts/setup.sh calls this, so a
+    fresh clone's first render-video does not wait minutes); whether anything was compiled."""
+    if _flow_numba is None or _flow_numba.kernels_cached():
+        return False
+    cam = Camera(np.array([[4.0, 0, 1.5], [0, 4.0, 1.5], [0, 0, 1]]), np.eye(4))
+    depth = np.full((4, 4), 2.0, np.float32)
+    pos = backproject(*pixel_grid(4, 4), depth, cam).astype(np.float32)
+    raw = RawPasses(depth, np.zeros((4, 4, 4), np.float32), cam, pos, np.ones((4, 4), np.int32), pos, pos)
+    derive_motion(raw, raw, raw, baseline=0.1, backend="numba")
+    return True
+
+
 def derive_motion(
     cur: RawPasses,
     nxt: RawPasses | None = None,
