@@ -55,6 +55,13 @@ class Occluders:
             _CACHE[key] = occ
         return _CACHE[key]
 
+    @property
+    def corners(self) -> np.ndarray:
+        """(M, 3, 3) float32: each triangle's three vertices (built once)."""
+        if getattr(self, "_corners", None) is None:
+            self._corners = self.vertices[self.triangles.astype(np.int64)]
+        return self._corners
+
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit, triangle index (-1 where none), barycentric (u, v) of the hit) per ray."""
         import open3d as o3d
@@ -121,19 +128,20 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
         inst.append(np.where(hit, ids, -1))
         depth.append(np.where(hit, t, np.inf))
         if carry:
-            P1 = np.full((tri.size, 3), np.nan)
-            V = nxt.vertices.astype(np.float64)[nxt.triangles[tri[hit]].astype(np.int64)]  # (n, 3, 3)
-            b1, b2 = uv[hit, 0].astype(np.float64), uv[hit, 1].astype(np.float64)
-            P1[hit] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
+            # float32 is plenty for a 0.5 px threshold
+            P1 = np.full((tri.size, 3), np.nan, np.float32)
+            V = nxt.corners[tri[hit]]  # (n, 3, 3)
+            b1, b2 = uv[hit, 0:1], uv[hit, 1:2]
+            P1[hit] = V[:, 0] + b1 * (V[:, 1] - V[:, 0]) + b2 * (V[:, 2] - V[:, 0])
             pu, pv, _ = project(P1, camera_next)
-            flow.append(np.stack([pu - (u + du).ravel(), pv - (v + dv).ravel()], -1))
-    inst, depth = np.stack(inst), np.stack(depth)
-    mixed = (inst != inst[:1]).any(axis=0)
+            flow.append((pu - (u + du).ravel(), pv - (v + dv).ravel()))
+    mixed = (inst[1] != inst[0]) | (inst[2] != inst[0]) | (inst[3] != inst[0])
     with np.errstate(invalid="ignore"):
-        lo, hi = depth.min(axis=0), depth.max(axis=0)
+        lo = np.minimum(np.minimum(depth[0], depth[1]), np.minimum(depth[2], depth[3]))
+        hi = np.maximum(np.maximum(depth[0], depth[1]), np.maximum(depth[2], depth[3]))
         mixed |= np.isfinite(lo) & (hi - lo > MIXED_DEPTH_REL * lo)
-        if carry:
-            fl = np.stack(flow)  # (4, N, 2)
-            spread = np.linalg.norm(fl[:, None] - fl[None], axis=-1).max(axis=(0, 1))
-            mixed |= spread > MIXED_FLOW_PX
+        for a in range(len(flow)):  # the six pairs of sub-samples (NaN: a miss, compared above)
+            for b in range(a + 1, len(flow)):
+                du, dv = flow[a][0] - flow[b][0], flow[a][1] - flow[b][1]
+                mixed |= du * du + dv * dv > MIXED_FLOW_PX**2
     return mixed.reshape(h, w)
