@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdSkel
+from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel
 
 from . import gait as _gait
 from . import human as _human
@@ -276,6 +276,57 @@ def _bind_points(cpath: Path, skins) -> np.ndarray:
     return np.concatenate(out)
 
 
+def _bind_weights(skel: UsdSkel.Skeleton, skins) -> np.ndarray:
+    """(points, joints) skin weights of every skinned mesh's points, in the skeleton's joint order."""
+    joints = [str(j) for j in skel.GetJointsAttr().Get() or []]
+    index = {j: i for i, j in enumerate(joints)}
+    out = []
+    for skin in skins:
+        n = len(UsdGeom.Mesh(skin.GetPrim()).GetPointsAttr().Get(Usd.TimeCode.EarliestTime()) or [])
+        dense = np.zeros((n, len(joints)))
+        got = skin.ComputeVaryingJointInfluences(n, Usd.TimeCode.EarliestTime()) if skin.HasJointInfluences() else None
+        if got:
+            ji, jw = (np.array(a) for a in got)
+            k = skin.GetNumInfluencesPerComponent()
+            order = skin.GetJointOrder()
+            remap = np.array([index.get(str(j), -1) for j in order]) if order else np.arange(len(joints))
+            ji = ji.reshape(n, k)
+            valid = (ji >= 0) & (ji < len(remap))
+            cols = np.where(valid, remap[np.clip(ji, 0, len(remap) - 1)], -1)
+            rows = np.repeat(np.arange(n), k).reshape(n, k)
+            ok = cols >= 0
+            np.add.at(dense, (rows[ok], cols[ok]), jw.reshape(n, k)[ok])
+        out.append(dense)
+    return np.concatenate(out)
+
+
+def _measure_feet(rig: _gait.CharacterRig, weights: np.ndarray, pts: np.ndarray):
+    """(heel, ball, tip, ankle height) of the feet in the character frame, from the bind-pose points
+    (``pts``) skinned mostly to each ankle and the joints below it; None when the feet have no points."""
+    shapes = []
+    for side in "lr":
+        ankle = rig.roles[f"{side}_ankle"]
+        below = [j for j in range(len(rig.joints)) if ankle in _ancestry(j, rig.parents)]
+        sel = weights[:, below].sum(axis=1) >= 0.5
+        if sel.sum() < 3:
+            return None
+        a = rig.pos(f"{side}_ankle")
+        fwd = pts[sel, 1] - a[1]
+        ball = rig.pos(f"{side}_toe")[1] - a[1] if f"{side}_toe" in rig.roles else fwd.max()
+        shapes.append((fwd.min(), ball, fwd.max(), a[2] - pts[sel, 2].min()))
+    heel, ball, tip, height = np.array(shapes).T
+    if not (heel.max() < 0 < ball.min() <= tip.min() + 1e-9 and height.min() > 0):
+        return None
+    return float(heel.min()), float(ball.mean()), float(tip.max()), float(height.mean())
+
+
+def _ancestry(j: int, parents) -> list[int]:
+    out = [j]
+    while parents[out[-1]] >= 0:
+        out.append(int(parents[out[-1]]))
+    return out
+
+
 def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:3, :3].T + m[:3, 3]
 
@@ -337,6 +388,7 @@ def read_character(character: str | Path, target_mpu: float = 1.0) -> Character:
             "or set the file's metersPerUnit to its real units (0.01 for centimetres)"
         )
     rig = _gait.rig_from_skeleton(skel, K @ skel_world)
+    rig.foot_shape = _measure_feet(rig, _bind_weights(skel, skins), pts + T[:3, 3])
     if not rig.height > 0.5 * lo:
         raise LfusdError(
             f"character {cpath}'s head or pelvis joint is at the height of its feet (with {how}); "
@@ -352,12 +404,51 @@ def _load_character(stage: Usd.Stage, prim: Usd.Prim, character: Character):
     if layer_path:  # relative, so the stage and its character can move together
         asset = os.path.relpath(asset, os.path.dirname(layer_path))
         asset = asset if asset.startswith(".") else "./" + asset
+    top, needed = _character_prims(character)
+    prim.GetReferences().AddReference(asset, top.GetPath())
+    # Prims of the file that the character does not use (its cameras, lights, a ground) stay out.
+    stage = prim.GetStage()
+    walk = iter(Usd.PrimRange(top))
+    for other in walk:
+        path = other.GetPath()
+        if any(path.HasPrefix(n) for n in needed):
+            walk.PruneChildren()
+        elif not any(n.HasPrefix(path) for n in needed):
+            stage.OverridePrim(path.ReplacePrefix(top.GetPath(), prim.GetPath())).SetActive(False)
+            walk.PruneChildren()
+    # The referenced prim's own transform is replaced by the person's motion: it and everything
+    # above it in the file are folded into this matrix.
+    top_world = _col(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(top))
+    rel = character.skel.GetPath().MakeRelativePath(top.GetPath())
+    return character.rig, prim.GetPath().AppendPath(rel), character.K @ top_world
+
+
+def _character_prims(character: Character) -> tuple[Usd.Prim, list[Sdf.Path]]:
+    """(the prim of the character file to reference, the paths under it the character uses: its
+    SkelRoot and the materials bound to its geometry). The referenced prim is the file's default
+    prim or, when that does not hold the SkelRoot, the SkelRoot's top-level ancestor; a material
+    outside it is refused in one line."""
     root = character.root
-    prim.GetReferences().AddReference(asset, root.GetPath())
-    # The reference brings the SkelRoot's subtree; what lay above it is folded into this matrix.
-    root_world = _col(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(root))
-    rel = character.skel.GetPath().MakeRelativePath(root.GetPath())
-    return character.rig, prim.GetPath().AppendPath(rel), character.K @ root_world
+    default = character.stage.GetDefaultPrim()
+    if default and root.GetPath().HasPrefix(default.GetPath()):
+        top = default
+    else:
+        top = character.stage.GetPrimAtPath(root.GetPath().GetPrefixes()[0])
+    needed = [root.GetPath()]
+    for p in Usd.PrimRange(root):
+        if not (p.IsA(UsdGeom.Gprim) or p.IsA(UsdGeom.Subset)):
+            continue
+        mat, _ = UsdShade.MaterialBindingAPI(p).ComputeBoundMaterial()
+        if not mat:
+            continue
+        path = mat.GetPath()
+        if not path.HasPrefix(top.GetPath()):
+            raise LfusdError(
+                f"character {character.path}'s material {path} lies outside {top.GetPath()}, the prim holding its SkelRoot; "
+                f"move its materials under {top.GetPath()} (as glTF converters do)"
+            )
+        needed.append(path)
+    return top, needed
 
 
 def _next_person_path(stage: Usd.Stage) -> Sdf.Path:

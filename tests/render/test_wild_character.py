@@ -49,7 +49,7 @@ def test_gltf_character_renders_and_verifies(tmp_path):
     assert len(ids) == 1
     stage = Usd.Stage.Open(str(path))
     head = np.array(box_mesh()[3]) == "head"
-    body = stage.GetPrimAtPath(f"{PERSON}/Body")
+    body = stage.GetPrimAtPath(f"{PERSON}/Character/Body")
     for frame in FRAMES:
         centre = StageGeometry(stage).mesh(body, float(frame)).vertices[head].mean(axis=0)
         for view in ds.views:
