@@ -607,13 +607,16 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
 
 
 def write_motion(stage: Usd.Stage, skel_path: Sdf.Path | str, rig: CharacterRig, motion: Motion,
-                 root_prim: Usd.Prim, extra_ops: np.ndarray | None = None) -> UsdSkel.Animation:
+                 root_prim: Usd.Prim, extra_ops: np.ndarray | None = None,
+                 stage_ops: np.ndarray | None = None) -> UsdSkel.Animation:
     """Author ``motion``: a UsdSkel Animation bound to the skeleton, and the root's time samples.
 
     Joint translations and rotations are sampled every frame (scales are constant 1); the root
     prim gets ``xformOp:translate`` and ``xformOp:rotateZ`` samples (world from character frame)
     followed, for user characters, by a constant ``xformOp:transform`` (``extra_ops``: character
-    frame from the prim's own space: units, up axis, facing).
+    frame from the prim's own space: units, up axis, facing), all preceded, on stages that are
+    not Z-up metres (or whose parent prims are transformed), by a constant
+    ``xformOp:transform:stage`` (``stage_ops``: the parent's space from lfusd's world).
     """
     skel_path = Sdf.Path(str(skel_path))
     anim = UsdSkel.Animation.Define(stage, skel_path.AppendChild(_human.ANIMATION_NAME))
@@ -628,6 +631,8 @@ def write_motion(stage: Usd.Stage, skel_path: Sdf.Path | str, rig: CharacterRig,
     anim.CreateScalesAttr().Set(Vt.Vec3hArray([Gf.Vec3h(1, 1, 1)] * len(rig.joints)))
     xf = UsdGeom.Xformable(root_prim)
     xf.ClearXformOpOrder()
+    if stage_ops is not None and not np.allclose(stage_ops, np.eye(4), rtol=0, atol=1e-12):
+        xf.AddTransformOp(opSuffix="stage").Set(Gf.Matrix4d(*np.asarray(stage_ops).T.ravel().tolist()))
     move, turn = xf.AddTranslateOp(), xf.AddRotateZOp()
     # Unwrapped, so that samples never jump by 360 degrees (sub-frame interpolation stays a turn).
     yaw = np.degrees(np.unwrap(np.arctan2(motion.root[:, 1, 0], motion.root[:, 0, 0])))

@@ -274,7 +274,7 @@ _PART_JOINTS = {
 }
 for _s in "lr":
     _PART_JOINTS[f"{_s}_leg"] = ["pelvis", f"{_s}_hip", f"{_s}_knee", f"{_s}_ankle"]
-    _PART_JOINTS[f"{_s}_foot"] = [f"{_s}_knee", f"{_s}_ankle", f"{_s}_toe"]
+    _PART_JOINTS[f"{_s}_foot"] = [f"{_s}_ankle", f"{_s}_toe"]  # a rigid sole: no knee, which would sink it
     _PART_JOINTS[f"{_s}_arm"] = ["chest", f"{_s}_shoulder", f"{_s}_elbow", f"{_s}_wrist"]
     _PART_JOINTS[f"{_s}_hand"] = [f"{_s}_elbow", f"{_s}_wrist"]
 
@@ -329,6 +329,10 @@ def skin_weights(spec: HumanSpec, points: np.ndarray, parts: list[str], counts: 
             raw = acc / (1.0 + deg)[:, None]
     # Rank rounded weights: weights equal in exact arithmetic differ in their last bit from CPU to
     # CPU, and the stable sort then breaks such ties by joint index, the same on every machine.
+    # Feet are two rigid pieces hinged at the ball (gait rolls them about it): blended weights
+    # in front of the hinge would turn down into the ground at push-off.
+    feet = np.char.endswith(parts_arr, "_foot")
+    raw[feet] = np.eye(raw.shape[1])[np.argmax(raw[feet], axis=1)]
     raw = round_values(raw)
     order = np.argsort(-raw, axis=1, kind="stable")[:, :influences]
     w = np.take_along_axis(raw, order, axis=1)

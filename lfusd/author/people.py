@@ -25,7 +25,7 @@ from . import human as _human
 from ..errors import LfusdError
 from .geometry import StageGeometry
 from .labels import class_label, labelled_ancestor, set_class_label
-from .stage import frame_range, meters_per_unit, world_frame
+from .stage import frame_range, world_frame
 from .vocabulary import GROUND, WATER
 
 PEOPLE_SCOPE = "/World/People"
@@ -162,6 +162,13 @@ class SupportSurfaces:
             nearest = good[np.argmin(np.abs(np.nonzero(bad)[0][:, None] - good[None]), axis=1)]
             z[bad] = z[nearest]
         return z
+
+
+def path_axes(wf) -> np.ndarray:
+    """2x2 map of path points (metres along the stage's horizontal axes: X and Y on a Z-up
+    stage, X and Z on a Y-up one) to lfusd's world X, Y (lfusd.author.stage.WorldFrame); its
+    own inverse."""
+    return np.diag([1.0, -1.0]) if wf.up_axis == "Y" else np.eye(2)
 
 
 def person_surfaces(stage: Usd.Stage) -> tuple[tuple[str, ...], tuple[str, ...]]:
@@ -331,20 +338,19 @@ def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:3, :3].T + m[:3, 3]
 
 
-def read_character(character: str | Path, target_mpu: float = 1.0) -> Character:
+def read_character(character: str | Path) -> Character:
     """Open and check a user's UsdSkel character (glTF/FBX conversions, Mixamo rigs, ...).
 
     The file's upAxis and metersPerUnit (lfusd.author.stage.world_frame) and every transform above
     and on the way to the skeleton are honoured; the character is turned to face +Y (its left hip
     towards -X) and its origin moved to the ground (its lowest bind-pose vertex) between its
     ankles. Refuses (one-line LfusdError, naming the file) a file without a skeleton, SkelRoot or
-    bound mesh, joints that the alias table (lfusd.author.skeletons) cannot match, blend shapes,
+    bound mesh, a skeleton that is no biped (lfusd.author.skeletons.recognise_biped), blend shapes,
     a bind pose that is flat, lying down or upside down, and a stature outside 0.3-3 m."""
     cpath = Path(character)
     cstage, skel, root, skins = _open_character(cpath)
     wf = world_frame(cstage)
     W = wf.matrix()
-    W[:3, :3] /= target_mpu
     time = Usd.TimeCode.EarliestTime()  # transforms above the SkelRoot are baked in as they stand
     xcache = UsdGeom.XformCache(time)
     skel_world = _col(xcache.GetLocalToWorldTransform(skel.GetPrim()))
@@ -476,13 +482,9 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     default_support, default_water = person_surfaces(stage)
     support = tuple(support) if support is not None else default_support
     water = tuple(water) if water is not None else default_water
-    pts = check_points(points)
-    up = UsdGeom.GetStageUpAxis(stage)
-    if abs(meters_per_unit(stage) - 1.0) > 1e-9 or up != UsdGeom.Tokens.z:
-        raise LfusdError(
-            f"the stage's upAxis is {up} and its metersPerUnit is {meters_per_unit(stage):g}; lfusd animate needs a Z-up stage in metres "
-            "(upAxis = Z, metersPerUnit = 1): convert it, or reference it from one under an Xform that maps it there"
-        )
+    wf = world_frame(stage)
+    axes = path_axes(wf)
+    pts = check_points(points) @ axes.T  # lfusd's world (Z up, metres) from here on
     first, last = frame_range(stage)
     start = first if start is None else int(start)
     if not first <= start <= last:
@@ -492,7 +494,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     if gait != "idle" and not speed > 0:
         raise LfusdError(f"speed {speed:g} m/s is not positive; give a {gait} speed > 0 m/s")
     if character is not None:
-        character = read_character(character, meters_per_unit(stage))  # refuse a bad file before other work
+        character = read_character(character)  # refuse a bad file before other work
     fps = stage.GetTimeCodesPerSecond() or _gait.FPS
     frames = np.arange(first, last + 1)
 
@@ -509,7 +511,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     z, owners = surfaces.cast(route.at(dist)[0])
     for f, zz, own in zip(frames, z, owners):
         if own is None:
-            x, y = route.at(dist[frames == f])[0][0]
+            x, y = axes.T @ route.at(dist[frames == f])[0][0]
             raise LfusdError(
                 f"person path leaves the supporting surfaces at frame {f} (nothing labelled "
                 f"{'/'.join(support[:4])}... under {x:.2f},{y:.2f}); keep the path on the ground"
@@ -536,7 +538,10 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
         dist, table, _ = _gait.journey(gait, speed, route.length, rig.height, frames, start, fps)
     traj = _gait.Trajectory(frames, dist, route.at, surfaces.ground, table)
     motion = _gait.bake(rig, params, traj, fps)
-    _gait.write_motion(stage, skel_path, rig, motion, prim, post)
+    # The motion is in lfusd's world; the prim's parent space is the stage's (axes, units, transforms).
+    parent = np.array(UsdGeom.XformCache(Usd.TimeCode(float(start))).GetLocalToWorldTransform(prim.GetParent()), np.float64).T
+    pre = np.linalg.inv(wf.matrix() @ parent)
+    _gait.write_motion(stage, skel_path, rig, motion, prim, post, pre)
     try:
         from .rules import DEFAULT_TOLERANCE, set_constraint
     except ImportError:

@@ -156,9 +156,10 @@ def _path(top: int, bottom: int, parents) -> list[int]:
 
 
 def _long_bones(top: int, chain: list[int], pos: np.ndarray) -> list[tuple[int, int]]:
-    """(start, end) joints of the limb's long bones along ``chain`` (short ones, such as a
-    clavicle, a hip offset joint or twist joints, are skipped)."""
-    joints = [top] + chain
+    """(start, end) joints of the limb's long bones along ``chain``, which leaves the body at
+    ``top``: bones between two of the limb's joints (the offset from ``top`` to the limb's first
+    joint is none), short ones (a clavicle, a hip offset joint, twist joints, the hand) skipped."""
+    joints = chain
     lengths = np.array([np.linalg.norm(pos[b] - pos[a]) for a, b in zip(joints, joints[1:])])
     if not len(lengths) or lengths.max() <= 0:
         return []
@@ -269,7 +270,7 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
         chest = _lca([arms["l"][0], arms["r"][0]], parents)
         for key, (_, tip, _) in arms.items():
             bones = _long_bones(chest, _path(chest, tip, parents), pos)
-            if len(bones) >= 2:
+            if len(bones) >= 2 and not {bones[0][0], bones[0][1], bones[1][1]} & on_spine:
                 roles[f"{key}_shoulder"], roles[f"{key}_elbow"], roles[f"{key}_wrist"] = bones[0][0], bones[0][1], bones[1][1]
         if chest != pelvis:
             roles["chest"] = chest

@@ -78,17 +78,25 @@ def test_skin_weights_are_normalised_and_smooth():
     spec = HumanSpec()
     pts, counts, idx, parts = body_mesh(spec)
     ji, jw = skin_weights(spec, pts, parts, counts, idx)
+    P_ = {n: i for i, n in enumerate(JOINT_NAMES)}
     assert ji.shape == jw.shape == (len(pts), 4)
     assert np.all(jw >= 0) and np.allclose(jw.sum(axis=1), 1.0)
     dense = np.zeros((len(pts), len(JOINT_NAMES)))
     np.put_along_axis(dense, ji, jw, axis=1)
-    # Smooth: neighbouring vertices have similar weights (no hard seams)...
+    # Smooth: neighbouring vertices have similar weights (no hard seams), but for the feet...
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    foot = np.char.endswith(np.array(parts), "_foot")
     diffs = []
     for s, c in zip(starts, counts):
         f = idx[s : s + c]
-        diffs.append(np.abs(dense[f] - dense[np.roll(f, -1)]).sum(axis=1).max())
+        if not foot[f].any():
+            diffs.append(np.abs(dense[f] - dense[np.roll(f, -1)]).sum(axis=1).max())
     assert max(diffs) < 0.75  # raw inverse-distance weights (no smoothing) reach 1.85 here
+    # ...which are two rigid pieces, heel to ball on the ankle and the toes on the toe joint (so
+    # that rolling the foot about its ball turns no point of it into the ground).
+    for side in "lr":
+        on = np.array(parts) == f"{side}_foot"
+        assert np.all(jw[on, 0] == 1.0) and set(ji[on, 0]) == {P_[f"{side}_ankle"], P_[f"{side}_toe"]}
     # ...and vertices around the knees and elbows are blended between the two bones.
     P = {n: i for i, n in enumerate(JOINT_NAMES)}
     for a, b in (("l_hip", "l_knee"), ("r_shoulder", "r_elbow")):
