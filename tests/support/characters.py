@@ -262,3 +262,19 @@ def smpl_cm(path) -> str:
     lie[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # rotateX -90: canonical Z-up content -> Y-up
     return write_character(path, "smpl", up="Z", meters_per_unit=0.01, content=scaled(100.0) @ lie,
                            above=[("translate", (300.0, -200.0, 40.0)), ("rotateZ", -90.0), ("rotateX", 90.0)], seed=1)
+
+
+def gltf_numbered(path) -> str:
+    """CesiumMan-shaped: numbered joints, Y-up centimetres, content Z-up facing -Y stood up by a
+    rotateX -90 above the SkelRoot, textured."""
+    return write_character(path, "numbered", up="Y", meters_per_unit=0.01, content=scaled(100.0, 180.0),
+                           above=[("rotateX", -90.0)], textured=True, seed=3)
+
+
+def yup_cm_set(path: Path) -> None:
+    """A set for characters: tests/support/world_stages' scene on a Y-up centimetre stage, 72 frames (ground at world z = 0)."""
+    from .world_stages import write_world_stage
+
+    stage = write_world_stage(path, "Y", 0.01)
+    stage.SetEndTimeCode(72)
+    stage.Save()
