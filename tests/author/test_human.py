@@ -135,3 +135,53 @@ def test_bad_spec_is_a_one_line_error(spec):
     with pytest.raises(LfusdError) as e:
         _stage(spec)
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("gait", ["walk", "run"])
+def test_thighs_never_pass_through_the_torso(gait):
+    """Issue 25: the top of each thigh lies inside the torso's shell at rest; walking or running, no
+    vertex of a leg crosses the torso's surface and no vertex of the torso crosses a leg's (one
+    inside stays inside, one outside stays outside), so neither passes through the other. Checked
+    on pxr-skinned world vertices with Open3D occupancy of each closed shell at each frame."""
+    import open3d as o3d
+
+    from lfusd.author.geometry import StageGeometry, triangulate
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.people import add_person
+
+    stage = new_stage(None, 1, 36)
+    ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    ground.CreatePointsAttr([(-10, -10, 0), (10, -10, 0), (10, 10, 0), (-10, 10, 0)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    set_class_label(ground.GetPrim(), "ground")
+    person = add_person(stage, [(-4.0, 0.0), (4.0, 0.0)], gait=gait, check=False)
+    pts, counts, idx, parts = body_mesh(HumanSpec())
+    parts = np.array(parts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    face_part = parts[idx[starts]]
+
+    def shell(part):
+        sel = face_part == part
+        return triangulate(counts[sel], np.concatenate([idx[s:s + c] for s, c in zip(starts[sel], counts[sel])]))
+
+    pairs = [("torso", "l_leg"), ("torso", "r_leg"), ("l_leg", "torso"), ("r_leg", "torso")]  # (shell, its visitor)
+
+    def inside(v):
+        out = []
+        for part, visitor in pairs:
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(v.astype(np.float32), shell(part).astype(np.uint32))
+            out.append(scene.compute_occupancy(o3d.core.Tensor(v[parts == visitor].astype(np.float32))).numpy() > 0)
+        return out
+
+    rest = inside(pts)
+    assert rest[0].sum() >= 8 and rest[1].sum() >= 8  # the thighs' tops are inside the torso
+    geo = StageGeometry(stage)
+    body = stage.GetPrimAtPath(f"{person.GetPath()}/Body")
+    for f in range(1, 37):
+        v = geo.mesh(body, float(f)).vertices
+        assert len(v) == len(pts)
+        for (part, visitor), now, then in zip(pairs, inside(v), rest):
+            crossed = np.count_nonzero(now != then)
+            assert crossed == 0, f"frame {f}: {crossed} {visitor} vertices crossed the surface of the {part}"
