@@ -214,3 +214,34 @@ def test_alias_table_matches_common_rigs():
     # Names that are no role stay unmatched (CesiumMan's numbered joints, fingers, twist bones).
     assert recognise_roles(["Skeleton_torso_joint_1", "leg_joint_L_1", "LeftHandIndex1", "LeftUpLegTwist"]) == {}
     assert set(ALIASES) == {"pelvis", "spine", "chest", "neck", "head", "shoulder", "elbow", "wrist", "hip", "knee", "ankle", "toe"}
+
+
+def test_anonymous_joints_unreal_root_and_geom_bind_walk_with_soles_on_the_ground(tmp_path):
+    """Names carry nothing here (joint_0, joint_1, ...), an Unreal-style root joint sits on the ground
+    under the pelvis, and the mesh is authored in another space (geomBindTransform: turned, scaled
+    by 100 and moved, as Blender's exporter writes it): recognised by its shape, the character walks
+    with its soles on the ground (within 1 cm at every frame, sliding under 1 cm per step) at its size."""
+    from support.skel_measure import sole_heights, sole_slides
+
+    a = np.radians(30.0)
+    geom_bind = np.eye(4)
+    geom_bind[:3, :3] = 100.0 * np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    geom_bind[:3, 3] = (5.0, -3.0, 2.0)
+
+    def writer(path):
+        write_character(path, "cesium", up="Y", content=scaled(100.0, 180.0), above=[("rotateX", -90.0), ("scale", 0.01)],
+                        root_joint=True, geom_bind=geom_bind, seed=5)
+
+    stage, person = place(tmp_path, writer, (-2.0, 1.0), (2.0, 1.0))
+    geo = StageGeometry(stage)
+    verts = np.array([geo.mesh(stage.GetPrimAtPath(f"{person}/Character/Body"), float(f)).vertices for f in range(1, LAST + 1)])
+    keys = np.array(box_mesh()[3])
+    feet = [(keys == f"{s}_ankle") | (keys == f"{s}_toe") for s in "lr"]
+    ground = lambda xy: np.full(len(xy), GROUND)  # noqa: E731
+    h = sole_heights(verts, feet, ground)
+    assert h.min() > -0.01 and np.all(h.min(axis=1) < 0.01)
+    assert sole_slides(verts, feet, ground).max() < 0.01
+    top = verts[..., 2].max(axis=1) - GROUND
+    assert np.all((top > HEIGHT - 0.1) & (top < HEIGHT + 0.01))
+    along = verts.mean(axis=1)[:, 0]
+    assert along[-1] - along[0] > 1.5

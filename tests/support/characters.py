@@ -129,7 +129,7 @@ def _gf(m: np.ndarray) -> Gf.Matrix4d:
 def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_unit: float = 1.0,
                     content: np.ndarray = np.eye(4), above=(), seed: int = 0, bind_scale: float = 1.0,
                     bind_mesh: bool = True, blend_shape: bool = False, textured: bool = False,
-                    drop: tuple[str, ...] = ()) -> str:
+                    drop: tuple[str, ...] = (), root_joint: bool = False, geom_bind: np.ndarray | None = None) -> str:
     """Write a character file; returns the SkelRoot's path.
 
     ``content`` (4x4, column vectors) maps the canonical frame to the skeleton's space (the
@@ -139,7 +139,10 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
     origin (a degenerate bind pose). ``textured``: a UsdPreviewSurface whose colour is a PNG texture
     beside the file (:data:`TEXTURE_RGB`), under ``/Root/Materials`` outside the SkelRoot, as glTF
     converters write it, and a camera and a light beside the character (which a placed person must not
-    bring along). ``drop``: canonical joints left out, with the joints and boxes below them."""
+    bring along). ``drop``: canonical joints left out, with the joints and boxes below them.
+    ``root_joint``: an Unreal-style ``root`` joint on the ground under the pelvis, parent of it.
+    ``geom_bind`` (4x4, column vectors): the mesh's points are authored in another space and its
+    geomBindTransform (this matrix) takes them to the skeleton's, as Blender's exporter writes it."""
     rng = np.random.default_rng(seed)
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
@@ -156,14 +159,20 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
     root = UsdSkel.Root.Define(stage, "/Root/Character")
     names = _names(style)
     keys_kept = [k for k in KEYS if not any(d == k or _below(k, d) for d in drop)]
+    parents = {k: _CANON[k][0] for k in keys_kept}
+    where = {k: canon_position(k) for k in keys_kept}
+    if root_joint:
+        keys_kept, names = ["root"] + keys_kept, {**names, "root": "root"}
+        parents.update(root=None, pelvis="root")
+        where["root"] = np.zeros(3)
     joints, bind, rest = [], [], []
     world = {}
     for key in keys_kept:
-        parent = _CANON[key][0]
+        parent = parents[key]
         joints.append(f"{joints[keys_kept.index(parent)]}/{names[key]}" if parent else names[key])
         m = np.eye(4)  # rigid joint frames in the converter's space: a random orientation, at the joint
         m[:3, :3] = _rotation(rng)
-        m[:3, 3] = content[:3, :3] @ canon_position(key) * bind_scale + content[:3, 3]
+        m[:3, 3] = content[:3, :3] @ where[key] * bind_scale + content[:3, 3]
         world[key] = m
         bind.append(world[key])
         rest.append(np.linalg.inv(world[parent]) @ world[key] if parent else world[key])
@@ -173,6 +182,9 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
     skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_gf(m) for m in rest]))
     points, counts, indices, keys = box_mesh(keys_kept)
     pts = points @ content[:3, :3].T + content[:3, 3]
+    if geom_bind is not None:
+        inv = np.linalg.inv(geom_bind)
+        pts = pts @ inv[:3, :3].T + inv[:3, 3]
     mesh = UsdGeom.Mesh.Define(stage, "/Root/Character/Body")
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
     mesh.CreateFaceVertexCountsAttr(counts)
@@ -184,7 +196,7 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
         binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
         binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([keys_kept.index(k) for k in keys]))
         binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(keys)))
-        binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1))
+        binding.CreateGeomBindTransformAttr(_gf(np.eye(4) if geom_bind is None else geom_bind))
         if blend_shape:
             shape = UsdSkel.BlendShape.Define(stage, "/Root/Character/Body/Smile")
             shape.CreateOffsetsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 0, 1)]))
