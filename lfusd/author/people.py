@@ -18,13 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel
+from pxr import Sdf, Usd, UsdGeom, UsdSemantics, UsdShade, UsdSkel
 
 from . import gait as _gait
 from . import human as _human
 from ..errors import LfusdError
 from .geometry import StageGeometry
-from .labels import class_label, labelled_ancestor, set_class_label
+from .labels import TAXONOMY, class_label, labelled_ancestor, set_class_label
 from .stage import frame_range, world_frame
 from .vocabulary import GROUND, WATER
 
@@ -422,6 +422,10 @@ def _load_character(stage: Usd.Stage, prim: Usd.Prim, character: Character):
         elif not any(n.HasPrefix(path) for n in needed):
             stage.OverridePrim(path.ReplacePrefix(top.GetPath(), prim.GetPath())).SetActive(False)
             walk.PruneChildren()
+    # The person is one object, labelled person: class labels inside the file are blanked here.
+    for inner in Usd.PrimRange(prim):
+        if inner != prim and class_label(inner):
+            UsdSemantics.LabelsAPI(inner, TAXONOMY).GetLabelsAttr().Set([])
     # The referenced prim's own transform is replaced by the person's motion: it and everything
     # above it in the file are folded into this matrix.
     top_world = _col(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(top))

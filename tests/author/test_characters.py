@@ -245,3 +245,33 @@ def test_anonymous_joints_unreal_root_and_geom_bind_walk_with_soles_on_the_groun
     assert np.all((top > HEIGHT - 0.1) & (top < HEIGHT + 0.01))
     along = verts.mean(axis=1)[:, 0]
     assert along[-1] - along[0] > 1.5
+
+
+def test_placed_character_is_one_person_object_with_its_materials_and_nothing_else(tmp_path):
+    """A character file that labels itself (its SkelRoot 'pedestrian'), keeps its material beside its
+    SkelRoot and holds a camera and a light: the placed person is one object labelled person (the
+    file's label blanked in the stage's layer, the file untouched), bound to its own material, and
+    the camera and light stay out."""
+    from pxr import UsdShade
+
+    from lfusd.author.labels import object_table
+
+    char = tmp_path / "character.usda"
+    write_character(char, "numbered", up="Y", meters_per_unit=0.01, content=scaled(100.0, 180.0), above=[("rotateX", -90.0)],
+                    textured=True)
+    cstage = Usd.Stage.Open(str(char))
+    set_class_label(cstage.GetPrimAtPath("/Root/Character"), "pedestrian")
+    cstage.Save()
+    before = char.read_bytes()
+    path = tmp_path / "stage.usda"
+    ground_stage(path)
+    assert main(["animate", "add-person", str(path), "--path", "-2,1", "2,1", "--character", str(char)]) == 0
+    assert char.read_bytes() == before
+    stage = Usd.Stage.Open(str(path))
+    objects, _ = object_table(stage)
+    people = [o for o in objects if o.label != "ground"]
+    assert [(o.prim_path, o.label) for o in people] == [("/World/People/Person_00", "person")]
+    mat, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath("/World/People/Person_00/Character/Body")).ComputeBoundMaterial()
+    assert mat.GetPath() == "/World/People/Person_00/Materials/Skin"
+    for name in ("Camera", "Light"):
+        assert not stage.GetPrimAtPath(f"/World/People/Person_00/{name}").IsActive()
