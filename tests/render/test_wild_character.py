@@ -97,3 +97,33 @@ def test_gltf_shaped_character_renders_textured_and_verifies(tmp_path):
         assert mask.sum() >= 10, view
         r, g, b = ds.read(20, view, "rgb")[mask][..., :3].astype(float).mean(axis=0)
         assert g > 1.5 * max(r, b) and g > 20, (view, r, g, b)
+
+
+def test_gltf_shaped_character_runs_on_the_street_set_renders_textured_and_verifies(tmp_path):
+    """Issue 25: the same character running along the committed street set's pavement (a new layer
+    over it, with a rig looking down on the runner about 0.9 m along its path at frames 20-22):
+    render-video and verify pass, and its pixels show its texture's green."""
+    from pathlib import Path
+
+    from lfusd.author.stage import open_stage
+    from support.characters import TEXTURE_RGB, gltf_numbered
+
+    street = Path(__file__).resolve().parents[2] / "stages" / "street_00.usda"
+    char = tmp_path / "cesium" / "man.usda"
+    char.parent.mkdir()
+    gltf_numbered(char)
+    path = tmp_path / "shot.usda"
+    assert main(["animate", "add-person", str(street), "-o", str(path), "--path", "10,4.6", "17,4.6", "--gait", "run",
+                 "--character", str(char)]) == 0
+    stage = open_stage(path)
+    add_rig(stage, RigSpec(name="main", rows=2, cols=2, width=32, height=32, baseline=0.05, at=(10.9, 4.3, 4.4),
+                           look_at=(10.9, 4.6, 1.0)))
+    stage.GetRootLayer().Save()
+    ds, _ = render_and_verify(path, tmp_path / "out", "--frames", "20-22", rig="main")  # the set has its own rigs too
+    ids = [i for i, o in ds.objects.items() if o.prim_path == PERSON]
+    assert len(ids) == 1 and TEXTURE_RGB[1] > 3 * max(TEXTURE_RGB[0], TEXTURE_RGB[2])
+    for view in ds.views:
+        mask = ds.read(20, view, "instance") == ids[0]
+        assert mask.sum() >= 10, view
+        r, g, b = ds.read(20, view, "rgb")[mask][..., :3].astype(float).mean(axis=0)
+        assert g > 1.5 * max(r, b) and g > 20, (view, r, g, b)
