@@ -9,9 +9,11 @@ and an analytic two-bone IK turns ankle targets into hip and knee rotations. Bec
 world points, feet do not slide however the path turns or the ground slopes.
 
 All posing is done as world-space *deltas* from the skeleton's bind pose in the character frame
-(Z up, facing +Y, metres), so any UsdSkel character whose joints can be recognised by name
-(lfusd.author.skeletons: lfusd's own, Mixamo, glTF/Blender, Unreal and SMPL names) can be driven
-the same way.
+(Z up, facing +Y, metres), so any two-legged UsdSkel character can be driven the same way: its
+joints' roles come from its skeleton's shape (lfusd.author.skeletons.recognise_biped), with names
+(lfusd's own, Mixamo, glTF/Blender, Unreal and SMPL) as a fallback. Feet land on the back of the
+heel and push off about the ball with the toes held flat (the foot measured on the mesh, see
+:attr:`CharacterRig.foot`), so no sole point sinks into the ground or slides along it.
 """
 
 from __future__ import annotations

@@ -1,6 +1,8 @@
 """Putting people on a stage: a walking or running person along a path over supporting surfaces.
 
-The path (X,Y points in stage units) has its corners rounded with circular fillets, so the
+The path (points in metres along the stage's horizontal axes: X, Y on a Z-up stage, X, Z on a
+Y-up one; :func:`path_axes`) is worked in lfusd's world (Z up, metres) and the person authored
+into the stage's axes, units and parent transforms. It has its corners rounded with circular fillets, so the
 person turns smoothly; the person's root follows the path from ``start``, speeding up from rest
 to the given speed and slowing to a stop at the path's end (standing at the first point before,
 at the last point after); its height is the supporting surface under it found by ray casting
@@ -471,7 +473,8 @@ def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
 def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3, start: int | None = None,
                character: str | Path | None = None, spec: _human.HumanSpec = _human.HumanSpec(),
                path: str | None = None, support=None, water=None, check: bool = True) -> Usd.Prim:
-    """Add a person walking/running along ``points`` (X,Y) from frame ``start``; returns its prim.
+    """Add a person walking/running along ``points`` (metres along the stage's horizontal axes,
+    :func:`path_axes`) from frame ``start``; returns its prim.
 
     ``gait="idle"`` makes a person who stands (breathing, shifting weight) at the first point,
     facing the second.

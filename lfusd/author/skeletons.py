@@ -1,4 +1,5 @@
-"""Recognising a character's joints by name: lfusd's joint alias table.
+"""Recognising a character's joints: by the skeleton's shape (:func:`recognise_biped`), and by
+name through lfusd's joint alias table (:func:`recognise_roles`, the fallback).
 
 lfusd drives any UsdSkel skeleton through a few *roles* (pelvis, spine, chest, neck, head and,
 per side, shoulder, elbow, wrist, hip, knee, ankle, toe). A joint's name is matched to a role
