@@ -156,9 +156,9 @@ def _path(top: int, bottom: int, parents) -> list[int]:
     return chain[: chain.index(top)][::-1]
 
 
-def _long_bones(top: int, chain: list[int], pos: np.ndarray) -> list[tuple[int, int]]:
-    """(start, end) joints of the limb's long bones along ``chain``, which leaves the body at
-    ``top``: bones between two of the limb's joints (the offset from ``top`` to the limb's first
+def _long_bones(chain: list[int], pos: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end) joints of a limb's long bones along ``chain``, its joints from where it leaves
+    the body: bones between two of the limb's joints (the offset from the body to the limb's first
     joint is none), short ones (a clavicle, a hip offset joint, twist joints, the hand) skipped."""
     joints = chain
     lengths = np.array([np.linalg.norm(pos[b] - pos[a]) for a, b in zip(joints, joints[1:])])
@@ -213,7 +213,7 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
     legs = []
     for foot in feet:
         chain = _path(pelvis, foot, parents)
-        bones = _long_bones(pelvis, chain, pos)
+        bones = _long_bones(chain, pos)
         if len(bones) < 2:
             raise NotABiped(f"its leg down to joint {joints[foot]} has no thigh and shin (two long bones)")
         (hip, knee), (knee2, ankle) = bones[0], bones[1]
@@ -270,7 +270,7 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
     if len(arms) == 2:
         chest = _lca([arms["l"][0], arms["r"][0]], parents)
         for key, (_, tip, _) in arms.items():
-            bones = _long_bones(chest, _path(chest, tip, parents), pos)
+            bones = _long_bones(_path(chest, tip, parents), pos)
             if len(bones) >= 2 and not {bones[0][0], bones[0][1], bones[1][1]} & on_spine:
                 roles[f"{key}_shoulder"], roles[f"{key}_elbow"], roles[f"{key}_wrist"] = bones[0][0], bones[0][1], bones[1][1]
         if chest != pelvis:
