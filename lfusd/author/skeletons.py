@@ -123,9 +123,10 @@ def expected_names(role: str) -> str:
 # Fractions of the skeleton's joint height range (lowest to highest joint).
 _FOOT_BAND = 0.2  # feet: joints this close to the lowest joint ...
 _LEG_RISE = 0.35  # ... that hang below a joint at least this high (an Unreal 'root' on the ground does not)
-_ANKLE_BAND = 0.18  # an ankle lies this close to the lowest joint
+_ANKLE_BAND = 0.12  # an ankle lies this close to the lowest joint (a split shin's mid joint does not)
+_HIP_REACH = 0.9  # a hip lies at least this fraction of the leg's longest reach above its ankle
 _LONG_BONE = 0.6  # a limb's long bones (thigh, shin; upper arm, forearm): this fraction of its longest or more
-_ARM_REACH = 0.12  # an arm reaches this far sideways from the spine
+_ARM_REACH = 0.08  # an arm reaches this far sideways from the spine (hands hang ~0.12 out in an A-pose)
 
 
 class NotABiped(ValueError):
@@ -211,13 +212,23 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
         raise NotABiped("its legs and its spine do not meet at a pelvis joint")
     roles: dict[str, int] = {"pelvis": pelvis}
     legs = []
-    for foot in feet:
+    for foot, other in zip(feet, feet[::-1]):
+        # The ankle: the leg's first joint near the ground. The hip: the lowest of the leg's own
+        # joints (not shared with the other leg) about a leg's length above the ankle (below hip
+        # offset joints such as CMU's LHipJoint). The knee: the joint between them nearest the
+        # middle (rigs that split thigh and shin into two bones each have joints at 1/4 and 3/4).
         chain = _path(pelvis, foot, parents)
-        bones = _long_bones(chain, pos)
-        if len(bones) < 2:
-            raise NotABiped(f"its leg down to joint {joints[foot]} has no thigh and shin (two long bones)")
-        (hip, knee), (knee2, ankle) = bones[0], bones[1]
-        down = [pos[knee] - pos[hip], pos[ankle] - pos[knee2]]
+        near_ground = [j for j in chain if z[j] < lo + _ANKLE_BAND * span]
+        ankle = near_ground[0] if near_ground else foot
+        shared = set(_ancestors(other, parents))
+        upper = [j for j in chain[: chain.index(ankle)] if j not in shared]
+        reach = [float(np.linalg.norm(pos[j] - pos[ankle])) for j in upper]
+        hip = [j for j, r in zip(upper, reach) if r >= _HIP_REACH * max(reach)][-1] if upper else None
+        between = upper[upper.index(hip) + 1:] if hip is not None else []
+        if not between:
+            raise NotABiped(f"its leg down to joint {joints[foot]} has no hip, knee and ankle joints")
+        knee = min(between, key=lambda j: abs(np.linalg.norm(pos[j] - pos[hip]) - np.linalg.norm(pos[ankle] - pos[j])))
+        down = [pos[knee] - pos[hip], pos[ankle] - pos[knee]]
         if any(d[2] > -0.5 * np.linalg.norm(d) for d in down) or z[ankle] > lo + _ANKLE_BAND * span:
             raise NotABiped(f"its leg down to joint {joints[foot]} does not hang down from the pelvis to an ankle")
         # Toes: the child of the ankle leading furthest forward-and-sideways (a heel joint is shorter).

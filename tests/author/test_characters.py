@@ -275,3 +275,77 @@ def test_placed_character_is_one_person_object_with_its_materials_and_nothing_el
     assert mat.GetPath() == "/World/People/Person_00/Materials/Skin"
     for name in ("Camera", "Light"):
         assert not stage.GetPrimAtPath(f"/World/People/Person_00/{name}").IsActive()
+
+
+def _skeleton(spec):
+    """(joint paths, parent indices, positions) of {name: (parent, (x, y, z))} given parents first;
+    names are replaced by numbers (joint_0, ...) so that only the shape can tell the roles."""
+    names = list(spec)
+    parents = np.array([names.index(p) if p else -1 for p, _ in spec.values()])
+    paths = []
+    for i in range(len(names)):
+        paths.append(f"{paths[parents[i]]}/joint_{i}" if parents[i] >= 0 else f"joint_{i}")
+    return names, paths, parents, np.array([xyz for _, xyz in spec.values()], float)
+
+
+def _legs(spec, side, x, hip_parent, split=False, hip_offset=False, heel=False):
+    """A leg (facing +y, left at -x) under ``hip_parent``: optional hip offset joint (CMU's
+    LHipJoint), thigh and shin split in two bones each (rigify's deform chains), a heel joint."""
+    top = hip_parent
+    if hip_offset:
+        spec[f"{side}_offset"] = (top, (x * 0.2, 0.0, 0.95))
+        top = f"{side}_offset"
+    spec[f"{side}_hip"] = (top, (x, 0.0, 0.9))
+    knee_parent = f"{side}_hip"
+    if split:
+        spec[f"{side}_thigh2"] = (f"{side}_hip", (x, 0.0, 0.7))
+        knee_parent = f"{side}_thigh2"
+    spec[f"{side}_knee"] = (knee_parent, (x, 0.0, 0.5))
+    ankle_parent = f"{side}_knee"
+    if split:
+        spec[f"{side}_shin2"] = (f"{side}_knee", (x, 0.0, 0.3))
+        ankle_parent = f"{side}_shin2"
+    spec[f"{side}_ankle"] = (ankle_parent, (x, 0.0, 0.09))
+    spec[f"{side}_toe"] = (f"{side}_ankle", (x, 0.13, 0.02))
+    spec[f"{side}_toe_end"] = (f"{side}_toe", (x, 0.2, 0.0))
+    if heel:
+        spec[f"{side}_heel"] = (f"{side}_ankle", (x, -0.05, 0.0))
+
+
+@pytest.mark.parametrize("layout", ["cmu", "rigify", "hips-pelvis", "unreal-root"])
+def test_biped_shapes_are_recognised_without_names(layout):
+    """Rig layouts seen in the wild, with numbered names: CMU mocap (hip offset joints, heel joints
+    lower than the toes), rigify deform chains (thigh and shin split in two), legs under a 'Pelvis'
+    child of 'Hips' beside the spine, and an Unreal root on the ground: each leg's hip, knee, ankle
+    and toe, the pelvis and the sides are found from the shape alone."""
+    from lfusd.author.skeletons import recognise_biped
+
+    spec = {}
+    if layout == "unreal-root":
+        spec["root"] = (None, (0.0, 0.0, 0.0))
+    spec["hips"] = ("root" if layout == "unreal-root" else None, (0.0, 0.0, 0.95))
+    leg_parent = "hips"
+    if layout == "hips-pelvis":
+        spec["pelvis2"] = ("hips", (0.0, 0.0, 0.93))
+        leg_parent = "pelvis2"
+    for side, x in (("l", -0.1), ("r", 0.1)):
+        _legs(spec, side, x, leg_parent, split=layout == "rigify", hip_offset=layout == "cmu", heel=layout == "cmu")
+    spec["spine"] = ("hips", (0.0, 0.0, 1.1))
+    spec["chest"] = ("spine", (0.0, 0.0, 1.3))
+    for side, x in (("l", -1.0), ("r", 1.0)):
+        spec[f"{side}_clav"] = ("chest", (0.05 * x, 0.0, 1.4))
+        spec[f"{side}_shoulder"] = (f"{side}_clav", (0.17 * x, 0.0, 1.4))
+        spec[f"{side}_elbow"] = (f"{side}_shoulder", (0.19 * x, 0.0, 1.12))
+        spec[f"{side}_wrist"] = (f"{side}_elbow", (0.2 * x, 0.0, 0.88))
+    spec["neck"] = ("chest", (0.0, 0.0, 1.45))
+    spec["head"] = ("neck", (0.0, 0.0, 1.55))
+    spec["head_end"] = ("head", (0.0, 0.0, 1.72))
+    names, paths, parents, pos = _skeleton(spec)
+    turn = np.radians(70.0)  # any facing: the shape, not the axes, tells front and left
+    rot = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    roles = recognise_biped(paths, parents, pos @ rot.T * 100.0)  # and any units
+    got = {role: names[i] for role, i in roles.items()}
+    want = {"pelvis": "hips", "chest": "chest", "neck": "neck", "head": "head"}
+    for side in "lr":
+        want.update({f"{side}_{j}": f"{side}_{j}" for j in ("hip", "knee", "ankle", "toe", "shoulder", "elbow", "wrist")})
+    assert {r: got.get(r) for r in want} == want
