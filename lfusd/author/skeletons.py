@@ -174,8 +174,9 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
 
     ``pos``: rest (bind) joint positions, (J, 3), in a frame whose +Z is the character's up
     (any units, any facing). Feet are the two lowest joint chains hanging from the body; the
-    pelvis is where the legs and the spine (towards the highest joint) meet; hip, knee and
-    ankle start and end the two long bones of each leg; toes are the foot's forward branch;
+    pelvis is where the legs and the spine (towards the highest joint) meet; a leg's ankle is its
+    first joint near the ground, its hip the lowest of its own joints about a leg's length above,
+    its knee the joint between them nearest the middle; toes are the foot's forward branch;
     the chest is where the two arms leave the spine, and the upper arm, forearm and wrist
     follow from the arms' long bones. Left is the side to the left of where the toes point;
     without toe joints, the side that joint names give (``L``/``left`` words). Raises
