@@ -93,10 +93,10 @@ def warn_subdivision(stage: Usd.Stage, gprims) -> None:
         return
     _WARNED_SUBDIVISION.add(key)
     scheme = UsdGeom.Mesh(stage.GetPrimAtPath(found[0])).GetSubdivisionSchemeAttr().Get()
-    more = f" and {len(found) - 1} more mesh(es)" if len(found) > 1 else ""
-    log.warning("mesh %s%s has subdivisionScheme %s: lfusd renders and verifies its control cage, not the smooth limit "
+    more = f" (as do {len(found) - 1} more meshes)" if len(found) > 1 else ""
+    log.warning("mesh %s has subdivisionScheme %s%s: lfusd renders and verifies its control cage, not the smooth limit "
                 "surface; subdivide it into polygons, or author subdivisionScheme = \"none\" to accept the cage",
-                found[0], more, scheme)
+                found[0], scheme, more)
 
 
 class StageGeometry:
