@@ -285,6 +285,19 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
             bones = _long_bones(_path(chest, tip, parents), pos)
             if len(bones) >= 2 and not {bones[0][0], bones[0][1], bones[1][1]} & on_spine:
                 roles[f"{key}_shoulder"], roles[f"{key}_elbow"], roles[f"{key}_wrist"] = bones[0][0], bones[0][1], bones[1][1]
+        # Names as hints where the shape is ambiguous: an arm split into more bones (rigify's
+        # upper_arm and upper_arm.001) takes its named upper arm, forearm and hand when they form
+        # one chain on that side of the body.
+        named = recognise_roles(joints)
+        for key in "lr":
+            trio = [named.get(f"{key}_{j}") for j in ("shoulder", "elbow", "wrist")]
+            if None in trio:
+                continue
+            a, b, c = trio
+            chained = a in _ancestors(b, parents)[1:] and b in _ancestors(c, parents)[1:] and chest in _ancestors(a, parents)
+            this_side = ((pos[c, :2] - centre) @ left_dir > 0) == (key == "l")
+            if chained and this_side:
+                roles[f"{key}_shoulder"], roles[f"{key}_elbow"], roles[f"{key}_wrist"] = a, b, c
         if chest != pelvis:
             roles["chest"] = chest
         upper = spine[spine.index(chest) + 1:] if chest in spine else []

@@ -288,6 +288,15 @@ def _skeleton(spec):
     return names, paths, parents, np.array([xyz for _, xyz in spec.values()], float)
 
 
+def _rechain(paths, parents):
+    """Joint paths rebuilt from their leaf names (after renaming some leaves)."""
+    leaves = [p.split("/")[-1] for p in paths]
+    out = []
+    for i, leaf in enumerate(leaves):
+        out.append(f"{out[parents[i]]}/{leaf}" if parents[i] >= 0 else leaf)
+    return out
+
+
 def _legs(spec, side, x, hip_parent, split=False, hip_offset=False, heel=False):
     """A leg (facing +y, left at -x) under ``hip_parent``: optional hip offset joint (CMU's
     LHipJoint), thigh and shin split in two bones each (rigify's deform chains), a heel joint."""
@@ -335,12 +344,30 @@ def test_biped_shapes_are_recognised_without_names(layout):
     for side, x in (("l", -1.0), ("r", 1.0)):
         spec[f"{side}_clav"] = ("chest", (0.05 * x, 0.0, 1.4))
         spec[f"{side}_shoulder"] = (f"{side}_clav", (0.17 * x, 0.0, 1.4))
-        spec[f"{side}_elbow"] = (f"{side}_shoulder", (0.19 * x, 0.0, 1.12))
-        spec[f"{side}_wrist"] = (f"{side}_elbow", (0.2 * x, 0.0, 0.88))
+        elbow_parent = f"{side}_shoulder"
+        if layout == "rigify":  # the upper arm and forearm split in two as well
+            spec[f"{side}_upper2"] = (f"{side}_shoulder", (0.18 * x, 0.0, 1.26))
+            elbow_parent = f"{side}_upper2"
+        spec[f"{side}_elbow"] = (elbow_parent, (0.19 * x, 0.0, 1.12))
+        wrist_parent = f"{side}_elbow"
+        if layout == "rigify":
+            spec[f"{side}_fore2"] = (f"{side}_elbow", (0.195 * x, 0.0, 1.0))
+            wrist_parent = f"{side}_fore2"
+        spec[f"{side}_wrist"] = (wrist_parent, (0.2 * x, 0.0, 0.88))
+        spec[f"{side}_finger"] = (f"{side}_wrist", (0.205 * x, 0.0, 0.78))
     spec["neck"] = ("chest", (0.0, 0.0, 1.45))
     spec["head"] = ("neck", (0.0, 0.0, 1.55))
     spec["head_end"] = ("head", (0.0, 0.0, 1.72))
     names, paths, parents, pos = _skeleton(spec)
+    if layout == "rigify":  # rigify's deform names ('.' written '_' by converters) tell the split arms apart: a hint
+        rigify = {"shoulder": "DEF_upper_arm_{S}", "upper2": "DEF_upper_arm_{S}_001", "elbow": "DEF_forearm_{S}",
+                  "fore2": "DEF_forearm_{S}_001", "wrist": "DEF_hand_{S}"}
+        leaves = [p.split("/")[-1] for p in paths]
+        for i, n in enumerate(names):
+            side, _, part = n.partition("_")
+            if part in rigify:
+                leaves[i] = rigify[part].format(S=side.upper())
+        paths = _rechain(leaves, parents)
     turn = np.radians(70.0)  # any facing: the shape, not the axes, tells front and left
     rot = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
     roles = recognise_biped(paths, parents, pos @ rot.T * 100.0)  # and any units
