@@ -9,9 +9,11 @@ and an analytic two-bone IK turns ankle targets into hip and knee rotations. Bec
 world points, feet do not slide however the path turns or the ground slopes.
 
 All posing is done as world-space *deltas* from the skeleton's bind pose in the character frame
-(Z up, facing +Y, metres), so any UsdSkel character whose joints can be recognised by name
-(lfusd.author.skeletons: lfusd's own, Mixamo, glTF/Blender, Unreal and SMPL names) can be driven
-the same way.
+(Z up, facing +Y, metres), so any two-legged UsdSkel character can be driven the same way: its
+joints' roles come from its skeleton's shape (lfusd.author.skeletons.recognise_biped), with names
+(lfusd's own, Mixamo, glTF/Blender, Unreal and SMPL) as a fallback. Feet land on the back of the
+heel and push off about the ball with the toes held flat (the foot measured on the mesh, see
+:attr:`CharacterRig.foot`), so no sole point sinks into the ground or slides along it.
 """
 
 from __future__ import annotations
@@ -154,13 +156,16 @@ class CharacterRig:
     bind: np.ndarray
     roles: dict[str, int]
     skel_to_char: np.ndarray = field(default_factory=lambda: np.eye(4))
+    #: The foot measured on its mesh, metres in the character frame: (heel, ball, tip) offsets
+    #: forward of the ankle and the ankle's height above the sole; None: estimated from the joints.
+    foot_shape: tuple[float, float, float, float] | None = None
 
     def __post_init__(self):
         missing = [r for r in REQUIRED_ROLES if r not in self.roles]
         if missing:
             raise LfusdError(
                 f"skeleton has no joints recognisable as {', '.join(missing)}; rename them to names of lfusd's "
-                f"joint alias table (docs/CONVENTIONS.md, lfusd.author.skeletons.ALIASES), e.g. "
+                f"joint alias table (docs/CONVENTIONS.md, Characters), e.g. "
                 + ", ".join(_skeletons.expected_names(r) for r in missing[:3])
             )
         self.char_bind = np.einsum("ij,njk->nik", self.skel_to_char, self.bind)
@@ -173,7 +178,22 @@ class CharacterRig:
 
     @property
     def ankle_height(self) -> float:
+        """The ankles' height above the soles (the character frame's z = 0 unless measured)."""
+        if self.foot_shape is not None:
+            return float(self.foot_shape[3])
         return float(0.5 * (self.pos("l_ankle")[2] + self.pos("r_ankle")[2]))
+
+    @property
+    def foot(self) -> tuple[float, float, float]:
+        """(heel, ball, tip): how far the sole's back, the ball (toe joint) and the toe tip lie
+        forward of the ankle, metres; without a measured foot, from the toe joint (or stature)."""
+        if self.foot_shape is not None:
+            return tuple(float(v) for v in self.foot_shape[:3])
+        if "l_toe" in self.roles:
+            ball = float(abs(self.pos("l_toe")[1] - self.pos("l_ankle")[1]))
+        else:
+            ball = 0.1 * self.height
+        return -0.3 * ball, ball, ball
 
     def leg_length(self, side: str) -> tuple[float, float]:
         hip, knee, ankle = (self.pos(f"{side}_{j}") for j in ("hip", "knee", "ankle"))
@@ -192,7 +212,9 @@ def human_rig(spec: _human.HumanSpec = _human.HumanSpec()) -> CharacterRig:
     bind, _ = _human.rest_transforms(spec)
     bind = np.array([np.array(m).T for m in bind])
     joints = _human.joint_paths()
-    return CharacterRig(joints, _human.parent_indices(), bind, recognise_roles(joints))
+    P = _human.rest_positions(spec)
+    foot = (-0.03 * spec.height, float(P["l_toe"][1]), float(P["l_toe_tip"][1]), float(P["l_ankle"][2]))  # body_mesh's foot
+    return CharacterRig(joints, _human.parent_indices(), bind, recognise_roles(joints), foot_shape=foot)
 
 
 def check_joint_paths(skel: UsdSkel.Skeleton) -> None:
@@ -231,7 +253,26 @@ def rig_from_skeleton(skel: UsdSkel.Skeleton, skel_to_char: np.ndarray) -> Chara
             f"skeleton {skel.GetPath()}'s bind transform of joint {bad} scales or shears; lfusd animates rigid joints: "
             "re-export with unscaled joints (put the scale on a prim above the skeleton)"
         )
-    return CharacterRig(joints, parents, bind, recognise_roles(joints), skel_to_char)
+    return CharacterRig(joints, parents, bind, skeleton_roles(skel, joints, parents, bind, skel_to_char), skel_to_char)
+
+
+def skeleton_roles(skel: UsdSkel.Skeleton, joints: list[str], parents: np.ndarray, bind: np.ndarray,
+                   skel_to_char: np.ndarray) -> dict[str, int]:
+    """Roles of a skeleton's joints: from its shape (lfusd.author.skeletons.recognise_biped, in
+    the frame ``skel_to_char`` gives, whose +Z must be up), else from its joint names (the alias
+    table); refuses, in one line, a skeleton that is neither."""
+    pos = np.einsum("ij,njk->nik", skel_to_char, bind)[:, :3, 3]
+    try:
+        return _skeletons.recognise_biped(joints, parents, pos)
+    except _skeletons.NotABiped as e:
+        why = str(e)
+    roles = recognise_roles(joints)
+    if all(r in roles for r in REQUIRED_ROLES):
+        return roles
+    raise LfusdError(
+        f"skeleton {skel.GetPath()} is not a biped lfusd can walk: {why}; give a two-legged character standing upright "
+        "along its file's upAxis (docs/CONVENTIONS.md, Characters)"
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -328,12 +369,17 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
 
     # --- Foot targets (world), per side: plants at mid-stance under the path.
     ankle_h = rig.ankle_height
-    if "l_toe" in rig.roles:
-        ball_fwd = float(abs(rig.pos("l_toe")[1] - rig.pos("l_ankle")[1]))
-    else:
-        ball_fwd = 0.1 * rig.height
-    # Pivots in the foot's (forward, up) plane relative to the ankle, on the sole.
-    heel_pt, ball_pt = np.array([-0.3 * ball_fwd, -ankle_h]), np.array([ball_fwd, -ankle_h])
+    heel_fwd, ball_fwd, tip_fwd = rig.foot
+    # Pivots in the foot's (forward, up) plane relative to the ankle, on the sole: the foot lands
+    # on the back of its heel and pushes off from its ball (from its tip without toe joints).
+    has_toes = "l_toe" in rig.roles and "r_toe" in rig.roles
+    heel_pt = np.array([heel_fwd, -ankle_h])
+    ball_pt = np.array([tip_fwd, -ankle_h])
+    if has_toes:
+        # Halfway between the sole and the toe joint: turning the foot about the sole would slide
+        # the toes (held flat, they turn about their joint), about the joint the sole under it.
+        joint = float(rig.pos("l_toe")[2] - rig.pos("l_ankle")[2])
+        ball_pt = np.array([ball_fwd, 0.5 * (joint - ankle_h)])
     th0, th1, r1, r2 = _ROLL.get(params.gait, (0.0, 0.0, 0.1, 0.1))
 
     half_width = 0.5 * abs(rig.pos("l_ankle")[0] - rig.pos("r_ankle")[0])
@@ -429,6 +475,18 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
     inv_rot = np.transpose(root[:, :3, :3], (0, 2, 1))
     tgt_c = np.einsum("fij,fkj->fki", inv_rot, targets - root[:, None, :3, 3])
     foot_rot = [rz(foot_yaw[:, k] - heading) @ rx(pitch[:, k]) for k in range(2)]
+    # Toes bend at the ball: they never point down into the ground's slope, so they stay flat on
+    # the ground while the heel rises and lift with the ball when the foot leaves it.
+    toe_rot = foot_rot
+    toe_len = tip_fwd - ball_fwd
+    if has_toes and toe_len > 1e-3:
+        toe_rot = []
+        for k in range(2):
+            fwd = np.column_stack([np.cos(foot_yaw[:, k]), np.sin(foot_yaw[:, k])])
+            ball_xy = targets[:, k, :2] + fwd * (np.cos(pitch[:, k]) * ball_pt[0] - np.sin(pitch[:, k]) * ball_pt[1])[:, None]
+            slope_t = np.arctan2(traj.ground(ball_xy + fwd * toe_len) - traj.ground(ball_xy), toe_len)
+            slope_t = np.where(np.abs(slope_t) < np.radians(20), slope_t, 0.0)
+            toe_rot.append(rz(foot_yaw[:, k] - heading) @ rx(np.maximum(pitch[:, k], slope_t)))
 
     H = rig.height
     two_pi_phi = 2 * np.pi * phi
@@ -530,7 +588,7 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
             upper[f"{side}_knee"] = D_knee
             upper[f"{side}_ankle"] = foot_rot[k]
             if f"{side}_toe" in R:
-                upper[f"{side}_toe"] = foot_rot[k]
+                upper[f"{side}_toe"] = toe_rot[k]
 
     # Skeleton-space joint matrices: G_j = C^-1 M_j C B_j, with M_j the rigid motion of joint j.
     C = rig.skel_to_char
@@ -551,13 +609,16 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
 
 
 def write_motion(stage: Usd.Stage, skel_path: Sdf.Path | str, rig: CharacterRig, motion: Motion,
-                 root_prim: Usd.Prim, extra_ops: np.ndarray | None = None) -> UsdSkel.Animation:
+                 root_prim: Usd.Prim, extra_ops: np.ndarray | None = None,
+                 stage_ops: np.ndarray | None = None) -> UsdSkel.Animation:
     """Author ``motion``: a UsdSkel Animation bound to the skeleton, and the root's time samples.
 
     Joint translations and rotations are sampled every frame (scales are constant 1); the root
     prim gets ``xformOp:translate`` and ``xformOp:rotateZ`` samples (world from character frame)
     followed, for user characters, by a constant ``xformOp:transform`` (``extra_ops``: character
-    frame from the prim's own space: units, up axis, facing).
+    frame from the prim's own space: units, up axis, facing), all preceded, on stages that are
+    not Z-up metres (or whose parent prims are transformed), by a constant
+    ``xformOp:transform:stage`` (``stage_ops``: the parent's space from lfusd's world).
     """
     skel_path = Sdf.Path(str(skel_path))
     anim = UsdSkel.Animation.Define(stage, skel_path.AppendChild(_human.ANIMATION_NAME))
@@ -572,6 +633,8 @@ def write_motion(stage: Usd.Stage, skel_path: Sdf.Path | str, rig: CharacterRig,
     anim.CreateScalesAttr().Set(Vt.Vec3hArray([Gf.Vec3h(1, 1, 1)] * len(rig.joints)))
     xf = UsdGeom.Xformable(root_prim)
     xf.ClearXformOpOrder()
+    if stage_ops is not None and not np.allclose(stage_ops, np.eye(4), rtol=0, atol=1e-12):
+        xf.AddTransformOp(opSuffix="stage").Set(Gf.Matrix4d(*np.asarray(stage_ops).T.ravel().tolist()))
     move, turn = xf.AddTranslateOp(), xf.AddRotateZOp()
     # Unwrapped, so that samples never jump by 360 degrees (sub-frame interpolation stays a turn).
     yaw = np.degrees(np.unwrap(np.arctan2(motion.root[:, 1, 0], motion.root[:, 0, 0])))

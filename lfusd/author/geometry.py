@@ -14,6 +14,7 @@ shapes are not applied (lfusd refuses meshes that have them).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,9 @@ from pxr import Usd, UsdGeom, UsdSkel, Vt
 from ..errors import LfusdError
 from .labels import Part, Resolver, renderable_gprims, scene_parts
 from .stage import world_frame
+
+log = logging.getLogger(__name__)
+_WARNED_SUBDIVISION: set[tuple[str, ...]] = set()
 
 _CUBE_FACES = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]])
 
@@ -65,6 +69,36 @@ def _unsupported(prim: Usd.Prim) -> LfusdError:
     )
 
 
+def subdivision_surfaces(gprims) -> list[str]:
+    """Paths of the Mesh prims among ``gprims`` that author a subdivisionScheme other than
+    ``none`` (catmullClark, loop, bilinear): they are drawn as their control cage, both by
+    Blender's USD import (lfusd leaves its ``import_subdivision`` off) and by this module. An
+    unauthored scheme (USD's fallback is catmullClark) is read as a polygon mesh, as converters
+    that leave it out mean it."""
+    out = []
+    for prim in gprims:
+        if prim.IsA(UsdGeom.Mesh):
+            attr = UsdGeom.Mesh(prim).GetSubdivisionSchemeAttr()
+            if attr.HasAuthoredValue() and attr.Get() != UsdGeom.Tokens.none:
+                out.append(str(prim.GetPath()))
+    return out
+
+
+def warn_subdivision(stage: Usd.Stage, gprims) -> None:
+    """Log, once per stage and process, one warning naming the subdivision surfaces of
+    :func:`subdivision_surfaces`: renders and ground truth show their control cages."""
+    found = subdivision_surfaces(gprims)
+    key = (stage.GetRootLayer().identifier, *found)
+    if not found or key in _WARNED_SUBDIVISION:
+        return
+    _WARNED_SUBDIVISION.add(key)
+    scheme = UsdGeom.Mesh(stage.GetPrimAtPath(found[0])).GetSubdivisionSchemeAttr().Get()
+    more = f" (as do {len(found) - 1} more meshes)" if len(found) > 1 else ""
+    log.warning("mesh %s has subdivisionScheme %s%s: lfusd renders and verifies its control cage, not the smooth limit "
+                "surface; subdivide it into polygons, or author subdivisionScheme = \"none\" to accept the cage",
+                found[0], scheme, more)
+
+
 class StageGeometry:
     """Evaluates every renderable gprim of a stage at any time code (caches skeleton bindings).
 
@@ -77,6 +111,7 @@ class StageGeometry:
         self.frame = world_frame(stage)
         self.gprims = renderable_gprims(stage)
         self.parts = scene_parts(stage)
+        warn_subdivision(stage, list({str(p.prim.GetPath()): p.prim for p in self.parts}.values()))
         self._resolver: Resolver | None = None
         self._skel_cache = UsdSkel.Cache()
         self._skinning: dict[str, tuple[UsdSkel.SkinningQuery, UsdSkel.SkeletonQuery]] = {}

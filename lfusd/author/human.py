@@ -274,7 +274,7 @@ _PART_JOINTS = {
 }
 for _s in "lr":
     _PART_JOINTS[f"{_s}_leg"] = ["pelvis", f"{_s}_hip", f"{_s}_knee", f"{_s}_ankle"]
-    _PART_JOINTS[f"{_s}_foot"] = [f"{_s}_knee", f"{_s}_ankle", f"{_s}_toe"]
+    _PART_JOINTS[f"{_s}_foot"] = [f"{_s}_ankle", f"{_s}_toe"]  # a rigid sole: no knee, which would sink it
     _PART_JOINTS[f"{_s}_arm"] = ["chest", f"{_s}_shoulder", f"{_s}_elbow", f"{_s}_wrist"]
     _PART_JOINTS[f"{_s}_hand"] = [f"{_s}_elbow", f"{_s}_wrist"]
 
@@ -295,6 +295,9 @@ def _edges(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
         pairs.append(np.stack([a, b], axis=1))
     pairs = np.concatenate(pairs)
     return np.unique(np.sort(pairs, axis=1), axis=0)
+
+
+HIP_ZONE = (0.41, 0.56)  # heights (fractions of stature) where torso and thighs share one weight field
 
 
 def skin_weights(spec: HumanSpec, points: np.ndarray, parts: list[str], counts: np.ndarray | None = None,
@@ -327,6 +330,27 @@ def skin_weights(spec: HumanSpec, points: np.ndarray, parts: list[str], counts: 
             np.add.at(acc, e[:, 0], raw[e[:, 1]])
             np.add.at(acc, e[:, 1], raw[e[:, 0]])
             raw = acc / (1.0 + deg)[:, None]
+    # Hips: the torso's bottom and the thighs' tops overlap (the legs start inside the torso). Both
+    # take one weight field of position throughout HIP_ZONE (pelvis, spine and hip bones, soft and
+    # unsmoothed), ramped out above it on the torso and below it on the legs, so where the two
+    # surfaces meet they deform alike and never pass through each other (a thigh through the
+    # pelvis is two surfaces moving differently in one place: ground truth there is a tie).
+    hips = np.isin(parts_arr, ["torso", "l_leg", "r_leg"])
+    if hips.any():
+        H = spec.height
+        field = np.zeros((int(hips.sum()), len(JOINT_NAMES)))
+        for name in ("pelvis", "spine", "l_hip", "r_hip"):
+            d = _segment_distance(points[hips], P[name], P[_BONE_END[name]])
+            field[:, JOINT_NAMES.index(name)] = 1.0 / np.maximum(d, 0.06 * H) ** 2  # soft: the legs' top caps straddle bones
+        field /= field.sum(axis=1, keepdims=True)
+        z = points[hips, 2] / H
+        lo, hi = HIP_ZONE
+        ramp = np.where(parts_arr[hips] == "torso", np.clip((hi + 0.14 - z) / 0.14, 0, 1), np.clip((z - (lo - 0.16)) / 0.16, 0, 1))
+        raw[hips] = (1 - ramp[:, None]) * raw[hips] + ramp[:, None] * field
+    # Feet are two rigid pieces hinged at the ball (gait rolls them about it): blended weights
+    # in front of the hinge would turn down into the ground at push-off.
+    feet = np.char.endswith(parts_arr, "_foot")
+    raw[feet] = np.eye(raw.shape[1])[np.argmax(raw[feet], axis=1)]
     # Rank rounded weights: weights equal in exact arithmetic differ in their last bit from CPU to
     # CPU, and the stable sort then breaks such ties by joint index, the same on every machine.
     raw = round_values(raw)

@@ -1,6 +1,8 @@
 """Putting people on a stage: a walking or running person along a path over supporting surfaces.
 
-The path (X,Y points in stage units) has its corners rounded with circular fillets, so the
+The path (points in metres along the stage's horizontal axes: X, Y on a Z-up stage, X, Z on a
+Y-up one; :func:`path_axes`) is worked in lfusd's world (Z up, metres) and the person authored
+into the stage's axes, units and parent transforms. It has its corners rounded with circular fillets, so the
 person turns smoothly; the person's root follows the path from ``start``, speeding up from rest
 to the given speed and slowing to a stop at the path's end (standing at the first point before,
 at the last point after); its height is the supporting surface under it found by ray casting
@@ -18,14 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdSkel
+from pxr import Sdf, Usd, UsdGeom, UsdSemantics, UsdShade, UsdSkel
 
 from . import gait as _gait
 from . import human as _human
 from ..errors import LfusdError
 from .geometry import StageGeometry
-from .labels import class_label, labelled_ancestor, set_class_label
-from .stage import frame_range, meters_per_unit, world_frame
+from .labels import TAXONOMY, class_label, labelled_ancestor, set_class_label
+from .stage import frame_range, world_frame
 from .vocabulary import GROUND, WATER
 
 PEOPLE_SCOPE = "/World/People"
@@ -164,6 +166,13 @@ class SupportSurfaces:
         return z
 
 
+def path_axes(wf) -> np.ndarray:
+    """2x2 map of path points (metres along the stage's horizontal axes: X and Y on a Z-up
+    stage, X and Z on a Y-up one) to lfusd's world X, Y (lfusd.author.stage.WorldFrame); its
+    own inverse."""
+    return np.diag([1.0, -1.0]) if wf.up_axis == "Y" else np.eye(2)
+
+
 def person_surfaces(stage: Usd.Stage) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """(classes a person stands on, classes it must never stand on): the rulebook's ``person``
     rule (default rulebook, overridden by the stage's class rules); GROUND and WATER where it is off."""
@@ -276,24 +285,74 @@ def _bind_points(cpath: Path, skins) -> np.ndarray:
     return np.concatenate(out)
 
 
+def _bind_weights(skel: UsdSkel.Skeleton, skins) -> np.ndarray:
+    """(points, joints) skin weights of every skinned mesh's points, in the skeleton's joint order."""
+    joints = [str(j) for j in skel.GetJointsAttr().Get() or []]
+    index = {j: i for i, j in enumerate(joints)}
+    out = []
+    for skin in skins:
+        n = len(UsdGeom.Mesh(skin.GetPrim()).GetPointsAttr().Get(Usd.TimeCode.EarliestTime()) or [])
+        dense = np.zeros((n, len(joints)))
+        got = skin.ComputeVaryingJointInfluences(n, Usd.TimeCode.EarliestTime()) if skin.HasJointInfluences() else None
+        if got:
+            ji, jw = (np.array(a) for a in got)
+            k = skin.GetNumInfluencesPerComponent()
+            order = skin.GetJointOrder()
+            remap = np.array([index.get(str(j), -1) for j in order]) if order else np.arange(len(joints))
+            ji = ji.reshape(n, k)
+            valid = (ji >= 0) & (ji < len(remap))
+            cols = np.where(valid, remap[np.clip(ji, 0, len(remap) - 1)], -1)
+            rows = np.repeat(np.arange(n), k).reshape(n, k)
+            ok = cols >= 0
+            np.add.at(dense, (rows[ok], cols[ok]), jw.reshape(n, k)[ok])
+        out.append(dense)
+    return np.concatenate(out)
+
+
+def _measure_feet(rig: _gait.CharacterRig, weights: np.ndarray, pts: np.ndarray):
+    """(heel, ball, tip, ankle height) of the feet in the character frame, from the bind-pose points
+    (``pts``) skinned mostly to each ankle and the joints below it; None when the feet have no points."""
+    shapes = []
+    for side in "lr":
+        ankle = rig.roles[f"{side}_ankle"]
+        below = [j for j in range(len(rig.joints)) if ankle in _ancestry(j, rig.parents)]
+        sel = weights[:, below].sum(axis=1) >= 0.5
+        if sel.sum() < 3:
+            return None
+        a = rig.pos(f"{side}_ankle")
+        fwd = pts[sel, 1] - a[1]
+        ball = rig.pos(f"{side}_toe")[1] - a[1] if f"{side}_toe" in rig.roles else fwd.max()
+        shapes.append((fwd.min(), ball, fwd.max(), a[2] - pts[sel, 2].min()))
+    heel, ball, tip, height = np.array(shapes).T
+    if not (heel.max() < 0 < ball.min() <= tip.min() + 1e-9 and height.min() > 0):
+        return None
+    return float(heel.min()), float(ball.mean()), float(tip.max()), float(height.mean())
+
+
+def _ancestry(j: int, parents) -> list[int]:
+    out = [j]
+    while parents[out[-1]] >= 0:
+        out.append(int(parents[out[-1]]))
+    return out
+
+
 def _apply(m: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ m[:3, :3].T + m[:3, 3]
 
 
-def read_character(character: str | Path, target_mpu: float = 1.0) -> Character:
+def read_character(character: str | Path) -> Character:
     """Open and check a user's UsdSkel character (glTF/FBX conversions, Mixamo rigs, ...).
 
     The file's upAxis and metersPerUnit (lfusd.author.stage.world_frame) and every transform above
     and on the way to the skeleton are honoured; the character is turned to face +Y (its left hip
     towards -X) and its origin moved to the ground (its lowest bind-pose vertex) between its
     ankles. Refuses (one-line LfusdError, naming the file) a file without a skeleton, SkelRoot or
-    bound mesh, joints that the alias table (lfusd.author.skeletons) cannot match, blend shapes,
+    bound mesh, a skeleton that is no biped (lfusd.author.skeletons.recognise_biped), blend shapes,
     a bind pose that is flat, lying down or upside down, and a stature outside 0.3-3 m."""
     cpath = Path(character)
     cstage, skel, root, skins = _open_character(cpath)
     wf = world_frame(cstage)
     W = wf.matrix()
-    W[:3, :3] /= target_mpu
     time = Usd.TimeCode.EarliestTime()  # transforms above the SkelRoot are baked in as they stand
     xcache = UsdGeom.XformCache(time)
     skel_world = _col(xcache.GetLocalToWorldTransform(skel.GetPrim()))
@@ -337,6 +396,7 @@ def read_character(character: str | Path, target_mpu: float = 1.0) -> Character:
             "or set the file's metersPerUnit to its real units (0.01 for centimetres)"
         )
     rig = _gait.rig_from_skeleton(skel, K @ skel_world)
+    rig.foot_shape = _measure_feet(rig, _bind_weights(skel, skins), pts + T[:3, 3])
     if not rig.height > 0.5 * lo:
         raise LfusdError(
             f"character {cpath}'s head or pelvis joint is at the height of its feet (with {how}); "
@@ -352,12 +412,55 @@ def _load_character(stage: Usd.Stage, prim: Usd.Prim, character: Character):
     if layer_path:  # relative, so the stage and its character can move together
         asset = os.path.relpath(asset, os.path.dirname(layer_path))
         asset = asset if asset.startswith(".") else "./" + asset
+    top, needed = _character_prims(character)
+    prim.GetReferences().AddReference(asset, top.GetPath())
+    # Prims of the file that the character does not use (its cameras, lights, a ground) stay out.
+    stage = prim.GetStage()
+    walk = iter(Usd.PrimRange(top))
+    for other in walk:
+        path = other.GetPath()
+        if any(path.HasPrefix(n) for n in needed):
+            walk.PruneChildren()
+        elif not any(n.HasPrefix(path) for n in needed):
+            stage.OverridePrim(path.ReplacePrefix(top.GetPath(), prim.GetPath())).SetActive(False)
+            walk.PruneChildren()
+    # The person is one object, labelled person: class labels inside the file are blanked here.
+    for inner in Usd.PrimRange(prim):
+        if inner != prim and class_label(inner):
+            UsdSemantics.LabelsAPI(inner, TAXONOMY).GetLabelsAttr().Set([])
+    # The referenced prim's own transform is replaced by the person's motion: it and everything
+    # above it in the file are folded into this matrix.
+    top_world = _col(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(top))
+    rel = character.skel.GetPath().MakeRelativePath(top.GetPath())
+    return character.rig, prim.GetPath().AppendPath(rel), character.K @ top_world
+
+
+def _character_prims(character: Character) -> tuple[Usd.Prim, list[Sdf.Path]]:
+    """(the prim of the character file to reference, the paths under it the character uses: its
+    SkelRoot and the materials bound to its geometry). The referenced prim is the file's default
+    prim or, when that does not hold the SkelRoot, the SkelRoot's top-level ancestor; a material
+    outside it is refused in one line."""
     root = character.root
-    prim.GetReferences().AddReference(asset, root.GetPath())
-    # The reference brings the SkelRoot's subtree; what lay above it is folded into this matrix.
-    root_world = _col(UsdGeom.XformCache(Usd.TimeCode.EarliestTime()).GetLocalToWorldTransform(root))
-    rel = character.skel.GetPath().MakeRelativePath(root.GetPath())
-    return character.rig, prim.GetPath().AppendPath(rel), character.K @ root_world
+    default = character.stage.GetDefaultPrim()
+    if default and root.GetPath().HasPrefix(default.GetPath()):
+        top = default
+    else:
+        top = character.stage.GetPrimAtPath(root.GetPath().GetPrefixes()[0])
+    needed = [root.GetPath()]
+    for p in Usd.PrimRange(root):
+        if not (p.IsA(UsdGeom.Gprim) or p.IsA(UsdGeom.Subset)):
+            continue
+        mat, _ = UsdShade.MaterialBindingAPI(p).ComputeBoundMaterial()
+        if not mat:
+            continue
+        path = mat.GetPath()
+        if not path.HasPrefix(top.GetPath()):
+            raise LfusdError(
+                f"character {character.path}'s material {path} lies outside {top.GetPath()}, the prim holding its SkelRoot; "
+                f"move its materials under {top.GetPath()} (as glTF converters do)"
+            )
+        needed.append(path)
+    return top, needed
 
 
 def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
@@ -370,7 +473,8 @@ def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
 def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3, start: int | None = None,
                character: str | Path | None = None, spec: _human.HumanSpec = _human.HumanSpec(),
                path: str | None = None, support=None, water=None, check: bool = True) -> Usd.Prim:
-    """Add a person walking/running along ``points`` (X,Y) from frame ``start``; returns its prim.
+    """Add a person walking/running along ``points`` (metres along the stage's horizontal axes,
+    :func:`path_axes`) from frame ``start``; returns its prim.
 
     ``gait="idle"`` makes a person who stands (breathing, shifting weight) at the first point,
     facing the second.
@@ -385,13 +489,9 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     default_support, default_water = person_surfaces(stage)
     support = tuple(support) if support is not None else default_support
     water = tuple(water) if water is not None else default_water
-    pts = check_points(points)
-    up = UsdGeom.GetStageUpAxis(stage)
-    if abs(meters_per_unit(stage) - 1.0) > 1e-9 or up != UsdGeom.Tokens.z:
-        raise LfusdError(
-            f"the stage's upAxis is {up} and its metersPerUnit is {meters_per_unit(stage):g}; lfusd animate needs a Z-up stage in metres "
-            "(upAxis = Z, metersPerUnit = 1): convert it, or reference it from one under an Xform that maps it there"
-        )
+    wf = world_frame(stage)
+    axes = path_axes(wf)
+    pts = check_points(points) @ axes.T  # lfusd's world (Z up, metres) from here on
     first, last = frame_range(stage)
     start = first if start is None else int(start)
     if not first <= start <= last:
@@ -401,7 +501,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     if gait != "idle" and not speed > 0:
         raise LfusdError(f"speed {speed:g} m/s is not positive; give a {gait} speed > 0 m/s")
     if character is not None:
-        character = read_character(character, meters_per_unit(stage))  # refuse a bad file before other work
+        character = read_character(character)  # refuse a bad file before other work
     fps = stage.GetTimeCodesPerSecond() or _gait.FPS
     frames = np.arange(first, last + 1)
 
@@ -418,7 +518,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     z, owners = surfaces.cast(route.at(dist)[0])
     for f, zz, own in zip(frames, z, owners):
         if own is None:
-            x, y = route.at(dist[frames == f])[0][0]
+            x, y = axes.T @ route.at(dist[frames == f])[0][0]
             raise LfusdError(
                 f"person path leaves the supporting surfaces at frame {f} (nothing labelled "
                 f"{'/'.join(support[:4])}... under {x:.2f},{y:.2f}); keep the path on the ground"
@@ -445,7 +545,10 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
         dist, table, _ = _gait.journey(gait, speed, route.length, rig.height, frames, start, fps)
     traj = _gait.Trajectory(frames, dist, route.at, surfaces.ground, table)
     motion = _gait.bake(rig, params, traj, fps)
-    _gait.write_motion(stage, skel_path, rig, motion, prim, post)
+    # The motion is in lfusd's world; the prim's parent space is the stage's (axes, units, transforms).
+    parent = np.array(UsdGeom.XformCache(Usd.TimeCode(float(start))).GetLocalToWorldTransform(prim.GetParent()), np.float64).T
+    pre = np.linalg.inv(wf.matrix() @ parent)
+    _gait.write_motion(stage, skel_path, rig, motion, prim, post, pre)
     try:
         from .rules import DEFAULT_TOLERANCE, set_constraint
     except ImportError:

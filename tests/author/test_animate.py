@@ -383,11 +383,24 @@ def test_character_without_skeleton_is_refused(tmp_path):
         add_person(Usd.Stage.Open(str(path)), [(-4, 0), (0, 0)], character=tmp_path / "nope.usda")
 
 
-def test_stage_not_in_metres_is_refused(tmp_path):
-    stage = Usd.Stage.CreateInMemory()  # USD's fallback unit is the centimetre
+def test_stage_in_centimetres_gets_a_person_of_metres(tmp_path):
+    """USD's fallback unit is the centimetre: a 1.75 m person is 175 stage units tall there, and a
+    path of metres (0,0 -> 1,0) moves it 100 units along the stage's X (tests/author/test_world_frame.py
+    covers Y-up and other units against a metre stage)."""
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)  # metersPerUnit left unauthored: 0.01
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(48)
     _quad(stage, "/Ground", "ground", -500, 500, -500, 500, 0)
-    with pytest.raises(LfusdError, match="metersPerUnit is 0.01"):
-        add_person(stage, [(0, 0), (100, 0)])
+    person = add_person(stage, [(0, 0), (1, 0)], check=False)
+    body = UsdGeom.Mesh(stage.GetPrimAtPath(f"{person.GetPath()}/Body"))
+    first = StageGeometry(stage).mesh(body.GetPrim(), 1.0).vertices  # lfusd's world: metres
+    assert 1.65 < first[:, 2].max() - first[:, 2].min() < 1.85
+    pts = np.array(UsdGeom.Mesh(body).GetPointsAttr().Get())  # the stage's own view of the person, in its units:
+    xf = np.array(UsdGeom.Xformable(person).ComputeLocalToWorldTransform(Usd.TimeCode(1)))
+    assert 100 * (first[:, 2].max() - first[:, 2].min()) == pytest.approx((pts @ xf[:3, :3])[:, 2].ptp(), rel=0.05)
+    start, end = (np.array(UsdGeom.Xformable(person).ComputeLocalToWorldTransform(Usd.TimeCode(t)))[3, :3] for t in (1, 48))
+    assert end - start == pytest.approx([100.0, 0.0, 0.0], abs=0.5)
 
 
 def test_parse_points_api():

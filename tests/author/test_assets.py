@@ -308,3 +308,54 @@ def test_a_scene_of_the_new_assets_renders_and_verifies(tmp_path):
     assert report.ok, report.failures()
     seen = {ds.objects[i].label for i in np.unique(ds.read(2, (0, 0), "instance")) if i}
     assert {"car", "person", "bench", "chair", "railing"} <= seen, seen
+
+
+def _surface_samples(d, spacing: float = 0.01) -> np.ndarray:
+    """Points on every face of a mesh (fan triangles, barycentric grids about ``spacing`` apart)."""
+    out = []
+    pts = np.asarray(d.points, float)
+    for f in _faces(d):
+        for k in range(1, len(f) - 1):
+            a, b, c = pts[f[0]], pts[f[k]], pts[f[k + 1]]
+            n = max(2, int(np.ceil(max(np.linalg.norm(b - a), np.linalg.norm(c - a)) / spacing)))
+            i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1))
+            keep = i + j <= n
+            u, v = i[keep] / n, j[keep] / n
+            out.append(a + np.outer(u, b - a) + np.outer(v, c - a))
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_tyres_sit_clear_of_the_car_body(seed):
+    """Issue 25: the wheels spin and the body does not, so no tyre may pass through the body: every
+    point of every tyre's surface (1 cm samples) lies outside the body's closed shells and at least
+    2 cm from them, and no point of the body's surface lies inside a tyre's cylinder."""
+    import open3d as o3d
+
+    rng = np.random.default_rng(seed)
+    parts, wheels, radius = kit.moving_car(rng)
+    body = dict((name, mesh) for name, mesh, _ in parts)["body"]
+    pts = np.asarray(body.points, np.float32)
+
+    def scene_of(faces):
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(pts, np.asarray([[f[0], f[k], f[k + 1]] for f in faces for k in range(1, len(f) - 1)], np.uint32))
+        return scene
+
+    # Occupancy needs one closed shell at a time (the body's shells overlap).
+    shells = [scene_of([f for f in _faces(body) if f[0] in set(c.tolist())]) for c in _components(body)]
+    whole = scene_of(_faces(body))
+    for name, hub, mesh in wheels:
+        tyre = o3d.core.Tensor(_surface_samples(moved(mesh, hub)).astype(np.float32))
+        inside = sum(s.compute_occupancy(tyre).numpy() for s in shells)
+        assert not inside.any(), f"{name}: {int((inside > 0).sum())} tyre points inside the body"
+        gap = whole.compute_distance(tyre).numpy().min()
+        assert gap > 0.02, f"{name}: tyre within {gap:.3f} m of the body"
+        rel = _surface_samples(body) - hub
+        in_cyl = (np.abs(rel[:, 1]) < kit.TYRE_WIDTH / 2) & (np.hypot(rel[:, 0], rel[:, 2]) < radius)
+        assert not in_cyl.any(), f"{name}: body surface inside the tyre"
+    # The body still covers the car's length and width around the wheels (arches, not a shrunken body).
+    lo, hi = body.points.min(axis=0), body.points.max(axis=0)
+    hubs = np.array([hub for _, hub, _ in wheels])
+    assert hi[1] > hubs[:, 1].max() - 0.02 and lo[1] < hubs[:, 1].min() + 0.02
+    assert lo[0] < hubs[:, 0].min() - radius and hi[0] > hubs[:, 0].max() + radius

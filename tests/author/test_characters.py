@@ -73,10 +73,10 @@ def test_wild_character_stands_on_the_ground_at_its_size_and_walks_its_path(tmp_
     assert class_label(stage.GetPrimAtPath(person)) == "person"
     frames = np.arange(1, LAST + 1)
     geo = StageGeometry(stage)
-    verts = np.array([geo.mesh(stage.GetPrimAtPath(f"{person}/Body"), float(f)).vertices for f in frames])
+    verts = np.array([geo.mesh(stage.GetPrimAtPath(f"{person}/Character/Body"), float(f)).vertices for f in frames])
     _, _, _, keys = box_mesh()
     keys = np.array(keys)
-    names, joints = joint_world(stage, f"{person}/Skeleton", frames)
+    names, joints = joint_world(stage, f"{person}/Character/Skeleton", frames)
     joint = {k: joints[:, i] for i, k in enumerate(KEYS)}  # the writer authors joints in KEYS order
     assert len(names) == len(KEYS)
 
@@ -133,8 +133,8 @@ def test_transforms_above_the_skel_root_set_size_and_posture(tmp_path):
 
 
 @pytest.mark.parametrize("kwargs,needles", [
-    # CesiumMan-like: numbered joint names cannot be matched
-    ({"style": "cesium"}, ("no joints recognisable as pelvis", "alias table", "Hips/pelvis")),
+    # one leg, anonymous joints: no biped, whatever its names
+    ({"style": "cesium", "drop": ("r_hip",)}, ("is not a biped", "1 joint chains reach the ground", "two-legged")),
     # every joint at the origin: height 0 (the NaN crash)
     ({"bind_scale": 0.0}, ("has height 0",)),
     # no rotation above the SkelRoot of a Z-up-content, Y-up file: lying down
@@ -143,7 +143,7 @@ def test_transforms_above_the_skel_root_set_size_and_posture(tmp_path):
     ({"above": [("rotateX", -90.0)]}, ("170 m tall", "metersPerUnit")),
     ({"bind_mesh": False}, ("no mesh bound to its skeleton",)),
     ({"blend_shape": True}, ("blend shapes",)),
-], ids=["cesium-names", "zero-height", "lying", "units", "no-mesh", "blend-shapes"])
+], ids=["one-leg", "zero-height", "lying", "units", "no-mesh", "blend-shapes"])
 def test_unusable_characters_are_one_line_errors(tmp_path, capfd, kwargs, needles):
     char = tmp_path / "character.usda"
     args = {"style": "mixamo", "up": "Y", "content": scaled(100.0, 180.0), "above": [("rotateX", -90.0), ("scale", 0.01)]}
@@ -214,3 +214,165 @@ def test_alias_table_matches_common_rigs():
     # Names that are no role stay unmatched (CesiumMan's numbered joints, fingers, twist bones).
     assert recognise_roles(["Skeleton_torso_joint_1", "leg_joint_L_1", "LeftHandIndex1", "LeftUpLegTwist"]) == {}
     assert set(ALIASES) == {"pelvis", "spine", "chest", "neck", "head", "shoulder", "elbow", "wrist", "hip", "knee", "ankle", "toe"}
+
+
+def test_anonymous_joints_unreal_root_and_geom_bind_walk_with_soles_on_the_ground(tmp_path):
+    """Names carry nothing here (joint_0, joint_1, ...), an Unreal-style root joint sits on the ground
+    under the pelvis, and the mesh is authored in another space (geomBindTransform: turned, scaled
+    by 100 and moved, as Blender's exporter writes it): recognised by its shape, the character walks
+    with its soles on the ground (within 1 cm at every frame, sliding under 1 cm per step) at its size."""
+    from support.skel_measure import sole_heights, sole_slides
+
+    a = np.radians(30.0)
+    geom_bind = np.eye(4)
+    geom_bind[:3, :3] = 100.0 * np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    geom_bind[:3, 3] = (5.0, -3.0, 2.0)
+
+    def writer(path):
+        write_character(path, "cesium", up="Y", content=scaled(100.0, 180.0), above=[("rotateX", -90.0), ("scale", 0.01)],
+                        root_joint=True, geom_bind=geom_bind, seed=5)
+
+    stage, person = place(tmp_path, writer, (-2.0, 1.0), (2.0, 1.0))
+    geo = StageGeometry(stage)
+    verts = np.array([geo.mesh(stage.GetPrimAtPath(f"{person}/Character/Body"), float(f)).vertices for f in range(1, LAST + 1)])
+    keys = np.array(box_mesh()[3])
+    feet = [(keys == f"{s}_ankle") | (keys == f"{s}_toe") for s in "lr"]
+    ground = lambda xy: np.full(len(xy), GROUND)  # noqa: E731
+    h = sole_heights(verts, feet, ground)
+    assert h.min() > -0.01 and np.all(h.min(axis=1) < 0.01)
+    assert sole_slides(verts, feet, ground).max() < 0.01
+    top = verts[..., 2].max(axis=1) - GROUND
+    assert np.all((top > HEIGHT - 0.1) & (top < HEIGHT + 0.01))
+    along = verts.mean(axis=1)[:, 0]
+    assert along[-1] - along[0] > 1.5
+
+
+def test_placed_character_is_one_person_object_with_its_materials_and_nothing_else(tmp_path):
+    """A character file that labels itself (its SkelRoot 'pedestrian'), keeps its material beside its
+    SkelRoot and holds a camera and a light: the placed person is one object labelled person (the
+    file's label blanked in the stage's layer, the file untouched), bound to its own material, and
+    the camera and light stay out."""
+    from pxr import UsdShade
+
+    from lfusd.author.labels import object_table
+
+    char = tmp_path / "character.usda"
+    write_character(char, "numbered", up="Y", meters_per_unit=0.01, content=scaled(100.0, 180.0), above=[("rotateX", -90.0)],
+                    textured=True)
+    cstage = Usd.Stage.Open(str(char))
+    set_class_label(cstage.GetPrimAtPath("/Root/Character"), "pedestrian")
+    cstage.Save()
+    before = char.read_bytes()
+    path = tmp_path / "stage.usda"
+    ground_stage(path)
+    assert main(["animate", "add-person", str(path), "--path", "-2,1", "2,1", "--character", str(char)]) == 0
+    assert char.read_bytes() == before
+    stage = Usd.Stage.Open(str(path))
+    objects, _ = object_table(stage)
+    people = [o for o in objects if o.label != "ground"]
+    assert [(o.prim_path, o.label) for o in people] == [("/World/People/Person_00", "person")]
+    mat, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath("/World/People/Person_00/Character/Body")).ComputeBoundMaterial()
+    assert mat.GetPath() == "/World/People/Person_00/Materials/Skin"
+    for name in ("Camera", "Light"):
+        assert not stage.GetPrimAtPath(f"/World/People/Person_00/{name}").IsActive()
+
+
+def _skeleton(spec):
+    """(joint paths, parent indices, positions) of {name: (parent, (x, y, z))} given parents first;
+    names are replaced by numbers (joint_0, ...) so that only the shape can tell the roles."""
+    names = list(spec)
+    parents = np.array([names.index(p) if p else -1 for p, _ in spec.values()])
+    paths = []
+    for i in range(len(names)):
+        paths.append(f"{paths[parents[i]]}/joint_{i}" if parents[i] >= 0 else f"joint_{i}")
+    return names, paths, parents, np.array([xyz for _, xyz in spec.values()], float)
+
+
+def _rechain(paths, parents):
+    """Joint paths rebuilt from their leaf names (after renaming some leaves)."""
+    leaves = [p.split("/")[-1] for p in paths]
+    out = []
+    for i, leaf in enumerate(leaves):
+        out.append(f"{out[parents[i]]}/{leaf}" if parents[i] >= 0 else leaf)
+    return out
+
+
+def _legs(spec, side, x, hip_parent, split=False, hip_offset=False, heel=False):
+    """A leg (facing +y, left at -x) under ``hip_parent``: optional hip offset joint (CMU's
+    LHipJoint), thigh and shin split in two bones each (rigify's deform chains), a heel joint."""
+    top = hip_parent
+    if hip_offset:
+        spec[f"{side}_offset"] = (top, (x * 0.2, 0.0, 0.95))
+        top = f"{side}_offset"
+    spec[f"{side}_hip"] = (top, (x, 0.0, 0.9))
+    knee_parent = f"{side}_hip"
+    if split:
+        spec[f"{side}_thigh2"] = (f"{side}_hip", (x, 0.0, 0.7))
+        knee_parent = f"{side}_thigh2"
+    spec[f"{side}_knee"] = (knee_parent, (x, 0.0, 0.5))
+    ankle_parent = f"{side}_knee"
+    if split:
+        spec[f"{side}_shin2"] = (f"{side}_knee", (x, 0.0, 0.3))
+        ankle_parent = f"{side}_shin2"
+    spec[f"{side}_ankle"] = (ankle_parent, (x, 0.0, 0.09))
+    spec[f"{side}_toe"] = (f"{side}_ankle", (x, 0.13, 0.02))
+    spec[f"{side}_toe_end"] = (f"{side}_toe", (x, 0.2, 0.0))
+    if heel:
+        spec[f"{side}_heel"] = (f"{side}_ankle", (x, -0.05, 0.0))
+
+
+@pytest.mark.parametrize("layout", ["cmu", "rigify", "hips-pelvis", "unreal-root"])
+def test_biped_shapes_are_recognised_without_names(layout):
+    """Rig layouts seen in the wild, with numbered names: CMU mocap (hip offset joints, heel joints
+    lower than the toes), rigify deform chains (thigh and shin split in two), legs under a 'Pelvis'
+    child of 'Hips' beside the spine, and an Unreal root on the ground: each leg's hip, knee, ankle
+    and toe, the pelvis and the sides are found from the shape alone."""
+    from lfusd.author.skeletons import recognise_biped
+
+    spec = {}
+    if layout == "unreal-root":
+        spec["root"] = (None, (0.0, 0.0, 0.0))
+    spec["hips"] = ("root" if layout == "unreal-root" else None, (0.0, 0.0, 0.95))
+    leg_parent = "hips"
+    if layout == "hips-pelvis":
+        spec["pelvis2"] = ("hips", (0.0, 0.0, 0.93))
+        leg_parent = "pelvis2"
+    for side, x in (("l", -0.1), ("r", 0.1)):
+        _legs(spec, side, x, leg_parent, split=layout == "rigify", hip_offset=layout == "cmu", heel=layout == "cmu")
+    spec["spine"] = ("hips", (0.0, 0.0, 1.1))
+    spec["chest"] = ("spine", (0.0, 0.0, 1.3))
+    for side, x in (("l", -1.0), ("r", 1.0)):
+        spec[f"{side}_clav"] = ("chest", (0.05 * x, 0.0, 1.4))
+        spec[f"{side}_shoulder"] = (f"{side}_clav", (0.17 * x, 0.0, 1.4))
+        elbow_parent = f"{side}_shoulder"
+        if layout == "rigify":  # the upper arm and forearm split in two as well
+            spec[f"{side}_upper2"] = (f"{side}_shoulder", (0.18 * x, 0.0, 1.26))
+            elbow_parent = f"{side}_upper2"
+        spec[f"{side}_elbow"] = (elbow_parent, (0.19 * x, 0.0, 1.12))
+        wrist_parent = f"{side}_elbow"
+        if layout == "rigify":
+            spec[f"{side}_fore2"] = (f"{side}_elbow", (0.195 * x, 0.0, 1.0))
+            wrist_parent = f"{side}_fore2"
+        spec[f"{side}_wrist"] = (wrist_parent, (0.2 * x, 0.0, 0.88))
+        spec[f"{side}_finger"] = (f"{side}_wrist", (0.205 * x, 0.0, 0.78))
+    spec["neck"] = ("chest", (0.0, 0.0, 1.45))
+    spec["head"] = ("neck", (0.0, 0.0, 1.55))
+    spec["head_end"] = ("head", (0.0, 0.0, 1.72))
+    names, paths, parents, pos = _skeleton(spec)
+    if layout == "rigify":  # rigify's deform names ('.' written '_' by converters) tell the split arms apart: a hint
+        rigify = {"shoulder": "DEF_upper_arm_{S}", "upper2": "DEF_upper_arm_{S}_001", "elbow": "DEF_forearm_{S}",
+                  "fore2": "DEF_forearm_{S}_001", "wrist": "DEF_hand_{S}"}
+        leaves = [p.split("/")[-1] for p in paths]
+        for i, n in enumerate(names):
+            side, _, part = n.partition("_")
+            if part in rigify:
+                leaves[i] = rigify[part].format(S=side.upper())
+        paths = _rechain(leaves, parents)
+    turn = np.radians(70.0)  # any facing: the shape, not the axes, tells front and left
+    rot = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    roles = recognise_biped(paths, parents, pos @ rot.T * 100.0)  # and any units
+    got = {role: names[i] for role, i in roles.items()}
+    want = {"pelvis": "hips", "chest": "chest", "neck": "neck", "head": "head"}
+    for side in "lr":
+        want.update({f"{side}_{j}": f"{side}_{j}" for j in ("hip", "knee", "ankle", "toe", "shoulder", "elbow", "wrist")})
+    assert {r: got.get(r) for r in want} == want

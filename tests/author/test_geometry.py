@@ -91,3 +91,31 @@ def test_visibility_follows_authored_invisible_over_time():
     geo = StageGeometry(stage)
     prim = geo.gprims[0]
     assert geo.visible(prim, 1) and not geo.visible(prim, 2)
+
+
+def test_subdivision_surfaces_are_named_once_by_check(tmp_path, capfd):
+    """Meshes authoring a subdivisionScheme other than none are drawn as their cages; `lfusd check`
+    says so once, naming the first and counting the rest; unauthored or 'none' meshes are polygons."""
+    from pxr import Usd, UsdGeom
+
+    from lfusd.author.geometry import subdivision_surfaces
+    from lfusd.cli import main
+
+    path = tmp_path / "s.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, "Z")
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    for name, scheme in (("Cage", "catmullClark"), ("Loop", "loop"), ("Flat", "none"), ("Plain", None)):
+        m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        m.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (0, 1, 0)])
+        m.CreateFaceVertexCountsAttr([3])
+        m.CreateFaceVertexIndicesAttr([0, 1, 2])
+        if scheme:
+            m.CreateSubdivisionSchemeAttr(scheme)
+    stage.Save()
+    assert subdivision_surfaces(list(stage.Traverse())) == ["/World/Cage", "/World/Loop"]
+    capfd.readouterr()
+    assert main(["check", str(path)]) == 0
+    err = capfd.readouterr().err
+    assert err.count("renders and verifies its control cage") == 1 and "mesh /World/Cage has subdivisionScheme catmullClark (as do 1 more meshes)" in err

@@ -78,17 +78,25 @@ def test_skin_weights_are_normalised_and_smooth():
     spec = HumanSpec()
     pts, counts, idx, parts = body_mesh(spec)
     ji, jw = skin_weights(spec, pts, parts, counts, idx)
+    P_ = {n: i for i, n in enumerate(JOINT_NAMES)}
     assert ji.shape == jw.shape == (len(pts), 4)
     assert np.all(jw >= 0) and np.allclose(jw.sum(axis=1), 1.0)
     dense = np.zeros((len(pts), len(JOINT_NAMES)))
     np.put_along_axis(dense, ji, jw, axis=1)
-    # Smooth: neighbouring vertices have similar weights (no hard seams)...
+    # Smooth: neighbouring vertices have similar weights (no hard seams), but for the feet...
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    foot = np.char.endswith(np.array(parts), "_foot")
     diffs = []
     for s, c in zip(starts, counts):
         f = idx[s : s + c]
-        diffs.append(np.abs(dense[f] - dense[np.roll(f, -1)]).sum(axis=1).max())
+        if not foot[f].any():
+            diffs.append(np.abs(dense[f] - dense[np.roll(f, -1)]).sum(axis=1).max())
     assert max(diffs) < 0.75  # raw inverse-distance weights (no smoothing) reach 1.85 here
+    # ...which are two rigid pieces, heel to ball on the ankle and the toes on the toe joint (so
+    # that rolling the foot about its ball turns no point of it into the ground).
+    for side in "lr":
+        on = np.array(parts) == f"{side}_foot"
+        assert np.all(jw[on, 0] == 1.0) and set(ji[on, 0]) == {P_[f"{side}_ankle"], P_[f"{side}_toe"]}
     # ...and vertices around the knees and elbows are blended between the two bones.
     P = {n: i for i, n in enumerate(JOINT_NAMES)}
     for a, b in (("l_hip", "l_knee"), ("r_shoulder", "r_elbow")):
@@ -127,3 +135,53 @@ def test_bad_spec_is_a_one_line_error(spec):
     with pytest.raises(LfusdError) as e:
         _stage(spec)
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("gait", ["walk", "run"])
+def test_thighs_never_pass_through_the_torso(gait):
+    """Issue 25: the top of each thigh lies inside the torso's shell at rest; walking or running, no
+    vertex of a leg crosses the torso's surface and no vertex of the torso crosses a leg's (one
+    inside stays inside, one outside stays outside), so neither passes through the other. Checked
+    on pxr-skinned world vertices with Open3D occupancy of each closed shell at each frame."""
+    import open3d as o3d
+
+    from lfusd.author.geometry import StageGeometry, triangulate
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.people import add_person
+
+    stage = new_stage(None, 1, 36)
+    ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    ground.CreatePointsAttr([(-10, -10, 0), (10, -10, 0), (10, 10, 0), (-10, 10, 0)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    set_class_label(ground.GetPrim(), "ground")
+    person = add_person(stage, [(-4.0, 0.0), (4.0, 0.0)], gait=gait, check=False)
+    pts, counts, idx, parts = body_mesh(HumanSpec())
+    parts = np.array(parts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    face_part = parts[idx[starts]]
+
+    def shell(part):
+        sel = face_part == part
+        return triangulate(counts[sel], np.concatenate([idx[s:s + c] for s, c in zip(starts[sel], counts[sel])]))
+
+    pairs = [("torso", "l_leg"), ("torso", "r_leg"), ("l_leg", "torso"), ("r_leg", "torso")]  # (shell, its visitor)
+
+    def inside(v):
+        out = []
+        for part, visitor in pairs:
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(v.astype(np.float32), shell(part).astype(np.uint32))
+            out.append(scene.compute_occupancy(o3d.core.Tensor(v[parts == visitor].astype(np.float32))).numpy() > 0)
+        return out
+
+    rest = inside(pts)
+    assert rest[0].sum() >= 8 and rest[1].sum() >= 8  # the thighs' tops are inside the torso
+    geo = StageGeometry(stage)
+    body = stage.GetPrimAtPath(f"{person.GetPath()}/Body")
+    for f in range(1, 37):
+        v = geo.mesh(body, float(f)).vertices
+        assert len(v) == len(pts)
+        for (part, visitor), now, then in zip(pairs, inside(v), rest):
+            crossed = np.count_nonzero(now != then)
+            assert crossed == 0, f"frame {f}: {crossed} {visitor} vertices crossed the surface of the {part}"

@@ -210,10 +210,51 @@ def test_check_rules_hold_in_the_world_on_other_axes_and_units(tmp_path, capsys,
     assert broken == [("/World/Walker", kind, "3") for kind in ("inside", "not_on", "on")], out
 
 
-def test_add_person_refuses_a_y_up_stage_in_one_line():
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(stage, "Y")
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    with pytest.raises(LfusdError, match="upAxis is Y") as e:
-        add_person(stage, [(0, 0), (1, 0)])
-    assert "\n" not in str(e.value)
+PERSON_LAST = 30  # frames 1-30: 1.1 s, setting off and walking
+
+
+def _person_on(tmp_path, up, mpu, *extra):
+    """The world stage with frames 1..PERSON_LAST and a person added by the CLI walking along a path
+    given in metres along the stage's horizontal axes (X, Y on Z-up; X, Z on Y-up) that is world
+    (-2, -1) -> (2, -1); returns (stage, the person's skinned world vertices per frame)."""
+    path = tmp_path / f"{up}_{mpu}.usda"
+    stage = write_world_stage(path, up, mpu)
+    stage.SetEndTimeCode(PERSON_LAST)
+    stage.Save()
+    axes = [to_stage([x, -1.0, 0.0], up, 1.0) for x in (-2.0, 2.0)]
+    horizontal = [0, 2] if up == "Y" else [0, 1]
+    pts = [f"{a[horizontal[0]]:g},{a[horizontal[1]]:g}" for a in axes]
+    assert cli.main(["animate", "add-person", str(path), "--path", *pts, *extra]) == 0
+    stage = open_stage(path)
+    geo = StageGeometry(stage)
+    body = stage.GetPrimAtPath("/World/People/Person_00/Body")
+    return stage, np.array([geo.mesh(body, float(f)).vertices for f in range(1, PERSON_LAST + 1)])
+
+
+@pytest.mark.parametrize("up,mpu", [("Y", 0.01), ("Z", 0.0254), ("Y", 1.0)])
+def test_add_person_walks_the_same_world_path_on_any_stage(tmp_path, capsys, up, mpu):
+    """A person added to a Y-up or non-metre stage is, in lfusd's world, the person added to the same
+    scene on a Z-up metre stage (same path in metres along the stage's axes, vertex for vertex), and
+    that one walks along world y = -1 from x = -2, upright, 1.75 m tall, soles on the ground."""
+    ref_stage, ref = _person_on(tmp_path, "Z", 1.0)
+    stage, got = _person_on(tmp_path, up, mpu)
+    assert np.abs(got - ref).max() < 1e-4
+    centre = ref.mean(axis=1)
+    assert np.abs(centre[:, 1] + 1.0).max() < 0.1 and abs(centre[0, 0] + 2.0) < 0.1
+    assert np.all(np.diff(centre[:, 0]) > -1e-3) and centre[-1, 0] > -1.0  # along +x, about 1.2 m in 1.2 s
+    height = ref[..., 2].max(axis=1)
+    assert np.all((height > 1.6) & (height < 1.8))
+    assert np.abs(ref[..., 2].min(axis=1)).max() < 0.01  # the ground is world z = 0
+    assert cli.main(["check", str(tmp_path / f"{up}_{mpu}.usda")]) == 0, capsys.readouterr().out
+
+
+def test_add_person_reports_path_points_in_the_stages_own_axes(tmp_path, capsys):
+    """Off the ground, the refusal names the point in the stage's axes (X, Z on a Y-up stage), not lfusd's world."""
+    path = tmp_path / "s.usda"
+    stage = write_world_stage(path, "Y", 0.01)
+    stage.SetEndTimeCode(72)
+    stage.Save()
+    before = path.read_bytes()
+    code, _, err = run_cli(capsys, "animate", "add-person", str(path), "--path", "0,2", "0,9")
+    assert code == 2 and "under 0.00,3." in err and "\n" not in err.strip(), err
+    assert path.read_bytes() == before

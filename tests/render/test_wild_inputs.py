@@ -207,3 +207,33 @@ def test_verify_of_one_frame_of_an_animated_stage_compares_its_static_keys(tmp_p
     assert "all checks passed" in text
     compared = verify(out)["main"].compared()
     assert set(compared) == set(STATIC_KEYS) and all(n > 0 for n in compared.values()), compared
+
+
+def test_subdivision_surface_renders_and_verifies_its_cage_with_one_warning_naming_it(tmp_path, capfd):
+    """A catmullClark box with a crease (as in USD's sample assets): render-video and verify both
+    see its control cage (the depth of the cage's front-face centre, which the smooth limit surface
+    lies well behind) and each says so once, naming the prim."""
+    import subprocess
+    import sys
+
+    asset = tmp_path / "box.usda"
+    write_box_asset(asset)
+    stage = Usd.Stage.Open(str(asset))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Box"))
+    mesh.GetSubdivisionSchemeAttr().Set(UsdGeom.Tokens.catmullClark)
+    mesh.CreateCreaseIndicesAttr([0, 2])
+    mesh.CreateCreaseLengthsAttr([2])
+    mesh.CreateCreaseSharpnessesAttr([10.0])
+    stage.GetRootLayer().Save()
+    scene = tmp_path / "scene.usda"
+    rig_over(asset, scene)
+    capfd.readouterr()
+    ds, _ = render_and_verify(scene, tmp_path / "out", "--frames", "1", keys=STATIC_KEYS)
+    assert_face_depth(ds, FRONT_CENTRE)
+    rendered = capfd.readouterr().err
+    needle = "mesh /World/Box has subdivisionScheme catmullClark: lfusd renders and verifies its control cage"
+    assert rendered.count(needle) == 1, rendered
+    # verify in a process of its own, as a user runs it after rendering
+    run = subprocess.run([sys.executable, "-m", "lfusd", "verify", str(tmp_path / "out")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stderr.count(needle) == 1, run.stderr

@@ -8,8 +8,10 @@ in the frame a converter would use, with the transforms above the SkelRoot that 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
-from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdSkel, Vt
 
 HEIGHT = 1.70
 HEAD_TOP = np.array([0.0, 0.0, HEIGHT])
@@ -55,8 +57,18 @@ def _names(style: str) -> dict[str, str]:
                          f"{s}_wrist": f"{S}_Wrist", f"{s}_hip": f"{S}_Hip", f"{s}_knee": f"{S}_Knee",
                          f"{s}_ankle": f"{S}_Ankle", f"{s}_toe": f"{S}_Foot"})
         return base
-    if style == "cesium":  # CesiumMan-like numbered names: nothing to recognise
+    if style == "cesium":  # anonymous numbered names: nothing to recognise, sides included
         return {k: f"joint_{i}" for i, k in enumerate(KEYS)}
+    if style == "numbered":  # as in Khronos' CesiumMan: numbered joints per chain, sides as '_L_' words
+        base = {"pelvis": "Skeleton_torso_joint_1", "spine": "Skeleton_torso_joint_2", "spine1": "torso_joint_3",
+                "chest": "torso_joint_4", "neck": "Skeleton_neck_joint_1", "head": "Skeleton_neck_joint_2"}
+        for s in "lr":
+            S = s.upper()
+            base.update({f"{s}_clavicle": f"Skeleton_arm_joint_{S}__1_", f"{s}_shoulder": f"Skeleton_arm_joint_{S}__2_",
+                         f"{s}_elbow": f"Skeleton_arm_joint_{S}__3_", f"{s}_wrist": f"Skeleton_arm_joint_{S}__4_",
+                         f"{s}_hip": f"leg_joint_{S}_1", f"{s}_knee": f"leg_joint_{S}_2", f"{s}_ankle": f"leg_joint_{S}_3",
+                         f"{s}_toe": f"leg_joint_{S}_5"})
+        return base
     raise ValueError(style)
 
 
@@ -64,7 +76,7 @@ def canon_position(key: str) -> np.ndarray:
     return np.array(_CANON[key][1], float)
 
 
-def _boxes() -> list[tuple[str, np.ndarray, np.ndarray]]:
+def _boxes(keys=KEYS) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(joint key, lo, hi) of each box, canonical frame: soles at 0, head top at HEIGHT."""
     P = {k: canon_position(k) for k in KEYS}
     out = [("head", np.array([-0.09, -0.10, 1.50]), np.array([0.09, 0.10, HEIGHT])),
@@ -88,20 +100,21 @@ def _boxes() -> list[tuple[str, np.ndarray, np.ndarray]]:
         x = P[f"{s}_ankle"][0]
         out.append((f"{s}_ankle", np.array([x - 0.05, -0.05, 0.0]), np.array([x + 0.05, 0.13, 0.11])))
         out.append((f"{s}_toe", np.array([x - 0.05, 0.13, 0.0]), np.array([x + 0.05, 0.20, 0.05])))
-    return out
+    return [b for b in out if b[0] in keys]
 
 
-def box_mesh():
-    """(points (N,3) canonical, faceVertexCounts, faceVertexIndices, joint key per point)."""
-    pts, counts, idx, keys = [], [], [], []
+def box_mesh(keys=KEYS):
+    """(points (N,3) canonical, faceVertexCounts, faceVertexIndices, joint key per point) of the
+    boxes of joints ``keys``."""
+    pts, counts, idx, keys_out = [], [], [], []
     faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
-    for key, lo, hi in _boxes():
+    for key, lo, hi in _boxes(keys):
         base = len(pts)
         pts += [[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
         counts += [4] * 6
         idx += [base + v for f in faces for v in f]
-        keys += [key] * 8
-    return np.array(pts, float), counts, idx, keys
+        keys_out += [key] * 8
+    return np.array(pts, float), counts, idx, keys_out
 
 
 def _rotation(rng) -> np.ndarray:
@@ -115,14 +128,21 @@ def _gf(m: np.ndarray) -> Gf.Matrix4d:
 
 def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_unit: float = 1.0,
                     content: np.ndarray = np.eye(4), above=(), seed: int = 0, bind_scale: float = 1.0,
-                    bind_mesh: bool = True, blend_shape: bool = False) -> str:
+                    bind_mesh: bool = True, blend_shape: bool = False, textured: bool = False,
+                    drop: tuple[str, ...] = (), root_joint: bool = False, geom_bind: np.ndarray | None = None) -> str:
     """Write a character file; returns the SkelRoot's path.
 
     ``content`` (4x4, column vectors) maps the canonical frame to the skeleton's space (the
     converter's axes and units); ``above`` is a list of (op, value) xformOps authored, in order, on
     an Xform /Root above the SkelRoot (('rotateX', -90), ('scale', 0.01), ...). Joint bind frames
     get random orientations (as exported rigs have); ``bind_scale`` = 0 puts every joint at the
-    origin (a degenerate bind pose)."""
+    origin (a degenerate bind pose). ``textured``: a UsdPreviewSurface whose colour is a PNG texture
+    beside the file (:data:`TEXTURE_RGB`), under ``/Root/Materials`` outside the SkelRoot, as glTF
+    converters write it, and a camera and a light beside the character (which a placed person must not
+    bring along). ``drop``: canonical joints left out, with the joints and boxes below them.
+    ``root_joint``: an Unreal-style ``root`` joint on the ground under the pelvis, parent of it.
+    ``geom_bind`` (4x4, column vectors): the mesh's points are authored in another space and its
+    geomBindTransform (this matrix) takes them to the skeleton's, as Blender's exporter writes it."""
     rng = np.random.default_rng(seed)
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
@@ -138,14 +158,21 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
             getattr(top, f"Add{op[0].upper()}{op[1:]}Op")().Set(float(value))
     root = UsdSkel.Root.Define(stage, "/Root/Character")
     names = _names(style)
+    keys_kept = [k for k in KEYS if not any(d == k or _below(k, d) for d in drop)]
+    parents = {k: _CANON[k][0] for k in keys_kept}
+    where = {k: canon_position(k) for k in keys_kept}
+    if root_joint:
+        keys_kept, names = ["root"] + keys_kept, {**names, "root": "root"}
+        parents.update(root=None, pelvis="root")
+        where["root"] = np.zeros(3)
     joints, bind, rest = [], [], []
     world = {}
-    for key in KEYS:
-        parent = _CANON[key][0]
-        joints.append(f"{joints[KEYS.index(parent)]}/{names[key]}" if parent else names[key])
+    for key in keys_kept:
+        parent = parents[key]
+        joints.append(f"{joints[keys_kept.index(parent)]}/{names[key]}" if parent else names[key])
         m = np.eye(4)  # rigid joint frames in the converter's space: a random orientation, at the joint
         m[:3, :3] = _rotation(rng)
-        m[:3, 3] = content[:3, :3] @ canon_position(key) * bind_scale + content[:3, 3]
+        m[:3, 3] = content[:3, :3] @ where[key] * bind_scale + content[:3, 3]
         world[key] = m
         bind.append(world[key])
         rest.append(np.linalg.inv(world[parent]) @ world[key] if parent else world[key])
@@ -153,8 +180,11 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
     skel.CreateJointsAttr(Vt.TokenArray(joints))
     skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_gf(m) for m in bind]))
     skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_gf(m) for m in rest]))
-    points, counts, indices, keys = box_mesh()
+    points, counts, indices, keys = box_mesh(keys_kept)
     pts = points @ content[:3, :3].T + content[:3, 3]
+    if geom_bind is not None:
+        inv = np.linalg.inv(geom_bind)
+        pts = pts @ inv[:3, :3].T + inv[:3, 3]
     mesh = UsdGeom.Mesh.Define(stage, "/Root/Character/Body")
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
     mesh.CreateFaceVertexCountsAttr(counts)
@@ -164,17 +194,61 @@ def write_character(path, style: str = "mixamo", *, up: str = "Y", meters_per_un
     if bind_mesh:
         binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
         binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
-        binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([KEYS.index(k) for k in keys]))
+        binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([keys_kept.index(k) for k in keys]))
         binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(keys)))
-        binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1))
+        binding.CreateGeomBindTransformAttr(_gf(np.eye(4) if geom_bind is None else geom_bind))
         if blend_shape:
             shape = UsdSkel.BlendShape.Define(stage, "/Root/Character/Body/Smile")
             shape.CreateOffsetsAttr(Vt.Vec3fArray([Gf.Vec3f(0, 0, 1)]))
             shape.CreatePointIndicesAttr(Vt.IntArray([0]))
             binding.CreateBlendShapesAttr(Vt.TokenArray(["smile"]))
             binding.CreateBlendShapeTargetsRel().SetTargets([shape.GetPath()])
+    if textured:
+        _texture(stage, mesh, len(counts), Path(path))
     stage.Save()
     return str(root.GetPath())
+
+
+#: The texture's colour (sRGB bytes) and its value in linear light, as a render shows it.
+TEXTURE_RGB = (40, 200, 60)
+
+
+def _texture(stage: Usd.Stage, mesh: UsdGeom.Mesh, faces: int, path: Path) -> None:
+    """A PNG texture beside ``path`` on ``mesh`` through a material under /Root/Materials; a camera
+    and a light under /Root beside the character."""
+    from PIL import Image
+
+    png = path.with_name(path.stem + "_skin.png")
+    Image.new("RGB", (4, 4), TEXTURE_RGB).save(png)
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
+    st.Set(Vt.Vec2fArray([Gf.Vec2f(u, v) for _ in range(faces) for u, v in ((0, 0), (1, 0), (1, 1), (0, 1))]))
+    UsdGeom.Scope.Define(stage, "/Root/Materials")
+    mat = UsdShade.Material.Define(stage, "/Root/Materials/Skin")
+    surface = UsdShade.Shader.Define(stage, "/Root/Materials/Skin/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    reader = UsdShade.Shader.Define(stage, "/Root/Materials/Skin/UV")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    tex = UsdShade.Shader.Define(stage, "/Root/Materials/Skin/Colour")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(f"./{png.name}")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    mat.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    UsdGeom.Camera.Define(stage, "/Root/Camera").AddTranslateOp().Set(Gf.Vec3d(0, 100, 400))
+    UsdLux.DistantLight.Define(stage, "/Root/Light").CreateIntensityAttr(50000.0)
+
+
+def _below(key: str, ancestor: str) -> bool:
+    parent = PARENTS[key]
+    while parent is not None:
+        if parent == ancestor:
+            return True
+        parent = PARENTS[parent]
+    return False
 
 
 def scaled(s: float, rot_z_deg: float = 0.0) -> np.ndarray:
@@ -200,3 +274,19 @@ def smpl_cm(path) -> str:
     lie[1:3, 1:3] = [[0.0, 1.0], [-1.0, 0.0]]  # rotateX -90: canonical Z-up content -> Y-up
     return write_character(path, "smpl", up="Z", meters_per_unit=0.01, content=scaled(100.0) @ lie,
                            above=[("translate", (300.0, -200.0, 40.0)), ("rotateZ", -90.0), ("rotateX", 90.0)], seed=1)
+
+
+def gltf_numbered(path) -> str:
+    """CesiumMan-shaped: numbered joints, Y-up centimetres, content Z-up facing -Y stood up by a
+    rotateX -90 above the SkelRoot, textured."""
+    return write_character(path, "numbered", up="Y", meters_per_unit=0.01, content=scaled(100.0, 180.0),
+                           above=[("rotateX", -90.0)], textured=True, seed=3)
+
+
+def yup_cm_set(path: Path) -> None:
+    """A set for characters: tests/support/world_stages' scene on a Y-up centimetre stage, 72 frames (ground at world z = 0)."""
+    from .world_stages import write_world_stage
+
+    stage = write_world_stage(path, "Y", 0.01)
+    stage.SetEndTimeCode(72)
+    stage.Save()

@@ -38,3 +38,37 @@ def planted_steps(ankle: np.ndarray, ground_z: np.ndarray, tol: float = 0.005) -
         steps.append((i, j, slide))
         i = j + 1
     return steps
+
+
+CONTACT = 0.005  # a sole point this close to the ground touches it
+
+
+def sole_heights(verts: np.ndarray, feet: list[np.ndarray], ground) -> np.ndarray:
+    """(F, len(feet)) height of each foot's lowest point above the ground under it (metres).
+
+    ``verts``: world vertices (F, N, 3) of the character; ``feet``: boolean masks of the points of
+    each foot; ``ground(xy)``: the surface height under points (N, 2)."""
+    out = np.zeros((len(verts), len(feet)))
+    for k, mask in enumerate(feet):
+        for f, v in enumerate(verts[:, mask]):
+            out[f, k] = (v[:, 2] - ground(v[:, :2])).min()
+    return out
+
+
+def sole_slides(verts: np.ndarray, feet: list[np.ndarray], ground) -> np.ndarray:
+    """Per foot, the furthest any of its points slides along the ground while touching it: the sum
+    of its horizontal moves between consecutive frames at which it touches (within CONTACT),
+    over each unbroken stretch of such frames (a step), largest over points and steps."""
+    out = []
+    for mask in feet:
+        v = verts[:, mask]
+        touch = np.stack([v[f, :, 2] - ground(v[f, :, :2]) < CONTACT for f in range(len(v))])
+        moves = np.linalg.norm(np.diff(v[:, :, :2], axis=0), axis=2)  # (F-1, P)
+        both = touch[1:] & touch[:-1]
+        run = np.zeros(v.shape[1])
+        worst = 0.0
+        for f in range(len(moves)):
+            run = np.where(both[f], run + moves[f], 0.0)
+            worst = max(worst, float(run.max()))
+        out.append(worst)
+    return np.array(out)

@@ -20,6 +20,7 @@ Parts = list[tuple[str, MeshData, str]]
 
 WHEEL_RADIUS = 0.32
 TYRE_WIDTH = 0.22
+ARCH_GAP = 0.03  # metres between a tyre and the car's body around it
 
 
 # -- cars ---------------------------------------------------------------------------------------
@@ -62,8 +63,32 @@ def _car_parts(rng: np.random.Generator):
         p = centre + (profile - centre) * [1 - 2 * inset / L, 1 - 2 * inset / 0.67]
         return np.c_[p[:, 0], np.full(len(p), y), p[:, 1]][::-1]  # counter-clockwise seen from +y
 
-    # Rounded shoulders: the profile shrinks by 4 cm over the outer 5 cm of each side.
-    body = loft([section(-W / 2, 0.04), section(-W / 2 + 0.05, 0.0), section(W / 2 - 0.05, 0.0), section(W / 2, 0.04)], tile=2.0)
+    # The tyres stand 2 cm proud of the body's sides (a tyre cap coplanar with the body would be a
+    # surface that spins and one that does not in one plane), and the body keeps ARCH_GAP clear
+    # of them: a core between the tyres' inner faces, and, outside it, side panels cut around
+    # the wheel arches (parts that move differently never interpenetrate).
+    hub_y = W / 2 - TYRE_WIDTH / 2 + 0.02
+    hubs = [(f"wheel_{'F' if sx > 0 else 'R'}{'L' if sy > 0 else 'R'}", (sx * L * 0.31, sy * hub_y, r))
+            for sx in (-1, 1) for sy in (-1, 1)]
+    core_y = hub_y - TYRE_WIDTH / 2 - ARCH_GAP
+    body = [loft([section(-core_y, 0.0), section(core_y, 0.0)], tile=2.0)]
+    arch = r + ARCH_GAP  # half-width of an arch, and (over 2 r) its height
+    cuts = [(None, -L * 0.31 - arch), (-L * 0.31 + arch, L * 0.31 - arch), (L * 0.31 + arch, None)]
+    pieces = [clip_x_z(profile, x0, x1, None) for x0, x1 in cuts]
+    pieces += [clip_x_z(profile, sx * L * 0.31 - arch, sx * L * 0.31 + arch, 2 * r + ARCH_GAP) for sx in (-1, 1)]
+    for piece in pieces:
+        c = piece.mean(0)
+        extent = piece.max(0) - piece.min(0)
+
+        def side(y, inset, piece=piece, c=c, extent=extent):
+            q = c + (piece - c) * (1 - 2 * inset / extent)
+            return np.c_[q[:, 0], np.full(len(q), y), q[:, 1]][::-1]
+
+        # Rounded shoulders: the panel shrinks by 4 cm over the outer 5 cm of each side; each panel
+        # reaches 1 cm into the core (no coplanar faces).
+        for sy in (-1, 1):
+            rings = [side(sy * (core_y - 0.01), 0.0), side(sy * (W / 2 - 0.05), 0.0), side(sy * W / 2, 0.04)]
+            body.append(loft(rings[::sy], tile=2.0))
     # Greenhouse corners: front/rear at the belt (b) and the roof (t).
     xf0, xf1 = L * hood, L * (hood - 0.2)
     xr0, xr1 = -L * 0.38, -L * 0.28
@@ -88,13 +113,28 @@ def _car_parts(rng: np.random.Generator):
     tail = merge(*[box((0.05, 0.28, 0.1), (-L / 2 - 0.005, s * (W / 2 - 0.25), 0.68)) for s in (-1, 1)])
     trim = merge(box((0.1, W - 0.12, 0.14), (L / 2 - 0.02, 0.0, 0.36)), box((0.1, W - 0.12, 0.14), (-L / 2 + 0.05, 0.0, 0.38)),
                  *[box((0.1, 0.08, 0.07), (xf0 - 0.12, s * (wb + 0.05), belt + 0.12)) for s in (-1, 1)])  # mirrors: within 3 cm of the body
-    parts = [("body", merge(body, roof), paint), ("pillars", merge(*pillars), paint), ("windows", merge(*glass), "glass"),
+    parts = [("body", merge(*body, roof), paint), ("pillars", merge(*pillars), paint), ("windows", merge(*glass), "glass"),
              ("seats", seats, "fabric"), ("lights", lights, "chrome"), ("taillights", tail, "paint_red"), ("trim", trim, "paint_dark")]
-    # The tyres stand 2 cm proud of the body's sides: a tyre cap coplanar with the body would be
-    # a surface that spins and one that does not in one plane (ambiguous hits, wrong flow).
-    hubs = [(f"wheel_{'F' if sx > 0 else 'R'}{'L' if sy > 0 else 'R'}", (sx * L * 0.31, sy * (W / 2 - TYRE_WIDTH / 2 + 0.02), r))
-            for sx in (-1, 1) for sy in (-1, 1)]
     return parts, hubs, r
+
+
+def clip_x_z(polygon, x0: float | None, x1: float | None, z0: float | None) -> np.ndarray:
+    """The convex polygon (x, z) clipped to x0 <= x <= x1 and z >= z0 (None: no bound); still
+    convex, in the same winding."""
+    poly = [np.asarray(p, float) for p in polygon]
+    for axis, bound, keep_above in ((0, x0, True), (0, x1, False), (1, z0, True)):
+        if bound is None:
+            continue
+        inside = (lambda p: p[axis] >= bound) if keep_above else (lambda p: p[axis] <= bound)
+        out = []
+        for a, b in zip(poly, poly[1:] + poly[:1]):
+            if inside(a):
+                out.append(a)
+            if inside(a) != inside(b):
+                t = (bound - a[axis]) / (b[axis] - a[axis])
+                out.append(a + t * (b - a))
+        poly = out
+    return np.array(poly)
 
 
 def car(rng: np.random.Generator) -> Parts:
