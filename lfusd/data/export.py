@@ -75,7 +75,13 @@ def open_datasets(path, rig: str | None = None) -> list:
     manifest = Path(path) / layout.MANIFEST
     if not manifest.is_file():
         return [open_dataset(path)]  # raises the reader's own error naming the folder
-    return [open_dataset(path, r) for r in json.loads(manifest.read_text())["rigs"]]
+    from .metadata import validate_manifest
+
+    try:
+        rigs = validate_manifest(json.loads(manifest.read_text()), manifest).get("rigs", [])
+    except (OSError, ValueError):
+        return [open_dataset(path)]  # raises the reader's own error naming the file
+    return [open_dataset(path, r) for r in rigs]
 
 
 def scene_name(ds) -> str:

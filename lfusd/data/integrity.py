@@ -264,10 +264,13 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tu
     from ..keys import KEYS, MOTION
 
     root = Path(root)
+    from .metadata import validate_manifest
+
     try:
         manifest = json.loads((root / layout.MANIFEST).read_text())
     except (OSError, ValueError):
         raise LfusdError(f"{root} holds no readable {layout.MANIFEST}; give a dataset folder") from None
+    validate_manifest(manifest, root / layout.MANIFEST)
     rigs = manifest.get("rigs", [])
     if rig not in (None, "all"):
         if rig not in rigs:

@@ -20,6 +20,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from ..data import confined
 from ..data.passes import read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
@@ -118,12 +119,12 @@ def run_unit(unit: WorkUnit, out: Path, report=None, stopping: threading.Event |
     too where the report has it (render-video derives motion from it while rendering goes on).
     The worker's warnings are logged here (they reach the terminal); all its output goes to the log."""
     committed = getattr(report, "committed", None)
-    scratch = out / ".scratch" / f"{unit.rig}-{unit.unit}-{os.getpid()}-{threading.get_ident()}"
-    logs = out / "logs"
+    scratch = out / layout.SCRATCH / f"{unit.rig}-{unit.unit}-{os.getpid()}-{threading.get_ident()}"
+    logs = out / layout.LOGS
     logs.mkdir(parents=True, exist_ok=True)
     log_path = logs / f"{unit.rig}-unit{unit.unit:04d}.log"
     device, error = "cpu", None
-    with open(log_path, "w") as log_file:
+    with os.fdopen(confined.open_new(log_path), "w") as log_file:  # never through a link planted there
         proc = subprocess.Popen(
             WORKER,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1,
@@ -221,11 +222,11 @@ def record_attempt(out: Path, unit: WorkUnit, node_id: str, frames: list[int]) -
     """Append one line per Ray attempt of a unit to OUT/logs/<rig>-unit<n>.ray.jsonl: the node it
     ran on and the frames it rendered (the unit's others were complete). Where a unit ran, and what a
     retry rendered again, is then on record; one attempt of a unit runs at a time, so no two writers."""
-    logs = out / "logs"
+    logs = out / layout.LOGS
     logs.mkdir(parents=True, exist_ok=True)
     line = {"unit": unit.unit, "node_id": node_id, "host": socket.gethostname(), "pid": os.getpid(),
             "frames": frames, "views": sorted(unit.cameras), "time": time.time()}
-    with open(logs / f"{unit.rig}-unit{unit.unit:04d}.ray.jsonl", "a") as f:
+    with os.fdopen(confined.open_new(logs / f"{unit.rig}-unit{unit.unit:04d}.ray.jsonl", append=True), "a") as f:
         f.write(json.dumps(line) + "\n")
 
 

@@ -1,0 +1,269 @@
+"""Nothing outside what the user named (issue 29): a crafted dataset folder, manifest, checkpoint
+or stage cannot make lfusd write, delete or read outside the folder the user gave, run code, or
+open a cluster to others. Each test starts from the crafted input that broke lfusd before (a
+``.lock`` or log link to a canary file, a manifest naming ``../canary`` or an absolute folder as a
+rig, a symlinked rig folder, a user's file inside a rig folder with ``--overwrite``, a pickle
+payload checkpoint, a same-size same-mtime texture edit, ...) and shows the canary intact, the
+payload not run, the edit refused.
+
+Renders are stood in for by ``fake_render`` (tests/test_faults.py: view folders with their
+completion records), so the checks run in seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from support.cli import assert_one_line_error, run_cli
+from test_faults import fake_render, project, render, snapshot  # noqa: F401  (fixtures)
+
+from lfusd import Dataset
+from lfusd.data import confined
+from lfusd.errors import LfusdError
+from lfusd.layout import frame_dir
+
+CANARY = b"the user's precious file\n"
+
+
+@pytest.fixture
+def canary(tmp_path) -> Path:
+    """A user's file and folder outside every dataset folder: nothing may touch them."""
+    home = tmp_path / "home"
+    (home / "photos").mkdir(parents=True)
+    (home / "precious.txt").write_bytes(CANARY)
+    (home / "photos" / "cat.png").write_bytes(CANARY)
+    # shaped like what lfusd's resume used to clean: <rig>/f*/.*.tmp-*
+    (home / "f000001" / ".00_00.tmp-1-2").mkdir(parents=True)
+    (home / "f000001" / ".00_00.tmp-1-2" / "keep.txt").write_bytes(CANARY)
+    return home
+
+
+def intact(home: Path) -> bool:
+    return (snapshot(home) == {
+        "f000001": None, "f000001/.00_00.tmp-1-2": None, "f000001/.00_00.tmp-1-2/keep.txt": CANARY,
+        "photos": None, "photos/cat.png": CANARY, "precious.txt": CANARY})
+
+
+def snap(out: Path) -> dict:
+    """:func:`snapshot` without the lock file (each run writes its pid there)."""
+    return {k: v for k, v in snapshot(out).items() if k != ".lock"}
+
+
+def edit_manifest(out: Path, change) -> None:
+    path = out / "manifest.json"
+    m = json.loads(path.read_text())
+    change(m)
+    path.write_text(json.dumps(m))
+
+
+# -- 1. no link is followed for writing or deleting inside OUT ----------------------------------
+
+
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_lock_link_to_a_users_file_is_refused_and_the_file_untouched(capsys, tmp_path, project, fake_render, canary, existing):
+    out = tmp_path / "out"
+    if existing:
+        assert render(capsys, project / "scene.usda", out)[0] == 0
+        (out / ".lock").unlink()
+    else:
+        out.mkdir()  # a folder holding only the planted link is not an empty folder
+    (out / ".lock").symlink_to(canary / "precious.txt")
+    for command in ("render", "render-video"):
+        code, _, err = run_cli(capsys, command, project / "scene.usda", "-o", out, "--samples", "1", "--device", "cpu", "--quiet")
+        assert_one_line_error(code, err, ".lock")
+        assert code == 2
+    assert intact(canary)
+
+
+def test_dataset_make_refuses_a_lock_link(capsys, tmp_path, canary):
+    root = tmp_path / "made"
+    root.mkdir()
+    (root / ".lock").symlink_to(canary / "precious.txt")
+    recipe = Path(__file__).resolve().parents[1] / "recipes" / "tiny.toml"
+    code, _, err = run_cli(capsys, "dataset", "make", recipe, "-o", root, "--quiet")
+    assert_one_line_error(code, err, ".lock", "symbolic link")
+    assert intact(canary) and sorted(p.name for p in root.iterdir()) == [".lock", "scenes"]
+
+
+@pytest.mark.parametrize("entry", ["logs/main-unit0000.log", "logs", ".scratch", "objects.json"])
+def test_a_link_among_lfusds_entries_is_refused_before_anything_is_written(capsys, tmp_path, project, fake_render, canary, entry):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    target = out / entry
+    if target.is_dir():
+        os.rename(target, tmp_path / "moved")
+    elif target.exists():
+        target.unlink()
+    target.parent.mkdir(exist_ok=True)
+    target.symlink_to(canary / "precious.txt" if "." in target.name and entry != ".scratch" else canary)
+    before = snap(out)
+    code, _, err = render(capsys, project / "scene.usda", out, "--frame", "2")
+    assert_one_line_error(code, err, entry, "symbolic link")
+    assert intact(canary) and snap(out) == before
+
+
+def test_a_worker_log_is_never_written_through_a_link(tmp_path, canary):
+    link = tmp_path / "main-unit0000.log"
+    link.symlink_to(canary / "precious.txt")
+    with pytest.raises(LfusdError, match="symbolic link"):
+        confined.open_new(link)
+    with pytest.raises(LfusdError, match="symbolic link"):
+        confined.open_new(link, append=True)
+    assert intact(canary)
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_a_symlinked_rig_folder_is_refused_and_its_target_untouched(capsys, tmp_path, project, fake_render, canary, overwrite):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    os.rename(out / "main", tmp_path / "moved")
+    (out / "main").symlink_to(canary)
+    extra = ("--samples", "2", "--overwrite") if overwrite else ()
+    code, _, err = render(capsys, project / "scene.usda", out, *extra)
+    assert_one_line_error(code, err, str(out / "main"))
+    assert intact(canary)
+
+
+def test_a_symlinked_frame_or_view_folder_is_refused(capsys, tmp_path, project, fake_render, canary):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    view = frame_dir(out, "main", 1) / "00_00"
+    os.rename(view, tmp_path / "moved")
+    view.symlink_to(canary)
+    code, _, err = render(capsys, project / "scene.usda", out)
+    assert_one_line_error(code, err, str(view), "symbolic link")
+    assert intact(canary)
+
+
+# -- 2. metadata is validated before it is used; --overwrite removes exactly lfusd's files ------
+
+
+@pytest.mark.parametrize("rig", ["../home", "ABSOLUTE", "main/../../home", "..", ""])
+def test_a_manifest_naming_a_folder_outside_as_a_rig_is_refused_before_any_file_operation(capsys, monkeypatch, tmp_path, project, fake_render,
+                                                                                         canary, rig):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    rig = str(canary) if rig == "ABSOLUTE" else rig
+
+    def craft(m):
+        m["rigs"].append(rig)
+        m["settings"]["rigs"][rig] = dict(m["settings"]["rigs"]["main"], name=rig)
+        m["frames"].append(1)
+
+    edit_manifest(out, craft)
+    before = snap(out)
+    for extra in ((), ("--samples", "2", "--overwrite")):
+        code, _, err = render(capsys, project / "scene.usda", out, *extra)
+        assert_one_line_error(code, err, "manifest.json", "rig name")
+        assert code == 2 and intact(canary) and snap(out) == before
+    monkeypatch.undo()  # the real derivation for 'lfusd flow'
+    for argv in (("verify", out, "--integrity"), ("flow", out), ("export", "pfm", out, tmp_path / "exp")):
+        code, _, err = run_cli(capsys, *argv)
+        assert_one_line_error(code, err, "manifest.json", "rig name")
+    with pytest.raises(LfusdError, match="rig name"):
+        Dataset(out, rig="main")
+    assert intact(canary)
+
+
+def test_overwrite_of_a_manifest_listing_a_users_folder_as_a_rig_leaves_that_folder(capsys, tmp_path, project, fake_render):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    docs = out / "Documents"  # the user keeps a folder next to the dataset; the manifest claims it
+    (docs / "f000001").mkdir(parents=True)
+    (docs / "thesis.tex").write_text("chapter 1")
+    (docs / "f000001" / "draft.txt").write_text("draft")
+
+    def craft(m):
+        m["rigs"].append("Documents")
+        m["settings"]["rigs"]["Documents"] = dict(m["settings"]["rigs"]["main"], name="Documents")
+
+    edit_manifest(out, craft)
+    before = snapshot(docs)
+    assert render(capsys, project / "scene.usda", out, "--samples", "2", "--overwrite")[0] == 0
+    assert snapshot(docs) == before
+
+
+def test_overwrite_deletes_exactly_lfusds_files_not_a_users_files_inside_its_folders(capsys, tmp_path, project, fake_render):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    assert render(capsys, project / "scene.usda", out, "--frame", "2")[0] == 0
+    view = frame_dir(out, "main", 1) / "00_00"
+    mine = {out / "main" / "README.txt": "about this rig", frame_dir(out, "main", 2) / "notes.md": "frame 2 looks odd",
+            view / "labels_extra.png": "my own label image", out / "logs" / "my-notes.txt": "run on the cluster"}
+    for p, text in mine.items():
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(text)
+    # the dataset from before, to be replaced: its own files carry this run's bytes
+    assert (view / "rgb.exr").read_bytes() == b"fake"
+    (view / "rgb.exr").write_bytes(b"old render")
+    (view / "passes.exr").write_bytes(b"old passes")
+    assert render(capsys, project / "scene.usda", out, "--samples", "2", "--overwrite")[0] == 0
+    assert {p: p.read_text() for p in mine} == mine
+    assert (view / "rgb.exr").read_bytes() == b"fake"  # lfusd's own file was removed and rendered again
+    assert json.loads((out / "manifest.json").read_text())["settings"]["samples"] == 2
+
+
+def test_overwrite_removes_all_of_lfusds_files_and_folders(tmp_path, project, fake_render, capsys):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    assert render(capsys, project / "scene.usda", out, "--frame", "2")[0] == 0
+    (out / "logs").mkdir(exist_ok=True)
+    (out / "logs" / "main-unit0000.log").write_text("blender said")
+    (frame_dir(out, "main", 1) / ".frame.json.abc123.tmp").write_text("killed mid-write")
+    manifest = json.loads((out / "manifest.json").read_text())
+    confined.remove_own(out, manifest)
+    assert sorted(p.name for p in out.iterdir()) == [".lock"]
+
+
+@pytest.mark.parametrize("field,value,named", [
+    ("frames", [1, 10**12], "frame"),
+    ("frames", list(range(1_000_001)), "frame numbers"),
+    ("frames", ["../x"], "frame"),
+    ("grid", 10**6, "rows"),
+    ("width", 10**9, "width"),
+])
+def test_absurd_manifest_fields_are_refused_in_one_line(capsys, tmp_path, project, fake_render, field, value, named):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+
+    def craft(m):
+        if field == "frames":
+            m["frames"] = value
+        elif field == "grid":
+            m["settings"]["rigs"]["main"]["rows"] = value
+        else:
+            m["settings"]["rigs"]["main"]["width"] = value
+
+    edit_manifest(out, craft)
+    code, _, err = run_cli(capsys, "verify", out, "--integrity")
+    assert_one_line_error(code, err, "manifest.json", named)
+    with pytest.raises(LfusdError, match=named):
+        Dataset(out)
+
+
+@pytest.mark.parametrize("craft,named", [
+    (lambda t: t["objects"].append({"id": 10**12, "prim_path": "/X", "label": "x", "class_id": 0}), "object id"),
+    (lambda t: t["objects"].append({"id": 5, "prim_path": "/X", "label": "x", "class_id": 99}), "class id"),
+])
+def test_a_crafted_object_table_is_refused_in_one_line(tmp_path, project, fake_render, capsys, craft, named):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    table = json.loads((out / "objects.json").read_text())
+    craft(table)
+    (out / "objects.json").write_text(json.dumps(table))
+    with pytest.raises(LfusdError, match=f"objects.json.*{named}"):
+        Dataset(out)
+
+
+def test_a_crafted_frame_record_is_refused_in_one_line(tmp_path, project, fake_render, capsys):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    path = frame_dir(out, "main", 1) / "frame.json"
+    meta = json.loads(path.read_text())
+    meta["cam_to_world"]["../../x"] = meta["cam_to_world"]["00_00"]
+    path.write_text(json.dumps(meta))
+    with pytest.raises(LfusdError, match="frame.json.*view '../../x'"):
+        Dataset(out).cam_to_world(1, (0, 0))
