@@ -16,6 +16,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 from support.cli import assert_one_line_error, run_cli
 from test_faults import fake_render, project, render, snapshot  # noqa: F401  (fixtures)
@@ -267,3 +268,68 @@ def test_a_crafted_frame_record_is_refused_in_one_line(tmp_path, project, fake_r
     path.write_text(json.dumps(meta))
     with pytest.raises(LfusdError, match="frame.json.*view '../../x'"):
         Dataset(out).cam_to_world(1, (0, 0))
+
+
+# -- 5. identity that edits cannot fool; nothing outside the stage's folder but its images and layers
+
+
+def _edit_keeping_size_and_mtime(path: Path, how: str) -> None:
+    """Change one byte of ``path`` and give it back its size and mtime, as ``touch -r`` (in place)
+    or ``cp -p`` / ``rsync -a`` / ``tar x`` (a new file over it) leave it."""
+    st = os.stat(path)
+    data = bytearray(path.read_bytes())
+    if path.suffix == ".usda":
+        data = data.replace(b"extra = 1", b"extra = 2")  # still a layer, one digit different
+    else:
+        data[len(data) // 2] ^= 0x01
+    if how == "in place":
+        path.write_bytes(bytes(data))
+    else:
+        tmp = path.with_name(path.name + ".new")
+        tmp.write_bytes(bytes(data))
+        os.replace(tmp, path)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert os.stat(path).st_size == st.st_size and os.stat(path).st_mtime_ns == st.st_mtime_ns
+
+
+@pytest.mark.parametrize("how", ["in place", "replaced"])
+@pytest.mark.parametrize("name", ["textures/paint.png", "sub.usda"])
+def test_an_edit_that_keeps_size_and_mtime_is_refused(capsys, tmp_path, project, fake_render, name, how):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    if name == "sub.usda":  # a layer with room for a same-size edit
+        (project / name).write_text('#usda 1.0\n\nover "World"\n{\n    custom double extra = 1\n}\n')
+        assert render(capsys, project / "scene.usda", tmp_path / "out2")[0] == 0
+        out = tmp_path / "out2"
+    _edit_keeping_size_and_mtime(project / name, how)
+    before = snap(out)
+    code, _, err = render(capsys, project / "scene.usda", out, "--frame", "2")
+    assert_one_line_error(code, err, "holds a different dataset", f"stage file {name}", "changed")
+    assert snap(out) == before
+
+
+def test_only_images_and_layers_outside_the_stages_folder_are_read_into_the_identity(capsys, tmp_path, project, fake_render):
+    from pxr import Sdf, Usd, UsdShade
+
+    from lfusd.data.formats import write_png
+
+    secret = tmp_path / "secret" / "credentials.txt"
+    secret.parent.mkdir()
+    secret.write_text("password=hunter2\n")
+    shared = tmp_path / "library" / "wood.png"
+    shared.parent.mkdir()
+    write_png(shared, np.full((4, 4, 3), 90, np.uint8))
+    stage = Usd.Stage.Open(str(project / "scene.usda"))
+    for name, path in (("Secret", "../secret/credentials.txt"), ("Wood", "../library/wood.png")):
+        tex = UsdShade.Shader.Define(stage, f"/World/Looks/Paint/{name}")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(path)
+    stage.GetRootLayer().Save()
+    out = tmp_path / "out"
+    code, _, err = render(capsys, project / "scene.usda", out)
+    assert code == 0
+    text = (out / "manifest.json").read_text()
+    files = json.loads(text)["stage"]["files"]
+    assert "credentials" not in text  # neither its path nor its size nor its hash
+    assert files[shared.as_posix()]["size"] == shared.stat().st_size  # an image the stage uses: recorded by path and hash
+    assert [ln for ln in err.splitlines() if "credentials.txt" in ln and "not read" in ln], err
