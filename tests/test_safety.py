@@ -333,3 +333,59 @@ def test_only_images_and_layers_outside_the_stages_folder_are_read_into_the_iden
     assert "credentials" not in text  # neither its path nor its size nor its hash
     assert files[shared.as_posix()]["size"] == shared.stat().st_size  # an image the stage uses: recorded by path and hash
     assert [ln for ln in err.splitlines() if "credentials.txt" in ln and "not read" in ln], err
+
+
+# -- 6. verify checks every view's file records first; every writer takes the lock ---------------
+
+
+@pytest.mark.render
+def test_verify_fails_a_dataset_with_a_truncated_rgb_exr(capsys, tmp_path, box_dataset):
+    import shutil
+
+    _, rendered = box_dataset
+    out = tmp_path / "out"
+    shutil.copytree(rendered, out)  # the session's dataset stays whole
+    rig = json.loads((out / "manifest.json").read_text())["rigs"][0]
+    rgb = frame_dir(out, rig, 1) / "00_01" / "rgb.exr"
+    rgb.write_bytes(rgb.read_bytes()[: rgb.stat().st_size // 2])
+    code, stdout, _ = run_cli(capsys, "verify", out, "--rig", rig)
+    assert code == 1
+    fails = [ln for ln in stdout.splitlines() if ln.startswith("FAIL")]
+    assert any("rgb.exr" in ln and "view 0,1" in ln for ln in fails), stdout
+    # the geometry of the other views was still compared, and passes
+    assert "rgb.exr" not in " ".join(ln for ln in fails if "view 0,1" not in ln)
+
+
+def test_lfusd_flow_takes_the_lock(capsys, monkeypatch, tmp_path, project, fake_render):
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    monkeypatch.undo()  # the real derivation
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; from lfusd.render.job import output_lock\n"
+         "with output_lock(Path(sys.argv[1])):\n    print('held', flush=True); time.sleep(60)", str(out)],
+        stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        before = snap(out)
+        code, _, err = run_cli(capsys, "flow", out)
+        assert_one_line_error(code, err, "is being written by process", str(holder.pid))
+        assert snap(out) == before
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+
+
+def test_lfusd_flow_refuses_a_linked_view_folder(capsys, monkeypatch, tmp_path, project, fake_render, canary):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    monkeypatch.undo()
+    view = frame_dir(out, "main", 1) / "00_00"
+    os.rename(view, tmp_path / "moved")
+    view.symlink_to(canary)
+    code, _, err = run_cli(capsys, "flow", out)
+    assert_one_line_error(code, err, str(view), "symbolic link")
+    assert intact(canary)

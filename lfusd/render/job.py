@@ -314,7 +314,7 @@ def render(req: RenderRequest, progress=None) -> dict:
     from ..truth.derive import derive_dataset
 
     req = req.capped()
-    return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers))[0]
+    return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers, lock=False))[0]
 
 
 def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, overlap=None) -> tuple[dict, list[str]]:
@@ -430,7 +430,7 @@ def render_video(req: RenderRequest) -> VideoResult:
 
         written, left = state["scheduler"].finish()
         for rig, frames in sorted(left.items()):
-            written += derive_dataset(req.out, [rig], frames, workers=req.workers)
+            written += derive_dataset(req.out, [rig], frames, workers=req.workers, lock=False)  # _render holds the lock
         drop_raw_near(req.out, names, req.frames)  # the views derived early kept their raw passes
         state["derived"] = written
 

@@ -246,6 +246,28 @@ def derive_dataset(
     overwrite: bool = False,
     progress=None,
     views: list[View] | None = None,
+    lock: bool = True,
+) -> int:
+    """:func:`_derive_dataset` holding the dataset's lock (OUT/.lock: one writer per folder, so
+    ``lfusd flow`` never writes into a folder a render is writing), after refusing links among
+    the folders it writes into (lfusd.data.confined). ``lock=False``: the caller holds it (a render)."""
+    if not lock:
+        return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views)
+    from ..data import confined
+
+    with confined.dataset_lock(root):
+        return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views, check_links=True)
+
+
+def _derive_dataset(
+    root: str | Path,
+    rigs: list[str] | None = None,
+    frames: list[int] | None = None,
+    workers: int = 1,
+    overwrite: bool = False,
+    progress=None,
+    views: list[View] | None = None,
+    check_links: bool = False,
 ) -> int:
     """Write gt.exr and the motion keys of every (rig, frame, view) where they are not current (the
     motion of all of them with ``overwrite``), then remove the raw passes nothing needs any more.
@@ -258,6 +280,10 @@ def derive_dataset(
     from ..data.export import open_datasets
 
     datasets = list(open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs])
+    if check_links:
+        from ..data import confined
+
+        confined.check_tree(root, [ds.rig_name for ds in datasets])
     for ds in datasets:
         ds.refresh()  # the frames complete now, not when the manifest was last written
     # lfusd flow (overwrite) derives every frame the manifest lists, and names what it cannot read

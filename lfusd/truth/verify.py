@@ -525,11 +525,16 @@ def verify(
     unknown = sorted(set(thresholds or {}) - set(THRESHOLDS))
     if unknown:
         raise LfusdError(f"unknown threshold {unknown[0]!r}; use one of {', '.join(THRESHOLDS)}")
+    from ..data.integrity import check_dataset
+
     reports = {}
     for ds in export.open_datasets(out, rig):
         if not ds.frames:
             raise LfusdError(f"dataset {out} has no completely rendered frame; finish the render first")
-        reports[getattr(ds, "rig_name", None)] = verify_dataset(
-            ds, stage_path=stage, frames=frames, views=views, thresholds=thresholds, progress=progress
-        )
+        # First every view's files against its record (what --integrity checks): a damaged file
+        # verify does not read (a truncated rgb.exr) fails the dataset too.
+        _, damaged = check_dataset(out, ds.rig_name, frames=frames, views=views)
+        report = verify_dataset(ds, stage_path=stage, frames=frames, views=views, thresholds=thresholds, progress=progress)
+        report.problems[:0] = [f"{p}; rerun the render command to repair it" for p in damaged]
+        reports[getattr(ds, "rig_name", None)] = report
     return reports
