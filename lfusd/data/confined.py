@@ -33,7 +33,7 @@ LOG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*-unit\d{4,}\.(log|ray\.jsonl)")
 # (integrity), ".<key>.tmp-<pid>-<thread>" (a view being committed or moved aside).
 _TMP_STEMS = ("manifest.json", "objects.json", "frame.json", "recipe.toml", "card.json", "CARD.md",
               "gt", "motion", "view", "rgb", "passes")
-TMP_NAME = re.compile(r"\.(?:(?:%s)\.[A-Za-z0-9_]+\.(?:tmp|exr|json|npz)|\d{2,4}_\d{2,4}\.tmp-(?:old-)?\d+-\d+)"
+TMP_NAME = re.compile(r"\.(?:(?:%s)\.[A-Za-z0-9_]+\.(?:tmp|exr|json|npz)|\d{2,4}_\d{2,4}\.tmp-[A-Za-z0-9_-]+)"
                       % "|".join(re.escape(s) for s in _TMP_STEMS))
 
 
