@@ -212,8 +212,13 @@ def main(argv: list[str] | None = None) -> int:
             _Interrupt.pending = False
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         # The program itself (not a caller's main([...])), stopped: its clean-up has run (workers,
-        # pools, Ray). Exit now, before libraries' exit-time code: Open3D's report of memory a
-        # cut-short ray cast left changes the exit code to 1 and prints pages to stdout.
+        # pools), and Python's exit functions run now (Ray's stops its agents). Then exit before the
+        # C++ libraries' static destructors: Open3D's report of memory a cut-short ray cast left
+        # changes the exit code to 1 and prints pages to stdout.
+        import atexit
+
+        with contextlib.suppress(BaseException):
+            atexit._run_exitfuncs()
         with contextlib.suppress(Exception):
             sys.stdout.flush()
             sys.stderr.flush()

@@ -17,6 +17,8 @@ templates exist or in which order they were registered.
 from __future__ import annotations
 
 import importlib
+import os
+import uuid
 import math
 import pkgutil
 from collections.abc import Callable
@@ -248,8 +250,24 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         raise LfusdError(f"--seed must be a non-negative integer, got {seed}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if path.exists():
-        path.unlink()  # CreateNew refuses an existing file; regenerating is the intent
+    # Authored under a temporary name beside ``path`` (textures are found relative to the folder)
+    # and renamed into place once saved: a killed generation leaves no half-written stage that a
+    # rerun (`lfusd dataset make`) would take for the scene.
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
+    try:
+        _build(t, tmp, seed, frames, rigs, grid, resolution, dynamic, template)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    layer = Sdf.Layer.Find(str(path))
+    if layer is not None:  # a stage regenerated in this process: the cached layer holds the old one
+        layer.Reload(force=True)
+    return Usd.Stage.Open(str(path))
+
+
+def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, dynamic: bool, template: str) -> None:
+    """Author and save the stage of template ``t`` at ``path`` (see :func:`generate`)."""
     stage = new_stage(path, 1, frames)
     UsdGeom.Scope.Define(stage, "/World/Looks")
     UsdGeom.Xform.Define(stage, "/World/Lights")
@@ -285,7 +303,6 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         finish(scene)  # the rulebook over every frame; a mover that breaks a rule goes
     round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
-    return stage
 
 
 def _load_templates() -> None:
