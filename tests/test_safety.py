@@ -389,3 +389,96 @@ def test_lfusd_flow_refuses_a_linked_view_folder(capsys, monkeypatch, tmp_path, 
     code, _, err = run_cli(capsys, "flow", out)
     assert_one_line_error(code, err, str(view), "symbolic link")
     assert intact(canary)
+
+
+# -- 7. limits up front: generated stages appear only whole ---------------------------------------
+
+
+def test_a_killed_stage_generation_leaves_no_stage_and_the_rerun_makes_it(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    stage = tmp_path / "stages" / "room.usda"
+    argv = [sys.executable, "-m", "lfusd", "stage", "new", "room", "-o", stage, "--frames", "1", "--rigs", "1",
+            "--grid", "1x1", "--resolution", "16x16"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    p = subprocess.Popen(list(map(str, argv)), env=env, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and not any(x.name.endswith(".tmp.usda") for x in stage.parent.glob(".*")):
+        time.sleep(0.02)  # the generation has begun writing
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    assert not stage.exists()  # nothing half-written where the stage goes (dataset make would take it for the scene)
+    assert [x.name for x in stage.parent.glob(".room.*.tmp.usda")]  # the killed run's temporary
+    (stage.parent / ".room.notmine.tmp.usda").write_text("a user's file, not lfusd's temporary name")
+    assert subprocess.run(list(map(str, argv)), env=env, capture_output=True).returncode == 0
+    from pxr import Usd
+
+    assert Usd.Stage.Open(str(stage)).GetPrimAtPath("/World")
+    assert sorted(x.name for x in stage.parent.glob(".*")) == [".room.notmine.tmp.usda"]
+
+
+def test_an_absurd_frame_range_is_refused_before_any_list_is_made(capsys, tmp_path, project, fake_render):
+    code, _, err = run_cli(capsys, "render-video", project / "scene.usda", "-o", tmp_path / "out", "--frames", "1-100000000",
+                           "--device", "cpu", "--quiet")
+    assert_one_line_error(code, err, "100000000 frames", "smaller range")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_stage_range_of_a_billion_frames_is_refused_in_one_line(capsys, tmp_path, project, fake_render):
+    from pxr import Usd
+
+    stage = Usd.Stage.Open(str(project / "scene.usda"))
+    stage.SetEndTimeCode(1e9)
+    stage.GetRootLayer().Save()
+    code, _, err = run_cli(capsys, "render-video", project / "scene.usda", "-o", tmp_path / "out", "--device", "cpu", "--quiet")
+    assert_one_line_error(code, err, "1000000000 frames", "--frames")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("field,value,named", [("frames", 10**9, "frames"), ("scenes", 10**8, "scenes"), ("disk", None, "of disk")])
+def test_absurd_recipes_are_refused_before_anything_is_made(capsys, monkeypatch, tmp_path, field, value, named):
+    from lfusd.render import request
+
+    recipe = tmp_path / "r.toml"
+    text = (Path(__file__).resolve().parents[1] / "recipes" / "tiny.toml").read_text()
+    if field == "disk":  # the tiny recipe on a disk with 1 kB free
+        monkeypatch.setattr(request, "_free_disk", lambda path: 1000)
+    else:
+        lines = text.splitlines()
+        last = max(i for i, ln in enumerate(lines) if ln.startswith("[[part]]"))  # the dynamic part
+        body = [ln for ln in lines[last:] if not ln.startswith(f"{field} ")]
+        text = "\n".join(lines[:last] + body + [f"{field} = {value}"]) + "\n"
+    recipe.write_text(text)
+    code, _, err = run_cli(capsys, "dataset", "make", recipe, "-o", tmp_path / "made", "--quiet")
+    assert_one_line_error(code, err, named)
+    assert not (tmp_path / "made").exists()
+
+
+def test_the_memory_check_honours_a_container_limit(tmp_path, capsys, project):
+    from lfusd.render import request
+
+    # cgroup v2: the process's group and its parent, the lower limit wins; v1: memory.limit_in_bytes
+    (tmp_path / "proc").write_text("0::/user.slice/job\n")
+    (tmp_path / "fs" / "user.slice" / "job").mkdir(parents=True)
+    (tmp_path / "fs" / "user.slice" / "job" / "memory.max").write_text("max\n")
+    (tmp_path / "fs" / "user.slice" / "memory.max").write_text(f"{3 << 30}\n")
+    assert request.cgroup_memory_limit(str(tmp_path / "proc"), str(tmp_path / "fs")) == 3 << 30
+    (tmp_path / "proc1").write_text("4:memory:/docker/abc\n1:cpu:/\n")
+    (tmp_path / "fs1" / "memory" / "docker" / "abc").mkdir(parents=True)
+    (tmp_path / "fs1" / "memory" / "docker" / "abc" / "memory.limit_in_bytes").write_text(f"{1 << 30}\n")
+    (tmp_path / "fs1" / "memory" / "memory.limit_in_bytes").write_text("9223372036854771712\n")
+    assert request.cgroup_memory_limit(str(tmp_path / "proc1"), str(tmp_path / "fs1")) == 1 << 30
+    # a render whose views fit the machine but not the container is refused, naming the limit
+    monkeypatch = pytest.MonkeyPatch()
+    monkeypatch.setattr(request, "cgroup_memory_limit", lambda *a, **k: 256 << 20)
+    try:
+        assert request._memory() == 256 << 20
+        code, _, err = run_cli(capsys, "render-video", project / "scene.usda", "-o", tmp_path / "out", "--resolution", "2048x2048",
+                               "--device", "cpu", "--quiet")
+    finally:
+        monkeypatch.undo()
+    assert_one_line_error(code, err, "of memory", "this machine has 0.268 GB")
+    assert not (tmp_path / "out").exists()

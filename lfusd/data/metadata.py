@@ -13,11 +13,12 @@ import math
 import re
 from pathlib import Path
 
+from .. import layout
 from ..errors import LfusdError
 
 # Bounds well beyond any real dataset, small enough that using them cannot exhaust the machine.
 MAX_RIGS = 1000
-MAX_FRAMES = 1_000_000
+MAX_FRAMES = layout.MAX_FRAMES
 FRAME_RANGE = (-999_999, 9_999_999)  # f{frame:06d} stays a plain name (no separator) in this range
 MAX_GRID = 512  # rows or cols of a rig
 MAX_SIDE = 65_536  # pixels, width or height

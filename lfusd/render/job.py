@@ -415,6 +415,9 @@ def render_video(req: RenderRequest) -> VideoResult:
     stage = open_stage(req.stage)
     if not req.frames:
         first, last = frame_range(stage)
+        if last - first + 1 > layout.MAX_FRAMES:  # before a list of them is made
+            raise LfusdError(f"stage {req.stage}'s range {first}-{last} is {last - first + 1} frames, more than a dataset holds "
+                             f"({layout.MAX_FRAMES}); give --frames A-B, or fix the stage's endTimeCode")
         req = replace(req, frames=list(range(first, last + 1)))
     req = replace(req, motion=True).capped()
     state: dict = {}

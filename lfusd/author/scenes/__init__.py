@@ -21,6 +21,7 @@ import os
 import uuid
 import math
 import pkgutil
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -253,6 +254,7 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     # Authored under a temporary name beside ``path`` (textures are found relative to the folder)
     # and renamed into place once saved: a killed generation leaves no half-written stage that a
     # rerun (`lfusd dataset make`) would take for the scene.
+    _remove_stale_temporaries(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
     try:
         _build(t, tmp, seed, frames, rigs, grid, resolution, dynamic, template)
@@ -264,6 +266,21 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     if layer is not None:  # a stage regenerated in this process: the cached layer holds the old one
         layer.Reload(force=True)
     return Usd.Stage.Open(str(path))
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Remove the temporaries a killed generation of ``path`` left (``.<stem>.<pid>-<hex>.tmp<suffix>``
+    beside it, of a process no longer running); nothing else."""
+    pattern = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[0-9a-f]{{8}}\.tmp{re.escape(path.suffix)}")
+    for p in path.parent.iterdir():
+        m = pattern.fullmatch(p.name)
+        if m and not p.is_symlink() and p.is_file():
+            try:
+                os.kill(int(m[1]), 0)
+            except ProcessLookupError:
+                p.unlink(missing_ok=True)
+            except (PermissionError, OverflowError):
+                pass  # alive under another user, or no pid: not ours to remove
 
 
 def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, dynamic: bool, template: str) -> None:
