@@ -482,3 +482,42 @@ def test_the_memory_check_honours_a_container_limit(tmp_path, capsys, project):
         monkeypatch.undo()
     assert_one_line_error(code, err, "of memory", "this machine has 0.268 GB")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.render
+def test_a_full_disk_during_export_lfmat_is_one_line_and_leaves_nothing(tmp_path, box_dataset):
+    """The file size limit (RLIMIT_FSIZE) makes write(2) fail as a full disk does (EFBIG for ENOSPC):
+    HDF5 failing inside its own writes crashed the process (SIGSEGV)."""
+    import resource
+    import subprocess
+    import sys
+
+    _, out = box_dataset
+    dest = tmp_path / "exp"
+    limit = 64 * 1024  # far below one light field of the 3x3 rig, above everything else the command writes
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "PYTHONDONTWRITEBYTECODE": "1"}
+    r = subprocess.run([sys.executable, "-m", "lfusd", "export", "lfmat", str(out), str(dest), "--rig", "main"],
+                       capture_output=True, text=True, env=env, preexec_fn=small_files, timeout=300)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("lfusd: error: cannot write export"), r.stderr[-2000:]
+    assert "File too large" in lines[0]
+    assert not dest.exists() and not list(tmp_path.glob(".exp.partial-*"))
+
+
+def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
+    from lfusd.data import export
+
+    dest = tmp_path / "exp"
+    dead = tmp_path / ".exp.partial-999999999"  # no such process
+    (dead / "sub").mkdir(parents=True)
+    (dead / "sub" / "scene_f0001.h5").write_bytes(b"half")
+    alive = tmp_path / f".exp.partial-{os.getpid()}"  # a running export's
+    alive.mkdir()
+    other = tmp_path / ".exp.partial-notes"
+    other.mkdir()
+    export._remove_stale_partials(dest)
+    assert not dead.exists() and alive.is_dir() and other.is_dir()

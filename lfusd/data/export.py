@@ -33,6 +33,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -460,6 +461,22 @@ def export_lfmat(ds, dest, frame: int | None = None, matlab: bool = False) -> li
     return out
 
 
+def _remove_stale_partials(dest: Path) -> None:
+    """Remove the partial folders of exports to ``dest`` that were killed (``.<name>.partial-<pid>``
+    of a process no longer running; never a link), so that a rerun leaves nothing behind."""
+    pattern = re.compile(rf"\.{re.escape(dest.name)}\.partial-(\d+)")
+    for p in dest.parent.iterdir() if dest.parent.is_dir() else ():
+        m = pattern.fullmatch(p.name)
+        if not m or p.is_symlink() or not p.is_dir():
+            continue
+        try:
+            os.kill(int(m[1]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(p, ignore_errors=True)
+        except (PermissionError, OverflowError):
+            pass  # another user's running process, or no pid
+
+
 def export(ds, fmt: str, dest, frame: int | None = None, **kw):
     """Dispatch to ``export_<fmt>``, writing into a hidden folder beside ``dest`` that is renamed
     to ``dest`` when complete: a failed export leaves nothing that blocks its retry."""
@@ -472,6 +489,7 @@ def export(ds, fmt: str, dest, frame: int | None = None, **kw):
         dest.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise LfusdError(f"cannot create export target {dest} ({e.strerror}): {formats.why_unwritable(dest)}") from None
+    _remove_stale_partials(dest)
     tmp = dest.parent / f".{dest.name}.partial-{os.getpid()}"
     try:
         result = globals()[f"export_{fmt}"](ds, tmp, frame=frame, **kw)
