@@ -423,12 +423,19 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
         raise LfusdError(f"output {root} is a file; give a folder for the dataset")
     check_recipe_size(recipe, root)
     try:
-        (root / layout.RECIPE_SCENES).mkdir(parents=True, exist_ok=True)
+        root.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise LfusdError(f"cannot create {root} ({e.strerror or e}); choose a writable -o folder") from None
     result = MakeResult()
     with output_lock(root):
+        from .data import confined
+
+        for name in (layout.RECIPE_COPY, layout.RECIPE_STAGES, layout.RECIPE_SCENES, layout.RECIPE_CARD, layout.RECIPE_CARD_JSON,
+                     layout.RECIPE_PLOTS):
+            if confined.is_link(root / name):  # lfusd writes there: never through a link planted in the folder
+                raise confined.link_error(root / name)
         _check_folder(root, text)
+        (root / layout.RECIPE_SCENES).mkdir(exist_ok=True)
         atomic_write_text(root / layout.RECIPE_COPY, text)
         specs = scene_specs(recipe)
         records = {}

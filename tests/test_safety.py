@@ -86,7 +86,18 @@ def test_dataset_make_refuses_a_lock_link(capsys, tmp_path, canary):
     recipe = Path(__file__).resolve().parents[1] / "recipes" / "tiny.toml"
     code, _, err = run_cli(capsys, "dataset", "make", recipe, "-o", root, "--quiet")
     assert_one_line_error(code, err, ".lock", "symbolic link")
-    assert intact(canary) and sorted(p.name for p in root.iterdir()) == [".lock", "scenes"]
+    assert intact(canary) and sorted(p.name for p in root.iterdir()) == [".lock"]
+
+
+@pytest.mark.parametrize("entry", ["stages", "scenes"])
+def test_dataset_make_refuses_a_linked_stages_or_scenes_folder(capsys, tmp_path, canary, entry):
+    root = tmp_path / "made"
+    root.mkdir()
+    (root / entry).symlink_to(canary)
+    recipe = Path(__file__).resolve().parents[1] / "recipes" / "tiny.toml"
+    code, _, err = run_cli(capsys, "dataset", "make", recipe, "-o", root, "--quiet")
+    assert_one_line_error(code, err, str(root / entry), "symbolic link")
+    assert intact(canary)
 
 
 @pytest.mark.parametrize("entry", ["logs/main-unit0000.log", "logs", ".scratch", "objects.json"])
