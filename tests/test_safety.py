@@ -532,3 +532,21 @@ def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
     other.mkdir()
     export._remove_stale_partials(dest)
     assert not dead.exists() and alive.is_dir() and other.is_dir()
+
+
+def test_a_rerun_removes_the_temporaries_of_a_killed_run_and_nothing_else(capsys, tmp_path, project, fake_render):
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    frame = frame_dir(out, "main", 1)
+    debris = [out / ".manifest.json.k2j3h4_x.tmp", out / ".objects.json.a1b2c3d4.tmp", frame / ".frame.json.zz9y8x7w.tmp",
+              frame / "00_00" / ".gt.q1w2e3r4.exr", frame / "00_00" / ".motion.q1w2e3r4.exr", frame / "00_00" / ".view.abcdefgh.json"]
+    for p in debris:
+        p.write_bytes(b"half-written by a killed run")
+    (frame / ".00_00.tmp-4242-1399").mkdir()
+    (frame / ".00_00.tmp-4242-1399" / "rgb.exr").write_bytes(b"half")
+    mine = [out / ".my_notes", frame / "00_00" / ".gt.backup", frame / ".frame.json.bak"]
+    for p in mine:
+        p.write_text("the user's")
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    assert not any(p.exists() for p in debris) and not (frame / ".00_00.tmp-4242-1399").exists()
+    assert all(p.read_text() == "the user's" for p in mine)

@@ -29,11 +29,11 @@ TOP_ENTRIES = (layout.MANIFEST, layout.OBJECTS, layout.LOGS, layout.SCRATCH, lay
 # A worker's log and a Ray unit's attempt record (lfusd.render.executors), the only files of OUT/logs.
 LOG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*-unit\d{4,}\.(log|ray\.jsonl)")
 # Hidden temporaries lfusd's atomic writes and commits make (a killed run leaves them behind):
-# ".<name>.<random>.tmp" (atomic_write_text), ".<stem>.<random>.exr" (store), ".view.<random>.json"
+# ".<name>.<8 random>.tmp" (atomic_write_text, mkstemp), ".<stem>.<random>.exr" (store), ".view.<random>.json"
 # (integrity), ".<key>.tmp-<pid>-<thread>" (a view being committed or moved aside).
 _TMP_STEMS = ("manifest.json", "objects.json", "frame.json", "recipe.toml", "card.json", "CARD.md",
               "gt", "motion", "view", "rgb", "passes")
-TMP_NAME = re.compile(r"\.(?:(?:%s)\.[A-Za-z0-9_]+\.(?:tmp|exr|json|npz)|\d{2,4}_\d{2,4}\.tmp-[A-Za-z0-9_-]+)"
+TMP_NAME = re.compile(r"\.(?:(?:%s)\.[a-z0-9_]{8}\.(?:tmp|exr|json|npz)|\d{2,4}_\d{2,4}\.tmp-[A-Za-z0-9_-]+)"
                       % "|".join(re.escape(s) for s in _TMP_STEMS))
 
 
