@@ -224,7 +224,7 @@ def test_overwrite_removes_all_of_lfusds_files_and_folders(tmp_path, project, fa
     assert render(capsys, project / "scene.usda", out, "--frame", "2")[0] == 0
     (out / "logs").mkdir(exist_ok=True)
     (out / "logs" / "main-unit0000.log").write_text("blender said")
-    (frame_dir(out, "main", 1) / ".frame.json.abc123.tmp").write_text("killed mid-write")
+    (frame_dir(out, "main", 1) / ".frame.json.abc123de.tmp").write_text("killed mid-write")
     manifest = json.loads((out / "manifest.json").read_text())
     confined.remove_own(out, manifest)
     assert sorted(p.name for p in out.iterdir()) == [".lock"]
