@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent
+from ..processes import die_with_parent, own_process_group
 from . import request
 
 log = logging.getLogger(__name__)
@@ -99,16 +99,17 @@ class MotionScheduler:
         # spawn, not fork: forking after numba's, BLAS's or the executor's threads have run can kill the child
         ctx = multiprocessing.get_context("spawn")
         handler = None
-        if threading.current_thread() is threading.main_thread():  # a Ctrl-C while they start must not reach them
-            handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
-        try:
-            self.lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),))
-                          for _ in range(max(1, lanes))]
-            for lane in self.lanes:
-                lane.submit(_warm)  # starts the process now, beside the workers' start-up
-        finally:
-            if handler is not None:
-                signal.signal(signal.SIGINT, handler)
+        with own_process_group() as apart:  # a Ctrl-C while they start must not reach them (lfusd stops them)
+            if not apart and threading.current_thread() is threading.main_thread():
+                handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            try:
+                self.lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),))
+                              for _ in range(max(1, lanes))]
+                for lane in self.lanes:
+                    lane.submit(_warm)  # starts the process now, beside the workers' start-up
+            finally:
+                if handler is not None:
+                    signal.signal(signal.SIGINT, handler)
 
     def _in_place(self, rig: str, frame: int, view: View) -> bool:
         key = (rig, frame, view)

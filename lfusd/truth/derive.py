@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import integrity, store
-from ..processes import die_with_parent
+from ..processes import die_with_parent, own_process_group
 from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
@@ -348,15 +348,18 @@ def _run(todo: list, workers: int, progress, written: set) -> int:
     # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
     # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
     # a Ctrl-C to the process group while they start up must not kill them with a traceback.
+    # (Issue 29: ignoring loses a Ctrl-C sent meanwhile, so where it can the pool starts in a
+    # process group of its own instead, which a terminal's Ctrl-C does not reach.)
     main = threading.current_thread() is threading.main_thread()  # only it may set handlers
-    handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
-    try:
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_pool_init, initargs=(os.getpid(),))
-        futures = [pool.submit(_derive_run, item) for item in todo]
-    finally:
-        if main:
-            signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
+    with own_process_group() as apart:
+        handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main and not apart else None
+        try:
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_pool_init, initargs=(os.getpid(),))
+            futures = [pool.submit(_derive_run, item) for item in todo]
+        finally:
+            if main and not apart:
+                signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
     try:
         for f in futures:
             n, c = f.result()
