@@ -51,8 +51,22 @@ def own_process_group():
             os.close(errpipe_read)
             os.close(errpipe_write)
 
+    # A Ctrl-C while a process is being started is held until the block ends: raised between the
+    # start and the hand-over of its job, it would leave the new process reading a closed pipe
+    # (a traceback on stderr).
+    import threading
+
+    held: list[int] = []
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if main else None
     util.spawnv_passfds = spawnv_passfds
     try:
         yield True
     finally:
         util.spawnv_passfds = original
+        if main:
+            signal.signal(signal.SIGINT, previous)
+            if held and callable(previous):
+                previous(signal.SIGINT, None)  # lfusd's or Python's handler: raises KeyboardInterrupt
+            elif held and previous == signal.SIG_DFL:
+                raise KeyboardInterrupt

@@ -40,10 +40,8 @@ def _interrupt(argv: list, at: float) -> tuple[int, list[str]]:
     p = subprocess.Popen([sys.executable, "-m", "lfusd", *map(str, argv)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True, env=ENV, start_new_session=True)
     time.sleep(at)
-    try:
-        os.killpg(p.pid, signal.SIGINT)
-    except ProcessLookupError:
-        pass
+    assert p.poll() is None, f"the command ended before {at:.2f} s: the case needs a longer run"
+    os.killpg(p.pid, signal.SIGINT)
     _, err = p.communicate(timeout=120)
     # progress lines are the command's own output; everything else must be the one line
     lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("verifying frame") and " views, " not in ln]
@@ -68,8 +66,18 @@ def test_ctrl_c_in_the_first_two_seconds_of_render_video(tmp_path):
     assert not bad, "\n".join(bad)
 
 
-def test_ctrl_c_in_the_first_two_seconds_of_verify(box_dataset):
-    _, out = box_dataset  # verify only reads it
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    """A dataset whose verification takes several seconds (3 views, 12 frames of motion)."""
+    root = tmp_path_factory.mktemp("video")
+    write_box_stage(root / "scene.usda", [RigSpec(name="main", rows=1, cols=3, width=64, height=64, at=(0, -5, 1), look_at=(0, 0, 0.5))])
+    subprocess.run([sys.executable, "-m", "lfusd", "render-video", root / "scene.usda", "-o", root / "out", "--frames", "1-12",
+                    "--samples", "1", "--device", "cpu", "--quiet"], env=ENV, check=True, capture_output=True)
+    return root / "out"
+
+
+def test_ctrl_c_in_the_first_two_seconds_of_verify(video):
+    out = video  # verify only reads it
     bad = []
     for at in _moments(30):
         code, lines = _interrupt(["verify", out], at)

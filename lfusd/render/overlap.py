@@ -99,17 +99,24 @@ class MotionScheduler:
         # spawn, not fork: forking after numba's, BLAS's or the executor's threads have run can kill the child
         ctx = multiprocessing.get_context("spawn")
         handler = None
-        with own_process_group() as apart:  # a Ctrl-C while they start must not reach them (lfusd stops them)
-            if not apart and threading.current_thread() is threading.main_thread():
-                handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
-            try:
-                self.lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),))
-                              for _ in range(max(1, lanes))]
-                for lane in self.lanes:
-                    lane.submit(_warm)  # starts the process now, beside the workers' start-up
-            finally:
-                if handler is not None:
-                    signal.signal(signal.SIGINT, handler)
+        self.lanes = []
+        try:
+            # A Ctrl-C while they start must not reach them (lfusd stops them); held, it is raised
+            # at the end of the block.
+            with own_process_group() as apart:
+                if not apart and threading.current_thread() is threading.main_thread():
+                    handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+                try:
+                    for _ in range(max(1, lanes)):
+                        self.lanes.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init,
+                                                              initargs=(os.getpid(),)))
+                        self.lanes[-1].submit(_warm)  # starts the process now, beside the workers' start-up
+                finally:
+                    if handler is not None:
+                        signal.signal(signal.SIGINT, handler)
+        except BaseException:
+            self.stop(now=True)  # lanes still starting must not read what this process is about to remove
+            raise
 
     def _in_place(self, rig: str, frame: int, view: View) -> bool:
         key = (rig, frame, view)
@@ -159,9 +166,9 @@ class MotionScheduler:
                 left[rig] = frames
         return written, left
 
-    def stop(self) -> None:
+    def stop(self, now: bool = False) -> None:
         """Stop the lanes now (the render failed or ended); what they wrote is complete or absent."""
-        pending = not all(f.done() for f in self.futures)
+        pending = now or not all(f.done() for f in self.futures)
         for lane in self.lanes:
             if pending:  # interrupted or failed: do not let it finish its queue
                 for p in list((getattr(lane, "_processes", None) or {}).values()):

@@ -351,25 +351,28 @@ def _run(todo: list, workers: int, progress, written: set) -> int:
     # (Issue 29: ignoring loses a Ctrl-C sent meanwhile, so where it can the pool starts in a
     # process group of its own instead, which a terminal's Ctrl-C does not reach.)
     main = threading.current_thread() is threading.main_thread()  # only it may set handlers
-    with own_process_group() as apart:
-        handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main and not apart else None
-        try:
-            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                       initializer=_pool_init, initargs=(os.getpid(),))
-            futures = [pool.submit(_derive_run, item) for item in todo]
-        finally:
-            if main and not apart:
-                signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
+    pool = None
     try:
+        with own_process_group() as apart:  # a Ctrl-C held while they start is raised at its end
+            handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main and not apart else None
+            try:
+                pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                           initializer=_pool_init, initargs=(os.getpid(),))
+                futures = [pool.submit(_derive_run, item) for item in todo]
+            finally:
+                if main and not apart:
+                    signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
         for f in futures:
             n, c = f.result()
             checked += c
             progress and progress(n)
     except BaseException:
-        # Interrupted or failed: stop the pool now rather than let it finish its queue.
+        # Interrupted or failed: stop the pool now rather than let it finish its queue (or, still
+        # starting, read what this process is about to remove).
         for p in list((getattr(pool, "_processes", None) or {}).values()):
             p.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
     return checked
