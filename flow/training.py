@@ -180,9 +180,19 @@ class Run:
         self.write_log()
 
     def load(self) -> dict:
+        """The checkpoint, loaded as tensors and plain data only (``weights_only=True``: a crafted
+        file cannot run code) and checked field by field (:func:`check_state`)."""
+        import pickle
+
         if not self.ckpt.is_file():
             raise LfusdError(f"no checkpoint at {self.ckpt}; run once without --resume first")
-        state = torch.load(self.ckpt, map_location="cpu", weights_only=False)
+        try:
+            state = torch.load(self.ckpt, map_location="cpu", weights_only=True)
+        except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as e:
+            why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+            raise LfusdError(f"{self.ckpt} is not a checkpoint these scripts write ({why}); "
+                             "delete it and run without --resume") from None
+        state = check_state(state, self.ckpt)
         if self.log_path.is_file():
             self.log = json.loads(self.log_path.read_text())
         # losses logged after the checkpoint was written are retrained, so they go
@@ -192,6 +202,47 @@ class Run:
 
     def write_log(self) -> None:
         self.log_path.write_text(json.dumps(self.log, indent=1, default=float))
+
+
+def _plain(x, depth: int = 0) -> bool:
+    """Whether ``x`` is JSON-like plain data (what a run's config holds)."""
+    if x is None or isinstance(x, (bool, int, float, str)):
+        return True
+    if depth < 4 and isinstance(x, (list, tuple)):
+        return all(_plain(v, depth + 1) for v in x)
+    if depth < 4 and isinstance(x, dict):
+        return all(isinstance(k, str) and _plain(v, depth + 1) for k, v in x.items())
+    return False
+
+
+def check_state(state, path) -> dict:
+    """A loaded checkpoint's fields as :meth:`Run.save` writes them (model: name -> tensor,
+    optimizer: a state dict, step: a non-negative int, config: plain data with its frame lists,
+    rng: a uint8 tensor); LfusdError naming the first field that is not."""
+    def bad(what: str) -> LfusdError:
+        return LfusdError(f"{path} is not a checkpoint these scripts write ({what}); delete it and run without --resume")
+
+    if not isinstance(state, dict) or not {"model", "optimizer", "step", "config", "rng"} <= set(state):
+        raise bad("it lacks model, optimizer, step, config or rng")
+    model = state["model"]
+    if not isinstance(model, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in model.items()):
+        raise bad("'model' is not a dict of named tensors")
+    if not isinstance(state["optimizer"], dict) or not {"state", "param_groups"} <= set(state["optimizer"]):
+        raise bad("'optimizer' is not an optimiser state dict")
+    step = state["step"]
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise bad(f"'step' {str(step)[:40]!r} is not a non-negative integer")
+    config = state["config"]
+    if not isinstance(config, dict) or not _plain(config):
+        raise bad("'config' is not plain data")
+    for key in ("train_frames", "eval_frames"):
+        frames = config.get(key)
+        if not isinstance(frames, list) or not all(isinstance(f, int) and not isinstance(f, bool) for f in frames):
+            raise bad(f"config '{key}' is not a list of frame numbers")
+    rng = state["rng"]
+    if not isinstance(rng, torch.Tensor) or rng.dtype != torch.uint8 or rng.dim() != 1:
+        raise bad("'rng' is not a random generator state")
+    return state
 
 
 def progress(quiet: bool):

@@ -229,10 +229,11 @@ def parse_point(text: str, what: str) -> tuple[float, float, float]:
     return x, y, z
 
 
-def parse_frames(text: str) -> list[int]:
+def parse_frames(text: str, limit: int | None = None) -> list[int]:
     """'1-5,8' -> [1, 2, 3, 4, 5, 8]: frames N, inclusive ranges A-B and comma lists of both, sorted.
-    Time codes may be negative: '-3', '-5--2', '-2-1'."""
-    frames: set[int] = set()
+    Time codes may be negative: '-3', '-5--2', '-2-1'. ``limit``: LfusdError, before any list is
+    made, when the ranges name more frames than that."""
+    ranges = []
     for part in str(text).split(","):
         m = re.fullmatch(r"\s*(-?\d+)\s*(?:-\s*(-?\d+)\s*)?", part)
         if not m:
@@ -240,6 +241,12 @@ def parse_frames(text: str) -> list[int]:
         a, b = int(m[1]), int(m[2] or m[1])
         if b < a:
             raise LfusdError(f"frames {text!r}: range {a}-{b} is reversed; write A-B with A <= B ({b}-{a})")
+        ranges.append((a, b))
+    count = sum(b - a + 1 for a, b in ranges)
+    if limit is not None and count > limit:
+        raise LfusdError(f"frames {text!r} name {count} frames, more than a dataset holds ({limit}); give a smaller range")
+    frames: set[int] = set()
+    for a, b in ranges:
         frames.update(range(a, b + 1))
     return sorted(frames)
 

@@ -14,6 +14,7 @@ traceback of an error, including causes hidden by ``raise ... from None``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import logging
@@ -25,8 +26,7 @@ import threading
 import tempfile
 import traceback
 
-from . import __version__, commands
-from .commands.args import Parser
+from . import __version__
 from .errors import LfusdError
 
 EXIT_OK, EXIT_VIOLATIONS, EXIT_ERROR, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
@@ -42,16 +42,23 @@ def _on_sigterm(signum, frame) -> None:
     raise Terminated()
 
 
-class _CliParser(Parser):
-    """Every lfusd (sub)command also takes the global options, anywhere on the command line."""
+def _cli_parser_class():
+    """The parser class of every (sub)command; built on first use, as it imports the commands'
+    argument layer (and with it NumPy), which must happen inside :func:`main`'s signal handling."""
+    from .commands.args import Parser
 
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        # SUPPRESS: a subcommand that is not given the option leaves the top level's value alone.
-        self.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
-                          help="on an error, print the full traceback with its causes (or set LFUSD_DEBUG=1)")
-        self.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
-                          help="log informational messages (-vv: debugging messages)")
+    class _CliParser(Parser):
+        """Every lfusd (sub)command also takes the global options, anywhere on the command line."""
+
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            # SUPPRESS: a subcommand that is not given the option leaves the top level's value alone.
+            self.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
+                              help="on an error, print the full traceback with its causes (or set LFUSD_DEBUG=1)")
+            self.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                              help="log informational messages (-vv: debugging messages)")
+
+    return _CliParser
 
 
 class _StderrHandler(logging.Handler):
@@ -75,6 +82,9 @@ def configure_logging(verbose: int = 0) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import commands
+
+    _CliParser = _cli_parser_class()
     parser = _CliParser(prog="lfusd", description="Light-field datasets from USD stages.",
                         epilog="exit codes: 0 ok, 1 check/verify violations, 2 bad input, 3 internal error, 130 interrupted, 143 terminated")
     parser.add_argument("--version", action="version", version=f"lfusd {__version__}")
@@ -99,55 +109,184 @@ def full_traceback(e: BaseException) -> str:
     return "".join(traceback.format_exception(e))
 
 
+class _Interrupt:
+    """A Ctrl-C that a library must not swallow. Python raises KeyboardInterrupt wherever the main
+    thread is; some extensions catch it there: pxr's module set-up turns it into a warning and
+    carries on (the run then completes, exit 0), NumPy's import into an ImportError. So the
+    handler also latches it: every later import raises it again (:class:`_RaiseAtImport`), and
+    :func:`main` reports any ending of a latched run as interrupted."""
+
+    pending = False
+    defer = False  # only latch, do not raise: while pxr loads (it prints a warning per module it sees fail)
+
+    @classmethod
+    def handler(cls, signum, frame) -> None:
+        cls.pending = True
+        if not cls.defer:
+            raise KeyboardInterrupt
+
+
+class _RaiseAtImport:
+    """A meta path finder: it raises a latched Ctrl-C at the next import, and loads pxr's modules
+    with Ctrl-C deferred (:class:`_Deferred`). Everything else it leaves to the other finders."""
+
+    @staticmethod
+    def find_spec(name, path=None, target=None):
+        if _Interrupt.pending and not _Interrupt.defer:
+            raise KeyboardInterrupt
+        if name.split(".")[0] != "pxr":
+            return None
+        import importlib.machinery
+
+        spec = importlib.machinery.PathFinder.find_spec(name, path, target)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _Deferred(spec.loader)
+        return spec
+
+
+class _Deferred:
+    """A module loader run with Ctrl-C latched but not raised until it is done: pxr's loader
+    catches a KeyboardInterrupt raised inside it, prints a warning with its traceback for every
+    module it then fails to load, and carries on. Raised when the outermost load ends."""
+
+    depth = 0
+
+    def __init__(self, loader):
+        self.loader = loader
+
+    def __getattr__(self, name):
+        return getattr(self.loader, name)
+
+    def create_module(self, spec):
+        with self._deferring():
+            return self.loader.create_module(spec)
+
+    def exec_module(self, module):
+        with self._deferring():
+            self.loader.exec_module(module)
+
+    @classmethod
+    @contextlib.contextmanager
+    def _deferring(cls):
+        cls.depth += 1
+        _Interrupt.defer = True
+        try:
+            yield
+        finally:
+            cls.depth -= 1
+            _Interrupt.defer = cls.depth > 0
+        if _Interrupt.pending and not _Interrupt.defer:
+            raise KeyboardInterrupt
+
+
+def _interrupted() -> int:
+    print("lfusd: interrupted; rerun the same command to resume", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as e:  # usage errors and --help
-        return int(e.code or 0)
-    configure_logging(getattr(args, "verbose", 0))
-    debug = getattr(args, "traceback", False) or os.environ.get("LFUSD_DEBUG", "") not in ("", "0")
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return EXIT_ERROR
+    # The handlers come first, before any heavy import (the commands' modules import NumPy, pxr,
+    # ...): a Ctrl-C or SIGTERM at any moment of a run is one line and exit 130 or 143.
     in_main = threading.current_thread() is threading.main_thread()  # only it may set handlers
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if in_main else None
+    # Ctrl-C: Python's own handler is replaced by the latching one; an inherited SIG_IGN (a
+    # background job of a shell) is the caller's choice and kept.
+    latch = in_main and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    if latch:
+        _Interrupt.pending = False
+        signal.signal(signal.SIGINT, _Interrupt.handler)
+        sys.meta_path.insert(0, _RaiseAtImport)
     try:
+        code = _main(argv)
+        code = _interrupted() if _Interrupt.pending and code != EXIT_INTERRUPTED else code
+    except KeyboardInterrupt:  # a second Ctrl-C while the first was being reported
+        code = EXIT_INTERRUPTED
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        if latch:
+            # the program (argv None) is done: a Ctrl-C now must not turn its result into a traceback
+            signal.signal(signal.SIGINT, signal.SIG_IGN if argv is None else signal.default_int_handler)
+            with contextlib.suppress(ValueError):
+                sys.meta_path.remove(_RaiseAtImport)
+            _Interrupt.pending = False
+    if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        # The program itself (not a caller's main([...])), stopped: its clean-up has run (workers,
+        # pools), and Python's exit functions run now (Ray's stops its agents). Then exit before the
+        # C++ libraries' static destructors: Open3D's report of memory a cut-short ray cast left
+        # changes the exit code to 1 and prints pages to stdout.
+        import atexit
+
+        with contextlib.suppress(BaseException):
+            atexit._run_exitfuncs()
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
+    """Parse, run the command, and turn every way it can end into an exit code and one line."""
+    debug = os.environ.get("LFUSD_DEBUG", "") not in ("", "0")
+    try:
+        # The commands' modules import NumPy and pxr: a Ctrl-C during those imports is raised
+        # after them, not inside their C++ module loaders (which would print their own warnings).
+        _Interrupt.defer = True
+        try:
+            parser = build_parser()
+        finally:
+            _Interrupt.defer = False
+        if _Interrupt.pending:
+            raise KeyboardInterrupt
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as e:  # usage errors and --help
+            return int(e.code or 0)
+        configure_logging(getattr(args, "verbose", 0))
+        debug = debug or getattr(args, "traceback", False)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return EXIT_ERROR
         return int(args.func(args) or 0)
     except Terminated:
         print("lfusd: terminated; rerun the same command to resume", file=sys.stderr)
         return EXIT_TERMINATED
-    except LfusdError as e:
+    except KeyboardInterrupt:
+        return _interrupted()
+    except Exception as e:
+        if _Interrupt.pending:  # a Ctrl-C that a library turned into another error
+            return _interrupted()
+        return _report(e, debug)
+
+
+def _report(e: Exception, debug: bool) -> int:
+    """One line for an error: the user's (exit 2), the machine's (OSError, exit 2) or a bug (exit 3)."""
+    if isinstance(e, LfusdError):
         if debug:
             sys.stderr.write(full_traceback(e))
         print(f"lfusd: error: {e}", file=sys.stderr)
         return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("lfusd: interrupted; rerun the same command to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except OSError as e:  # the machine, not lfusd: a full disk, a read-only folder, a missing path
+    if isinstance(e, OSError):  # the machine, not lfusd: a full disk, a read-only folder, a missing path
         if debug:
             sys.stderr.write(full_traceback(e))
         what = f"{e.filename}: " if e.filename else ""
         fix = "free disk space" if e.errno in (errno.ENOSPC, errno.EDQUOT) else "check the path and its permissions"
         print(f"lfusd: error: {what}{e.strerror or e}; {fix}, then rerun", file=sys.stderr)
         return EXIT_ERROR
-    except Exception as e:  # a bug: keep the message short, the traceback in a file for the report
-        text = full_traceback(e)
-        if debug:
-            sys.stderr.write(text)
-        first = (str(e).splitlines() or [""])[0]
-        try:
-            with tempfile.NamedTemporaryFile("w", prefix="lfusd-traceback-", suffix=".txt", delete=False) as f:
-                f.write(text)
-            where = f"the traceback is in {f.name}"
-        except OSError:  # no room for the file either: the summary line must still come out
-            where = "rerun with --traceback for the traceback"
-        print(f"lfusd: internal error: {type(e).__name__}: {first}; {where} (please report it)", file=sys.stderr)
-        return EXIT_BUG
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+    # a bug: keep the message short, the traceback in a file for the report
+    text = full_traceback(e)
+    if debug:
+        sys.stderr.write(text)
+    first = (str(e).splitlines() or [""])[0]
+    try:
+        with tempfile.NamedTemporaryFile("w", prefix="lfusd-traceback-", suffix=".txt", delete=False) as f:
+            f.write(text)
+        where = f"the traceback is in {f.name}"
+    except OSError:  # no room for the file either: the summary line must still come out
+        where = "rerun with --traceback for the traceback"
+    print(f"lfusd: internal error: {type(e).__name__}: {first}; {where} (please report it)", file=sys.stderr)
+    return EXIT_BUG
 
 
 if __name__ == "__main__":

@@ -26,6 +26,10 @@ from pathlib import Path
 FORMAT = "lfusd-dataset"  # manifest["format"]
 FORMAT_VERSION = 2  # 1: rgb.png, rgb.exr, passes.exr, motion.npz per view; 2: see the module docstring
 
+# The most frames one dataset holds (manifest["frames"]): a 1-100000000 range is a typo, refused up
+# front instead of exhausting the memory that lists of its frames take.
+MAX_FRAMES = 1_000_000
+
 MANIFEST = "manifest.json"
 OBJECTS = "objects.json"
 FRAME_META = "frame.json"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -19,3 +20,53 @@ def die_with_parent(parent: int) -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
     if os.getppid() != parent:
         os._exit(1)
+
+
+@contextlib.contextmanager
+def own_process_group():
+    """Inside this block, the processes multiprocessing's spawn starts (derivation pools) get a
+    process group of their own: a terminal's Ctrl-C, sent to the foreground group, reaches lfusd
+    alone, which stops them itself (and they die with it, :func:`die_with_parent`). Ignoring
+    Ctrl-C in lfusd while they start, so that they inherit the ignoring, loses a Ctrl-C sent
+    then: the run completed, exit 0. Yields whether it applies (CPython 3.11's spawn, whose
+    fork_exec call it repeats with a process group; elsewhere the caller falls back to ignoring)."""
+    from multiprocessing import util
+
+    original = util.spawnv_passfds
+    if sys.version_info[:2] != (3, 11) or getattr(original, "__name__", "") != "spawnv_passfds":
+        yield False
+        return
+
+    def spawnv_passfds(path, args, passfds):
+        import _posixsubprocess
+        import subprocess
+
+        passfds = tuple(sorted(map(int, passfds)))
+        errpipe_read, errpipe_write = os.pipe()
+        try:  # multiprocessing.util.spawnv_passfds, with pgid_to_set 0: a group of its own
+            return _posixsubprocess.fork_exec(args, [path], True, passfds, None, None, -1, -1, -1, -1, -1, -1,
+                                              errpipe_read, errpipe_write, False, False, 0, None, None, None, -1, None,
+                                              subprocess._USE_VFORK)
+        finally:
+            os.close(errpipe_read)
+            os.close(errpipe_write)
+
+    # A Ctrl-C while a process is being started is held until the block ends: raised between the
+    # start and the hand-over of its job, it would leave the new process reading a closed pipe
+    # (a traceback on stderr).
+    import threading
+
+    held: list[int] = []
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if main else None
+    util.spawnv_passfds = spawnv_passfds
+    try:
+        yield True
+    finally:
+        util.spawnv_passfds = original
+        if main:
+            signal.signal(signal.SIGINT, previous)
+            if held and callable(previous):
+                previous(signal.SIGINT, None)  # lfusd's or Python's handler: raises KeyboardInterrupt
+            elif held and previous == signal.SIG_DFL:
+                raise KeyboardInterrupt

@@ -42,6 +42,9 @@ VERIFY_MODES = ("all", "centre", "none")
 STATS_VIEWS = ("centre", "all")
 EXECUTORS = ("local", "ray")
 RECORD_VERSION = 1
+# The most scenes one recipe makes: 1e8 scenes is a typo, refused before a list of them is made
+# (each scene is a stage and a dataset folder; the disk check below catches the realistic excess).
+MAX_SCENES = 100_000
 
 
 @dataclass(frozen=True)
@@ -201,6 +204,10 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
             raise _bad(source, w + "first_seed", first_seed, "must be a non-negative integer")
         if frames < 1:
             raise _bad(source, w + "frames", frames, "must be a positive integer")
+        if frames > layout.MAX_FRAMES:
+            raise _bad(source, w + "frames", frames, f"must be at most {layout.MAX_FRAMES} (the frames a dataset holds)")
+        if scenes > MAX_SCENES or sum(q.scenes for q in parts) + scenes > MAX_SCENES:
+            raise _bad(source, w + "scenes", scenes, f"must keep the recipe's scenes at most {MAX_SCENES} in all")
         if not (1 <= rigs[0] <= rigs[1] <= 10):
             raise _bad(source, w + "rigs", p.get("rigs"), "must be a rig count 1-10 or a range [LO, HI] within 1-10")
         if dynamic:
@@ -398,6 +405,25 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
             "compared": compared, "failures": failures, "certificate": _certificate(out), "stats": scene_stats(out, recipe.stats_views)}
 
 
+def check_recipe_size(recipe: Recipe, root: Path) -> None:
+    """Refuse, before anything is generated, a recipe whose scenes not yet made need more disk
+    than is free under ``root`` (lfusd.render.request's per-pixel estimate, every rig of a scene
+    at the part's largest rig count)."""
+    from .render.request import _free_disk, _gb, size_estimate
+
+    views = recipe.grid[0] * recipe.grid[1]
+    need = 0.0
+    for spec in scene_specs(recipe):
+        if (root / layout.RECIPE_SCENES / spec.name).exists():
+            continue  # made, or being made: its files are already on the disk
+        rigs = [(f"rig_{i:02d}", views, *recipe.resolution) for i in range(spec.rigs)]
+        need += size_estimate(rigs, spec.frames, spec.dynamic, 1)[0]
+    free = _free_disk(root)
+    if free is not None and need > free:
+        raise LfusdError(f"the recipe's scenes need about {_gb(need)} of disk ({_gb(free)} free under {root}); "
+                         "free space, or lower the recipe's scenes, frames, grid or resolution")
+
+
 def _check_folder(root: Path, recipe_text: str) -> None:
     """A rerun into ``root`` must use the recipe that made it (same text)."""
     copy = root / layout.RECIPE_COPY
@@ -416,13 +442,21 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
     text = recipe_path.read_text()
     if root.exists() and not root.is_dir():
         raise LfusdError(f"output {root} is a file; give a folder for the dataset")
+    check_recipe_size(recipe, root)
     try:
-        (root / layout.RECIPE_SCENES).mkdir(parents=True, exist_ok=True)
+        root.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise LfusdError(f"cannot create {root} ({e.strerror or e}); choose a writable -o folder") from None
     result = MakeResult()
     with output_lock(root):
+        from .data import confined
+
+        for name in (layout.RECIPE_COPY, layout.RECIPE_STAGES, layout.RECIPE_SCENES, layout.RECIPE_CARD, layout.RECIPE_CARD_JSON,
+                     layout.RECIPE_PLOTS):
+            if confined.is_link(root / name):  # lfusd writes there: never through a link planted in the folder
+                raise confined.link_error(root / name)
         _check_folder(root, text)
+        (root / layout.RECIPE_SCENES).mkdir(exist_ok=True)
         atomic_write_text(root / layout.RECIPE_COPY, text)
         specs = scene_specs(recipe)
         records = {}

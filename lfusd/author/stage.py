@@ -176,12 +176,38 @@ def _identity_key(path: Path, root: Path) -> str:
         return path.as_posix()
 
 
+# The first bytes of the files a stage may use from outside its folder: images (textures, HDRIs)
+# and USD layers. Anything else named there (a texture path leading to /etc/shadow) is not read.
+_MAGIC = (b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff", b"\x76\x2f\x31\x01", b"II*\x00", b"MM\x00*", b"#?RADIANCE", b"#?RGBE",
+          b"BM", b"DDS ", b"\xabKTX", b"GIF8", b"PXR-USDC", b"#usda", b"PK\x03\x04")
+
+
+def _image_or_layer(path: Path) -> bool:
+    """Whether the file at ``path`` starts like an image or a USD layer (:data:`_MAGIC`; WebP by its RIFF header)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(16)
+    except OSError:
+        return False
+    return head.startswith(_MAGIC) or (head[:4] == b"RIFF" and head[8:12] == b"WEBP")
+
+
+def _stat_key(st: os.stat_result) -> dict:
+    """What decides that a file is unchanged without reading it: size, mtime, ctime and inode
+    together. Restoring an mtime (touch -r, cp -p, rsync -a, tar x) changes the ctime (and a copy
+    the inode), so an edit that keeps the size and mtime is still hashed again."""
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns, "inode": st.st_ino}
+
+
 def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
     """Every file that affects a render of the stage at ``path``: its layer stack (sublayers,
     references, payloads) and the assets its layers name (textures, ...), as
-    ``{name: {"size", "mtime_ns", "sha256"}}``; a named asset that does not resolve is
-    ``{"missing": True}``. ``known``: a previous result whose hashes are reused for files whose
-    size and mtime are unchanged (hashing every texture on every run is the cost it saves)."""
+    ``{name: {"size", "mtime_ns", "ctime_ns", "inode", "sha256"}}``; a named asset that does not
+    resolve is ``{"missing": True}``. An asset outside the stage's folder tree (after resolving
+    links) is read and recorded only when it is an image or a USD layer (:func:`_image_or_layer`);
+    anything else is left out with a warning. ``known``: a previous result whose hashes are reused
+    for files whose size, mtime, ctime and inode are all unchanged (hashing every texture on
+    every run is the cost it saves)."""
     stage_path = Path(path).resolve()
     root = stage_path.parent
     try:
@@ -189,8 +215,13 @@ def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
     except Tf.ErrorException as e:
         reason = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), "a layer failed to load")[:200]
         raise LfusdError(f"cannot resolve the files stage {path} depends on ({reason}); fix its references") from None
-    paths = {Path(layer.realPath).resolve() for layer in layers if layer.realPath} | {Path(a).resolve() for a in assets}
-    paths.add(stage_path)
+    layer_paths = {Path(layer.realPath).resolve() for layer in layers if layer.realPath} | {stage_path}
+    asset_paths = {Path(a).resolve() for a in assets} - layer_paths
+    outside = sorted(p for p in asset_paths if not p.is_relative_to(root) and not _image_or_layer(p))
+    for p in outside:
+        log.warning("stage %s names %s, outside its folder and neither an image nor a USD layer: "
+                                            "not read, not part of the dataset's identity", path, p)
+    paths = layer_paths | (asset_paths - set(outside))
     known = known or {}
     files: dict[str, dict] = {}
     for p in sorted(paths):
@@ -201,11 +232,12 @@ def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
             files[key] = {"missing": True}
             continue
         old = known.get(key) or {}
-        if old.get("size") == st.st_size and old.get("mtime_ns") == st.st_mtime_ns and old.get("sha256"):
+        now = _stat_key(st)
+        if old.get("sha256") and all(old.get(k) == v for k, v in now.items()):
             files[key] = dict(old)
         else:
             try:
-                files[key] = {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "sha256": file_hash(p)}
+                files[key] = {**now, "sha256": file_hash(p)}
             except OSError as e:
                 raise LfusdError(f"cannot read {p}, a file stage {path} depends on ({e.strerror}); fix its permissions") from None
     for u in unresolved:

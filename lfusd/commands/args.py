@@ -20,6 +20,7 @@ import re
 
 from ..camera import parse_frames, parse_grid, parse_point, parse_resolution, parse_view
 from ..errors import LfusdError
+from ..layout import MAX_FRAMES
 
 # Values such as -3, -.5, -0.05,0.6,3 are numbers and coordinates, and -5--2, -2-3 frame ranges: never options.
 NEGATIVE_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d*\.?\d*,|^-\d+\s*-")
@@ -51,8 +52,12 @@ def _argtype(parse, name: str):
     return convert
 
 
+def _frames(text: str) -> list[int]:
+    return parse_frames(text, limit=MAX_FRAMES)
+
+
 def _frame_range(text: str) -> tuple[int, int]:
-    frames = parse_frames(text)
+    frames = _frames(text)
     first, last = frames[0], frames[-1]
     if len(frames) != last - first + 1:
         raise LfusdError(f"frames {text!r} are not one contiguous range A-B; this command takes consecutive frames (e.g. {first}-{last})")
@@ -78,7 +83,7 @@ def _threshold(text: str) -> tuple[str, float]:
         raise LfusdError(f"threshold {text!r} is not KEY=NUMBER (e.g. flow_fwd=0.1)") from None
 
 
-frames = _argtype(parse_frames, "frames")
+frames = _argtype(_frames, "frames")
 frame_range = _argtype(_frame_range, "frame range")
 view = _argtype(parse_view, "view")
 point = _argtype(lambda text: parse_point(text, "point"), "point")

@@ -18,6 +18,7 @@ import numpy as np
 from . import passes, store
 from .. import layout
 from .integrity import complete_frames
+from .metadata import validate_frame_meta, validate_manifest, validate_objects
 from ..camera import RigSpec, View
 from ..errors import LfusdError
 from ..keys import IMAGE, MOTION, STATIC, get
@@ -59,6 +60,7 @@ class Dataset:
         self.manifest = _read_json(path, "rerun the render that made the dataset (it rewrites the manifest)")
         if not isinstance(self.manifest, dict) or self.manifest.get("format") != FORMAT:
             raise LfusdError(f"{path} is not an lfusd dataset manifest; open the output folder of 'lfusd render'")
+        validate_manifest(self.manifest, path)  # names that become paths, sizes that become loops
         try:
             rigs = list(self.manifest["rigs"])
             rig_specs = self.manifest["settings"]["rigs"]
@@ -77,7 +79,8 @@ class Dataset:
             raise LfusdError(f"{path} holds no readable record of rig {rig!r}; rerun the render that made the dataset") from None
         self.rig_name = rig
         objects_path = self.root / layout.OBJECTS
-        table = _read_json(objects_path, "rerun the render that made the dataset (it rewrites the object table)")
+        table = validate_objects(_read_json(objects_path, "rerun the render that made the dataset (it rewrites the object table)"),
+                                 objects_path)
         try:
             self.classes: list[str] = list(table["classes"])
             self._class_of_instance = np.zeros(max([int(o["id"]) for o in table["objects"]], default=0) + 1, dtype=np.int32)
@@ -204,7 +207,7 @@ class Dataset:
             p = self._frame_dir(frame) / layout.FRAME_META
             if not p.is_file():
                 raise LfusdError(f"{p} is missing; rerun the render to complete this frame")
-            return _read_json(p, "delete it and rerun the render to write it again")
+            return validate_frame_meta(_read_json(p, "delete it and rerun the render to write it again"), p)
 
         return _cached(self._meta_cache, frame, 64, load)
 

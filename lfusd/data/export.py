@@ -33,6 +33,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -75,7 +76,13 @@ def open_datasets(path, rig: str | None = None) -> list:
     manifest = Path(path) / layout.MANIFEST
     if not manifest.is_file():
         return [open_dataset(path)]  # raises the reader's own error naming the folder
-    return [open_dataset(path, r) for r in json.loads(manifest.read_text())["rigs"]]
+    from .metadata import validate_manifest
+
+    try:
+        rigs = validate_manifest(json.loads(manifest.read_text()), manifest).get("rigs", [])
+    except (OSError, ValueError):
+        return [open_dataset(path)]  # raises the reader's own error naming the file
+    return [open_dataset(path, r) for r in rigs]
 
 
 def scene_name(ds) -> str:
@@ -521,6 +528,22 @@ def export_hf(ds, dest, frame: int | None = None, **kw) -> list[Path]:
     return run(ds, dest, frame=frame, **kw)
 
 
+def _remove_stale_partials(dest: Path) -> None:
+    """Remove the partial folders of exports to ``dest`` that were killed (``.<name>.partial-<pid>``
+    of a process no longer running; never a link), so that a rerun leaves nothing behind."""
+    pattern = re.compile(rf"\.{re.escape(dest.name)}\.partial-(\d+)")
+    for p in dest.parent.iterdir() if dest.parent.is_dir() else ():
+        m = pattern.fullmatch(p.name)
+        if not m or p.is_symlink() or not p.is_dir():
+            continue
+        try:
+            os.kill(int(m[1]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(p, ignore_errors=True)
+        except (PermissionError, OverflowError):
+            pass  # another user's running process, or no pid
+
+
 def export(ds, fmt: str, dest, frame: int | None = None, **kw):
     """Dispatch to ``export_<fmt>``, writing into a hidden folder beside ``dest`` that is renamed
     to ``dest`` when complete: a failed export leaves nothing that blocks its retry."""
@@ -533,6 +556,7 @@ def export(ds, fmt: str, dest, frame: int | None = None, **kw):
         dest.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise LfusdError(f"cannot create export target {dest} ({e.strerror}): {formats.why_unwritable(dest)}") from None
+    _remove_stale_partials(dest)
     tmp = dest.parent / f".{dest.name}.partial-{os.getpid()}"
     try:
         result = globals()[f"export_{fmt}"](ds, tmp, frame=frame, **kw)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import configparser
 import functools
+import io
 import os
 import re
 import shutil
@@ -332,7 +333,11 @@ def write_lf_h5(path, lf, *, matlab: bool = False, attrs: dict | None = None) ->
     if lf.dtype.type not in classes:
         raise LfusdError(f"LF arrays must be uint8, uint16, float32 or float64, got {lf.dtype}")
     on_disk = np.ascontiguousarray(lf.transpose(4, 3, 2, 1, 0))
-    with h5py.File(path, "w", **({"userblock_size": 512} if matlab else {})) as f:
+    # HDF5 writes into memory; the file is then written by Python: a full disk (ENOSPC) inside
+    # HDF5's own writes leaves its objects unclosable and the process crashing (measured: SIGSEGV),
+    # while here it is an OSError like any other write's.
+    buf = io.BytesIO()
+    with h5py.File(buf, "w", **({"userblock_size": 512} if matlab else {})) as f:
         d = f.create_dataset("LF", data=on_disk, compression="gzip")
         if matlab:
             d.attrs["MATLAB_class"] = np.bytes_(classes[lf.dtype.type])
@@ -343,8 +348,10 @@ def write_lf_h5(path, lf, *, matlab: bool = False, attrs: dict | None = None) ->
     if matlab:
         text = f"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: {time.strftime('%a %b %d %H:%M:%S %Y')} HDF5 schema 1.00 .".encode()
         header = text.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM"
-        with open(path, "r+b") as f:
-            f.write(header.ljust(512, b"\x00"))
+        buf.seek(0)
+        buf.write(header.ljust(512, b"\x00"))
+    with open(path, "wb") as out:
+        out.write(buf.getbuffer())
 
 
 def read_lf_h5(path) -> np.ndarray:

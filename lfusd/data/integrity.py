@@ -255,8 +255,9 @@ class Problem:
         return f"rig {self.rig} frame {self.frame} view {self.view[0]},{self.view[1]}: {self.what}"
 
 
-def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tuple[int, list[Problem]]:
-    """Check every view of every frame in the manifest against its record, without reading pixels.
+def check_dataset(root: str | Path, rig: str | None = None, progress=None, frames=None, views=None) -> tuple[int, list[Problem]]:
+    """Check every view of every frame in the manifest (or only ``frames`` and ``views``) against
+    its record, without reading pixels.
 
     Rendered files must match; with motion keys (render-video), the motion file must exist, match,
     and come from the current raw passes of the view and its neighbours. Returns (views checked, problems).
@@ -266,24 +267,28 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tu
     from ..keys import KEYS, MOTION
 
     root = Path(root)
+    from .metadata import validate_manifest
+
     try:
         manifest = json.loads((root / layout.MANIFEST).read_text())
     except (OSError, ValueError):
         raise LfusdError(f"{root} holds no readable {layout.MANIFEST}; give a dataset folder") from None
+    validate_manifest(manifest, root / layout.MANIFEST)
     rigs = manifest.get("rigs", [])
     if rig not in (None, "all"):
         if rig not in rigs:
             raise LfusdError(f"{root} has no rig {rig!r}; it has {', '.join(rigs)}")
         rigs = [rig]
     settings = manifest.get("settings", {})
-    frames = [int(f) for f in manifest.get("frames", [])]
+    frames_all = [int(f) for f in manifest.get("frames", [])]
+    chosen = frames_all if frames is None else [f for f in frames_all if f in set(frames)]
     wanted = settings.get("keys")  # format version 2: the keys asked for (None: version 1, every key)
     motion = settings.get("motion") and (wanted is None or any(KEYS[k].stage == MOTION for k in wanted if k in KEYS))
     checked, problems = 0, []
     for name in rigs:
         spec = RigSpec.from_dict(settings["rigs"][name])
-        for f in frames:
-            for v in spec.views:
+        for f in chosen:
+            for v in spec.views if views is None else [v for v in spec.views if tuple(v) in {tuple(w) for w in views}]:
                 progress and progress(name, f, v)
                 d = frame_dir(root, name, f) / view_key(v)
                 checked += 1
@@ -291,7 +296,7 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tu
                 problems += [Problem(name, f, tuple(v), b) for b in bad]
                 if bad or not motion:
                     continue
-                passes = {k: frame_dir(root, name, g) / view_key(v) / layout.PASSES_EXR if g in frames else None
+                passes = {k: frame_dir(root, name, g) / view_key(v) / layout.PASSES_EXR if g in frames_all else None
                           for k, g in (("prev", f - 1), ("cur", f), ("next", f + 1))}
                 m = motion_problem(d, motion_inputs(passes))
                 if m:

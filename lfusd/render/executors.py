@@ -8,6 +8,7 @@ flight of each worker.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -20,6 +21,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from ..data import confined
 from ..data.passes import read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
@@ -124,12 +126,12 @@ def run_unit(unit: WorkUnit, out: Path, report=None, stopping: threading.Event |
     too where the report has it (render-video derives motion from it while rendering goes on).
     The worker's warnings are logged here (they reach the terminal); all its output goes to the log."""
     committed = getattr(report, "committed", None)
-    scratch = out / ".scratch" / f"{unit.rig}-{unit.unit}-{os.getpid()}-{threading.get_ident()}"
-    logs = out / "logs"
+    scratch = out / layout.SCRATCH / f"{unit.rig}-{unit.unit}-{os.getpid()}-{threading.get_ident()}"
+    logs = out / layout.LOGS
     logs.mkdir(parents=True, exist_ok=True)
     log_path = logs / f"{unit.rig}-unit{unit.unit:04d}.log"
     device, error = "cpu", None
-    with open(log_path, "w") as log_file:
+    with os.fdopen(confined.open_new(log_path), "w") as log_file:  # never through a link planted there
         proc = subprocess.Popen(
             WORKER,
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log_file, text=True, bufsize=1,
@@ -227,11 +229,11 @@ def record_attempt(out: Path, unit: WorkUnit, node_id: str, frames: list[int]) -
     """Append one line per Ray attempt of a unit to OUT/logs/<rig>-unit<n>.ray.jsonl: the node it
     ran on and the frames it rendered (the unit's others were complete). Where a unit ran, and what a
     retry rendered again, is then on record; one attempt of a unit runs at a time, so no two writers."""
-    logs = out / "logs"
+    logs = out / layout.LOGS
     logs.mkdir(parents=True, exist_ok=True)
     line = {"unit": unit.unit, "node_id": node_id, "host": socket.gethostname(), "pid": os.getpid(),
             "frames": frames, "views": sorted(unit.cameras), "time": time.time()}
-    with open(logs / f"{unit.rig}-unit{unit.unit:04d}.ray.jsonl", "a") as f:
+    with os.fdopen(confined.open_new(logs / f"{unit.rig}-unit{unit.unit:04d}.ray.jsonl", append=True), "a") as f:
         f.write(json.dumps(line) + "\n")
 
 
@@ -246,6 +248,48 @@ def check_ray_address(address: str) -> None:
         raise LfusdError(f"cannot reach the Ray cluster at {address} ({e.strerror or e}); check --ray-address, or leave it out to start a local Ray") from None
 
 
+# Ray's switch that keeps "localhost" loopback (rather than this machine's network address); read
+# when Ray is first imported, so it is also set on the imported module.
+_RAY_LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+LOOPBACK = ("127.0.0.1", "::1", "::ffff:127.0.0.1")
+
+
+@contextlib.contextmanager
+def _quiet_auth_advice():
+    """Hide Ray's advice to disable its token authentication (lfusd never recommends that), and
+    say in one line when it is disabled (RAY_AUTH_MODE=disabled)."""
+    if os.environ.get("RAY_AUTH_MODE", "").lower() == "disabled":
+        log.warning("Ray's token authentication is disabled (RAY_AUTH_MODE=disabled): anyone who can reach the Ray "
+                    "cluster can run code on its machines; unset RAY_AUTH_MODE to turn it back on")
+    ray_log = logging.getLogger("ray._private.authentication.authentication_token_setup")
+    level = ray_log.level
+    ray_log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        ray_log.setLevel(level)
+
+
+def start_local_ray(workers: int) -> None:
+    """Start a Ray instance on this machine for ``workers`` tasks, every server of it bound to
+    loopback (Ray binds to its node address, which is this machine's network address unless it
+    is told loopback): nobody elsewhere on the network can reach it. Joining a cluster is the
+    user's explicit ``--ray-address``. LfusdError if Ray did not stay on loopback."""
+    os.environ[_RAY_LOOPBACK_ENV] = "0"  # inherited by the Ray processes this starts
+    import ray
+    from ray._private import ray_constants
+
+    ray_constants.ENABLE_RAY_CLUSTER = False  # Ray already imported (by a library user) read the variable before
+    with _quiet_auth_advice():
+        info = ray.init(num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+                        _node_ip_address="127.0.0.1")
+    node = (getattr(info, "address_info", None) or {}).get("node_ip_address")
+    if node not in LOOPBACK:
+        ray.shutdown()
+        raise LfusdError(f"the local Ray instance came up on {node}, not loopback only; "
+                         "use --executor local, or start a cluster yourself and pass --ray-address")
+
+
 def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path."""
     import ray
@@ -254,9 +298,12 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
         check_ray_address(req.ray_address)
     try:
         if req.ray_address:
-            ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False)
+            with _quiet_auth_advice():
+                ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False)
         else:
-            ray.init(num_cpus=req.workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
+            start_local_ray(req.workers)
+    except LfusdError:
+        raise
     except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
         where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
         raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None

@@ -18,13 +18,11 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import json
 import logging
 import os
 import platform
 import shutil
-import sys
 import tempfile
 import uuid
 from dataclasses import dataclass, replace
@@ -38,7 +36,9 @@ from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
 from ..camera import RigSpec
+from ..data import confined
 from ..data.formats import file_mode
+from ..data.metadata import validate_manifest
 from ..errors import LfusdError
 from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
@@ -122,6 +122,8 @@ def existing_dataset(out: Path) -> dict | None:
         raise LfusdError(f"output {out} is a file; give a folder for the dataset")
     if not out.is_dir():
         return None
+    if confined.is_link(out / layout.LOCK):  # planted: the lock would write through it
+        raise confined.link_error(out / layout.LOCK)
     try:
         entries = [p for p in out.iterdir() if p.name != layout.LOCK]
     except OSError as e:
@@ -142,7 +144,7 @@ def existing_dataset(out: Path) -> dict | None:
     if not manifest.get("id"):
         raise LfusdError(f"output folder {out} holds an lfusd dataset of an older format (no dataset id); choose another -o folder "
                          "or move it aside")
-    return manifest
+    return validate_manifest(manifest, path)
 
 
 def _overwrite_refusal(req: RenderRequest, manifest: dict) -> str | None:
@@ -162,22 +164,17 @@ def _overwrite_refusal(req: RenderRequest, manifest: dict) -> str | None:
 
 
 def _own_names(manifest: dict) -> list[str]:
-    """The top-level entries of OUT that lfusd wrote: its files and one folder per rig."""
-    rigs = [r for r in manifest.get("rigs", []) if isinstance(r, str) and r and r not in (".", "..") and "/" not in r and "\\" not in r]
-    return [*layout.OWN_ENTRIES, *rigs]
+    """The top-level entries of OUT that lfusd wrote: its files and one folder per rig (a
+    validated manifest's rig names)."""
+    return [*layout.OWN_ENTRIES, *manifest.get("rigs", [])]
 
 
 def _remove_dataset(out: Path, manifest: dict) -> None:
-    """Remove lfusd's own entries of ``out`` (never the folder itself, nor anything else in
-    it), the manifest last: an interrupted removal leaves a dataset that --overwrite removes."""
+    """Remove the files lfusd wrote for the dataset in ``out`` (lfusd.data.confined.remove_own):
+    never the folder itself, nor a file a user added anywhere in it; the manifest last, so an
+    interrupted removal leaves a dataset that --overwrite removes."""
     try:
-        for name in _own_names(manifest):
-            p = out / name
-            if p.is_dir():
-                shutil.rmtree(p)
-            elif p.exists():
-                p.unlink()
-        (out / layout.MANIFEST).unlink(missing_ok=True)
+        confined.remove_own(out, manifest)
     except OSError as e:
         raise _io_error(out, e) from None
 
@@ -208,28 +205,9 @@ def _prepare_output(req: RenderRequest, settings: dict, files: dict, remove: boo
     return None
 
 
-@contextlib.contextmanager
 def output_lock(out: Path):
-    """Hold OUT/.lock (an advisory flock) while writing the dataset in ``out``: one writer per
-    folder. The kernel drops the lock of a process that dies, so a stale lock is simply taken."""
-    path = Path(out) / layout.LOCK
-    try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, file_mode())
-    except OSError as e:
-        raise _io_error(Path(out), e) from None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "unknown"
-            pid, _, command = holder.partition(" ")
-            raise LfusdError(f"output folder {out} is being written by process {pid} ({command or 'unknown command'}); "
-                             "wait for it to finish or stop it, or choose another -o folder") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()} {' '.join(['lfusd', *sys.argv[1:]]) if sys.argv else 'lfusd'}\n".encode(), 0)
-        yield
-    finally:
-        os.close(fd)  # closing drops the flock
+    """Hold OUT/.lock while writing the dataset in ``out``: :func:`lfusd.data.confined.dataset_lock`."""
+    return confined.dataset_lock(out)
 
 
 def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, rigs: list[StageRig], frames: list[int], device: str | None,
@@ -292,11 +270,8 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
 
 def _clean_stale(out: Path, rigs: list[str]) -> None:
     """Remove what a killed run left (it holds no lock any more: this run holds it), in lfusd's
-    own folders only."""
-    for rig in rigs:
-        for tmp in (out / rig).glob("f*/.*.tmp-*"):
-            shutil.rmtree(tmp, ignore_errors=True)
-    shutil.rmtree(out / layout.SCRATCH, ignore_errors=True)
+    own folders only, after refusing any link among them (lfusd.data.confined)."""
+    confined.remove_stale(out, rigs)
 
 
 def _rigs_and_frames(req: RenderRequest, stage: Usd.Stage) -> tuple[list[StageRig], list[int]]:
@@ -339,7 +314,7 @@ def render(req: RenderRequest, progress=None) -> dict:
     from ..truth.derive import derive_dataset
 
     req = req.capped()
-    return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers))[0]
+    return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers, lock=False))[0]
 
 
 def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, overlap=None) -> tuple[dict, list[str]]:
@@ -440,6 +415,9 @@ def render_video(req: RenderRequest) -> VideoResult:
     stage = open_stage(req.stage)
     if not req.frames:
         first, last = frame_range(stage)
+        if last - first + 1 > layout.MAX_FRAMES:  # before a list of them is made
+            raise LfusdError(f"stage {req.stage}'s range {first}-{last} is {last - first + 1} frames, more than a dataset holds "
+                             f"({layout.MAX_FRAMES}); give --frames A-B, or fix the stage's endTimeCode")
         req = replace(req, frames=list(range(first, last + 1)))
     req = replace(req, motion=True).capped()
     state: dict = {}
@@ -455,7 +433,7 @@ def render_video(req: RenderRequest) -> VideoResult:
 
         written, left = state["scheduler"].finish()
         for rig, frames in sorted(left.items()):
-            written += derive_dataset(req.out, [rig], frames, workers=req.workers)
+            written += derive_dataset(req.out, [rig], frames, workers=req.workers, lock=False)  # _render holds the lock
         drop_raw_near(req.out, names, req.frames)  # the views derived early kept their raw passes
         state["derived"] = written
 

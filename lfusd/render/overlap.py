@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent
+from ..processes import die_with_parent, own_process_group
 from . import request
 
 log = logging.getLogger(__name__)
@@ -102,16 +102,24 @@ class MotionScheduler:
         # spawn, not fork: forking after numba's, BLAS's or the executor's threads have run can kill the child
         ctx = multiprocessing.get_context("spawn")
         handler = None
-        if threading.current_thread() is threading.main_thread():  # a Ctrl-C while they start must not reach them
-            handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self.lanes = []
         try:
-            self.lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),))
-                          for _ in range(max(1, lanes))]
-            for lane in self.lanes:
-                lane.submit(_warm)  # starts the process now, beside the workers' start-up
-        finally:
-            if handler is not None:
-                signal.signal(signal.SIGINT, handler)
+            # A Ctrl-C while they start must not reach them (lfusd stops them); held, it is raised
+            # at the end of the block.
+            with own_process_group() as apart:
+                if not apart and threading.current_thread() is threading.main_thread():
+                    handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+                try:
+                    for _ in range(max(1, lanes)):
+                        self.lanes.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init,
+                                                              initargs=(os.getpid(),)))
+                        self.lanes[-1].submit(_warm)  # starts the process now, beside the workers' start-up
+                finally:
+                    if handler is not None:
+                        signal.signal(signal.SIGINT, handler)
+        except BaseException:
+            self.stop(now=True)  # lanes still starting must not read what this process is about to remove
+            raise
 
     def _in_place(self, rig: str, frame: int, view: View) -> bool:
         key = (rig, frame, view)
@@ -161,9 +169,9 @@ class MotionScheduler:
                 left[rig] = frames
         return written, left
 
-    def stop(self) -> None:
+    def stop(self, now: bool = False) -> None:
         """Stop the lanes now (the render failed or ended); what they wrote is complete or absent."""
-        pending = not all(f.done() for f in self.futures)
+        pending = now or not all(f.done() for f in self.futures)
         for lane in self.lanes:
             if pending:  # interrupted or failed: do not let it finish its queue
                 for p in list((getattr(lane, "_processes", None) or {}).values()):

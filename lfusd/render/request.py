@@ -118,10 +118,44 @@ def _free_disk(path: Path) -> int | None:
 
 
 def _memory() -> int | None:
+    """The memory this process may use: the machine's, or less where a container's (cgroup) limit is lower."""
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
+        ram = None
+    limit = cgroup_memory_limit()
+    return limit if ram is None or (limit is not None and limit < ram) else ram
+
+
+def cgroup_memory_limit(proc: str = "/proc/self/cgroup", root: str = "/sys/fs/cgroup") -> int | None:
+    """The lowest memory limit of this process's cgroup and its ancestors (cgroup v2 ``memory.max``,
+    v1 ``memory.limit_in_bytes``), or None where none is set or readable. A container's limit is
+    what the kernel enforces: an estimate against the machine's memory would be OOM-killed silently."""
+    try:
+        lines = Path(proc).read_text().splitlines()
+    except OSError:
         return None
+    limits = []
+    for line in lines:
+        hierarchy, _, rest = line.partition(":")
+        controllers, _, rel = rest.partition(":")
+        if hierarchy == "0" and not controllers:  # v2: one unified tree
+            base, name = Path(root), "memory.max"
+        elif "memory" in controllers.split(","):  # v1: the memory controller's tree
+            base, name = Path(root) / "memory", "memory.limit_in_bytes"
+        else:
+            continue
+        d = base / rel.lstrip("/")
+        for folder in [d, *d.parents]:
+            try:
+                text = (folder / name).read_text().strip()
+            except OSError:
+                text = ""
+            if text.isdigit() and int(text) < 1 << 60:  # v1 writes a huge number for "no limit", v2 "max"
+                limits.append(int(text))
+            if folder == base:
+                break
+    return min(limits) if limits else None
 
 
 def size_estimate(rigs: list[tuple[str, int, int, int]], frames: int, motion: bool, workers: int,

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import integrity, store
-from ..processes import die_with_parent
+from ..processes import die_with_parent, own_process_group
 from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
@@ -266,6 +266,28 @@ def derive_dataset(
     overwrite: bool = False,
     progress=None,
     views: list[View] | None = None,
+    lock: bool = True,
+) -> int:
+    """:func:`_derive_dataset` holding the dataset's lock (OUT/.lock: one writer per folder, so
+    ``lfusd flow`` never writes into a folder a render is writing), after refusing links among
+    the folders it writes into (lfusd.data.confined). ``lock=False``: the caller holds it (a render)."""
+    if not lock:
+        return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views)
+    from ..data import confined
+
+    with confined.dataset_lock(root):
+        return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views, check_links=True)
+
+
+def _derive_dataset(
+    root: str | Path,
+    rigs: list[str] | None = None,
+    frames: list[int] | None = None,
+    workers: int = 1,
+    overwrite: bool = False,
+    progress=None,
+    views: list[View] | None = None,
+    check_links: bool = False,
 ) -> int:
     """Write gt.exr and the motion keys of every (rig, frame, view) where they are not current (the
     motion of all of them with ``overwrite``), then remove the raw passes nothing needs any more.
@@ -278,6 +300,10 @@ def derive_dataset(
     from ..data.export import open_datasets
 
     datasets = list(open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs])
+    if check_links:
+        from ..data import confined
+
+        confined.check_tree(root, [ds.rig_name for ds in datasets])
     for ds in datasets:
         ds.refresh()  # the frames complete now, not when the manifest was last written
     # lfusd flow (overwrite) derives every frame the manifest lists, and names what it cannot read
@@ -346,25 +372,31 @@ def _run(todo: list, workers: int, progress, written: set) -> int:
     # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
     # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
     # a Ctrl-C to the process group while they start up must not kill them with a traceback.
+    # (Issue 29: ignoring loses a Ctrl-C sent meanwhile, so where it can the pool starts in a
+    # process group of its own instead, which a terminal's Ctrl-C does not reach.)
     main = threading.current_thread() is threading.main_thread()  # only it may set handlers
-    handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    pool = None
     try:
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_pool_init, initargs=(os.getpid(),))
-        futures = [pool.submit(_derive_run, item) for item in todo]
-    finally:
-        if main:
-            signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
-    try:
+        with own_process_group() as apart:  # a Ctrl-C held while they start is raised at its end
+            handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main and not apart else None
+            try:
+                pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                           initializer=_pool_init, initargs=(os.getpid(),))
+                futures = [pool.submit(_derive_run, item) for item in todo]
+            finally:
+                if main and not apart:
+                    signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
         for f in futures:
             n, c = f.result()
             checked += c
             progress and progress(n)
     except BaseException:
-        # Interrupted or failed: stop the pool now rather than let it finish its queue.
+        # Interrupted or failed: stop the pool now rather than let it finish its queue (or, still
+        # starting, read what this process is about to remove).
         for p in list((getattr(pool, "_processes", None) or {}).values()):
             p.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
     return checked

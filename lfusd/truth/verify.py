@@ -26,13 +26,14 @@ Ties are counted and reported. :meth:`VerifyReport.certificate` is what a datase
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
 
 from ..camera import Camera, project, ray_directions
 from ..errors import LfusdError
-from ..layout import MOTION_FILE
+from ..layout import MANIFEST, MOTION_FILE
 from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
 
 # The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
@@ -722,13 +723,20 @@ def verify(
     unknown = sorted(set(thresholds or {}) - set(THRESHOLDS))
     if unknown:
         raise LfusdError(f"unknown threshold {unknown[0]!r}; use one of {', '.join(THRESHOLDS)}")
+    from ..data.integrity import check_dataset
+
     reports = {}
     for ds in export.open_datasets(out, rig):
         if not ds.frames:
             raise LfusdError(f"dataset {out} has no completely rendered frame; finish the render first")
-        reports[getattr(ds, "rig_name", None)] = verify_dataset(
-            ds, stage_path=stage, frames=frames, views=views, thresholds=thresholds, progress=progress
-        )
+        # First every view's files against its record (what --integrity checks): a damaged file
+        # verify does not read (a truncated rgb.exr) fails the dataset too.
+        root = getattr(ds, "root", None)
+        damaged = [] if root is None or not (Path(root) / MANIFEST).is_file() else \
+            check_dataset(root, ds.rig_name, frames=frames, views=views)[1]  # a reader of files, not one made in memory
+        report = verify_dataset(ds, stage_path=stage, frames=frames, views=views, thresholds=thresholds, progress=progress)
+        report.problems[:0] = [f"{p}; rerun the render command to repair it" for p in damaged]
+        reports[getattr(ds, "rig_name", None)] = report
     return reports
 
 

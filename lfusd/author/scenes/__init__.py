@@ -17,8 +17,11 @@ templates exist or in which order they were registered.
 from __future__ import annotations
 
 import importlib
+import os
+import uuid
 import math
 import pkgutil
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -248,8 +251,40 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         raise LfusdError(f"--seed must be a non-negative integer, got {seed}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if path.exists():
-        path.unlink()  # CreateNew refuses an existing file; regenerating is the intent
+    # Authored under a temporary name beside ``path`` (textures are found relative to the folder)
+    # and renamed into place once saved: a killed generation leaves no half-written stage that a
+    # rerun (`lfusd dataset make`) would take for the scene.
+    _remove_stale_temporaries(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
+    try:
+        _build(t, tmp, seed, frames, rigs, grid, resolution, dynamic, template)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    layer = Sdf.Layer.Find(str(path))
+    if layer is not None:  # a stage regenerated in this process: the cached layer holds the old one
+        layer.Reload(force=True)
+    return Usd.Stage.Open(str(path))
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Remove the temporaries a killed generation of ``path`` left (``.<stem>.<pid>-<hex>.tmp<suffix>``
+    beside it, of a process no longer running); nothing else."""
+    pattern = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[0-9a-f]{{8}}\.tmp{re.escape(path.suffix)}")
+    for p in path.parent.iterdir():
+        m = pattern.fullmatch(p.name)
+        if m and not p.is_symlink() and p.is_file():
+            try:
+                os.kill(int(m[1]), 0)
+            except ProcessLookupError:
+                p.unlink(missing_ok=True)
+            except (PermissionError, OverflowError):
+                pass  # alive under another user, or no pid: not ours to remove
+
+
+def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, dynamic: bool, template: str) -> None:
+    """Author and save the stage of template ``t`` at ``path`` (see :func:`generate`)."""
     stage = new_stage(path, 1, frames)
     UsdGeom.Scope.Define(stage, "/World/Looks")
     UsdGeom.Xform.Define(stage, "/World/Lights")
@@ -285,7 +320,6 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         finish(scene)  # the rulebook over every frame; a mover that breaks a rule goes
     round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
-    return stage
 
 
 def _load_templates() -> None:
