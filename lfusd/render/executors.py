@@ -74,36 +74,82 @@ def _check_shape(src: Path, shape, key: str, frame: int, unit: WorkUnit) -> None
 
 
 def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: WorkUnit | None = None) -> None:
-    """Move one view's raw files from a worker's scratch into its final folder, atomically.
+    """Move one view's rendered files from a worker's scratch into its final folder.
 
-    The files are checked first (with ``unit``: readable, the right passes and size); the folder
-    gets its completion record last, before the rename. A complete view already there is kept; a
-    damaged one is replaced. Files are renamed, never copied (the scratch is inside OUT)."""
+    The files are checked first (with ``unit``: readable, the right passes and size). A new view is
+    assembled under a temporary name with its completion record last, then renamed into place. An
+    existing view with a readable record is repaired in place (:func:`_repair_view`): what its record
+    proves intact is kept, never replaced. A view without a readable record is replaced. Files are
+    renamed, never copied (the scratch is inside OUT)."""
     from ..data import integrity
 
     final = frame_dir(out, rig, frame) / key
-    if integrity.view_complete(final):
+    beauty = unit is None or unit.beauty
+    need = integrity.repair_need(final)
+    if need is None and (beauty or integrity.passes_on_disk(final)):
         return
-    sources = {name: scratch / f"{name}_{key}.exr" for name in ("rgb", "passes")}  # Blender's multiview suffix
+    if unit is not None and beauty and need == integrity.RAW:
+        return  # a view whose image is intact: a unit of raw passes alone repairs it (lfusd.render.plan.plan_units)
+    sources = {name: scratch / f"{name}_{key}.exr" for name in (("rgb", "passes") if beauty else ("passes",))}  # Blender's multiview suffix
     for src in sources.values():
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
     if unit is not None:
-        _check_rgb(sources["rgb"], key, frame, unit)
+        if beauty:
+            _check_rgb(sources["rgb"], key, frame, unit)
         _check_passes(sources["passes"], key, frame, unit)
+    if integrity.read_record(final) is not None:
+        _repair_view(final, {layout.RGB_EXR: sources.get("rgb"), layout.PASSES_EXR: sources["passes"]})
+        return
+    if not beauty:
+        raise LfusdError(f"view {key} of frame {frame} has no readable record, so its raw passes alone cannot repair it; rerun to resume")
     tmp = final.parent / f".{key}.tmp-{os.getpid()}-{threading.get_ident()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     for name, final_name in (("rgb", layout.RGB_EXR), ("passes", layout.PASSES_EXR)):
         os.replace(sources[name], tmp / final_name)
     integrity.record_render(tmp)  # rgb.png, gt.exr and motion.exr come from lfusd.truth.derive
-    if final.exists():  # damaged: move it aside (a stale-tmp name, cleaned by the next run if we die here)
+    if final.exists():  # no readable record: nothing in it is provably intact; move it aside (a stale-tmp name, cleaned by the next run if we die here)
         old = final.parent / f".{key}.tmp-old-{os.getpid()}-{threading.get_ident()}"
         os.rename(final, old)
         os.rename(tmp, final)
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.rename(tmp, final)
+
+
+def _repair_view(final: Path, new: dict[str, Path | None]) -> None:
+    """Repair a view folder in place from freshly rendered files ``new`` (file name -> scratch path;
+    None: not rendered). A file its record proves intact stays and the new one is dropped; a new file
+    goes in where the recorded one is missing, damaged or removed; every other recorded file that
+    does not match its record (a damaged gt.exr, motion.exr or rgb.png) is removed with its entry,
+    for the derivation to write again. The record is rewritten last: a run killed before that leaves
+    files that do not match it, which the next run repairs again."""
+    from ..data import integrity
+
+    rec = integrity.read_record(final)
+    files = rec["files"]
+    damaged = set(integrity.damaged_files(final))
+    add = {}
+    for name, src in new.items():
+        if src is None:
+            continue
+        entry = files.get(name)
+        if name == layout.RGB_EXR and entry is not None and entry.get("removed") and layout.RGB_PNG not in damaged:
+            continue  # not asked for (rgb.png, intact or not asked for either, holds the image)
+        if entry is not None and not entry.get("removed") and name not in damaged:
+            continue  # intact: keep it
+        os.replace(src, final / name)
+        entry = integrity.file_entry(final / name)
+        if entry is None:
+            raise LfusdError(f"cannot read back {final / name}; free disk space if it is full, then rerun")
+        add[name] = entry
+    for name in damaged - set(add):
+        if name not in new:
+            (final / name).unlink(missing_ok=True)
+            files.pop(name, None)
+    files.update(add)
+    integrity.write_record(final, rec)
 
 
 _LIVE: set[subprocess.Popen] = set()
@@ -210,7 +256,10 @@ def _ray_unit(unit: WorkUnit, out: str) -> str | None:
     from ..data import integrity
 
     root = Path(out)
-    todo = [f for f in unit.frames if not all(integrity.view_complete(frame_dir(root, unit.rig, f) / k) for k in unit.cameras)]
+    def done(d: Path) -> bool:  # as commit_view decides: it commits nothing into such a view
+        return integrity.passes_on_disk(d) if not unit.beauty else integrity.repair_need(d) != integrity.FULL
+
+    todo = [f for f in unit.frames if not all(done(frame_dir(root, unit.rig, f) / k) for k in unit.cameras)]
     record_attempt(root, unit, ray.get_runtime_context().get_node_id(), todo)
     if not todo:
         return None

@@ -377,7 +377,11 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
             _write_manifest(req, settings, previous, rigs, frames, None, files, world)
             objects, classes = object_table(stage)
             _write_static_metadata(req, stage, rigs, frames, objects, classes)
-            plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
+            from ..keys import KEYS, MOTION
+
+            motion = req.motion and any(KEYS[k].stage == MOTION for k in req.stored_keys())
+            plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames, motion=motion,
+                        dataset_frames=json.loads((req.out / layout.MANIFEST).read_text())["frames"])
             device = None
             # imported before any child starts: a Ctrl-C then interrupts no import
             from ..author.geometry import StageGeometry, render_instances
