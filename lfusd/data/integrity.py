@@ -298,16 +298,13 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tu
     Rendered files must match; with motion keys (render-video), the motion file must exist, match,
     and come from the current raw passes of the view and its neighbours. Returns (views checked, problems).
     """
-    from ..camera import RigSpec
     from ..errors import LfusdError
     from ..keys import KEYS, MOTION
+    from .dataset import read_manifest, rig_spec
 
     root = Path(root)
-    try:
-        manifest = json.loads((root / layout.MANIFEST).read_text())
-    except (OSError, ValueError):
-        raise LfusdError(f"{root} holds no readable {layout.MANIFEST}; give a dataset folder") from None
-    rigs = manifest.get("rigs", [])
+    manifest = read_manifest(root)  # the reader's checks and one-line errors
+    rigs = manifest["rigs"]
     if rig not in (None, "all"):
         if rig not in rigs:
             raise LfusdError(f"{root} has no rig {rig!r}; it has {', '.join(rigs)}")
@@ -318,7 +315,7 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None) -> tu
     motion = settings.get("motion") and (wanted is None or any(KEYS[k].stage == MOTION for k in wanted if k in KEYS))
     checked, problems = 0, []
     for name in rigs:
-        spec = RigSpec.from_dict(settings["rigs"][name])
+        spec = rig_spec(root, manifest, name)
         for f in frames:
             for v in spec.views:
                 progress and progress(name, f, v)
