@@ -14,6 +14,7 @@ traceback of an error, including causes hidden by ``raise ... from None``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import logging
@@ -99,6 +100,33 @@ def full_traceback(e: BaseException) -> str:
     return "".join(traceback.format_exception(e))
 
 
+def _caused_by_stop(e: BaseException) -> type | None:
+    """KeyboardInterrupt or Terminated when one is among the causes or contexts of ``e``, else None."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, Terminated)):
+            return type(e)
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def _stopped(code: int, argv: list[str] | None) -> int:
+    """The exit of an interrupted or terminated run. When it is the process itself (``lfusd``, argv
+    None) and it used Ray, its clean-up is done (lfusd.render.executors.run_ray shut Ray down): end
+    now, without the interpreter's finalisation, in which Ray's core worker threads abort or crash
+    after an interrupt (measured: exit -6, -11, or -2 from a SIGINT Ray had deferred) instead of
+    ``code``. A call from Python (tests, argv given) just returns ``code``."""
+    if argv is None and "ray" in sys.modules:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        logging.shutdown()
+        os._exit(code)
+    return code
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -116,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except Terminated:
         print("lfusd: terminated; rerun the same command to resume", file=sys.stderr)
-        return EXIT_TERMINATED
+        return _stopped(EXIT_TERMINATED, argv)
     except LfusdError as e:
         if debug:
             sys.stderr.write(full_traceback(e))
@@ -124,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("lfusd: interrupted; rerun the same command to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _stopped(EXIT_INTERRUPTED, argv)
     except OSError as e:  # the machine, not lfusd: a full disk, a read-only folder, a missing path
         if debug:
             sys.stderr.write(full_traceback(e))
@@ -133,6 +161,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lfusd: error: {what}{e.strerror or e}; {fix}, then rerun", file=sys.stderr)
         return EXIT_ERROR
     except Exception as e:  # a bug: keep the message short, the traceback in a file for the report
+        stop = _caused_by_stop(e)  # a Ctrl-C or SIGTERM a library turned into its own error (Ray: RuntimeError, SystemError)
+        if stop is Terminated:
+            print("lfusd: terminated; rerun the same command to resume", file=sys.stderr)
+            return _stopped(EXIT_TERMINATED, argv)
+        if stop is KeyboardInterrupt:
+            print("lfusd: interrupted; rerun the same command to resume", file=sys.stderr)
+            return _stopped(EXIT_INTERRUPTED, argv)
         text = full_traceback(e)
         if debug:
             sys.stderr.write(text)
@@ -151,4 +186,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main())  # argv None: the process itself (see _stopped)

@@ -8,10 +8,12 @@ flight of each worker.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -290,23 +292,38 @@ def check_ray_address(address: str) -> None:
 
 
 def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
-    """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path."""
+    """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path.
+
+    Whatever ends the run (success, failure, Ctrl-C or SIGTERM at any moment, during ``ray.init``
+    too), the tasks are cancelled and a local Ray instance this run started is shut down, with
+    further signals ignored until that is done: nothing of Ray's or Blender's outlives lfusd."""
     import ray
 
     if req.ray_address:
         check_ray_address(req.ray_address)
+    main = threading.current_thread() is threading.main_thread()  # only it may set handlers
+    sigterm = signal.getsignal(signal.SIGTERM) if main else None
+    refs: dict = {}
+    others = _children()  # derivation processes already running: not Ray's
     try:
-        if req.ray_address:
-            ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False)
-        else:
-            ray.init(num_cpus=req.workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
-    except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
-        where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
-        raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None
-    task = ray.remote(num_cpus=1, max_retries=2, retry_exceptions=True)(_ray_unit)
-    refs = {task.remote(u, str(Path(req.out).resolve())): u for u in units}
-    device = "cpu"
-    try:
+        try:
+            # logging_level: Ray's own INFO and WARNING lines (its start-up banner) would break lfusd's one-line output
+            if req.ray_address:
+                ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR)
+            else:
+                ray.init(num_cpus=req.workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+                         logging_level=logging.ERROR)
+        except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
+            where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
+            raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None
+        finally:
+            if main and sigterm is not None:
+                # ray.init makes SIGTERM sys.exit(15) (or kill its node and exit 1): lfusd's handler cleans up and exits 143
+                signal.signal(signal.SIGTERM, sigterm)
+        task = ray.remote(num_cpus=1, max_retries=2, retry_exceptions=True)(_ray_unit)
+        for u in units:
+            refs[task.remote(u, str(Path(req.out).resolve()))] = u
+        device = "cpu"
         while refs:
             done, _ = ray.wait(list(refs), num_returns=1)
             unit = refs.pop(done[0])
@@ -318,11 +335,86 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
                 raise LfusdError(msg) from None
             report.advance(len(unit.cameras) * len(unit.frames))
     finally:
-        for r in refs:
-            ray.cancel(r, force=True)
-        if not req.ray_address:
-            ray.shutdown()
+        _stop_ray(ray, refs, shutdown=not req.ray_address, main=main, ray_processes=_children(others) if not req.ray_address else set())
     return device
+
+
+def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[int] = frozenset()) -> None:
+    """Cancel ``refs`` and, when this run started the Ray instance, shut it down and kill what is left
+    of ``ray_processes`` (the children ray.init started) and their descendants. A Ctrl-C or SIGTERM
+    meanwhile is held and raised once that is done: raised inside it, it would leave Ray's processes
+    running; ignored, a Ctrl-C during the seconds of ray.shutdown after a finished render was lost
+    (the run went on to exit 0)."""
+    held: list[int] = []
+    handlers = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    try:
+        for r in refs:
+            with contextlib.suppress(Exception):
+                ray.cancel(r, force=True)
+        if shutdown:
+            tree = _tree(ray_processes)  # before shutdown: its processes are still below their parents
+            with contextlib.suppress(Exception):
+                ray.shutdown()
+            _kill_tree(ray_processes, tree)
+    finally:
+        for s, h in handlers.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+        for s in dict.fromkeys(held):  # each held signal once, to the handler it was meant for
+            h = handlers[s]
+            if callable(h):
+                h(s, None)
+            elif h == signal.SIG_DFL:
+                signal.raise_signal(s)
+
+
+def _processes() -> dict[int, tuple[int, int]]:
+    """pid -> (parent pid, start time in clock ticks) of this user's processes, from /proc."""
+    out, uid = {}, os.getuid()
+    for entry in os.scandir("/proc") if os.path.isdir("/proc") else ():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if entry.stat().st_uid != uid:
+                continue
+            with open(f"/proc/{entry.name}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()  # after the command name, which may hold spaces
+            out[int(entry.name)] = (int(fields[1]), int(fields[19]))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def _children(exclude: set[int] = frozenset()) -> set[int]:
+    """The pids of this process's direct children, bar ``exclude``."""
+    me = os.getpid()
+    return {pid for pid, (ppid, _) in _processes().items() if ppid == me and pid not in exclude}
+
+
+def _tree(roots: set[int]) -> set[tuple[int, int]]:
+    """(pid, start time) of ``roots`` and all their descendants alive now."""
+    procs = _processes()
+    kids: dict[int, list[int]] = {}
+    for pid, (ppid, _) in procs.items():
+        kids.setdefault(ppid, []).append(pid)
+    found, todo = set(), [r for r in roots if r in procs]
+    while todo:
+        pid = todo.pop()
+        found.add((pid, procs[pid][1]))
+        todo += kids.get(pid, [])
+    return found
+
+
+def _kill_tree(roots: set[int], before: set[tuple[int, int]]) -> None:
+    """SIGKILL what is still alive of ``before`` and of the trees of ``roots`` now (the same processes:
+    pid and start time), so nothing a local Ray started outlives it: an interrupt during ``ray.init``
+    leaves processes ``ray.shutdown`` does not know of (measured: its dashboard and runtime-env
+    agents, orphaned when their raylet dies, running on indefinitely)."""
+    targets = before | _tree(roots)
+    alive = _processes()
+    for pid, start in targets:
+        if alive.get(pid, (0, None))[1] == start:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
 
 
 def run_units(units: list[WorkUnit], req: RenderRequest, report) -> str:

@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent
+from ..processes import children_ignore_sigint, die_with_parent
 from . import request
 
 log = logging.getLogger(__name__)
@@ -98,17 +98,15 @@ class MotionScheduler:
         self.lane_of = {(rig, v): i for rig, (views, _) in views_of.items() for i, v in enumerate(views)}
         # spawn, not fork: forking after numba's, BLAS's or the executor's threads have run can kill the child
         ctx = multiprocessing.get_context("spawn")
-        handler = None
-        if threading.current_thread() is threading.main_thread():  # a Ctrl-C while they start must not reach them
-            handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self.lanes: list[ProcessPoolExecutor] = []
         try:
-            self.lanes = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),))
-                          for _ in range(max(1, lanes))]
-            for lane in self.lanes:
-                lane.submit(_warm)  # starts the process now, beside the workers' start-up
-        finally:
-            if handler is not None:
-                signal.signal(signal.SIGINT, handler)
+            with children_ignore_sigint():  # a Ctrl-C while they start must not reach them (nor be lost)
+                for _ in range(max(1, lanes)):
+                    self.lanes.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init, initargs=(os.getpid(),)))
+                    self.lanes[-1].submit(_warm)  # starts the process now, beside the workers' start-up
+        except BaseException:  # a Ctrl-C held while they started: stop them, then report it
+            self._terminate()
+            raise
 
     def _in_place(self, rig: str, frame: int, view: View) -> bool:
         key = (rig, frame, view)
@@ -160,12 +158,17 @@ class MotionScheduler:
 
     def stop(self) -> None:
         """Stop the lanes now (the render failed or ended); what they wrote is complete or absent."""
-        pending = not all(f.done() for f in self.futures)
+        if not all(f.done() for f in self.futures):  # interrupted or failed: do not let it finish its queue
+            self._terminate()
+            return
         for lane in self.lanes:
-            if pending:  # interrupted or failed: do not let it finish its queue
-                for p in list((getattr(lane, "_processes", None) or {}).values()):
-                    p.terminate()
-            lane.shutdown(wait=not pending, cancel_futures=True)
+            lane.shutdown(wait=True, cancel_futures=True)
+
+    def _terminate(self) -> None:
+        for lane in self.lanes:
+            for p in list((getattr(lane, "_processes", None) or {}).values()):
+                p.terminate()
+            lane.shutdown(wait=False, cancel_futures=True)
 
 
 class CommitReport:

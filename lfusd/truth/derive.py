@@ -23,14 +23,13 @@ import multiprocessing
 import os
 import signal
 import tempfile
-import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from ..data import integrity, store
-from ..processes import die_with_parent
+from ..processes import children_ignore_sigint, die_with_parent
 from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
@@ -322,16 +321,13 @@ def _run(todo: list, workers: int, progress, written: set) -> int:
     # The pool's processes are started (in submit) while this process ignores Ctrl-C, a
     # disposition they inherit through exec (a blocked mask is not: measured) and Python keeps:
     # a Ctrl-C to the process group while they start up must not kill them with a traceback.
-    main = threading.current_thread() is threading.main_thread()  # only it may set handlers
-    handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    # (A Ctrl-C meanwhile is held and raised once they are started: lfusd.processes.children_ignore_sigint.)
+    pool = None
     try:
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_pool_init, initargs=(os.getpid(),))
-        futures = [pool.submit(_derive_run, item) for item in todo]
-    finally:
-        if main:
-            signal.signal(signal.SIGINT, signal.SIG_DFL if handler is None else handler)
-    try:
+        with children_ignore_sigint():
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                       initializer=_pool_init, initargs=(os.getpid(),))
+            futures = [pool.submit(_derive_run, item) for item in todo]
         for f in futures:
             n, c = f.result()
             checked += c
@@ -340,7 +336,8 @@ def _run(todo: list, workers: int, progress, written: set) -> int:
         # Interrupted or failed: stop the pool now rather than let it finish its queue.
         for p in list((getattr(pool, "_processes", None) or {}).values()):
             p.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
     return checked
