@@ -119,6 +119,12 @@ def _stopped(code: int, argv: list[str] | None) -> int:
     ``code``. A call from Python (tests, argv given) just returns ``code``."""
     if argv is None and "ray" in sys.modules:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        import atexit
+
+        # Python's exit functions still run (multiprocessing releases its pools' semaphores, else its
+        # resource tracker prints a warning about leaked ones); the C++ finalisation does not
+        with contextlib.suppress(BaseException):
+            atexit._run_exitfuncs()
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
