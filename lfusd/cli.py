@@ -187,7 +187,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lfusd: internal error: {type(e).__name__}: {first}; {where} (please report it)", file=sys.stderr)
         return EXIT_BUG
     finally:
-        if in_main:
+        if in_main and argv is None:
+            # the program itself is done: a signal during the interpreter's exit (Ray's shutdown takes
+            # seconds) must not turn its result into a traceback or a kill (exit -2, -15)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        elif in_main:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 

@@ -308,11 +308,12 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     try:
         try:
             # logging_level: Ray's own INFO and WARNING lines (its start-up banner) would break lfusd's one-line output
-            if req.ray_address:
-                ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR)
-            else:
-                ray.init(num_cpus=req.workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
-                         logging_level=logging.ERROR)
+            with _own_sigterm(ray):
+                if req.ray_address:
+                    ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR)
+                else:
+                    ray.init(num_cpus=req.workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+                             logging_level=logging.ERROR)
         except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
             where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
             raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None
@@ -337,6 +338,23 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     finally:
         _stop_ray(ray, refs, shutdown=not req.ray_address, main=main, ray_processes=_children(others) if not req.ray_address else set())
     return device
+
+
+@contextlib.contextmanager
+def _own_sigterm(ray):
+    """Keep lfusd's SIGTERM handler while ``ray.init`` runs: Ray installs its own (``sys.exit(15)``, or
+    kill its node and exit 1) in the main thread, so a SIGTERM during its start ended lfusd with exit
+    15 and no line (measured). Ray's private hook is replaced for that time, where it exists."""
+    utils = getattr(getattr(ray, "_private", None), "utils", None)
+    original = getattr(utils, "set_sigterm_handler", None)
+    if original is None:
+        yield
+        return
+    utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        utils.set_sigterm_handler = original
 
 
 def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[int] = frozenset()) -> None:

@@ -457,6 +457,9 @@ class _Undo:
         """The folder is accepted (holding ``manifest``'s dataset, or nothing): undo from here on."""
         if manifest is not None:
             self.manifest = (self.out / layout.MANIFEST).read_text()
+        now = {p.name for p in self.out.iterdir()} - {layout.LOCK}
+        if self.created and (now or manifest is not None):  # another run filled it meanwhile: not ours to remove
+            self.created, self.before = False, now
         self.active = True
 
     def done(self) -> None:
