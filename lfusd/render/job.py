@@ -476,8 +476,12 @@ class _Undo:
                 shutil.rmtree(self.out)
             elif self.manifest is None:  # an empty folder: the entries this run made
                 for p in self.out.iterdir():
-                    if p.name not in self.before:
-                        shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+                    if p.name in self.before:
+                        continue
+                    if p.is_dir() and not p.is_symlink():
+                        shutil.rmtree(p)
+                    else:
+                        p.unlink()
             else:
                 for d in reversed(self.frame_dirs):
                     (d / layout.FRAME_META).unlink(missing_ok=True)
