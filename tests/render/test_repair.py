@@ -77,6 +77,19 @@ def _counts(err: str) -> tuple[int, int]:
     return int(again.group(1)) if again else 0, int(raw.group(1)) if raw else 0
 
 
+def _rendered(out) -> tuple[int, int]:
+    """(views rendered with their image, views whose raw passes alone were rendered), counted from
+    the Blender workers' own logs: a chunk of views logs a beauty phase only when it renders the image."""
+    full = raw = 0
+    for path in (out / "logs").glob("*.log"):
+        for m in re.finditer(r"lfusd: frame \d+ views (\d+) seconds (.*)", path.read_text()):
+            if " beauty " in f" {m.group(2)} ":
+                full += int(m.group(1))
+            else:
+                raw += int(m.group(1))
+    return full, raw
+
+
 def _analytic_flow(view, t, t2):
     """Closed-form flow from frame t to t2 of the pixels that see a surface, and the object each sees."""
     K = RIG.intrinsics()
@@ -148,6 +161,8 @@ def _truncate(p):
 CASES = {
     "first frame, rgb truncated": ((1, "00_00", RGB_EXR, _truncate), (1, 0)),
     "middle frame, rgb deleted": ((2, "00_00", RGB_EXR, lambda p: p.unlink()), (1, 0)),
+    "last frame, rgb truncated": ((4, "00_01", RGB_EXR, _truncate), (1, 0)),
+    "first frame, gt deleted": ((1, "00_01", GT_FILE, lambda p: p.unlink()), (1, 0)),
     "middle frame, gt deleted": ((2, "00_01", GT_FILE, lambda p: p.unlink()), (1, 0)),
     "last frame, gt truncated": ((4, "00_00", GT_FILE, _truncate), (1, 0)),
     # motion of t comes from the raw passes of t-1, t and t+1, removed after the first run
@@ -156,6 +171,7 @@ CASES = {
     "last frame, motion deleted": ((4, "00_01", MOTION_FILE, lambda p: p.unlink()), (0, 2)),
     # without its record nothing in the view is provably intact: the view is rendered again, and the
     # raw passes of the neighbours (whose motion names its digest, unknown until it is rendered)
+    "first frame, view record truncated": ((1, "00_00", VIEW_RECORD, _truncate), (1, 2)),
     "middle frame, view record deleted": ((2, "00_01", VIEW_RECORD, lambda p: p.unlink()), (1, 3)),
     "last frame, view record truncated": ((4, "00_00", VIEW_RECORD, _truncate), (1, 2)),
 }
@@ -170,9 +186,13 @@ def test_one_damaged_file_is_repaired_by_the_same_command_without_keep_raw(stage
     damage(damaged / name)
     before = {(f, k): _stat(frame_dir(out, "main", f) / k) for f in range(1, FRAMES + 1) for k in ("00_00", "00_01")}
 
+    shutil.rmtree(out / "logs")  # the first run's worker logs: the rerun's alone are counted
+
     code, text, err = capsys_module("render-video", stage, "-o", out, *TINY)
     assert code == 0, err
     assert _counts(err) == (again, raw), err
+    whole_view = name in (RGB_EXR, VIEW_RECORD)  # the image or the record is lost: the view is rendered whole
+    assert _rendered(out) == (int(whole_view), again + raw - whole_view), err
     for (f, k), stats in before.items():
         d = frame_dir(out, "main", f) / k
         assert integrity.view_complete(d) and not (d / PASSES_EXR).exists(), (f, k)
