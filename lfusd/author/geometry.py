@@ -99,12 +99,17 @@ def _mesh_arrays(prim: Usd.Prim, t: Usd.TimeCode) -> tuple[np.ndarray, np.ndarra
     return pts, triangulate(counts if counts is not None else [], indices if indices is not None else [])
 
 
+# Implicit shapes Blender's USD importer tessellates in its own way (Cube alone is meshed exactly, by
+# both sides): refused everywhere, with one line naming the prim.
+IMPLICIT_SHAPES = frozenset({"Sphere", "Cylinder", "Cylinder_1", "Cone", "Capsule", "Capsule_1", "Plane"})
+
+
 def check_geometry(geometry: "StageGeometry", implicit: bool = True) -> None:
     """Refuse, before anything is written, a stage whose drawn geometry lfusd cannot render and verify
-    alike: a gprim other than Mesh or Cube (Sphere, Cylinder, Cone, Capsule, Plane, curves, points:
-    Blender tessellates or draws them its own way), instance proxies and point instances' prototypes
-    included (``implicit=False``: skip them); or a mesh :func:`check_mesh` refuses, at its default and
-    every authored time sample."""
+    alike: an implicit shape (:data:`IMPLICIT_SHAPES`), instance proxies and point instances'
+    prototypes included (``implicit=False``: skip them); or a mesh :func:`check_mesh` refuses, at its
+    default and every authored time sample. Other gprims are left as before (the render worker warns
+    about those Blender does not import)."""
     seen: set[str] = set()
     for part in geometry.parts:
         prim = part.prim
@@ -115,7 +120,7 @@ def check_geometry(geometry: "StageGeometry", implicit: bool = True) -> None:
         if prim.IsA(UsdGeom.Cube):
             continue
         if not prim.IsA(UsdGeom.Mesh):
-            if implicit:
+            if implicit and prim.GetTypeName() in IMPLICIT_SHAPES:
                 raise _unsupported(prim)
             continue
         mesh = UsdGeom.Mesh(prim)
