@@ -67,8 +67,12 @@ class Plan:
         """Add to ``need`` the raw passes (RAW) that deriving a view's motion again needs, for every
         view of ``frames`` or a rendered neighbour of them whose motion is missing, damaged or stale:
         its own and its neighbours', where they are not on disk."""
+        known_rendered: dict[int, bool] = {}
+
         def rendered(g: int) -> bool:  # a neighbour counts when this run renders it or an earlier one did
-            return g in frames or all(read_record(frame_dir(out, rig, g) / view_key(v)) is not None for v in views)
+            if g not in known_rendered:  # once per frame: each view's record is read once
+                known_rendered[g] = g in frames or all(read_record(frame_dir(out, rig, g) / view_key(v)) is not None for v in views)
+            return known_rendered[g]
 
         wanted = set(frames)
         candidates = sorted(wanted | {g for f in wanted for g in (f - 1, f + 1) if g in known and rendered(g)})
