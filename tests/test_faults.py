@@ -523,7 +523,8 @@ def stage(tmp_path_factory):
 def whole(stage):
     """Frames 1-4 rendered in one run."""
     out = stage.parent / "whole"
-    # --keep-raw: repairing a damaged view derives its neighbours' motion again from their raw passes
+    # --keep-raw: the raw passes stay on disk, so a repair here renders no neighbour again
+    # (tests/render/test_repair.py repairs the default, raw passes removed)
     code, _, err = _cli("render-video", stage, "-o", out, *TINY, "--keep-raw")
     assert code == 0, err
     return out
