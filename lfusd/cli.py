@@ -203,7 +203,8 @@ def main(argv: list[str] | None = None) -> int:
         code = EXIT_INTERRUPTED
     finally:
         if in_main:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+            # the program (argv None) is done: a SIGTERM now must not change its exit code
+            signal.signal(signal.SIGTERM, signal.SIG_IGN if argv is None else signal.SIG_DFL if previous is None else previous)
         if latch:
             # the program (argv None) is done: a Ctrl-C now must not turn its result into a traceback
             signal.signal(signal.SIGINT, signal.SIG_IGN if argv is None else signal.default_int_handler)
@@ -255,9 +256,24 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         return _interrupted()
     except Exception as e:
-        if _Interrupt.pending:  # a Ctrl-C that a library turned into another error
+        stop = _caused_by_stop(e)  # a Ctrl-C or SIGTERM that a library (Ray) wrapped in another error
+        if _Interrupt.pending or stop is KeyboardInterrupt:  # ... or turned into another error
             return _interrupted()
+        if stop is Terminated:
+            print("lfusd: terminated; rerun the same command to resume", file=sys.stderr)
+            return EXIT_TERMINATED
         return _report(e, debug)
+
+
+def _caused_by_stop(e: BaseException) -> type | None:
+    """KeyboardInterrupt or Terminated when one is among the causes or contexts of ``e``, else None."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, Terminated)):
+            return type(e)
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def _report(e: Exception, debug: bool) -> int:
@@ -290,4 +306,4 @@ def _report(e: Exception, debug: bool) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main())  # argv None: the process itself (see _stopped)

@@ -97,6 +97,70 @@ def warn_subdivision(stage: Usd.Stage, gprims) -> None:
     log.warning("mesh %s has subdivisionScheme %s%s: lfusd renders and verifies its control cage, not the smooth limit "
                 "surface; subdivide it into polygons, or author subdivisionScheme = \"none\" to accept the cage",
                 found[0], scheme, more)
+def check_mesh(path: str, points: np.ndarray, counts, indices, time: float | None = None) -> None:
+    """Refuse, in one line naming the prim, a mesh that cannot be drawn or ray cast as authored: a face
+    of fewer than 3 vertices, face counts that do not add up to the indices, an index outside the
+    points, or a point that is not finite."""
+    at = f" at frame {time:g}" if time is not None else ""
+    counts = np.asarray(counts if counts is not None else [], dtype=np.int64)
+    indices = np.asarray(indices if indices is not None else [], dtype=np.int64)
+    if counts.size and counts.min() < 3:
+        k = int(np.argmax(counts < 3))
+        raise LfusdError(f"mesh {path} has a degenerate face (face {k} has {int(counts[k])} vertices){at}; "
+                         "remove faces of fewer than 3 vertices")
+    if int(counts.sum()) != indices.size:
+        raise LfusdError(f"mesh {path}'s faceVertexCounts add up to {int(counts.sum())} but it has {indices.size} "
+                         f"faceVertexIndices{at}; fix its topology")
+    if indices.size and (indices.min() < 0 or indices.max() >= len(points)):
+        bad = int(indices[(indices < 0) | (indices >= len(points))][0])
+        raise LfusdError(f"mesh {path} has a face index {bad} outside its {len(points)} points{at}; fix its faceVertexIndices")
+    if not np.isfinite(points).all():
+        raise LfusdError(f"mesh {path} has non-finite points (NaN or inf){at}; fix its points")
+
+
+def _mesh_arrays(prim: Usd.Prim, t: Usd.TimeCode) -> tuple[np.ndarray, np.ndarray]:
+    """(points in the mesh's own space, triangles) of a Mesh prim, checked by :func:`check_mesh`."""
+    mesh = UsdGeom.Mesh(prim)
+    path = str(prim.GetPath())
+    pts = mesh.GetPointsAttr().Get(t)
+    if pts is None:
+        raise LfusdError(f"mesh {path} has no points; author its points attribute")
+    pts = np.array(pts, dtype=np.float64).reshape(-1, 3)
+    counts, indices = mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t)
+    check_mesh(path, pts, counts, indices, None if t.IsDefault() else t.GetValue())
+    return pts, triangulate(counts if counts is not None else [], indices if indices is not None else [])
+
+
+# Implicit shapes Blender's USD importer tessellates in its own way (Cube alone is meshed exactly, by
+# both sides): refused everywhere, with one line naming the prim.
+IMPLICIT_SHAPES = frozenset({"Sphere", "Cylinder", "Cylinder_1", "Cone", "Capsule", "Capsule_1", "Plane"})
+
+
+def check_geometry(geometry: "StageGeometry", implicit: bool = True) -> None:
+    """Refuse, before anything is written, a stage whose drawn geometry lfusd cannot render and verify
+    alike: an implicit shape (:data:`IMPLICIT_SHAPES`), instance proxies and point instances'
+    prototypes included (``implicit=False``: skip them); or a mesh :func:`check_mesh` refuses, at its
+    default and every authored time sample. Other gprims are left as before (the render worker warns
+    about those Blender does not import)."""
+    seen: set[str] = set()
+    for part in geometry.parts:
+        prim = part.prim
+        key = str(prim.GetPath())
+        if key in seen:
+            continue
+        seen.add(key)
+        if prim.IsA(UsdGeom.Cube):
+            continue
+        if not prim.IsA(UsdGeom.Mesh):
+            if implicit and prim.GetTypeName() in IMPLICIT_SHAPES:
+                raise _unsupported(prim)
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        times = sorted(set(mesh.GetPointsAttr().GetTimeSamples()) | set(mesh.GetFaceVertexIndicesAttr().GetTimeSamples())
+                       | set(mesh.GetFaceVertexCountsAttr().GetTimeSamples()))
+        # the default where nothing is animated, else every sample (a time sample hides the default)
+        for t in [Usd.TimeCode(x) for x in times] or [Usd.TimeCode.Default()]:
+            _mesh_arrays(prim, t)
 
 
 class StageGeometry:
@@ -153,12 +217,7 @@ class StageGeometry:
         path = str(prim.GetPath())
         xf = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t)
         if prim.IsA(UsdGeom.Mesh):
-            mesh = UsdGeom.Mesh(prim)
-            pts = mesh.GetPointsAttr().Get(t)
-            if pts is None:
-                raise LfusdError(f"mesh {path} has no points; author its points attribute")
-            pts = np.array(pts, dtype=np.float64)
-            tris = triangulate(mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t))
+            pts, tris = _mesh_arrays(prim, t)
             if path in self._skinning:
                 return WorldMesh(path, self._skinned(path, pts, t, time), tris)
             return WorldMesh(path, self.frame.points(_transform(pts, xf)), tris)
@@ -176,11 +235,7 @@ class StageGeometry:
         if path in self._skinning:
             raise LfusdError(f"skinned mesh {path} is a PointInstancer prototype, which lfusd does not evaluate; bake it")
         if prim.IsA(UsdGeom.Mesh):
-            mesh = UsdGeom.Mesh(prim)
-            pts = mesh.GetPointsAttr().Get(t)
-            if pts is None:
-                raise LfusdError(f"mesh {path} has no points; author its points attribute")
-            return np.array(pts, dtype=np.float64), triangulate(mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t))
+            return _mesh_arrays(prim, t)
         if prim.IsA(UsdGeom.Cube):
             size = UsdGeom.Cube(prim).GetSizeAttr().Get(t)
             corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * (size / 2.0)
@@ -272,4 +327,4 @@ def local_to_world(stage: Usd.Stage, prim_path: str, time: float) -> np.ndarray:
     return world_frame(stage).pose(UsdGeom.Xformable(stage.GetPrimAtPath(prim_path)).ComputeLocalToWorldTransform(Usd.TimeCode(time)))
 
 
-__all__ = ["StageGeometry", "WorldMesh", "triangulate", "local_to_world", "render_instances"]
+__all__ = ["StageGeometry", "WorldMesh", "check_geometry", "check_mesh", "triangulate", "local_to_world", "render_instances"]

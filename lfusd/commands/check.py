@@ -33,6 +33,11 @@ def handler(args) -> int:
 
     t0 = time.perf_counter()
     stage = open_stage(args.stage)
+    from ..author.geometry import StageGeometry, check_geometry
+
+    # a broken mesh is one line (exit 2), before any rule evaluates it; implicit shapes are reported
+    # as violations below, with everything else checked
+    check_geometry(StageGeometry(stage), implicit=False)
     file_rules = load_rules_file(args.rules) if args.rules else None
     checker = Checker(stage, file_rules)
     if not checker.labelled:

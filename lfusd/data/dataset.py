@@ -55,17 +55,8 @@ class Dataset:
         manifest's record (which a render updates only when it ends).
         """
         path = self.root / layout.MANIFEST
-        if not path.is_file():
-            raise LfusdError(f"{self.root} holds no lfusd dataset (no {layout.MANIFEST}); render one with 'lfusd render'")
-        self.manifest = _read_json(path, "rerun the render that made the dataset (it rewrites the manifest)")
-        if not isinstance(self.manifest, dict) or self.manifest.get("format") != FORMAT:
-            raise LfusdError(f"{path} is not an lfusd dataset manifest; open the output folder of 'lfusd render'")
-        validate_manifest(self.manifest, path)  # names that become paths, sizes that become loops
-        try:
-            rigs = list(self.manifest["rigs"])
-            rig_specs = self.manifest["settings"]["rigs"]
-        except (KeyError, TypeError):
-            raise LfusdError(f"{path} lacks its rigs record; rerun the render that made the dataset") from None
+        self.manifest = read_manifest(self.root)
+        rigs = list(self.manifest["rigs"])
         rig = self._rig_arg
         if rig is None:
             if len(rigs) != 1:
@@ -73,10 +64,7 @@ class Dataset:
             rig = rigs[0]
         if rig not in rigs:
             raise LfusdError(f"{self.root} has no rig {rig!r}; it has {', '.join(rigs)}")
-        try:
-            self.rig: RigSpec = RigSpec.from_dict(rig_specs[rig])
-        except (KeyError, TypeError, ValueError):
-            raise LfusdError(f"{path} holds no readable record of rig {rig!r}; rerun the render that made the dataset") from None
+        self.rig: RigSpec = rig_spec(self.root, self.manifest, rig)
         self.rig_name = rig
         objects_path = self.root / layout.OBJECTS
         table = validate_objects(_read_json(objects_path, "rerun the render that made the dataset (it rewrites the object table)"),
@@ -85,6 +73,8 @@ class Dataset:
             self.classes: list[str] = list(table["classes"])
             self._class_of_instance = np.zeros(max([int(o["id"]) for o in table["objects"]], default=0) + 1, dtype=np.int32)
             for o in table["objects"]:
+                if not (isinstance(o["prim_path"], str) and isinstance(o["label"], str) and int(o["class_id"]) == o["class_id"] >= 0):
+                    raise ValueError(o)
                 self._class_of_instance[o["id"]] = o["class_id"]
         except (KeyError, TypeError, ValueError, IndexError):
             raise LfusdError(f"{objects_path} is not an lfusd object table; rerun the render that made the dataset") from None
@@ -207,7 +197,18 @@ class Dataset:
             p = self._frame_dir(frame) / layout.FRAME_META
             if not p.is_file():
                 raise LfusdError(f"{p} is missing; rerun the render to complete this frame")
-            return validate_frame_meta(_read_json(p, "delete it and rerun the render to write it again"), p)
+            meta = validate_frame_meta(_read_json(p, "delete it and rerun the render to write it again"), p)
+            try:
+                for name, m in (*meta["cam_to_world"].items(), *meta["object_poses"].items()):
+                    if np.asarray(m, dtype=np.float64).shape != (4, 4):
+                        raise ValueError(name)
+            except (KeyError, TypeError, ValueError, AttributeError):
+                raise LfusdError(f"{p} is damaged (its poses are not 4x4 matrices); delete it and rerun the render to write it again") from None
+            missing = [view_key(v) for v in self.views if view_key(v) not in meta["cam_to_world"]]
+            missing += [o["prim_path"] for o in self._object_rows if o["prim_path"] not in meta["object_poses"]]
+            if missing:
+                raise LfusdError(f"{p} is damaged (no pose of {missing[0]}); delete it and rerun the render to write it again")
+            return meta
 
         return _cached(self._meta_cache, frame, 64, load)
 
@@ -245,6 +246,67 @@ class Dataset:
             raise LfusdError(f"{path} holds no {key!r}; derive it again with 'lfusd flow'") from None
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise LfusdError(f"{path} is unreadable ({e}); derive it again with 'lfusd flow'") from None
+
+
+MANIFEST_FIX = "restore it, or render the dataset again into a new folder"
+
+
+def read_manifest(root: str | Path) -> dict:
+    """The manifest of the dataset in ``root``, its structure checked: every command that reads a
+    dataset reads it here (through :class:`Dataset` or directly), so a missing, corrupt or incomplete
+    manifest is one LfusdError naming the file, whoever reads it. Rig specs: :func:`rig_spec`."""
+    root = Path(root)
+    path = root / layout.MANIFEST
+    if not root.is_dir():
+        raise LfusdError(f"dataset folder {root} does not exist; give the output folder of 'lfusd render'")
+    if not path.is_file():
+        raise LfusdError(f"{root} holds no lfusd dataset (no {layout.MANIFEST}); render one with 'lfusd render'")
+    m = _read_json(path, MANIFEST_FIX)
+    if not isinstance(m, dict) or m.get("format") != FORMAT:
+        raise LfusdError(f"{path} is not an lfusd dataset manifest; open the output folder of 'lfusd render'")
+    validate_manifest(m, path)  # names that become paths, sizes that become loops (lfusd.data.metadata)
+
+    def bad(what: str) -> LfusdError:
+        return LfusdError(f"{path} is damaged ({what}); {MANIFEST_FIX}")
+
+    def ints(x) -> bool:
+        return isinstance(x, list) and all(isinstance(f, int) and not isinstance(f, bool) for f in x)
+
+    rigs, settings = m.get("rigs"), m.get("settings")
+    if not isinstance(rigs, list) or not rigs or not all(isinstance(r, str) and r for r in rigs):
+        raise bad("'rigs' is not a list of rig names" if "rigs" in m else "no 'rigs'")
+    if not ints(m.get("frames")):
+        raise bad("'frames' is not a list of frame numbers" if "frames" in m else "no 'frames'")
+    if not isinstance(settings, dict):
+        raise bad("'settings' is not a record" if "settings" in m else "no 'settings'")
+    if not isinstance(settings.get("rigs"), dict) or not all(isinstance(settings["rigs"].get(r), dict) for r in rigs):
+        raise bad("'settings.rigs' lacks a record of each rig")
+    keys = settings.get("keys")
+    if keys is not None and not (isinstance(keys, list) and all(isinstance(k, str) for k in keys)):
+        raise bad("'settings.keys' is not a list of key names")
+    version = m.get("version", 1)
+    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+        raise bad("'version' is not a format version")
+    complete = m.get("complete", {})
+    if not isinstance(complete, dict) or not all(ints(v) for v in complete.values()):
+        raise bad("'complete' is not a list of frames per rig")
+    if not isinstance(m.get("stage", {}), dict):
+        raise bad("'stage' is not a record")
+    return m
+
+
+def rig_spec(root: str | Path, manifest: dict, rig: str) -> RigSpec:
+    """The RigSpec of ``rig`` in a manifest read by :func:`read_manifest`, or LfusdError naming it."""
+    path = Path(root) / layout.MANIFEST
+    try:
+        spec = RigSpec.from_dict(manifest["settings"]["rigs"][rig])
+        grid_ok = all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in (spec.rows, spec.cols, spec.width, spec.height))
+        float(spec.baseline)
+    except (KeyError, TypeError, ValueError, LfusdError):  # RigSpec checks its own fields, in its own words
+        grid_ok = False
+    if not grid_ok:
+        raise LfusdError(f"{path} holds no readable record of rig {rig!r}; {MANIFEST_FIX}") from None
+    return spec
 
 
 def _read_json(path: Path, fix: str):

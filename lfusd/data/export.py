@@ -31,7 +31,6 @@ Per-view files are named ``<frame:04d>_<row:02d>_<col:02d>.<ext>`` (see :func:`s
 from __future__ import annotations
 
 import datetime
-import json
 import os
 import re
 import shutil
@@ -40,7 +39,6 @@ from pathlib import Path
 import numpy as np
 
 from . import formats
-from .. import layout
 from ..errors import LfusdError
 from ..keys import get
 
@@ -73,16 +71,9 @@ def open_datasets(path, rig: str | None = None) -> list:
     """One reader per rig of the dataset in ``path``: just ``rig``, or every rig when it is None or 'all'."""
     if rig not in (None, "all"):
         return [open_dataset(path, rig)]
-    manifest = Path(path) / layout.MANIFEST
-    if not manifest.is_file():
-        return [open_dataset(path)]  # raises the reader's own error naming the folder
-    from .metadata import validate_manifest
+    from .dataset import read_manifest
 
-    try:
-        rigs = validate_manifest(json.loads(manifest.read_text()), manifest).get("rigs", [])
-    except (OSError, ValueError):
-        return [open_dataset(path)]  # raises the reader's own error naming the file
-    return [open_dataset(path, r) for r in rigs]
+    return [open_dataset(path, r) for r in read_manifest(path)["rigs"]]  # the reader's one-line errors
 
 
 def scene_name(ds) -> str:

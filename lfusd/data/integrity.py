@@ -177,6 +177,45 @@ def render_problems(view_dir: str | Path, deep: bool = True) -> list[str]:
             if name not in MOTION_FILES and not want.get("removed") and (m := _mismatch(d, name, want, deep))]
 
 
+IMAGE_FILES = (layout.RGB_EXR, layout.RGB_PNG)  # the beauty render's files: only a render with the image rebuilds them
+FULL, RAW = "full", "raw"  # what a view needs rendered again: the image and the raw passes, or the raw passes alone
+
+
+def repair_need(view_dir: str | Path) -> str | None:
+    """What must be rendered again to rebuild a view (None: its files match its record): FULL
+    without a folder, a readable record or an intact image (and for format version 1); RAW when only
+    what is derived from the raw passes (gt.exr) or kept raw passes are missing or damaged."""
+    problems = render_problems(view_dir)
+    if not problems:
+        return None
+    rec = read_record(view_dir)
+    if rec is None or rec.get("version", 1) == 1:
+        return FULL
+    d = Path(view_dir)
+    files = rec["files"]
+    if any(name in files and not files[name].get("removed") and _mismatch(d, name, files[name], True) for name in IMAGE_FILES):
+        return FULL
+    if not any(name in files for name in IMAGE_FILES):
+        return FULL  # no image on record at all (a removed one is on record: its keys were not asked for)
+    return RAW
+
+
+def passes_on_disk(view_dir: str | Path) -> bool:
+    """Whether the view's raw passes are on disk and match its record."""
+    rec = read_record(view_dir)
+    return present(rec, layout.PASSES_EXR) and _mismatch(Path(view_dir), layout.PASSES_EXR, rec["files"][layout.PASSES_EXR], True) is None
+
+
+def damaged_files(view_dir: str | Path) -> list[str]:
+    """The files the view's record lists (not removed) that do not match it: missing, another size
+    or another checksum. Motion files count too (their inputs are the derivation's to judge)."""
+    d = Path(view_dir)
+    rec = read_record(d)
+    if rec is None:
+        return []
+    return [name for name, want in rec["files"].items() if not want.get("removed") and _mismatch(d, name, want, True)]
+
+
 def view_complete(view_dir: str | Path) -> bool:
     """The view's rendered files all match its record (sizes and checksums)."""
     return not render_problems(view_dir)
@@ -262,19 +301,13 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None, frame
     Rendered files must match; with motion keys (render-video), the motion file must exist, match,
     and come from the current raw passes of the view and its neighbours. Returns (views checked, problems).
     """
-    from ..camera import RigSpec
     from ..errors import LfusdError
     from ..keys import KEYS, MOTION
+    from .dataset import read_manifest, rig_spec
 
     root = Path(root)
-    from .metadata import validate_manifest
-
-    try:
-        manifest = json.loads((root / layout.MANIFEST).read_text())
-    except (OSError, ValueError):
-        raise LfusdError(f"{root} holds no readable {layout.MANIFEST}; give a dataset folder") from None
-    validate_manifest(manifest, root / layout.MANIFEST)
-    rigs = manifest.get("rigs", [])
+    manifest = read_manifest(root)  # the reader's checks and one-line errors
+    rigs = manifest["rigs"]
     if rig not in (None, "all"):
         if rig not in rigs:
             raise LfusdError(f"{root} has no rig {rig!r}; it has {', '.join(rigs)}")
@@ -286,7 +319,7 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None, frame
     motion = settings.get("motion") and (wanted is None or any(KEYS[k].stage == MOTION for k in wanted if k in KEYS))
     checked, problems = 0, []
     for name in rigs:
-        spec = RigSpec.from_dict(settings["rigs"][name])
+        spec = rig_spec(root, manifest, name)
         for f in chosen:
             for v in spec.views if views is None else [v for v in spec.views if tuple(v) in {tuple(w) for w in views}]:
                 progress and progress(name, f, v)

@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -76,42 +77,96 @@ def _check_shape(src: Path, shape, key: str, frame: int, unit: WorkUnit) -> None
 
 
 def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: WorkUnit | None = None) -> None:
-    """Move one view's raw files from a worker's scratch into its final folder, atomically.
+    """Move one view's rendered files from a worker's scratch into its final folder.
 
-    The files are checked first (with ``unit``: readable, the right passes and size); the folder
-    gets its completion record last, before the rename. A complete view already there is kept; a
-    damaged one is replaced. Files are renamed, never copied (the scratch is inside OUT)."""
+    The files are checked first (with ``unit``: readable, the right passes and size). A new view is
+    assembled under a temporary name with its completion record last, then renamed into place. An
+    existing view with a readable record is repaired in place (:func:`_repair_view`): what its record
+    proves intact is kept, never replaced. A view without a readable record is replaced. Files are
+    renamed, never copied (the scratch is inside OUT)."""
     from ..data import integrity
 
     final = frame_dir(out, rig, frame) / key
-    if integrity.view_complete(final):
+    beauty = unit is None or unit.beauty
+    need = integrity.repair_need(final)
+    if need is None and (beauty or integrity.passes_on_disk(final)):
         return
-    sources = {name: scratch / f"{name}_{key}.exr" for name in ("rgb", "passes")}  # Blender's multiview suffix
+    if unit is not None and beauty and need == integrity.RAW:
+        return  # a view whose image is intact: a unit of raw passes alone repairs it (lfusd.render.plan.plan_units)
+    sources = {name: scratch / f"{name}_{key}.exr" for name in (("rgb", "passes") if beauty else ("passes",))}  # Blender's multiview suffix
     for src in sources.values():
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
     if unit is not None:
-        _check_rgb(sources["rgb"], key, frame, unit)
+        if beauty:
+            _check_rgb(sources["rgb"], key, frame, unit)
         _check_passes(sources["passes"], key, frame, unit)
+    geometry = scratch / layout.GEOMETRY  # one per chunk of views (render-video): each view gets its own link
+    if geometry.is_file():
+        sources["geometry"] = scratch / f"geometry_{key}.npz"
+        _link_or_copy(geometry, sources["geometry"])
+    if integrity.read_record(final) is not None:
+        _repair_view(final, {layout.RGB_EXR: sources.get("rgb"), layout.PASSES_EXR: sources["passes"],
+                             layout.GEOMETRY: sources.get("geometry")})
+        return
+    if not beauty:
+        raise LfusdError(f"view {key} of frame {frame} has no readable record, so its raw passes alone cannot repair it; rerun to resume")
     tmp = final.parent / f".{key}.tmp-{os.getpid()}-{threading.get_ident()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    for name, final_name in (("rgb", layout.RGB_EXR), ("passes", layout.PASSES_EXR)):
-        os.replace(sources[name], tmp / final_name)
-    geometry = scratch / layout.GEOMETRY  # one per chunk of views: linked into each (copied where links fail)
-    if geometry.is_file():
-        try:
-            os.link(geometry, tmp / layout.GEOMETRY)
-        except OSError:
-            shutil.copyfile(geometry, tmp / layout.GEOMETRY)
+    for name, final_name in (("rgb", layout.RGB_EXR), ("passes", layout.PASSES_EXR), ("geometry", layout.GEOMETRY)):
+        if name in sources:
+            os.replace(sources[name], tmp / final_name)
     integrity.record_render(tmp)  # rgb.png, gt.exr and motion.exr come from lfusd.truth.derive
-    if final.exists():  # damaged: move it aside (a stale-tmp name, cleaned by the next run if we die here)
+    if final.exists():  # no readable record: nothing in it is provably intact; move it aside (a stale-tmp name, cleaned by the next run if we die here)
         old = final.parent / f".{key}.tmp-old-{os.getpid()}-{threading.get_ident()}"
         os.rename(final, old)
         os.rename(tmp, final)
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.rename(tmp, final)
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    dst.unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
+def _repair_view(final: Path, new: dict[str, Path | None]) -> None:
+    """Repair a view folder in place from freshly rendered files ``new`` (file name -> scratch path;
+    None: not rendered). A file its record proves intact stays and the new one is dropped; a new file
+    goes in where the recorded one is missing, damaged or removed; every other recorded file that
+    does not match its record (a damaged gt.exr, motion.exr or rgb.png) is removed with its entry,
+    for the derivation to write again. The record is rewritten last: a run killed before that leaves
+    files that do not match it, which the next run repairs again."""
+    from ..data import integrity
+
+    rec = integrity.read_record(final)
+    files = rec["files"]
+    damaged = set(integrity.damaged_files(final))
+    add = {}
+    for name, src in new.items():
+        if src is None:
+            continue
+        entry = files.get(name)
+        if name == layout.RGB_EXR and entry is not None and entry.get("removed") and layout.RGB_PNG not in damaged:
+            continue  # not asked for (rgb.png, intact or not asked for either, holds the image)
+        if entry is not None and not entry.get("removed") and name not in damaged:
+            continue  # intact: keep it
+        os.replace(src, final / name)
+        entry = integrity.file_entry(final / name)
+        if entry is None:
+            raise LfusdError(f"cannot read back {final / name}; free disk space if it is full, then rerun")
+        add[name] = entry
+    for name in damaged - set(add):
+        if name not in new:
+            (final / name).unlink(missing_ok=True)
+            files.pop(name, None)
+    files.update(add)
+    integrity.write_record(final, rec)
 
 
 _LIVE: set[subprocess.Popen] = set()
@@ -218,7 +273,10 @@ def _ray_unit(unit: WorkUnit, out: str) -> str | None:
     from ..data import integrity
 
     root = Path(out)
-    todo = [f for f in unit.frames if not all(integrity.view_complete(frame_dir(root, unit.rig, f) / k) for k in unit.cameras)]
+    def done(d: Path) -> bool:  # as commit_view decides: it commits nothing into such a view
+        return integrity.passes_on_disk(d) if not unit.beauty else integrity.repair_need(d) != integrity.FULL
+
+    todo = [f for f in unit.frames if not all(done(frame_dir(root, unit.rig, f) / k) for k in unit.cameras)]
     record_attempt(root, unit, ray.get_runtime_context().get_node_id(), todo)
     if not todo:
         return None
@@ -282,7 +340,7 @@ def start_local_ray(workers: int) -> None:
     ray_constants.ENABLE_RAY_CLUSTER = False  # Ray already imported (by a library user) read the variable before
     with _quiet_auth_advice():
         info = ray.init(num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
-                        _node_ip_address="127.0.0.1")
+                        _node_ip_address="127.0.0.1", logging_level=logging.ERROR)
     node = (getattr(info, "address_info", None) or {}).get("node_ip_address")
     if node not in LOOPBACK:
         ray.shutdown()
@@ -291,26 +349,41 @@ def start_local_ray(workers: int) -> None:
 
 
 def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
-    """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path."""
+    """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path.
+
+    Whatever ends the run (success, failure, Ctrl-C or SIGTERM at any moment, during ``ray.init``
+    too), the tasks are cancelled and a local Ray instance this run started is shut down, with
+    further signals ignored until that is done: nothing of Ray's or Blender's outlives lfusd."""
     import ray
 
     if req.ray_address:
         check_ray_address(req.ray_address)
+    main = threading.current_thread() is threading.main_thread()  # only it may set handlers
+    sigterm = signal.getsignal(signal.SIGTERM) if main else None
+    refs: dict = {}
+    others = _children()  # derivation processes already running: not Ray's
     try:
-        if req.ray_address:
-            with _quiet_auth_advice():
-                ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False)
-        else:
-            start_local_ray(req.workers)
-    except LfusdError:
-        raise
-    except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
-        where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
-        raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None
-    task = ray.remote(num_cpus=1, max_retries=2, retry_exceptions=True)(_ray_unit)
-    refs = {task.remote(u, str(Path(req.out).resolve())): u for u in units}
-    device = "cpu"
-    try:
+        try:
+            # logging_level: Ray's own INFO and WARNING lines (its start-up banner) would break lfusd's one-line output
+            with _own_sigterm(ray):
+                if req.ray_address:
+                    with _quiet_auth_advice():
+                        ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR)
+                else:
+                    start_local_ray(req.workers)
+        except LfusdError:
+            raise
+        except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
+            where = f"the Ray cluster at {req.ray_address}" if req.ray_address else "a local Ray instance"
+            raise LfusdError(f"cannot join {where} ({str(e).splitlines()[0]}); check --ray-address or use --executor local") from None
+        finally:
+            if main and sigterm is not None:
+                # ray.init makes SIGTERM sys.exit(15) (or kill its node and exit 1): lfusd's handler cleans up and exits 143
+                signal.signal(signal.SIGTERM, sigterm)
+        task = ray.remote(num_cpus=1, max_retries=2, retry_exceptions=True)(_ray_unit)
+        for u in units:
+            refs[task.remote(u, str(Path(req.out).resolve()))] = u
+        device = "cpu"
         while refs:
             done, _ = ray.wait(list(refs), num_returns=1)
             unit = refs.pop(done[0])
@@ -322,11 +395,103 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
                 raise LfusdError(msg) from None
             report.advance(len(unit.cameras) * len(unit.frames))
     finally:
-        for r in refs:
-            ray.cancel(r, force=True)
-        if not req.ray_address:
-            ray.shutdown()
+        _stop_ray(ray, refs, shutdown=not req.ray_address, main=main, ray_processes=_children(others) if not req.ray_address else set())
     return device
+
+
+@contextlib.contextmanager
+def _own_sigterm(ray):
+    """Keep lfusd's SIGTERM handler while ``ray.init`` runs: Ray installs its own (``sys.exit(15)``, or
+    kill its node and exit 1) in the main thread, so a SIGTERM during its start ended lfusd with exit
+    15 and no line (measured). Ray's private hook is replaced for that time, where it exists."""
+    utils = getattr(getattr(ray, "_private", None), "utils", None)
+    original = getattr(utils, "set_sigterm_handler", None)
+    if original is None:
+        yield
+        return
+    utils.set_sigterm_handler = lambda handler: None
+    try:
+        yield
+    finally:
+        utils.set_sigterm_handler = original
+
+
+def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[int] = frozenset()) -> None:
+    """Cancel ``refs`` and, when this run started the Ray instance, shut it down and kill what is left
+    of ``ray_processes`` (the children ray.init started) and their descendants. A Ctrl-C or SIGTERM
+    meanwhile is held and raised once that is done: raised inside it, it would leave Ray's processes
+    running; ignored, a Ctrl-C during the seconds of ray.shutdown after a finished render was lost
+    (the run went on to exit 0)."""
+    held: list[int] = []
+    handlers = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    try:
+        for r in refs:
+            with contextlib.suppress(Exception):
+                ray.cancel(r, force=True)
+        if shutdown:
+            tree = _tree(ray_processes)  # before shutdown: its processes are still below their parents
+            with contextlib.suppress(Exception):
+                ray.shutdown()
+            _kill_tree(ray_processes, tree)
+    finally:
+        for s, h in handlers.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+        for s in dict.fromkeys(held):  # each held signal once, to the handler it was meant for
+            h = handlers[s]
+            if callable(h):
+                h(s, None)
+            elif h == signal.SIG_DFL:
+                signal.raise_signal(s)
+
+
+def _processes() -> dict[int, tuple[int, int]]:
+    """pid -> (parent pid, start time in clock ticks) of this user's processes, from /proc."""
+    out, uid = {}, os.getuid()
+    for entry in os.scandir("/proc") if os.path.isdir("/proc") else ():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if entry.stat().st_uid != uid:
+                continue
+            with open(f"/proc/{entry.name}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()  # after the command name, which may hold spaces
+            out[int(entry.name)] = (int(fields[1]), int(fields[19]))
+        except (OSError, ValueError, IndexError):
+            continue
+    return out
+
+
+def _children(exclude: set[int] = frozenset()) -> set[int]:
+    """The pids of this process's direct children, bar ``exclude``."""
+    me = os.getpid()
+    return {pid for pid, (ppid, _) in _processes().items() if ppid == me and pid not in exclude}
+
+
+def _tree(roots: set[int]) -> set[tuple[int, int]]:
+    """(pid, start time) of ``roots`` and all their descendants alive now."""
+    procs = _processes()
+    kids: dict[int, list[int]] = {}
+    for pid, (ppid, _) in procs.items():
+        kids.setdefault(ppid, []).append(pid)
+    found, todo = set(), [r for r in roots if r in procs]
+    while todo:
+        pid = todo.pop()
+        found.add((pid, procs[pid][1]))
+        todo += kids.get(pid, [])
+    return found
+
+
+def _kill_tree(roots: set[int], before: set[tuple[int, int]]) -> None:
+    """SIGKILL what is still alive of ``before`` and of the trees of ``roots`` now (the same processes:
+    pid and start time), so nothing a local Ray started outlives it: an interrupt during ``ray.init``
+    leaves processes ``ray.shutdown`` does not know of (measured: its dashboard and runtime-env
+    agents, orphaned when their raylet dies, running on indefinitely)."""
+    targets = before | _tree(roots)
+    alive = _processes()
+    for pid, start in targets:
+        if alive.get(pid, (0, None))[1] == start:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
 
 
 def run_units(units: list[WorkUnit], req: RenderRequest, report) -> str:

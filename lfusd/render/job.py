@@ -242,7 +242,10 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
     atomic_write_text(req.out / layout.MANIFEST, json.dumps(manifest, indent=1))
 
 
-def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int], objects: list[ObjectEntry], classes: list[str]) -> None:
+def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int], objects: list[ObjectEntry],
+                           classes: list[str], created: list[Path] | None = None) -> None:
+    """objects.json, and each frame's frame.json that is not there yet; ``created`` collects the
+    frame folders made here."""
     table = {
         "classes": classes,
         "objects": [
@@ -258,6 +261,8 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
             d = frame_dir(req.out, rig.spec.name, f)
             if (d / layout.FRAME_META).is_file():
                 continue
+            if created is not None and not d.exists():
+                created.append(d)
             d.mkdir(parents=True, exist_ok=True)
             meta = {
                 "frame": f,
@@ -321,7 +326,11 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
     """(manifest, names of the rigs rendered); ``then(names)`` runs afterwards, still holding
     the folder's lock. ``overlap(plan, rigs, dataset_frames)``, when given, returns a
     lfusd.render.overlap.MotionScheduler told of every view as it is committed; it is stopped
-    on the way out. Everything that can refuse runs before the folder is touched."""
+    on the way out. Everything that can refuse from the stage and the options (sizes, ranges,
+    geometry, the folder) runs before the folder is touched; a refusal after that, before any view
+    is rendered, puts the folder back as it was (:class:`_Undo`)."""
+    from ..author.geometry import StageGeometry, check_geometry, render_instances
+
     req.check()
     if req.executor == "ray" and req.ray_address:
         from .executors import check_ray_address
@@ -337,31 +346,40 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
     world = world_frame(stage).to_dict()
     sizes = [(r.spec.name, len(r.spec.views), r.spec.width, r.spec.height) for r in rigs]
     check_size(req, sizes, frames)
+    # The stage's objects and drawn geometry: a Sphere or a broken mesh is refused here, not midway.
+    objects, classes = object_table(stage)
+    geometry = StageGeometry(stage)
+    check_geometry(geometry)
+    plain, instanced = render_instances(geometry, objects, frame_range(stage)[0])
     if existing is not None:
         _prepare_output(req, settings, files, remove=False)  # refuse before taking the lock (which writes OUT/.lock)
+    undo = _Undo(req.out)
     try:
         req.out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise _io_error(req.out, e) from None
-    with output_lock(req.out):
+    with undo, output_lock(req.out):
         previous = _prepare_output(req, settings, files)  # again: the folder may have changed before the lock
+        undo.previous(previous)
         names = [r.spec.name for r in rigs]
         scheduler = None
         try:
             _clean_stale(req.out, sorted(set(names) | set((previous or {}).get("rigs", []))))
             _write_manifest(req, settings, previous, rigs, frames, None, files, world)
-            objects, classes = object_table(stage)
-            _write_static_metadata(req, stage, rigs, frames, objects, classes)
-            plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames)
+            _write_static_metadata(req, stage, rigs, frames, objects, classes, undo.frame_dirs)
+            from ..keys import KEYS, MOTION
+
+            motion = req.motion and any(KEYS[k].stage == MOTION for k in req.stored_keys())
+            plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames, motion=motion,
+                        dataset_frames=json.loads((req.out / layout.MANIFEST).read_text())["frames"])
             device = None
             # imported before any child starts: a Ctrl-C then interrupts no import
-            from ..author.geometry import StageGeometry, render_instances
             from .executors import run_units
 
             if overlap is not None:
                 scheduler = overlap(plan, rigs, json.loads((req.out / layout.MANIFEST).read_text())["frames"])
+            undo.done()  # from here on what is written is kept: a rerun resumes it
             if plan.remaining:
-                plain, instanced = render_instances(StageGeometry(stage), objects, frame_range(stage)[0])
                 units = plan_units(
                     req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
                     StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
@@ -393,6 +411,61 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
                 scheduler.stop()
             shutil.rmtree(req.out / layout.SCRATCH, ignore_errors=True)
     return manifest, names
+
+
+class _Undo:
+    """Puts OUT back as it was when a run is refused after it started writing, before it rendered
+    anything: a folder this run created is removed; in a folder that was empty, the entries this run
+    made go; in a dataset, the manifest is restored and the frame folders this run created are removed.
+    Only a refusal (LfusdError, or an OSError turned into one) undoes; an interrupt keeps what is
+    written, for a rerun to resume. Used as ``with undo, output_lock(out)``: the lock is released first."""
+
+    def __init__(self, out: Path):
+        self.out = Path(out)
+        self.created = not self.out.exists()
+        self.before = set() if self.created else {p.name for p in self.out.iterdir()} if self.out.is_dir() else set()
+        self.manifest: str | None = None
+        self.frame_dirs: list[Path] = []  # frame folders this run created (lfusd's frame.json alone in them)
+        self.active = False  # from the moment this run holds the lock and has accepted the folder
+
+    def previous(self, manifest: dict | None) -> None:
+        """The folder is accepted (holding ``manifest``'s dataset, or nothing): undo from here on."""
+        if manifest is not None:
+            self.manifest = (self.out / layout.MANIFEST).read_text()
+        now = {p.name for p in self.out.iterdir()} - {layout.LOCK}
+        if self.created and (now or manifest is not None):  # another run filled it meanwhile: not ours to remove
+            self.created, self.before = False, now
+        self.active = True
+
+    def done(self) -> None:
+        self.active = False
+
+    def __enter__(self) -> "_Undo":
+        return self
+
+    def __exit__(self, kind, error, tb) -> None:
+        if not self.active or kind is None or not issubclass(kind, (LfusdError, OSError)):
+            return
+        try:
+            if self.created:
+                shutil.rmtree(self.out)
+            elif self.manifest is None:  # an empty folder: the entries this run made
+                for p in self.out.iterdir():
+                    if p.name in self.before:
+                        continue
+                    if p.is_dir() and not p.is_symlink():
+                        shutil.rmtree(p)
+                    else:
+                        p.unlink()
+            else:
+                for d in reversed(self.frame_dirs):
+                    (d / layout.FRAME_META).unlink(missing_ok=True)
+                    with contextlib.suppress(OSError):
+                        d.rmdir()  # only when empty
+                        d.parent.rmdir()  # a rig folder this run created, when empty
+                atomic_write_text(self.out / layout.MANIFEST, self.manifest)
+        except OSError as e:
+            log.warning("could not put %s back as it was (%s); remove what this run wrote by hand", self.out, e.strerror or e)
 
 
 @dataclass

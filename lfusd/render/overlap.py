@@ -173,10 +173,13 @@ class MotionScheduler:
         """Stop the lanes now (the render failed or ended); what they wrote is complete or absent."""
         pending = now or not all(f.done() for f in self.futures)
         for lane in self.lanes:
-            if pending:  # interrupted or failed: do not let it finish its queue
-                for p in list((getattr(lane, "_processes", None) or {}).values()):
-                    p.terminate()
-            lane.shutdown(wait=not pending, cancel_futures=True)
+            lane.shutdown(wait=True, cancel_futures=True)
+
+    def _terminate(self) -> None:
+        for lane in self.lanes:
+            for p in list((getattr(lane, "_processes", None) or {}).values()):
+                p.terminate()
+            lane.shutdown(wait=False, cancel_futures=True)
 
 
 class CommitReport:

@@ -10,7 +10,8 @@ import os
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
-from ..data.integrity import render_problems
+from .. import layout
+from ..data.integrity import FULL, RAW, motion_inputs, motion_problem, passes_on_disk, read_record, render_problems, repair_need
 from ..layout import frame_dir, view_key
 from .request import RenderRequest
 
@@ -20,28 +21,72 @@ View = tuple[int, int]
 
 class Plan:
     """The views still to render, per (rig, frame): a view is done iff its files match its completion
-    record (lfusd.data.integrity); a folder that exists but does not match is rendered again."""
+    record (lfusd.data.integrity). A damaged view is repaired, not replaced: what its record proves
+    intact stays, and only what is needed to rebuild the rest is rendered (lfusd.render.executors.commit_view).
+    Views whose image is intact but whose ground truth must be derived again (gt.exr, or with
+    ``motion`` the motion of a view or its neighbours', whose raw passes a render without --keep-raw
+    removed) get their raw passes alone rendered again: :attr:`raw_only`.
 
-    def __init__(self, out: Path, views_of: dict[str, list[View]], frames: list[int]):
+    ``dataset_frames``: every frame the dataset lists (a frame's neighbour counts only if it has it)."""
+
+    def __init__(self, out: Path, views_of: dict[str, list[View]], frames: list[int], motion: bool = False,
+                 dataset_frames: list[int] | None = None):
         self.todo: dict[tuple[str, int], list[View]] = {}
+        self.raw_only: set[tuple[str, int, View]] = set()
         self.total = 0
-        damaged = []
+        damaged, raw = [], []
         for rig, views in views_of.items():
+            need: dict[tuple[int, View], str] = {}
             for f in frames:
                 self.total += len(views)
-                missing = []
                 for v in views:
                     d = frame_dir(out, rig, f) / view_key(v)
                     problems = render_problems(d)
                     if problems:
-                        missing.append(v)
+                        need[(f, v)] = repair_need(d) or FULL
                         if d.exists():
                             damaged.append(f"{d} ({problems[0]})")
-                if missing:
-                    self.todo[(rig, f)] = missing
+            if motion:
+                self._motion_needs(out, rig, views, frames, set(dataset_frames or frames), need)
+            for (f, v), what in sorted(need.items()):
+                self.todo.setdefault((rig, f), []).append(v)
+                self.total += f not in frames  # a neighbour outside the range, rendered for the derivation
+                if what == RAW:
+                    self.raw_only.add((rig, f, v))
+                    if f not in frames or not render_problems(frame_dir(out, rig, f) / view_key(v)):
+                        raw.append(f"frame {f} view {view_key(v)}")
         if damaged:
             more = f" and {len(damaged) - 1} more" if len(damaged) > 1 else ""
             log.warning("rendering again %d view(s) whose files do not match their record: %s%s", len(damaged), damaged[0], more)
+        if raw:
+            more = f" and {len(raw) - 1} more" if len(raw) > 1 else ""
+            log.warning("rendering the raw passes of %d intact view(s) again, to derive the motion keys next to them: %s%s", len(raw), raw[0], more)
+
+    @staticmethod
+    def _motion_needs(out: Path, rig: str, views: list[View], frames: list[int], known: set[int], need: dict) -> None:
+        """Add to ``need`` the raw passes (RAW) that deriving a view's motion again needs, for every
+        view of ``frames`` or a rendered neighbour of them whose motion is missing, damaged or stale:
+        its own and its neighbours', where they are not on disk."""
+        known_rendered: dict[int, bool] = {}
+
+        def rendered(g: int) -> bool:  # a neighbour counts when this run renders it or an earlier one did
+            if g not in known_rendered:  # once per frame: each view's record is read once
+                known_rendered[g] = g in frames or all(read_record(frame_dir(out, rig, g) / view_key(v)) is not None for v in views)
+            return known_rendered[g]
+
+        wanted = set(frames)
+        candidates = sorted(wanted | {g for f in wanted for g in (f - 1, f + 1) if g in known and rendered(g)})
+        for v in views:
+            for c in candidates:
+                d = frame_dir(out, rig, c) / view_key(v)
+                window = [g for g in (c - 1, c, c + 1) if g == c or (g in known and rendered(g))]
+                passes = {k: frame_dir(out, rig, g) / view_key(v) / layout.PASSES_EXR if g in window else None
+                          for k, g in (("prev", c - 1), ("cur", c), ("next", c + 1))}
+                if not motion_problem(d, motion_inputs(passes)):
+                    continue  # current, judged by the digests on record (a re-render gives the same pixels)
+                for g in window:
+                    if (g, v) not in need and not passes_on_disk(frame_dir(out, rig, g) / view_key(v)):
+                        need[(g, v)] = RAW
 
     @property
     def remaining(self) -> int:
@@ -83,6 +128,7 @@ class WorkUnit:
     instanced: list = field(default_factory=list)
     render_pixels: int = 0  # at most this many pixels per render call (0: RENDER_PIXELS); see view_chunks
     raw_codec: str = "ZIP"  # Blender's codec for the data passes (lfusd.render.request.raw_codec)
+    beauty: bool = True  # False: the data passes alone (a repair that needs no image: Plan.raw_only)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -140,27 +186,42 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
     """Work units covering every missing (rig, frame, view) of ``plan``; Blender writes the data
     passes with ``raw_codec``."""
     units: list[WorkUnit] = []
-    for rig_name in sorted({k[0] for k in plan.todo}):
-        frames = sorted(f for (r, f) in plan.todo if r == rig_name)
-        views = sorted({v for (r, f), vs in plan.todo.items() if r == rig_name for v in vs})
-        view_chunks = chunks(views, req.workers)
-        # Fewer views than workers: split the frames too. Ray gets units of at most
-        # frames_per_unit frames, so retries and load balancing stay fine-grained.
-        n_frame_chunks = -(-req.workers // len(view_chunks))
-        if req.executor == "ray":
-            n_frame_chunks = max(n_frame_chunks, -(-len(frames) // req.frames_per_unit))
-        for fchunk in chunks(frames, n_frame_chunks):
-            for vchunk in view_chunks:
-                todo = [f for f in fchunk if any(v in plan.todo.get((rig_name, f), ()) for v in vchunk)]
-                if not todo:
-                    continue
-                width, height = sizes[rig_name]
-                units.append(WorkUnit(
-                    unit=len(units), rig=rig_name, stage=str(Path(req.stage).resolve()),
-                    cameras={view_key(v): cameras_of[rig_name][v] for v in vchunk}, frames=todo,
-                    width=width, height=height, samples=req.samples, device=req.device,
-                    # Locally, workers share the cores; on Ray, Blender takes what the node has.
-                    threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                    motion=req.motion, render_pixels=RENDER_PIXELS, raw_codec=raw_codec, **asdict(setup),
-                ))
+    for beauty in (True, False):
+        todo = {k: [v for v in vs if ((k[0], k[1], v) in plan.raw_only) != beauty] for k, vs in plan.todo.items()}
+        todo = {k: vs for k, vs in todo.items() if vs}
+        groups = []  # (rig, frames, views): full renders as a cross-product (a complete view is not committed again)
+        for rig_name in sorted({k[0] for k in todo}):
+            if beauty:
+                groups.append((rig_name, sorted(f for (r, f) in todo if r == rig_name),
+                               sorted({v for (r, f), vs in todo.items() if r == rig_name for v in vs})))
+                continue
+            # raw passes alone: exactly the views and frames asked for (an extra one would replace the
+            # digest its neighbours' motion records name), views with the same frames together
+            frames_of: dict[View, list[int]] = {}
+            for (r, f), vs in sorted(todo.items()):
+                for v in vs if r == rig_name else ():
+                    frames_of.setdefault(v, []).append(f)
+            for fs in sorted({tuple(fs) for fs in frames_of.values()}):
+                groups.append((rig_name, list(fs), sorted(v for v, g in frames_of.items() if tuple(g) == fs)))
+        for rig_name, frames, views in groups:
+            view_chunks = chunks(views, req.workers)
+            # Fewer views than workers: split the frames too. Ray gets units of at most
+            # frames_per_unit frames, so retries and load balancing stay fine-grained.
+            n_frame_chunks = -(-req.workers // len(view_chunks))
+            if req.executor == "ray":
+                n_frame_chunks = max(n_frame_chunks, -(-len(frames) // req.frames_per_unit))
+            for fchunk in chunks(frames, n_frame_chunks):
+                for vchunk in view_chunks:
+                    unit_frames = [f for f in fchunk if any(v in todo.get((rig_name, f), ()) for v in vchunk)]
+                    if not unit_frames:
+                        continue
+                    width, height = sizes[rig_name]
+                    units.append(WorkUnit(
+                        unit=len(units), rig=rig_name, stage=str(Path(req.stage).resolve()),
+                        cameras={view_key(v): cameras_of[rig_name][v] for v in vchunk}, frames=unit_frames,
+                        width=width, height=height, samples=req.samples, device=req.device,
+                        # Locally, workers share the cores; on Ray, Blender takes what the node has.
+                        threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
+                        motion=req.motion, render_pixels=RENDER_PIXELS, raw_codec=raw_codec, beauty=beauty, **asdict(setup),
+                    ))
     return units

@@ -687,12 +687,20 @@ def _use_views(scene, chunk: list[str]) -> None:
 
 def render_chunk(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases: dict) -> None:
     """The beauty and data renders of the enabled views (one multiview call each)."""
+    # Beauty: linear RGB, user samples, default filter (not for a repair that needs the raw passes alone).
+    if job.beauty:  # its phase is logged only when it is rendered (tests count repairs by it)
+        t, c = time.perf_counter(), time.process_time()
+        _render_beauty(scene, job, scratch, lighting)
+        phases["beauty"] = phases.get("beauty", 0.0) + time.perf_counter() - t
+        phases["beauty_cpu"] = phases.get("beauty_cpu", 0.0) + time.process_time() - c
+    _render_data(scene, job, scratch, lighting, phases)
+
+
+def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> None:
+    """The beauty: linear RGB, the user's samples, Blender's default filter."""
     vl = scene.view_layers[0]
     cyc = scene.cycles
     im = scene.render.image_settings
-
-    # Beauty: linear RGB, user samples, default filter.
-    t, c = time.perf_counter(), time.process_time()
     lighting.set(True)
     vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = False
     vl.use_pass_vector = vl.use_pass_object_index = False
@@ -708,10 +716,13 @@ def render_chunk(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     im.exr_codec = "ZIP"
     _shift_lenses(scene, False)
     _render(scene, os.path.join(scratch, "rgb"))
-    phases["beauty"] = phases.get("beauty", 0.0) + time.perf_counter() - t
-    phases["beauty_cpu"] = phases.get("beauty_cpu", 0.0) + time.process_time() - c
 
-    # Data passes: one sample at each pixel centre, no bounces, no light.
+
+def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases: dict) -> None:
+    """The data passes: one sample at each pixel centre, no bounces, no light."""
+    vl = scene.view_layers[0]
+    cyc = scene.cycles
+    im = scene.render.image_settings
     t, c = time.perf_counter(), time.process_time()
     lighting.set(False)
     vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = True

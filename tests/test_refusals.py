@@ -1,0 +1,200 @@
+"""Check before writing (issue 26 items 2 and 4): every refusal decidable from the stage and the options
+comes before the output folder is created or touched, a refusal after that puts the folder back as it
+was, and the same command after the fix succeeds. Implicit shapes (Sphere, Cylinder, Cone, Capsule,
+Plane) get one decision everywhere: refused up front, in one line naming the prim; so do meshes lfusd
+cannot draw and ray cast alike (face indices outside the points, non-finite points, degenerate faces).
+
+Blender is stood in for (``fake_render``: the view folders a worker would commit), so these run in seconds."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from pxr import Gf, Sdf, Usd, UsdGeom
+from support.cli import assert_one_line_error, run_cli
+from support.scenes import write_box_stage
+
+from lfusd.camera import RigSpec
+from lfusd.data import integrity
+from lfusd.errors import LfusdError
+from lfusd.layout import frame_dir
+from lfusd.render import executors, job
+from lfusd.truth import derive
+
+RIG = RigSpec(name="main", rows=1, cols=2, width=16, height=12, baseline=0.1, at=(0, -5, 1), look_at=(0, 0, 0.5))
+FAST = ("--samples", "1", "--device", "cpu", "--quiet")
+IMPLICIT = {"Sphere": UsdGeom.Sphere, "Cylinder": UsdGeom.Cylinder, "Cone": UsdGeom.Cone, "Capsule": UsdGeom.Capsule,
+            "Plane": UsdGeom.Plane}
+
+
+@pytest.fixture
+def fake_render(monkeypatch):
+    """Blender workers stood in for: each unit's view folders appear with their completion record."""
+    rendered = []
+
+    def run_units(units, req, report):
+        for u in units:
+            for f in u.frames:
+                for key in u.cameras:
+                    d = frame_dir(req.out, u.rig, f) / key
+                    d.mkdir(parents=True, exist_ok=True)
+                    for name in integrity.RENDER_FILES:
+                        (d / name).write_bytes(b"fake")
+                    integrity.record_render(d)
+                    rendered.append((f, key))
+        return "cpu"
+
+    monkeypatch.setattr(executors, "run_units", run_units)
+    monkeypatch.setattr(derive, "derive_dataset", lambda *a, **k: 0)
+    return rendered
+
+
+def snapshot(folder):
+    return {str(p.relative_to(folder)): (None if p.is_dir() else p.read_bytes()) for p in sorted(folder.rglob("*"))}
+
+
+def _stage(tmp_path, name="scene.usda"):
+    path = tmp_path / name
+    write_box_stage(path, [RIG])
+    stage = Usd.Stage.Open(str(path))
+    stage.SetEndTimeCode(4)
+    return path, stage
+
+
+def _triangle(stage, path):
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([3])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2])
+    return mesh
+
+
+def _implicit(stage, kind, where):
+    """A ``kind`` prim drawn plainly, inside a scenegraph instance's prototype, or as a point instancer's
+    prototype; returns the path a refusal must name."""
+    schema = IMPLICIT[kind]
+    if where == "plain":
+        schema.Define(stage, "/World/Thing")
+        return "/World/Thing"
+    if where == "instance":
+        stage.CreateClassPrim("/Protos")
+        UsdGeom.Xform.Define(stage, "/Protos/Lamp")
+        _triangle(stage, "/Protos/Lamp/Pole")  # a mesh beside it does not hide it
+        schema.Define(stage, "/Protos/Lamp/Shade")
+        inst = UsdGeom.Xform.Define(stage, "/World/Lamp_01").GetPrim()
+        inst.GetReferences().AddInternalReference("/Protos/Lamp")
+        inst.SetInstanceable(True)
+        return "/World/Lamp_01/Shade"
+    pi = UsdGeom.PointInstancer.Define(stage, "/World/Scatter")
+    UsdGeom.Scope.Define(stage, "/World/Scatter/Protos")
+    schema.Define(stage, "/World/Scatter/Protos/Pebble")
+    pi.CreatePrototypesRel().SetTargets([Sdf.Path("/World/Scatter/Protos/Pebble")])
+    pi.CreatePositionsAttr([Gf.Vec3f(0, 0, 0), Gf.Vec3f(1, 0, 0)])
+    pi.CreateProtoIndicesAttr([0, 0])
+    return "/World/Scatter/Protos/Pebble"
+
+
+@pytest.mark.parametrize("where", ["plain", "instance", "instancer"])
+@pytest.mark.parametrize("kind", list(IMPLICIT))
+def test_implicit_shapes_are_refused_up_front_naming_the_prim(capsys, tmp_path, kind, where, fake_render):
+    path, stage = _stage(tmp_path)
+    named = _implicit(stage, kind, where)
+    stage.Save()
+    for command in ("render", "render-video"):
+        out = tmp_path / f"out-{command}"
+        code, _, err = run_cli(capsys, command, path, "-o", out, *FAST)
+        assert_one_line_error(code, err, named, f"is a {kind}", "convert it to a Mesh")
+        assert code == 2 and not out.exists(), command  # nothing written, not even the folder
+    assert not fake_render
+
+
+BAD_MESHES = {
+    "index out of range": (lambda m: m.CreateFaceVertexIndicesAttr([0, 1, 7]), "face index 7 outside its 3 points"),
+    "negative index": (lambda m: m.CreateFaceVertexIndicesAttr([0, -1, 2]), "face index -1 outside"),
+    "degenerate face": (lambda m: (m.CreateFaceVertexCountsAttr([2, 1]), m.CreateFaceVertexIndicesAttr([0, 1, 2])), "degenerate face"),
+    "counts do not add up": (lambda m: m.CreateFaceVertexCountsAttr([4]), "add up to 4"),
+    "NaN point": (lambda m: m.CreatePointsAttr([(0, 0, 0), (1, 0, float("nan")), (1, 1, 0)]), "non-finite points"),
+    # animated points: the bad value only at frame 3
+    "inf point in a time sample": (lambda m: [m.GetPointsAttr().Set([(0, 0, 0), (1, 0, 0), (1, 1, f == 3 and float("inf") or 0)], f)
+                                             for f in (1, 2, 3, 4)], "non-finite points (NaN or inf) at frame 3"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_MESHES))
+def test_a_broken_mesh_is_one_line_naming_the_prim_in_render_and_check(capsys, tmp_path, case, fake_render):
+    path, stage = _stage(tmp_path)
+    mesh = _triangle(stage, "/World/Scan")
+    damage, words = BAD_MESHES[case]
+    damage(mesh)
+    stage.Save()
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "render-video", path, "-o", out, *FAST)
+    assert_one_line_error(code, err, "mesh /World/Scan", words)
+    assert code == 2 and not out.exists()
+    code, text, err = run_cli(capsys, "check", path, "--no-usd-validation", "--no-coverage")
+    assert_one_line_error(code, err, "mesh /World/Scan", words)  # was an internal IndexError
+    assert code == 2 and text == ""
+
+
+def test_the_issues_instanced_sphere_leaves_nothing_and_renders_once_converted(capsys, tmp_path, fake_render):
+    """Main wrote .lock, manifest.json, objects.json and frame.json before refusing; the fixed stage was
+    then told the dataset had changed."""
+    path, stage = _stage(tmp_path)
+    _implicit(stage, "Sphere", "instance")
+    stage.Save()
+    out = tmp_path / "out"
+    out.mkdir()  # an empty folder the user made: it stays, empty
+    code, _, err = run_cli(capsys, "render", path, "-o", out, *FAST)
+    assert_one_line_error(code, err, "/World/Lamp_01/Shade", "convert it to a Mesh")
+    assert list(out.iterdir()) == []
+    # the fix: the shade becomes a mesh
+    stage = Usd.Stage.Open(str(path))
+    stage.RemovePrim("/Protos/Lamp/Shade")
+    _triangle(stage, "/Protos/Lamp/Shade")
+    stage.Save()
+    code, _, err = run_cli(capsys, "render", path, "-o", out, *FAST)
+    assert code == 0, err
+    assert sorted(fake_render) == [(1, "00_00"), (1, "00_01")]
+
+
+@pytest.mark.parametrize("start", ["absent", "empty", "dataset"])
+def test_a_refusal_after_writing_started_puts_the_folder_back(capsys, tmp_path, monkeypatch, fake_render, start):
+    """A refusal that comes after the folder is written (here: a frame's metadata cannot be computed)
+    leaves it as it was: absent, empty, or the dataset it held with its manifest; the rerun succeeds."""
+    path, stage = _stage(tmp_path)
+    stage.Save()
+    out = tmp_path / "out"
+    if start == "empty":
+        out.mkdir()
+    if start == "dataset":
+        assert run_cli(capsys, "render", path, "-o", out, "--frame", "1", *FAST)[0] == 0
+    before = snapshot(out) if out.exists() else None
+    real = job._write_static_metadata
+
+    def failing(req, stage, rigs, frames, *a, **k):
+        real(req, stage, rigs, frames, *a, **k)  # objects.json and frame.json written, then a refusal
+        raise LfusdError("frame 3 cannot be evaluated; fix the stage")
+
+    monkeypatch.setattr(job, "_write_static_metadata", failing)
+    code, _, err = run_cli(capsys, "render", path, "-o", out, "--frame", "3", *FAST)
+    assert_one_line_error(code, err, "frame 3 cannot be evaluated")
+    assert (snapshot(out) if out.exists() else None) == before
+    monkeypatch.setattr(job, "_write_static_metadata", real)
+    code, _, err = run_cli(capsys, "render", path, "-o", out, "--frame", "3", *FAST)
+    assert code == 0, err
+    assert json.loads((out / "manifest.json").read_text())["frames"] == ([1, 3] if start == "dataset" else [3])
+
+
+@pytest.mark.parametrize("argv, words", [
+    (("--keys", "rgb,dpeth"), "dpeth"),
+    (("--resolution", "100000x100000"), "--resolution"),
+    (("--rig", "nosuchrig"), "nosuchrig"),
+])
+def test_refusals_from_the_options_touch_nothing(capsys, tmp_path, fake_render, argv, words):
+    path, stage = _stage(tmp_path)
+    stage.Save()
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "render", path, "-o", out, *FAST, *argv)
+    assert_one_line_error(code, err, words)
+    assert code == 2 and not out.exists()
