@@ -122,3 +122,45 @@ def test_vertex_reordering_mesh_is_flagged_not_labelled(tmp_path):
     assert n > 50
     report = verify_dataset(ds)
     assert report.ok, report.failures()
+
+
+def test_gltf_shaped_animated_assets_pass_verify_with_occlusion_at_96x96(tmp_path):
+    """A Y-up centimetre stage as a glTF converter writes it: a panel animated by keyed translate +
+    orient (quaternion) under a rotateX prim, passing in front of a glTF-shaped skinned character
+    (numbered joints, Y-up centimetres, rotation above the SkelRoot) that walks; at 96x96 verify
+    compares every pixel, occlusion included, at default limits."""
+    from pxr import Gf, UsdGeom
+
+    from support.characters import gltf_numbered
+    from support.wild import render_and_verify
+
+    from lfusd.cli import main
+
+    char = tmp_path / "cesium" / "man.usda"
+    char.parent.mkdir()
+    gltf_numbered(char)
+    path = tmp_path / "stage.usda"
+    stage = new_stage(path, 1, 12)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    _mesh(stage, "/World/Ground", [(-1000, 0, -1000), (-1000, 0, 1000), (1000, 0, 1000), (1000, 0, -1000)], [[0, 1, 2, 3]], "ground")
+    UsdGeom.Xform.Define(stage, "/World/Node").AddRotateXOp().Set(-90.0)  # a converter's axis fix
+    panel = _mesh(stage, "/World/Node/Panel", *_grid(2, 2, -20, 20, -20, 20, 0), "box")  # vertical once under Node
+    t, q = panel.AddTranslateOp(), panel.AddOrientOp()
+    for f in range(1, 13):
+        t.Set(Gf.Vec3d(-160 + 15 * f, -60, 100), f)  # stage: x, in front of the walker (z 60 cm), 1 m up
+        a = 0.04 * f
+        q.Set(Gf.Quatf(float(np.cos(a)), 0.0, 0.0, float(np.sin(a))), f)
+    rig = RigSpec(name="main", rows=2, cols=2, width=96, height=96, baseline=0.05, at=(-0.6, 1.2, 3.5), look_at=(-0.6, 0.8, 0.0))
+    add_rig(stage, rig)
+    stage.GetRootLayer().Save()
+    assert main(["animate", "add-person", str(path), "--path", "-1,0", "1,0", "--character", str(char)]) == 0
+    ds, reports = render_and_verify(path, tmp_path / "out", "--frames", "5-8")
+    report = next(iter(reports.values()))
+    rows = {e["key"]: e for e in report.summary() if e["label"] == "(all)"}
+    for key in ("occlusion_fwd", "occlusion_bwd", "flow_fwd", "depth"):
+        assert rows[key]["coverage"] >= 0.99 and rows[key]["over"] == 0, (key, rows[key])
+    labels = {ds.objects[i].label for f in ds.frames for v in ds.views for i in np.unique(ds.read(f, v, "instance")) if i}
+    assert {"box", "person", "ground"} <= labels, labels
+    occluded = sum(int(ds.read(f, v, "occlusion_fwd").sum()) for f in ds.frames[:-1] for v in ds.views)
+    assert occluded > 20, "the panel must hide part of the scene as it moves"
