@@ -21,7 +21,7 @@ def register(sub) -> None:
     add.add_argument("stage", help="the USD stage or asset (.usda/.usdc/.usdz/.usd); edited in place unless -o is given")
     add.add_argument("-o", "--out", default=None, metavar="NEW.usda",
                      help="write a new layer that sublayers STAGE (left unchanged) and holds the person; needed for .usdz packages")
-    add.add_argument("--path", nargs="+", required=True, metavar="X,Y", help="path points in stage units (at least two)")
+    add.add_argument("--path", nargs="+", required=True, metavar="X,Y", help="path points (at least two), metres along the stage's horizontal axes (X,Y on a Z-up stage, X,Z on a Y-up one)")
     add.add_argument("--gait", choices=("walk", "run", "idle"), default="walk",
                      help="walk (default), run, or idle (stand at the first point, facing the second)")
     add.add_argument("--speed", type=float, default=None, help="metres per second (default 1.3 walking, 3.5 running)")
