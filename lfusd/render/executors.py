@@ -120,6 +120,10 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
     integrity.record_render(tmp)  # rgb.png, gt.exr and motion.exr come from lfusd.truth.derive
     if final.exists():  # no readable record: nothing in it is provably intact; move it aside (a stale-tmp name, cleaned by the next run if we die here)
         old = final.parent / f".{key}.tmp-old-{os.getpid()}-{threading.get_ident()}"
+        # what lfusd did not write (a user's note, an extra label image) moves into the new view
+        for entry in final.iterdir():
+            if entry.name not in layout.VIEW_FILES and not entry.name.startswith("."):
+                os.replace(entry, tmp / entry.name)
         os.rename(final, old)
         os.rename(tmp, final)
         shutil.rmtree(old, ignore_errors=True)

@@ -225,3 +225,17 @@ def test_a_damaged_neighbour_at_a_range_boundary_is_rendered_again_for_the_join(
     ds = Dataset(out)
     assert_closed_form(ds)
     assert_same(ds, Dataset(whole))
+
+
+def test_a_view_without_its_record_is_rendered_again_keeping_a_users_file(stage, whole, tmp_path, capsys_module):
+    """A view whose record is lost is rendered whole again; a file the user put in its folder (a
+    note, an extra label) is not lfusd's to delete and stays (issue 29: users' data is sacred)."""
+    out = tmp_path / "out"
+    shutil.copytree(whole, out)
+    d = frame_dir(out, "main", 2) / "00_01"
+    (d / VIEW_RECORD).unlink()
+    (d / "NOTES.txt").write_text("my labels for this view\n")
+    code, _, err = capsys_module("render-video", stage, "-o", out, *TINY)
+    assert code == 0, err
+    assert integrity.view_complete(d)
+    assert (d / "NOTES.txt").read_text() == "my labels for this view\n"
