@@ -750,23 +750,25 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
         scene.frame_set(frame)
     phases = {"scene": time.perf_counter() - t}
     geometry = None
+    if motion is not None:  # the frame's triangles, for exact occlusion: written once, linked into each chunk
+        tg = time.perf_counter()
+        os.makedirs(job.scratch, exist_ok=True)
+        # beside the chunk folders, not in one: the parent removes a chunk's folder once it is committed
+        geometry = os.path.join(job.scratch, f"geometry_f{frame:06d}.npz")
+        write_geometry(geometry, motion.meshes)
+        phases["geometry"] = time.perf_counter() - tg
     for k, chunk in enumerate(view_chunks(suffixes, job.width, job.height, job.render_pixels)):
         scratch = os.path.join(job.scratch, f"f{frame:06d}_c{k:03d}")
         os.makedirs(scratch, exist_ok=True)
-        if motion is not None:  # the frame's triangles, for exact occlusion (written once, linked per chunk)
-            t = time.perf_counter()
-            path = os.path.join(scratch, "geometry.npz")
-            if geometry is None:
-                write_geometry(path, motion.meshes)
-                geometry = path
-            else:
-                _link_or_copy(geometry, path)
-            phases["geometry"] = phases.get("geometry", 0.0) + time.perf_counter() - t
+        if geometry is not None:
+            _link_or_copy(geometry, os.path.join(scratch, "geometry.npz"))
         _use_views(scene, chunk)
         render_chunk(scene, job, scratch, lighting, phases)
         print(f"lfusd: frame {frame} views {len(chunk)} seconds " + " ".join(f"{k} {v:.3f}" for k, v in phases.items()), file=sys.stderr, flush=True)
         emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in chunk], seconds=time.perf_counter() - t,
              phases={k: round(v, 4) for k, v in phases.items()}, evaluations=motion.evaluations if motion is not None else 0)
+    if geometry is not None:
+        os.unlink(geometry)  # each chunk holds its own link
 
 
 def _link_or_copy(src: str, dst: str) -> None:
