@@ -42,6 +42,16 @@ def _cv2():
     return cv2
 
 
+def link_or_copy(src, dst) -> None:
+    """Make ``dst`` a hard link to ``src`` (one file's data shared by the views of a chunk), or a copy
+    where the file system has no hard links; an existing ``dst`` is replaced."""
+    Path(dst).unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copyfile(src, dst)
+
+
 @functools.cache
 def file_mode() -> int:
     """The mode of a new file under the process's umask (0644 under the usual 022): for files

@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..data import confined
+from ..data.formats import link_or_copy
 from ..data.passes import read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
@@ -104,7 +105,7 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
     geometry = scratch / layout.GEOMETRY  # one per chunk of views (render-video): each view gets its own link
     if geometry.is_file():
         sources["geometry"] = scratch / f"geometry_{key}.npz"
-        _link_or_copy(geometry, sources["geometry"])
+        link_or_copy(geometry, sources["geometry"])
     if integrity.read_record(final) is not None:
         _repair_view(final, {layout.RGB_EXR: sources.get("rgb"), layout.PASSES_EXR: sources["passes"],
                              layout.GEOMETRY: sources.get("geometry")})
@@ -129,14 +130,6 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.rename(tmp, final)
-
-
-def _link_or_copy(src: Path, dst: Path) -> None:
-    dst.unlink(missing_ok=True)
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
 
 
 def _repair_view(final: Path, new: dict[str, Path | None]) -> None:

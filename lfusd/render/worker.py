@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import sys
 import tempfile
 import time
@@ -31,6 +30,7 @@ import traceback
 import bpy
 import numpy as np
 
+from lfusd.data.formats import link_or_copy
 from lfusd.processes import PARENT_PID_ENV, die_with_parent
 from lfusd.render.plan import WorkUnit, view_chunks
 
@@ -761,7 +761,7 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
         scratch = os.path.join(job.scratch, f"f{frame:06d}_c{k:03d}")
         os.makedirs(scratch, exist_ok=True)
         if geometry is not None:
-            _link_or_copy(geometry, os.path.join(scratch, "geometry.npz"))
+            link_or_copy(geometry, os.path.join(scratch, "geometry.npz"))
         _use_views(scene, chunk)
         render_chunk(scene, job, scratch, lighting, phases)
         print(f"lfusd: frame {frame} views {len(chunk)} seconds " + " ".join(f"{k} {v:.3f}" for k, v in phases.items()), file=sys.stderr, flush=True)
@@ -769,13 +769,6 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
              phases={k: round(v, 4) for k, v in phases.items()}, evaluations=motion.evaluations if motion is not None else 0)
     if geometry is not None:
         os.unlink(geometry)  # each chunk holds its own link
-
-
-def _link_or_copy(src: str, dst: str) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copyfile(src, dst)
 
 
 def _test_kill_hook(frame: int) -> None:
