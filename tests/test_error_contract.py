@@ -133,12 +133,12 @@ def test_a_corrupt_manifest_is_one_line_and_exit_2_in_every_command(capsys, tmp_
 
 @pytest.mark.parametrize("file, text, words", [
     (OBJECTS, "{oops", "unreadable"),
-    (OBJECTS, json.dumps({"classes": [""], "objects": [{"id": 1}]}), "not an lfusd object table"),
-    (OBJECTS, json.dumps({"classes": [""], "objects": [{"id": 1, "prim_path": 5, "label": "", "class_id": 0}]}), "not an lfusd object table"),
+    (OBJECTS, json.dumps({"classes": [""], "objects": [{"id": 1}]}), "not written by lfusd or is damaged"),
+    (OBJECTS, json.dumps({"classes": [""], "objects": [{"id": 1, "prim_path": 5, "label": "", "class_id": 0}]}), "no prim path or label string"),
     (FRAME_META, "{oops", "unreadable"),
     (FRAME_META, json.dumps({"cam_to_world": {}, "object_poses": {}}), "no pose of 00_00"),
-    (FRAME_META, json.dumps({"cam_to_world": {"00_00": [[1, 0], [0, 1]]}, "object_poses": {}}), "not 4x4"),
-    (FRAME_META, json.dumps([]), "damaged"),
+    (FRAME_META, json.dumps({"cam_to_world": {"00_00": [[1, 0], [0, 1]]}, "object_poses": {}}), "no 4x4 pose"),
+    (FRAME_META, json.dumps([]), "not a JSON object"),
 ])
 def test_a_corrupt_object_table_or_frame_record_is_one_line(capsys, tmp_path, dataset, file, text, words):
     out = tmp_path / "out"

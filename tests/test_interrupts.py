@@ -68,9 +68,9 @@ def test_ctrl_c_in_the_first_two_seconds_of_render_video(tmp_path):
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
-    """A dataset whose verification takes several seconds (3 views, 12 frames of motion)."""
+    """A dataset whose verification takes several seconds (3 views at 128x128, 12 frames of motion)."""
     root = tmp_path_factory.mktemp("video")
-    write_box_stage(root / "scene.usda", [RigSpec(name="main", rows=1, cols=3, width=64, height=64, at=(0, -5, 1), look_at=(0, 0, 0.5))])
+    write_box_stage(root / "scene.usda", [RigSpec(name="main", rows=1, cols=3, width=128, height=128, at=(0, -5, 1), look_at=(0, 0, 0.5))])
     subprocess.run([sys.executable, "-m", "lfusd", "render-video", root / "scene.usda", "-o", root / "out", "--frames", "1-12",
                     "--samples", "1", "--device", "cpu", "--quiet"], env=ENV, check=True, capture_output=True)
     return root / "out"

@@ -13,6 +13,7 @@ from support.scenes import write_motion_stage
 from lfusd import Dataset, LfusdError, layout
 from lfusd.camera import RigSpec
 from lfusd.data import integrity
+from lfusd.keys import MOTION, names
 
 pytestmark = pytest.mark.render
 
@@ -41,7 +42,7 @@ def test_default_render_stores_the_keys_checks_them_and_drops_the_raw_passes(sta
         rec = integrity.read_record(layout.frame_dir(out, "main", f) / "00_01")
         # read back and compared before the raw passes went: one count per key and pixel
         assert rec["files"][layout.GT_FILE]["checked"] == 3 * RIG.width * RIG.height
-        assert rec["files"][layout.MOTION_FILE]["checked"] == 8 * RIG.width * RIG.height
+        assert rec["files"][layout.MOTION_FILE]["checked"] == len(names(MOTION)) * RIG.width * RIG.height  # every motion key
         assert rec["files"][layout.PASSES_EXR]["removed"] and rec["files"][layout.PASSES_EXR]["pixels"]
     manifest = json.loads((out / layout.MANIFEST).read_text())
     assert manifest["version"] == 2 and manifest["settings"]["keep_raw"] is False and "flow_fwd" in manifest["settings"]["keys"]
@@ -64,7 +65,9 @@ def test_keys_subset_with_keep_raw_writes_only_those(stage, capsys):
                            "--keep-raw", *TINY)
     assert code == 0, err
     for f in (1, 2, 3):
-        assert _files(out, f) == sorted([layout.RGB_PNG, layout.GT_FILE, layout.MOTION_FILE, layout.PASSES_EXR, layout.VIEW_RECORD]), f
+        # --keep-raw keeps the raw files: Blender's passes and the frame's rendered triangles
+        assert _files(out, f) == sorted([layout.RGB_PNG, layout.GT_FILE, layout.MOTION_FILE, layout.PASSES_EXR, layout.GEOMETRY,
+                                         layout.VIEW_RECORD]), f
     d = layout.frame_dir(out, "main", 2) / "00_00"
     assert set(OpenEXR.File(str(d / layout.GT_FILE)).channels()) == {"depth"}
     assert set(OpenEXR.File(str(d / layout.MOTION_FILE)).channels()) == {"flow_fwd.X", "flow_fwd.Y", "masks"}
