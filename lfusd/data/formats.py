@@ -24,6 +24,7 @@ import io
 import os
 import re
 import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,6 +41,20 @@ def _cv2():
     import cv2  # OpenCV: PNG codec with 16-bit support
 
     return cv2
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write a file under a temporary name in the same folder, then rename it into place."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def link_or_copy(src, dst) -> None:

@@ -20,10 +20,8 @@ import contextlib
 import errno
 import json
 import logging
-import os
 import platform
 import shutil
-import tempfile
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -37,7 +35,7 @@ from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
 from ..camera import RigSpec
 from ..data import confined
-from ..data.formats import file_mode
+from ..data.formats import atomic_write_text
 from ..data.metadata import validate_manifest
 from ..errors import LfusdError
 from .. import layout
@@ -47,19 +45,6 @@ from .progress import Progress
 from .request import RenderRequest, check_size, raw_codec
 
 log = logging.getLogger(__name__)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a file under a temporary name in the same folder, then rename it into place."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _software() -> dict:

@@ -745,23 +745,14 @@ def record_certificate(out, reports: dict) -> dict:
     pixels compared, coverage, p99, max, count over the limit, ties, and the verdict), so the
     dataset carries its own proof. Returns the certificate. Call it while holding the folder."""
     import json
-    import os
-    import tempfile
     from pathlib import Path
 
+    from ..data.formats import atomic_write_text
     from ..layout import MANIFEST
 
     path = Path(out) / MANIFEST
     manifest = json.loads(path.read_text())
     cert = {name or "": rep.certificate() for name, rep in reports.items()}
     manifest["certificate"] = {**(manifest.get("certificate") or {}), **cert}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".manifest.", suffix=".json")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(manifest, f, indent=1)
-        os.chmod(tmp, path.stat().st_mode & 0o777)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, json.dumps(manifest, indent=1))
     return cert
