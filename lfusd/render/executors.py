@@ -330,14 +330,24 @@ def start_local_ray(workers: int) -> None:
     loopback (Ray binds to its node address, which is this machine's network address unless it
     is told loopback): nobody elsewhere on the network can reach it. Joining a cluster is the
     user's explicit ``--ray-address``. LfusdError if Ray did not stay on loopback."""
+    previous = os.environ.get(_RAY_LOOPBACK_ENV)
     os.environ[_RAY_LOOPBACK_ENV] = "0"  # inherited by the Ray processes this starts
     import ray
     from ray._private import ray_constants
 
+    cluster = ray_constants.ENABLE_RAY_CLUSTER
     ray_constants.ENABLE_RAY_CLUSTER = False  # Ray already imported (by a library user) read the variable before
-    with _quiet_auth_advice():
-        info = ray.init(num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
-                        _node_ip_address="127.0.0.1", logging_level=logging.ERROR)
+    try:
+        with _quiet_auth_advice():
+            info = ray.init(num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+                            _node_ip_address="127.0.0.1", logging_level=logging.ERROR)
+    finally:
+        # only this instance: a later --ray-address, or a cluster node the caller starts, joins as usual
+        ray_constants.ENABLE_RAY_CLUSTER = cluster
+        if previous is None:
+            os.environ.pop(_RAY_LOOPBACK_ENV, None)
+        else:
+            os.environ[_RAY_LOOPBACK_ENV] = previous
     node = (getattr(info, "address_info", None) or {}).get("node_ip_address")
     if node not in LOOPBACK:
         ray.shutdown()
@@ -351,6 +361,9 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     Whatever ends the run (success, failure, Ctrl-C or SIGTERM at any moment, during ``ray.init``
     too), the tasks are cancelled and a local Ray instance this run started is shut down, with
     further signals ignored until that is done: nothing of Ray's or Blender's outlives lfusd."""
+    # Ray's C++ failure signal handler (absl) takes SIGTERM too, and ray.shutdown uninstalls it to the
+    # default: a SIGTERM during shutdown killed lfusd outright (exit -15, measured). Read when Ray loads.
+    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
     import ray
 
     if req.ray_address:
