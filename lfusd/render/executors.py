@@ -12,6 +12,7 @@ import contextlib
 import json
 import logging
 import os
+import re
 import shutil
 import signal
 import socket
@@ -497,11 +498,34 @@ def _kill_tree(roots: set[int], before: set[tuple[int, int]]) -> None:
     leaves processes ``ray.shutdown`` does not know of (measured: its dashboard and runtime-env
     agents, orphaned when their raylet dies, running on indefinitely)."""
     targets = before | _tree(roots)
+    sessions = {d for pid, _ in targets for d in _session_dirs(pid)}
     alive = _processes()
     for pid, start in targets:
         if alive.get(pid, (0, None))[1] == start:
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
+    # Agents a raylet started in its last moments are orphaned before they show in any tree: they
+    # are this Ray instance's when their open files are in its session folder.
+    for pid in _processes() if sessions else ():
+        if pid != os.getpid() and _session_dirs(pid) & sessions:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+
+
+def _session_dirs(pid: int) -> set[str]:
+    """Ray session folders (``.../session_<date>_<pid>``) among the files process ``pid`` has open
+    and its command line (agents rename their command line, so their log files tell)."""
+    found = set()
+    paths = []
+    with contextlib.suppress(OSError):
+        paths.append(open(f"/proc/{pid}/cmdline", "rb").read().decode("utf-8", "replace"))
+    with contextlib.suppress(OSError):
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                paths.append(os.readlink(f"/proc/{pid}/fd/{fd}"))
+    for text in paths:
+        found.update(re.findall(r"/[^\s\x00=]*?/session_\d{4}-\d\d-\d\d_[\d_-]+", text))
+    return found
 
 
 def run_units(units: list[WorkUnit], req: RenderRequest, report) -> str:
