@@ -505,11 +505,15 @@ def _kill_tree(roots: set[int], before: set[tuple[int, int]]) -> None:
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
     # Agents a raylet started in its last moments are orphaned before they show in any tree: they
-    # are this Ray instance's when their open files are in its session folder.
-    for pid in _processes() if sessions else ():
-        if pid != os.getpid() and _session_dirs(pid) & sessions:
-            with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGKILL)
+    # are this Ray instance's when their open files are in its session folder. One that was still
+    # starting opens them a moment later, hence a few passes.
+    for attempt in range(4) if sessions else ():
+        if attempt:
+            time.sleep(0.25)
+        for pid in _processes():
+            if pid != os.getpid() and _session_dirs(pid) & sessions:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGKILL)
 
 
 def _session_dirs(pid: int) -> set[str]:
