@@ -13,12 +13,12 @@ import json
 import shutil
 
 import pytest
+from support.fake import fake_run_units
 from support.cli import assert_one_line_error, run_cli
 from support.scenes import write_box_stage
 
 from lfusd import Dataset
 from lfusd.camera import RigSpec
-from lfusd.data import integrity
 from lfusd.errors import LfusdError
 from lfusd.layout import FRAME_META, MANIFEST, OBJECTS, frame_dir
 from lfusd.render import executors
@@ -34,16 +34,7 @@ def dataset(tmp_path_factory):
     write_box_stage(stage, [RIG])
     mp = pytest.MonkeyPatch()
 
-    def run_units(units, req, report):
-        for u in units:
-            for f in u.frames:
-                for key in u.cameras:
-                    d = frame_dir(req.out, u.rig, f) / key
-                    d.mkdir(parents=True, exist_ok=True)
-                    for name in integrity.RENDER_FILES:
-                        (d / name).write_bytes(b"fake")
-                    integrity.record_render(d)
-        return "cpu"
+    run_units = fake_run_units()
 
     mp.setattr(executors, "run_units", run_units)
     mp.setattr(derive, "derive_dataset", lambda *a, **k: 0)

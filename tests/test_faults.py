@@ -26,6 +26,7 @@ import numpy as np
 import OpenEXR
 import pytest
 from pxr import Sdf, UsdShade
+from support.fake import fake_run_units
 from support.cli import assert_one_line_error, run_cli
 from support.processes import alive
 from support.scenes import write_box_stage
@@ -84,16 +85,7 @@ def fake_render(monkeypatch):
     """Blender workers stood in for: each unit's view folders appear with their completion
     record, as a worker's would (the files hold no image)."""
 
-    def run_units(units, req, report):
-        for u in units:
-            for f in u.frames:
-                for key in u.cameras:
-                    d = frame_dir(req.out, u.rig, f) / key
-                    d.mkdir(parents=True, exist_ok=True)
-                    for name in integrity.RENDER_FILES:
-                        (d / name).write_bytes(b"fake")
-                    integrity.record_render(d)
-        return "cpu"
+    run_units = fake_run_units()
 
     monkeypatch.setattr(executors, "run_units", run_units)
     monkeypatch.setattr(derive, "derive_dataset", lambda *a, **k: 0)  # nothing to derive from files holding no image

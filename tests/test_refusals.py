@@ -12,13 +12,12 @@ import json
 
 import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom
+from support.fake import fake_run_units
 from support.cli import assert_one_line_error, run_cli
 from support.scenes import write_box_stage
 
 from lfusd.camera import RigSpec
-from lfusd.data import integrity
 from lfusd.errors import LfusdError
-from lfusd.layout import frame_dir
 from lfusd.render import executors, job
 from lfusd.truth import derive
 
@@ -33,17 +32,7 @@ def fake_render(monkeypatch):
     """Blender workers stood in for: each unit's view folders appear with their completion record."""
     rendered = []
 
-    def run_units(units, req, report):
-        for u in units:
-            for f in u.frames:
-                for key in u.cameras:
-                    d = frame_dir(req.out, u.rig, f) / key
-                    d.mkdir(parents=True, exist_ok=True)
-                    for name in integrity.RENDER_FILES:
-                        (d / name).write_bytes(b"fake")
-                    integrity.record_render(d)
-                    rendered.append((f, key))
-        return "cpu"
+    run_units = fake_run_units(rendered)
 
     monkeypatch.setattr(executors, "run_units", run_units)
     monkeypatch.setattr(derive, "derive_dataset", lambda *a, **k: 0)

@@ -157,3 +157,26 @@ class FakeDataset:
         if ck not in self._cache:
             self._cache[ck] = self._compute(frame, tuple(view), key)
         return self._cache[ck].copy()
+
+
+def fake_run_units(rendered: list | None = None):
+    """A stand-in for ``lfusd.render.executors.run_units``: every view of every unit gets files
+    holding no image and a matching completion record, as a worker's commit would; each
+    (frame, view key) goes into ``rendered`` when given."""
+    from lfusd.data import integrity
+    from lfusd.layout import frame_dir
+
+    def run_units(units, req, report):
+        for u in units:
+            for f in u.frames:
+                for key in u.cameras:
+                    d = frame_dir(req.out, u.rig, f) / key
+                    d.mkdir(parents=True, exist_ok=True)
+                    for name in integrity.RENDER_FILES:
+                        (d / name).write_bytes(b"fake")
+                    integrity.record_render(d)
+                    if rendered is not None:
+                        rendered.append((f, key))
+        return "cpu"
+
+    return run_units
