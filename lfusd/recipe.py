@@ -263,7 +263,7 @@ def histogram(values: np.ndarray, edges) -> list[int]:
 
 def scene_stats(root: Path, stats_views: str = "centre") -> dict:
     """The statistics of one rendered scene folder (see the module docstring), with pixel counts."""
-    from .data.export import open_datasets
+    from .data.folder import open_datasets
 
     disp_hist = [0] * (len(DISPARITY_EDGES) - 1)
     flow_hist = [0] * (len(FLOW_EDGES) - 1)
@@ -347,7 +347,7 @@ def _read_record(path: Path) -> dict | None:
 
 def _verify_scene(out: Path, mode: str, thresholds: dict[str, float]) -> tuple[bool, dict, list[str]]:
     """(ok, pixels compared per key, failure lines) of ``lfusd verify`` on every rig of a scene."""
-    from .data.export import open_datasets
+    from .data.folder import open_datasets
     from .truth.verify import verify
 
     from .truth.verify import record_certificate
@@ -435,7 +435,8 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
     """Make (or finish) the dataset of the recipe at ``recipe_path`` in folder ``root`` and write its card.
 
     ``progress(index, total, scene, action)`` is called per scene ('skip' or 'make')."""
-    from .render.job import atomic_write_text, output_lock
+    from .data.folder import atomic_write
+    from .render.job import output_lock
 
     recipe_path, root = Path(recipe_path), Path(root)
     recipe = load_recipe(recipe_path)
@@ -457,7 +458,7 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
                 raise confined.link_error(root / name)
         _check_folder(root, text)
         (root / layout.RECIPE_SCENES).mkdir(exist_ok=True)
-        atomic_write_text(root / layout.RECIPE_COPY, text)
+        atomic_write(root / layout.RECIPE_COPY, text)
         specs = scene_specs(recipe)
         records = {}
         for i, spec in enumerate(specs):
@@ -474,7 +475,7 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
             if progress:
                 progress(i, len(specs), spec.name, "make")
             rec = make_scene(recipe, spec, root, quiet=quiet)
-            atomic_write_text(path, json.dumps(rec, indent=1) + "\n")  # last: the scene is done
+            atomic_write(path, json.dumps(rec, indent=1) + "\n")  # last: the scene is done
             records[spec.name] = rec
             result.made.append(spec.name)
             if not rec["verified"]:
@@ -625,10 +626,10 @@ def card_markdown(card: dict, plots: list[str]) -> str:
 
 def write_card(root: Path, recipe: Recipe, specs: list[SceneSpec], records: dict[str, dict]) -> dict:
     """Write card.json, CARD.md and plots/*.png; return the card."""
-    from .render.job import atomic_write_text
+    from .data.folder import atomic_write
 
     card = summarize(recipe, specs, records)
     plots = _plots(root, card, records, specs)
-    atomic_write_text(root / layout.RECIPE_CARD_JSON, json.dumps(card, indent=1) + "\n")
-    atomic_write_text(root / layout.RECIPE_CARD, card_markdown(card, plots))
+    atomic_write(root / layout.RECIPE_CARD_JSON, json.dumps(card, indent=1) + "\n")
+    atomic_write(root / layout.RECIPE_CARD, card_markdown(card, plots))
     return card

@@ -27,8 +27,9 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..data import export as ex
+    from ..data.folder import open_dataset
 
-    ds = ex.open_dataset(args.out, args.rig)
+    ds = open_dataset(args.out, args.rig)
     kw = {}
     if args.format in ("flo", "pfm"):
         kw = {"view": args.view, "all_views": args.all_views}

@@ -17,7 +17,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..data.export import open_dataset
+    from ..data.folder import open_dataset
     from ..evaluation.preview import preview
 
     ds = open_dataset(args.out, args.rig)

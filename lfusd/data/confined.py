@@ -29,7 +29,7 @@ TOP_ENTRIES = (layout.MANIFEST, layout.OBJECTS, layout.LOGS, layout.SCRATCH, lay
 # A worker's log and a Ray unit's attempt record (lfusd.render.executors), the only files of OUT/logs.
 LOG_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*-unit\d{4,}\.(log|ray\.jsonl)")
 # Hidden temporaries lfusd's atomic writes and commits make (a killed run leaves them behind):
-# ".<name>.<8 random>.tmp" (atomic_write_text, mkstemp), ".<stem>.<random>.exr" (store), ".view.<random>.json"
+# ".<name>.<8 random>.tmp" (lfusd.data.folder.atomic_write), ".<stem>.<random>.exr" (store), ".view.<random>.json"
 # (integrity), ".<key>.tmp-<pid>-<thread>" (a view being committed or moved aside).
 _TMP_STEMS = ("manifest.json", "objects.json", "frame.json", "recipe.toml", "card.json", "CARD.md",
               "gt", "motion", "view", "rgb", "passes")
@@ -105,7 +105,7 @@ def dataset_lock(out: str | Path):
     """Hold OUT/.lock (an advisory flock) while writing the dataset in ``out``: one writer per
     folder. The kernel drops the lock of a process that dies, so a stale lock is simply taken.
     The lock file is opened without following links: a ``.lock`` link is refused, its target untouched."""
-    from .formats import file_mode
+    from .folder import file_mode
 
     out = Path(out)
     path = out / layout.LOCK

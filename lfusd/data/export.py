@@ -57,25 +57,6 @@ def stem(frame: int, view) -> str:
     return f"{int(frame):04d}_{int(view[0]):02d}_{int(view[1]):02d}"
 
 
-def open_dataset(path, rig: str | None = None):
-    """``lfusd.Dataset(path, rig=rig)`` with a one-line error for a missing folder."""
-    p = Path(path)
-    if not p.is_dir():
-        raise LfusdError(f"dataset folder {p} does not exist; give the output folder of `lfusd render`")
-    from .. import Dataset
-
-    return Dataset(p) if rig is None else Dataset(p, rig=rig)
-
-
-def open_datasets(path, rig: str | None = None) -> list:
-    """One reader per rig of the dataset in ``path``: just ``rig``, or every rig when it is None or 'all'."""
-    if rig not in (None, "all"):
-        return [open_dataset(path, rig)]
-    from .dataset import read_manifest
-
-    return [open_dataset(path, r) for r in read_manifest(path)["rigs"]]  # the reader's one-line errors
-
-
 def scene_name(ds) -> str:
     return Path(getattr(ds, "root", "scene")).name or "scene"
 

@@ -19,12 +19,10 @@ PNG I/O goes through OpenCV (which orders colour channels B, G, R in memory).
 from __future__ import annotations
 
 import configparser
-import functools
 import io
 import os
 import re
 import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -43,20 +41,6 @@ def _cv2():
     return cv2
 
 
-def atomic_write_text(path, text: str) -> None:
-    """Write a file under a temporary name in the same folder, then rename it into place."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def link_or_copy(src, dst) -> None:
     """Make ``dst`` a hard link to ``src`` (one file's data shared by the views of a chunk), or a copy
     where the file system has no hard links; an existing ``dst`` is replaced."""
@@ -65,19 +49,6 @@ def link_or_copy(src, dst) -> None:
         os.link(src, dst)
     except OSError:
         shutil.copyfile(src, dst)
-
-
-@functools.cache
-def file_mode() -> int:
-    """The mode of a new file under the process's umask (0644 under the usual 022): for files
-    made with ``tempfile.mkstemp`` (0600), which a shared dataset must not keep."""
-    try:  # Linux states the umask; setting it to read it races with threads creating files
-        with open("/proc/self/status") as f:
-            mask = next(int(ln.split()[1], 8) for ln in f if ln.startswith("Umask:"))
-    except (OSError, StopIteration, ValueError):
-        mask = os.umask(0o022)
-        os.umask(mask)
-    return 0o666 & ~mask
 
 
 def why_unwritable(path, size: int = 0) -> str:

@@ -21,13 +21,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from .. import layout
 from ..layout import frame_dir, view_key
-from .formats import file_mode
+from .folder import atomic_write
 
 VERSION = 2
 RENDER_FILES = (layout.RGB_EXR, layout.PASSES_EXR)  # written by the renderer, recorded on commit
@@ -67,18 +66,7 @@ def read_record(view_dir: str | Path) -> dict | None:
 
 def write_record(view_dir: str | Path, record: dict) -> None:
     """Write ``view.json`` under a temporary name and rename it into place."""
-    d = Path(view_dir)
-    fd, tmp = tempfile.mkstemp(dir=d, prefix=".view.", suffix=".json")
-    try:
-        os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-        with os.fdopen(fd, "w") as f:
-            json.dump(record, f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, d / layout.VIEW_RECORD)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(Path(view_dir) / layout.VIEW_RECORD, json.dumps(record, indent=1), prefix=".view.", suffix=".json", sync=True)
 
 
 def record_render(view_dir: str | Path) -> dict:

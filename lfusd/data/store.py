@@ -18,8 +18,6 @@ ZIP cannot compress. No pxr, bpy or torch.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +25,7 @@ import OpenEXR
 
 from ..errors import LfusdError
 from ..keys import KEYS
-from .formats import file_mode
+from .folder import atomic_write
 
 COMPRESSION = OpenEXR.ZIP_COMPRESSION
 KEYS_ATTR = "lfusd.keys"  # an EXR header attribute, not a USD property (lfusd.author.vocabulary)
@@ -103,16 +101,8 @@ def write(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
 
 def _write(path: Path, arrays: dict[str, np.ndarray], channels: dict[str, np.ndarray]) -> Path:
     header = {"compression": COMPRESSION, "type": OpenEXR.scanlineimage, KEYS_ATTR: ",".join(arrays)}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".exr")
-    os.close(fd)
-    try:
-        OpenEXR.File(header, dict(channels)).write(tmp)  # a copy: File turns the dict's arrays into Channels
-        os.chmod(tmp, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    # a copy of the channels: File turns the dict's arrays into Channels
+    return atomic_write(path, lambda tmp: OpenEXR.File(header, dict(channels)).write(tmp), prefix=f".{path.stem}.", suffix=".exr")
 
 
 def write_checked(path: str | Path, arrays: dict[str, np.ndarray]) -> tuple[Path, int]:

@@ -182,7 +182,7 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
     a KITTI folder (``--protocol kitti``). The result is a list of rows with ``.summary``.
     """
     from . import protocols
-    from ..data import export
+    from ..data import export, folder
 
     if task not in TASKS:
         raise LfusdError(f"unknown task {task!r}; use one of {', '.join(TASKS)}")
@@ -194,7 +194,7 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
         root = kitti_root(ds)
         if root is not None:
             return _evaluate_kitti(root, pred, task, protocol)
-        ds = export.open_dataset(ds, rig)
+        ds = folder.open_dataset(ds, rig)
     files = find_predictions(pred, task)
     if not files:
         raise LfusdError(f"no {task} predictions in {pred}: expected files like 0001_04_04{EXTS[task][0]} (frame_row_col)")

@@ -35,7 +35,7 @@ from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
 from ..camera import RigSpec
 from ..data import confined
-from ..data.formats import atomic_write_text
+from ..data.folder import atomic_write
 from ..data.metadata import validate_manifest
 from ..errors import LfusdError
 from .. import layout
@@ -224,7 +224,7 @@ def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, r
         "software": _software(),
         "layout": f"OUT/<rig>/f<frame:06d>/<row:02d>_<col:02d>/{{{','.join(layout.VIEW_FILES)}}}; OUT/<rig>/f<frame:06d>/{layout.FRAME_META}",
     }
-    atomic_write_text(req.out / layout.MANIFEST, json.dumps(manifest, indent=1))
+    atomic_write(req.out / layout.MANIFEST, json.dumps(manifest, indent=1))
 
 
 def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int], objects: list[ObjectEntry],
@@ -238,7 +238,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
             for o in objects
         ],
     }
-    atomic_write_text(req.out / layout.OBJECTS, json.dumps(table, indent=1))
+    atomic_write(req.out / layout.OBJECTS, json.dumps(table, indent=1))
     paths = [o.prim_path for o in objects]
     poses = ObjectPoses(stage)
     for rig in rigs:
@@ -255,7 +255,7 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
                 "cam_to_world": {view_key(v): _matrix(rig.cam_to_world(stage, v, f)) for v in rig.spec.views},
                 "object_poses": {p: _matrix(m) for p, m in poses.at(paths, f).items()},
             }
-            atomic_write_text(d / layout.FRAME_META, json.dumps(meta))
+            atomic_write(d / layout.FRAME_META, json.dumps(meta))
 
 
 def _clean_stale(out: Path, rigs: list[str]) -> None:
@@ -448,7 +448,7 @@ class _Undo:
                     with contextlib.suppress(OSError):
                         d.rmdir()  # only when empty
                         d.parent.rmdir()  # a rig folder this run created, when empty
-                atomic_write_text(self.out / layout.MANIFEST, self.manifest)
+                atomic_write(self.out / layout.MANIFEST, self.manifest)
         except OSError as e:
             log.warning("could not put %s back as it was (%s); remove what this run wrote by hand", self.out, e.strerror or e)
 

@@ -30,6 +30,7 @@ import traceback
 import bpy
 import numpy as np
 
+from lfusd.data.folder import atomic_write
 from lfusd.data.formats import link_or_copy
 from lfusd.processes import PARENT_PID_ENV, die_with_parent
 from lfusd.render.plan import WorkUnit, view_chunks
@@ -610,9 +611,8 @@ def write_geometry(path: str, meshes: list) -> None:
         inst.append(np.full(len(t) // 3, obj.pass_index, np.int32))
         base += len(co) // 3
     cat = lambda parts, shape, dtype: np.concatenate(parts) if parts else np.zeros(shape, dtype)  # noqa: E731
-    tmp = path + ".tmp.npz"
-    np.savez(tmp, vertices=cat(verts, (0, 3), np.float32), triangles=cat(tris, (0, 3), np.int32), instance=cat(inst, (0,), np.int32))
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: np.savez(tmp, vertices=cat(verts, (0, 3), np.float32), triangles=cat(tris, (0, 3), np.int32),
+                                            instance=cat(inst, (0,), np.int32)), suffix=".npz")
 
 
 def _shift_lenses(scene, on: bool) -> None:

@@ -22,7 +22,6 @@ import logging
 import multiprocessing
 import os
 import signal
-import tempfile
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -31,7 +30,7 @@ import numpy as np
 
 from ..data import integrity, store
 from ..processes import die_with_parent, own_process_group
-from ..data.formats import file_mode
+from ..data.folder import atomic_write
 from ..data.dataset import Dataset
 from ..camera import View
 from ..errors import LfusdError
@@ -107,15 +106,7 @@ def _write_motion(ds: Dataset, frame: int, view: View) -> tuple[Path, int]:
     keys = derive_view(ds, frame, view)
     d = ds.view_dir(frame, view)
     if ds.version == 1:
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=".motion.", suffix=".npz")
-        try:
-            os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **keys)
-            os.replace(tmp, d / MOTION_FILE_V1)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        atomic_write(d / MOTION_FILE_V1, lambda tmp: np.savez(tmp, **keys), prefix=".motion.", suffix=".npz")
         integrity.record_motion(d, inputs)
         return d / MOTION_FILE_V1, 0
     keep = {k: v for k, v in keys.items() if k in _wanted(ds)}
@@ -297,7 +288,7 @@ def _derive_dataset(
     to them changes their motion). ``rigs``, ``frames`` and ``views`` default to every rig,
     completely rendered frame and view of the dataset. Returns how many views were written.
     """
-    from ..data.export import open_datasets
+    from ..data.folder import open_datasets
 
     datasets = list(open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs])
     if check_links:

@@ -718,7 +718,7 @@ def verify(
     :data:`THRESHOLDS`; ``stage`` replaces the stage the manifest records; ``progress(frame, view)``
     is called before each view. What `lfusd verify` and `lfusd render-video --verify` run.
     """
-    from ..data import export
+    from ..data import folder
 
     unknown = sorted(set(thresholds or {}) - set(THRESHOLDS))
     if unknown:
@@ -726,7 +726,7 @@ def verify(
     from ..data.integrity import check_dataset
 
     reports = {}
-    for ds in export.open_datasets(out, rig):
+    for ds in folder.open_datasets(out, rig):
         if not ds.frames:
             raise LfusdError(f"dataset {out} has no completely rendered frame; finish the render first")
         # First every view's files against its record (what --integrity checks): a damaged file
@@ -747,12 +747,12 @@ def record_certificate(out, reports: dict) -> dict:
     import json
     from pathlib import Path
 
-    from ..data.formats import atomic_write_text
+    from ..data.folder import atomic_write
     from ..layout import MANIFEST
 
     path = Path(out) / MANIFEST
     manifest = json.loads(path.read_text())
     cert = {name or "": rep.certificate() for name, rep in reports.items()}
     manifest["certificate"] = {**(manifest.get("certificate") or {}), **cert}
-    atomic_write_text(path, json.dumps(manifest, indent=1))
+    atomic_write(path, json.dumps(manifest, indent=1))
     return cert

@@ -576,10 +576,10 @@ def test_portrait_kitti_folder_gives_the_official_numbers(portrait, tmp_path):
 def test_eval_cli_protocol_table_and_errors(tmp_path, monkeypatch, capsys):
     from lfusd.cli import main
     from lfusd.data import formats
-    import lfusd.data.export
+    import lfusd.data.folder
 
     ds = FakeDataset(root="/data/fake", rows=3, cols=3, width=48, height=40, frames=(1, 2))
-    monkeypatch.setattr(lfusd.data.export, "open_dataset", lambda path, rig=None: ds)
+    monkeypatch.setattr(lfusd.data.folder, "open_dataset", lambda path, rig=None: ds)
     pred = tmp_path / "p"
     pred.mkdir()
     d = ds.read(1, (1, 1), "disparity")
