@@ -30,7 +30,7 @@ _LAZY = {
     "render_video": ("lfusd.render.job", "render_video"),
     "derive": ("lfusd.truth.derive", "derive_dataset"),
     "verify": ("lfusd.truth.verify", "verify"),
-    "export": ("lfusd.data.export", "export"),
+    "export": ("lfusd.exports", "export"),
     "evaluate": ("lfusd.evaluation.score", "evaluate"),
 }
 

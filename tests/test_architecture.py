@@ -1,7 +1,8 @@
 """The package's import graph follows the data flow: stage (author) -> render -> raw passes
 (data) -> ground truth (truth) -> evaluation, with the contract (keys, layout, camera) below all.
 
-Every import statement of every module counts, module-level or inside a function."""
+Every import statement of every module counts, module-level or inside a function, and so does
+every name taken from the ``lfusd`` facade (``from .. import Dataset`` imports lfusd.data.dataset)."""
 
 from __future__ import annotations
 
@@ -21,7 +22,9 @@ ALLOWED = {
     "data": BASE | {"data"},
     "author": BASE | {"author"},
     "truth": BASE | {"data", "truth", "author"},  # verify traces motion on the stage itself
-    "evaluation": BASE | {"data", "evaluation"},
+    "evaluation": BASE | {"data", "evaluation", "exports"},  # scoring an export reads it back with its format's reader
+    # Export formats read a dataset (anything with Dataset's interface); the KITTI masks use truth's stereo visibility.
+    "exports": BASE | {"data", "truth", "exports"},
     "render": BASE | {"author", "data", "truth", "render"},
     "torch": BASE | {"data"},
     # The rig study is an experiment over the whole pipeline: it authors rigs, renders them, reads
@@ -47,20 +50,54 @@ def _is_module(dotted: str) -> bool:
     return path.is_dir() or path.with_suffix(".py").is_file()
 
 
-def imports(path: Path) -> list[tuple[int, str]]:
-    """(line, absolute module) of every import in one file of the package."""
+def facade() -> dict[str, str]:
+    """The module behind each name of the ``lfusd`` facade (its lazy table, read from lfusd/__init__.py)."""
+    for node in ast.walk(ast.parse((PACKAGE / "__init__.py").read_text())):
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "_LAZY" for t in node.targets):
+            table = {name: module for name, (module, _) in ast.literal_eval(node.value).items()}
+            return {**table, "LfusdError": "lfusd.errors"}
+    raise AssertionError("lfusd/__init__.py has no _LAZY table")
+
+
+def imports(path: Path, source: str | None = None) -> list[tuple[int, str]]:
+    """(line, absolute module) of every import in one file of the package (``source``: its text,
+    default read from ``path``). A name taken from the facade counts as an import of its module."""
     package = list(path.relative_to(PACKAGE.parent).parts[:-1])
+    names = facade()
     out = []
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text() if source is None else source)
+    bare = False  # `import lfusd`: then every `lfusd.NAME` of the facade counts
+    for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             out += [(node.lineno, a.name) for a in node.names]
+            bare |= any(a.name == "lfusd" and a.asname is None for a in node.names)
         elif isinstance(node, ast.ImportFrom):
             base = package[: len(package) - node.level + 1] if node.level else []
             mod = ".".join(base + ([node.module] if node.module else []))
             out.append((node.lineno, mod))
             # `from lfusd import data` or `from . import motion` imports a module by name
             out += [(node.lineno, f"{mod}.{a.name}") for a in node.names if mod.startswith("lfusd") and _is_module(f"{mod}.{a.name}")]
+            if mod == "lfusd":  # `from .. import Dataset`: the facade's module
+                out += [(node.lineno, names[a.name]) for a in node.names if a.name in names]
+    if bare:
+        out += [(node.lineno, names[node.attr]) for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+                and isinstance(node.value, ast.Name) and node.value.id == "lfusd" and node.attr in names]
     return out
+
+
+def violations(path: Path, name: str, source: str | None = None) -> list[str]:
+    """The imports of module ``name`` (file ``path``) that cross the layers of :data:`ALLOWED`."""
+    allowed = ALLOWED[part_of(name) if name != "lfusd" else "__init__"]
+    if allowed is None:
+        return []
+    bad = []
+    for line, mod in imports(path, source):
+        if mod == "lfusd" or not mod.startswith("lfusd."):
+            continue
+        target = mod.split(".")[1]
+        if target not in allowed | {part_of(name)}:
+            bad.append(f"{path.relative_to(PACKAGE.parent)}:{line} imports {mod}")
+    return bad
 
 
 def modules():
@@ -71,18 +108,21 @@ def modules():
 
 
 def test_imports_follow_the_data_flow():
-    bad = []
-    for path, name in modules():
-        allowed = ALLOWED[part_of(name) if name != "lfusd" else "__init__"]
-        if allowed is None:
-            continue
-        for line, mod in imports(path):
-            if mod == "lfusd" or not mod.startswith("lfusd."):
-                continue
-            target = mod.split(".")[1]
-            if target not in allowed | {part_of(name)}:
-                bad.append(f"{path.relative_to(PACKAGE.parent)}:{line} imports {mod}")
+    bad = [v for path, name in modules() for v in violations(path, name)]
     assert not bad, "\n".join(bad)
+
+
+def test_imports_through_the_facade_are_seen():
+    """`from .. import Dataset` in lfusd/author imports the reader (data), which author may not;
+    `import lfusd` then `lfusd.verify(...)` in lfusd/data imports truth. Both fail the layering."""
+    author = PACKAGE / "author" / "probe.py"
+    assert violations(author, "lfusd.author.probe", "from .. import Dataset\n") == ["lfusd/author/probe.py:1 imports lfusd.data.dataset"]
+    assert violations(author, "lfusd.author.probe", "def f():\n    from lfusd import LfusdError, render_frame\n") == \
+        ["lfusd/author/probe.py:2 imports lfusd.render.job"]
+    data = PACKAGE / "data" / "probe.py"
+    assert violations(data, "lfusd.data.probe", "import lfusd\n\ndef f(out):\n    return lfusd.verify(out)\n") == \
+        ["lfusd/data/probe.py:4 imports lfusd.truth.verify"]
+    assert violations(data, "lfusd.data.probe", "from lfusd import LfusdError, __version__\n") == []  # the base, the facade's constant
 
 
 def test_only_the_render_worker_imports_bpy_and_nothing_imports_the_commands():

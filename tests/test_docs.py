@@ -42,7 +42,7 @@ def test_site_builds_strict_without_pxr_bpy_or_torch(tmp_path):
     assert "WARNING" not in run.stderr, run.stderr
     # The API reference holds the documented objects, not empty pages.
     data = (site / "api" / "data" / "index.html").read_text()
-    for anchor in ("lfusd.data.dataset.Dataset", "lfusd.data.dataset.Dataset.read", "lfusd.data.export.export"):
+    for anchor in ("lfusd.data.dataset.Dataset", "lfusd.data.dataset.Dataset.read", "lfusd.exports.export"):
         assert f'id="{anchor}"' in data, anchor
     assert 'id="lfusd.render.worker"' in (site / "api" / "render" / "index.html").read_text()
     assert (site / "CONVENTIONS" / "index.html").is_file() and (site / "contact_sheet.png").is_file()

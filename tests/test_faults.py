@@ -381,7 +381,8 @@ def test_stage_new_and_add_person_do_not_overwrite_without_force(capsys, tmp_pat
 def test_a_failed_export_leaves_nothing_that_blocks_the_retry(capsys, monkeypatch, tmp_path):
     from support.fake import FakeDataset
 
-    from lfusd.data import export, formats
+    from lfusd import exports as export
+    from lfusd.data import formats
 
     ds = FakeDataset(tmp_path / "fake", rows=3, cols=3, width=16, height=12)
     dest = tmp_path / "exp"

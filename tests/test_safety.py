@@ -520,7 +520,7 @@ def test_a_full_disk_during_export_lfmat_is_one_line_and_leaves_nothing(tmp_path
 
 
 def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
-    from lfusd.data import export
+    from lfusd import exports as export
 
     dest = tmp_path / "exp"
     dead = tmp_path / ".exp.partial-999999999"  # no such process

@@ -1,46 +1,53 @@
 """`lfusd export FORMAT OUT DEST`: write a dataset in a research layout (HCI, KITTI, Spring, .flo, PFM, LF HDF5)
-or as WebDataset / Hugging Face shards with Croissant metadata."""
+or as WebDataset / Hugging Face shards with Croissant metadata. The formats and their options come
+from the registry (lfusd.exports.registry)."""
 
 from __future__ import annotations
 
 from . import args as argtypes
 
 
+def _argparse_settings(kind: str) -> dict:
+    from ..exports import registry
+
+    return {registry.FLAG: {"action": "store_true"}, registry.VIEW: {"type": argtypes.view, "default": None},
+            registry.TEXT: {"default": None}}[kind]
+
+
 def register(subparsers) -> None:
+    from ..exports import FORMATS
+
     p = subparsers.add_parser(
         "export",
         help="export a dataset to HCI, KITTI, Spring, .flo, PFM, HDF5 LF layouts or WebDataset / Hugging Face shards",
         description="Export a rendered dataset OUT into DEST (which must not exist yet).",
     )
-    p.add_argument("format", choices=["hci", "kitti", "spring", "flo", "pfm", "lfmat", "hf", "webdataset"],
-                   help="target layout (hf, webdataset: tar shards of one sample per frame and view, Croissant metadata.json; hf adds a dataset card)")
+    p.add_argument("format", choices=list(FORMATS), help="target layout: " + "; ".join(f"{f.name}: {f.help}" for f in FORMATS.values()))
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
     p.add_argument("dest", help="new folder to write")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
-    p.add_argument("--view", type=argtypes.view, default=None, help="ROW,COL view for flo/pfm (default: the centre view)")
-    p.add_argument("--all-views", action="store_true", help="flo/pfm: every view; hci: also per-view disparity PFMs")
-    p.add_argument("--matlab", action="store_true", help="lfmat: write MATLAB v7.3 .mat files instead of .h5 (both: LF [U,V,H,W,3] in [0,1] as BasicLFSR reads it)")
     p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
-    p.add_argument("--license", default=None, help="hf/webdataset: the data's license (SPDX id or URL) for the metadata (default: none claimed)")
+    # Each format's options, once per flag; its help names the formats that take it.
+    options: dict[str, list] = {}
+    for f in FORMATS.values():
+        for o in f.options:
+            options.setdefault(o.flag, []).append((f.name, o))
+    for flag, uses in options.items():
+        helps: dict[str, list[str]] = {}
+        for name, o in uses:
+            helps.setdefault(o.help, []).append(name)
+        p.add_argument(flag, dest=uses[0][1].param, **_argparse_settings(uses[0][1].kind),
+                       help="; ".join(f"{'/'.join(names)}: {text}" for text, names in helps.items()))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from ..data import export as ex
+    from .. import exports
     from ..data.folder import open_dataset
 
+    fmt = exports.get(args.format)
     ds = open_dataset(args.out, args.rig)
-    kw = {}
-    if args.format in ("flo", "pfm"):
-        kw = {"view": args.view, "all_views": args.all_views}
-    elif args.format == "hci":
-        kw = {"all_views": args.all_views}
-    elif args.format == "lfmat":
-        kw = {"matlab": args.matlab}
-    elif args.format in ("hf", "webdataset"):
-        kw = {"license": args.license}
-    result = ex.export(ds, args.format, args.dest, frame=args.frame, **kw)
+    result = exports.export(ds, fmt.name, args.dest, frame=args.frame, **{o.param: getattr(args, o.param) for o in fmt.options})
     n = len(result) if isinstance(result, list) else 1
-    what = "shard" if args.format in ("hf", "webdataset") else "item"
-    print(f"exported {args.format} to {args.dest} ({n} {what}{'' if n == 1 else 's'})")
+    print(f"exported {fmt.name} to {args.dest} ({n} {fmt.unit}{'' if n == 1 else 's'})")
     return 0

@@ -34,7 +34,7 @@ dataset gives the masks ``lfusd export kitti`` writes, unrounded; a KITTI folder
 (``--gt DEST/training``) gives the exported PNGs, rounded to 1/64 px (flow) and 1/256 px
 (disparity), so the numbers are the official pipeline's. ``noc`` is the devkit readme's: ground truth
 whose correspondences (right image at t; left and right images at t+1) fall inside the image,
-the same masks in both modes (:func:`lfusd.data.export.kitti_noc`).
+the same masks in both modes (:func:`lfusd.exports.kitti.kitti_noc`).
 
 ``sintel`` -- RAFT ``validate_sintel``: EPE over every pixel with ground truth (Sintel has it
 everywhere; lfusd where ``valid_fwd``), pooled over the set (``np.mean(np.concatenate(...))``);
@@ -280,7 +280,7 @@ def kitti_masks(truth: dict) -> dict:
         occ = np.asarray(truth["valid"], bool) & np.all(np.isfinite(f), -1) & (surface if surface is not None else True)
         out |= {"flow": f, "flow_occ": occ, "flow_noc": occ & ~np.asarray(truth["occluded"], bool)}
     if "disparity" in truth:
-        from ..data.export import kitti_noc
+        from ..exports.kitti import kitti_noc
 
         d0 = _f64(truth["disparity"])
         with np.errstate(invalid="ignore"):

@@ -104,55 +104,21 @@ def dataset_truth(ds, frame: int, view, task: str) -> dict:
     return t
 
 
-def kitti_root(path) -> Path | None:
-    """The folder holding flow_occ/ or disp_occ_0/ when ``path`` is a KITTI export (DEST or DEST/training)."""
-    p = Path(path)
-    for q in (p, p / "training"):
-        if (q / "flow_occ").is_dir() or (q / "disp_occ_0").is_dir():
-            return q
-    return None
-
-
-def kitti_truth(root: Path, name: str, task: str) -> dict:
-    """Ground truth of image ``name`` (``000000_10.png``) of a KITTI folder, as the devkit reads it."""
-    from ..data import formats
-
-    t: dict = {"kitti": True}
-
-    def disp(sub):
-        d, ok = formats.read_kitti_disparity(root / sub / name)
-        return d.astype(np.float64), ok
-
-    if task in ("flow", "sceneflow"):
-        f, occ = formats.read_kitti_flow(root / "flow_occ" / name)
-        _, noc = formats.read_kitti_flow(root / "flow_noc" / name)
-        t |= {"flow": f.astype(np.float64), "flow_occ": occ, "flow_noc": noc}
-    if task in ("disparity", "sceneflow"):
-        t["disp0"], t["disp0_occ"] = disp("disp_occ_0")
-        t["disp0_noc"] = disp("disp_noc_0")[1]
-    if task == "sceneflow":
-        t["disp1"], t["disp1_occ"] = disp("disp_occ_1")
-        t["disp1_noc"] = disp("disp_noc_1")[1]
-    return t
-
-
-KITTI_PRED = {"disparity": "disp_0", "flow": "flow", "sceneflow": "flow"}
-
-
-def _evaluate_kitti(root: Path, pred: Path, task: str, protocol: str) -> Scores:
+def _evaluate_export(fmt, root: Path, pred: Path, task: str, protocol: str) -> Scores:
+    """Score predictions in the benchmark's submission layout against an export that ``fmt`` reads
+    back (its :class:`lfusd.exports.registry.Reader`): the ground truth as the official pipeline sees it."""
     from . import protocols
 
-    if protocol != "kitti":
-        raise LfusdError(f"{root} is a KITTI folder; score it with --protocol kitti")
+    reader = fmt.reader
+    if protocol != reader.protocol:
+        raise LfusdError(f"{root} is a {fmt.name} export; score it with --protocol {reader.protocol}")
     protocols.check(protocol, task)
-    gt_dir = root / ("disp_occ_0" if task == "disparity" else "flow_occ")
-    names = sorted(p.name for p in gt_dir.glob("*_10.png"))
-    sub = pred / KITTI_PRED[task]
+    sub = pred / reader.predictions[task]
     rows, tallies = [], []
-    for name in names:
+    for name in reader.names(root, task):
         stem = name[:-4]
         paths = {}
-        for key, folder, what in (("main", KITTI_PRED[task], "disparity" if task == "disparity" else "flow"), ("disp", "disp_0", "disparity"), ("disp2", "disp_1", "disparity")):
+        for key, folder, what in (("main", reader.predictions[task], "disparity" if task == "disparity" else "flow"), ("disp", "disp_0", "disparity"), ("disp2", "disp_1", "disparity")):
             if key != "main" and task != "sceneflow":
                 continue
             found = [q for q in (pred / folder / f"{stem}{e}" for e in EXTS[what]) if q.is_file()]
@@ -164,13 +130,13 @@ def _evaluate_kitti(root: Path, pred: Path, task: str, protocol: str) -> Scores:
         p = {k: _load(v[0], v[1]) for k, v in paths.items()}
         prediction = p["main"] if task != "sceneflow" else {"flow": p["main"], "disp": p["disp"], "disp2": p["disp2"]}
         try:
-            res, tally = protocols.score(protocol, task, prediction, kitti_truth(root, name, task))
+            res, tally = protocols.score(protocol, task, prediction, reader.truth(root, name, task))
         except LfusdError as e:
             raise LfusdError(f"{paths['main'][0].name}: {e}") from None
         rows.append({"scene": root.parent.name if root.name == "training" else root.name, "frame": int(stem.split("_")[0]), "row": "", "col": "", **res})
         tallies.append(tally)
     if not rows:
-        raise LfusdError(f"no {task} predictions for the KITTI folder {root}: expected {sub}/000000_10{EXTS['disparity' if task == 'disparity' else 'flow'][0]} (the devkit's submission layout)")
+        raise LfusdError(f"no {task} predictions for the {fmt.name} folder {root}: expected {sub}/000000_10{EXTS['disparity' if task == 'disparity' else 'flow'][0]} (the devkit's submission layout)")
     summary, how = protocols.summarise(rows, tallies, protocol)
     return Scores(rows, {"scene": rows[0]["scene"], "frame": "summary", "row": "", "col": "", **summary}, how, protocol, task)
 
@@ -182,7 +148,9 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
     a KITTI folder (``--protocol kitti``). The result is a list of rows with ``.summary``.
     """
     from . import protocols
-    from ..data import export, folder
+    from .. import exports
+    from ..data import folder
+    from ..exports.common import scene_name
 
     if task not in TASKS:
         raise LfusdError(f"unknown task {task!r}; use one of {', '.join(TASKS)}")
@@ -191,9 +159,9 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
     if not pred.is_dir():
         raise LfusdError(f"prediction folder {pred} does not exist; give the folder holding <frame>_<row>_<col> files")
     if isinstance(ds, (str, Path)):
-        root = kitti_root(ds)
-        if root is not None:
-            return _evaluate_kitti(root, pred, task, protocol)
+        found = exports.find_export(ds)  # an export a format reads back (a KITTI folder)
+        if found is not None:
+            return _evaluate_export(*found, pred, task, protocol)
         ds = folder.open_dataset(ds, rig)
     files = find_predictions(pred, task)
     if not files:
@@ -218,7 +186,7 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
             res, tally = protocols.score(protocol, task, p, dataset_truth(ds, frame, view, task))
         except LfusdError as e:
             raise LfusdError(f"{path.name}: {e}") from None
-        rows.append({"scene": export.scene_name(ds), "frame": frame, "row": view[0], "col": view[1], **res})
+        rows.append({"scene": scene_name(ds), "frame": frame, "row": view[0], "col": view[1], **res})
         tallies.append(tally)
     summary, how = protocols.summarise(rows, tallies, protocol)
     return Scores(rows, {"scene": rows[0]["scene"], "frame": "summary", "row": "", "col": "", **summary}, how, protocol, task)

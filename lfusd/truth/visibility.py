@@ -145,3 +145,77 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
                 du, dv = flow[a][0] - flow[b][0], flow[a][1] - flow[b][1]
                 mixed |= du * du + dv * dv > MIXED_FLOW_PX**2
     return mixed.reshape(h, w)
+
+
+# ---- stereo visibility of planar parallel rigs, from disparity alone (the KITTI export's noc masks) ----
+VIS_REL = 1e-3  # relative disparity slack of the stereo visibility test (as lfusd.truth.motion.DEPTH_REL)
+EDGE_REL = 0.5  # a relative disparity jump above this between neighbours is a depth edge (no slope across it)
+
+
+def _one_sided_slopes(d: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """(towards lower index, towards higher index) differences of ``d`` along ``axis``; NaN across a
+    depth edge (relative jump above EDGE_REL) or off the image."""
+    a, b = (d[:, :-1], d[:, 1:]) if axis == 1 else (d[:-1], d[1:])
+    g = np.where(np.abs(b - a) <= EDGE_REL * np.minimum(a, b), b - a, np.nan)
+    lower, higher = np.full(d.shape, np.nan), np.full(d.shape, np.nan)
+    if axis == 1:
+        higher[:, :-1], lower[:, 1:] = g, g
+    else:
+        higher[:-1], lower[1:] = g, g
+    return lower, higher
+
+
+def visible_in_view(x, y, d_expected, disparity_other) -> np.ndarray:
+    """Whether points seen elsewhere are visible in another view of a planar parallel rig.
+
+    A point lands at (x, y) in the other view (sub-pixel) with disparity ``d_expected`` there
+    (disparity = f_px*b/z, so depth and disparity are one test). It is visible when (x, y) lies
+    inside the image and the pixel nearest (x, y) does not see a nearer surface: that pixel's
+    disparity, extrapolated to (x, y) with its one-sided slopes (never across a depth edge; exact
+    on planes), is the point's own (within :data:`VIS_REL`) or smaller (a surface behind the point,
+    which then sits on a silhouette). A nearer surface there hides it. Decided within half a pixel of
+    the other view's depth edges and creases.
+    """
+    D = np.nan_to_num(np.asarray(disparity_other, np.float64), nan=0.0, posinf=0.0)  # no surface: disparity 0
+    h, w = D.shape
+    x, y, de = (np.asarray(a, np.float64) for a in (x, y, d_expected))
+    with np.errstate(invalid="ignore"):
+        inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (de > 0)
+    x, y = np.where(inside, x, 0.0), np.where(inside, y, 0.0)
+    xi = np.clip(np.rint(x), 0, w - 1).astype(np.int64)
+    yi = np.clip(np.rint(y), 0, h - 1).astype(np.int64)
+    dx, dy = x - xi, y - yi
+    with np.errstate(invalid="ignore"):
+        left, right = _one_sided_slopes(D, 1)
+        up, down = _one_sided_slopes(D, 0)
+    # the slope on the side of the point, else the other side's, else flat
+    gx = np.where(dx >= 0, right[yi, xi], left[yi, xi])
+    gx = np.nan_to_num(np.where(np.isnan(gx), np.where(dx >= 0, left[yi, xi], right[yi, xi]), gx))
+    gy = np.where(dy >= 0, down[yi, xi], up[yi, xi])
+    gy = np.nan_to_num(np.where(np.isnan(gy), np.where(dy >= 0, up[yi, xi], down[yi, xi]), gy))
+    tol = VIS_REL * de
+    seen = D[yi, xi] + dx * gx + dy * gy  # what the pixel's surface has at (x, y)
+    return inside & (seen <= de + tol)  # the point's own surface, or one behind it
+
+
+def stereo_visible(ds, frame: int, view, other, flow=None, disparity=None) -> np.ndarray:
+    """(H,W) bool: which pixels of ``view`` show a point that ``other`` (same planar parallel rig)
+    also sees, at ``frame``; with ``flow`` (H,W,2) and ``disparity`` (H,W), the point moved to
+    view pixel (u, v) + flow with that disparity, tested against ``other`` at ``frame``."""
+    d = np.asarray(ds.read(frame, view, "disparity") if disparity is None else disparity, np.float64)
+    sx0, sy0 = ds.rig.offsets(tuple(view))
+    sx1, sy1 = ds.rig.offsets(tuple(other))
+    v, u = np.mgrid[0 : d.shape[0], 0 : d.shape[1]].astype(np.float64)
+    if flow is not None:
+        u, v = u + flow[..., 0], v + flow[..., 1]
+    with np.errstate(invalid="ignore"):
+        x, y = u - d * (sx1 - sx0), v - d * (sy1 - sy0)  # CONVENTIONS: u - d*sx, v - d*sy
+    return visible_in_view(x, y, d, ds.read(frame, other, "disparity")) & np.isfinite(d)
+
+
+def inside_image(x, y, width: int, height: int) -> np.ndarray:
+    """Whether sub-pixel positions (x, y) fall on a pixel of a width x height image (its area,
+    [-0.5, W - 0.5) x [-0.5, H - 0.5)); NaN is outside."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    with np.errstate(invalid="ignore"):
+        return (x >= -0.5) & (x < width - 0.5) & (y >= -0.5) & (y < height - 0.5)

@@ -7,7 +7,7 @@ import pytest
 
 from support.fake import FakeDataset
 from lfusd import LfusdError
-from lfusd.data import export
+from lfusd import exports as export
 from lfusd.cli import main
 from support.spec_readers import read_flo_spec, read_hci_cfg_spec, read_pfm_spec, read_png_spec
 
@@ -18,7 +18,7 @@ def ds():
 
 
 def test_hci_export_reads_back_with_spec_readers(ds, tmp_path):
-    folders = export.export_hci(ds, tmp_path / "hci", frame=2, all_views=True)
+    folders = export.hci.export_hci(ds, tmp_path / "hci", frame=2, all_views=True)
     assert [f.name for f in folders] == ["fakescene_f0002"]
     sd = folders[0]
     centre = ds.rig.centre_view
@@ -45,7 +45,7 @@ def test_hci_export_reads_back_with_spec_readers(ds, tmp_path):
 
 def test_hci_disparity_agrees_with_depth_and_views(ds, tmp_path):
     """The exported pair is self-consistent with the HCI geometry: d = f_px * b / z."""
-    sd = export.export_hci(ds, tmp_path / "hci", frame=1)[0]
+    sd = export.hci.export_hci(ds, tmp_path / "hci", frame=1)[0]
     cfg = read_hci_cfg_spec(sd / "parameters.cfg")
     f_px = cfg["focal_length_mm"] / cfg["sensor_size_mm"] * max(cfg["width"], cfg["height"])
     depth = read_pfm_spec(sd / "gt_depth_lowres.pfm")
@@ -54,7 +54,7 @@ def test_hci_disparity_agrees_with_depth_and_views(ds, tmp_path):
 
 
 def test_kitti_export_round_trip(ds, tmp_path):
-    tr = export.export_kitti(ds, tmp_path / "kitti")
+    tr = export.kitti.export_kitti(ds, tmp_path / "kitti")
     names = sorted(p.name for p in (tr / "flow_occ").iterdir())
     assert names == ["000000_10.png", "000001_10.png"]  # frames 1->2 and 2->3; frame 3 has no next
     c = ds.rig.centre_view
@@ -74,11 +74,11 @@ def test_kitti_export_round_trip(ds, tmp_path):
 
 
 def test_flo_and_pfm_exports(ds, tmp_path):
-    files = export.export_flo(ds, tmp_path / "flo", view=(0, 1))
+    files = export.flo.export_flo(ds, tmp_path / "flo", view=(0, 1))
     names = sorted(p.relative_to(tmp_path / "flo").as_posix() for p in files)
     assert names == ["flow_bwd/0002_00_01.flo", "flow_bwd/0003_00_01.flo", "flow_fwd/0001_00_01.flo", "flow_fwd/0002_00_01.flo"]
     np.testing.assert_array_equal(read_flo_spec(tmp_path / "flo/flow_fwd/0002_00_01.flo"), ds.read(2, (0, 1), "flow_fwd"))
-    export.export_pfm(ds, tmp_path / "pfm", frame=3, all_views=True)
+    export.pfm.export_pfm(ds, tmp_path / "pfm", frame=3, all_views=True)
     np.testing.assert_array_equal(read_pfm_spec(tmp_path / "pfm/depth/0003_02_01.pfm"), ds.read(3, (2, 1), "depth"))
     assert not (tmp_path / "pfm/disparity_change/0003_02_01.pfm").exists()  # no frame 4
 
@@ -88,7 +88,7 @@ def test_lfmat_export(ds, tmp_path):
     does in test_export_benchmarks.py)."""
     import h5py
 
-    (p,) = export.export_lfmat(ds, tmp_path / "lf", frame=1)
+    (p,) = export.lfmat.export_lfmat(ds, tmp_path / "lf", frame=1)
     with h5py.File(p, "r") as f:
         lf = f["LF"][()]
     assert lf.shape == (3, 24, 20, 3, 3) and lf.dtype == np.float32
@@ -102,10 +102,10 @@ def test_existing_target_and_bad_frame_are_one_line_errors(ds, tmp_path):
             export.export(ds, fmt, tmp_path / "taken")
         assert "already exists" in str(e.value) and "\n" not in str(e.value)
     with pytest.raises(LfusdError) as e:
-        export.export_pfm(ds, tmp_path / "new", frame=99)
+        export.pfm.export_pfm(ds, tmp_path / "new", frame=99)
     assert "frame 99" in str(e.value)
     with pytest.raises(LfusdError):
-        export.export_flo(ds, tmp_path / "new2", view=(7, 7))
+        export.flo.export_flo(ds, tmp_path / "new2", view=(7, 7))
 
 
 def test_cli_missing_dataset_is_one_line_error(tmp_path, capsys):

@@ -21,7 +21,8 @@ import pytest
 
 from support.fake import S, V, ZB, ZF0, FakeDataset
 from support.spec_readers import read_png_spec
-from lfusd.data import export
+from lfusd import exports as export
+from lfusd.truth import visibility
 
 # ---- HCI ---------------------------------------------------------------------------------------
 
@@ -69,7 +70,7 @@ class HciScene:
 @pytest.mark.parametrize("rows,cols,width,height", [(3, 3, 24, 20), (2, 2, 16, 24)], ids=["landscape-3x3", "portrait-2x2"])
 def test_hci_toolkit_formulas_give_lfusd_depth_and_disparity(tmp_path, rows, cols, width, height):
     ds = FakeDataset(rows=rows, cols=cols, width=width, height=height, frames=(1,))
-    (sd,) = export.export_hci(ds, tmp_path / "hci")
+    (sd,) = export.hci.export_hci(ds, tmp_path / "hci")
     scene = HciScene(sd)
     # the toolkit's centre camera is int(nx*ny/2), row-major: (1,1) of 3x3, (1,0) of 2x2
     view = divmod(scene.get_center_cam(), cols)
@@ -93,7 +94,7 @@ def test_hci_toolkit_formulas_give_lfusd_depth_and_disparity(tmp_path, rows, col
 def test_hci_read_lightfield_indexing(tmp_path):
     """python-tools read_lightfield: sorted input_Cam*.png, view idx at [idx / nx, idx % ny]."""
     ds = FakeDataset(rows=3, cols=3, width=12, height=10, frames=(1,))
-    (sd,) = export.export_hci(ds, tmp_path / "hci")
+    (sd,) = export.hci.export_hci(ds, tmp_path / "hci")
     views = sorted(f for f in os.listdir(sd) if f.startswith("input_") and f.endswith(".png"))
     for idx, name in enumerate(views):
         np.testing.assert_array_equal(read_png_spec(sd / name), ds.read(1, (idx // 3, idx % 3), "rgb"))
@@ -142,7 +143,7 @@ def test_kitti_noc_keeps_points_whose_correspondence_is_inside_the_image(tmp_pat
     """The devkit readme: 'noc' = regions whose matching correspondence is inside the image domain
     (a point hidden in the other image is still noc)."""
     ds = FakeDataset(rows=3, cols=3, width=48, height=40, frames=(1, 2), baseline=0.5)
-    tr = export.export_kitti(ds, tmp_path / "kitti")
+    tr = export.kitti.export_kitti(ds, tmp_path / "kitti")
     name = "000000_10.png"
 
     def disp_mask(sub):
@@ -200,15 +201,15 @@ def test_visible_in_view_on_a_slanted_plane_and_at_silhouettes():
     rng = np.random.default_rng(0)
     x, y = rng.uniform(1, 28, 500), rng.uniform(1, 18, 500)
     d = 3.0 + 0.15 * x + 0.08 * y
-    assert export.visible_in_view(x, y, d, plane).all()
-    assert not export.visible_in_view(x, y, d * 0.99, plane).any()  # a point 1 % farther: the plane hides it
-    assert export.visible_in_view(x, y, d * 1.01, plane).all()  # 1 % nearer: in front of the plane
+    assert visibility.visible_in_view(x, y, d, plane).all()
+    assert not visibility.visible_in_view(x, y, d * 0.99, plane).any()  # a point 1 % farther: the plane hides it
+    assert visibility.visible_in_view(x, y, d * 1.01, plane).all()  # 1 % nearer: in front of the plane
     occluder = plane.copy()
     occluder[:, 10:20] = 20.0
     xs = np.array([14.0, 14.4, 8.6, 21.0])
-    vis = export.visible_in_view(xs, np.full(4, 5.0), 3.0 + 0.15 * xs + 0.4, occluder)
+    vis = visibility.visible_in_view(xs, np.full(4, 5.0), 3.0 + 0.15 * xs + 0.4, occluder)
     assert vis.tolist() == [False, False, True, True]
-    assert not export.visible_in_view(np.array([-0.6, 29.6]), np.array([5.0, 5.0]), np.array([5.0, 5.0]), plane).any()
+    assert not visibility.visible_in_view(np.array([-0.6, 29.6]), np.array([5.0, 5.0]), np.array([5.0, 5.0]), plane).any()
 
 
 @pytest.mark.render
@@ -283,7 +284,7 @@ def spring_read(path, key):
 
 def test_spring_export_reads_with_springs_loaders(tmp_path):
     ds = FakeDataset(root="/data/fakescene", rows=3, cols=3, width=48, height=40, frames=(4, 5, 6), baseline=0.25)
-    sd = export.export_spring(ds, tmp_path / "spring")
+    sd = export.spring.export_spring(ds, tmp_path / "spring")
     seq_root = tmp_path / "spring" / "train"
     assert sd == seq_root / "fakescene"
     views = {"left": (1, 1), "right": (1, 2)}
@@ -324,7 +325,7 @@ def test_spring_export_reads_with_springs_loaders(tmp_path):
 
 def test_spring_marks_unknown_as_nan(tmp_path):
     ds = FakeDataset(rows=1, cols=2, width=16, height=12, frames=(1, 2))
-    sd = export.export_spring(ds, tmp_path / "s")
+    sd = export.spring.export_spring(ds, tmp_path / "s")
     assert not (sd / "flow_FW_left" / "flow_FW_left_0002.flo5").exists()  # no frame 3
     assert not (sd / "flow_BW_left" / "flow_BW_left_0001.flo5").exists()  # no frame 0
     d = spring_read(sd / "disp1_left" / "disp1_left_0001.dsp5", "disparity")
@@ -348,7 +349,7 @@ def test_lfmat_reads_with_basiclfsr_preparation(tmp_path, matlab):
     import h5py
 
     ds = FakeDataset(rows=3, cols=3, width=24, height=20, frames=(1,))
-    (p,) = export.export_lfmat(ds, tmp_path / "lf", matlab=matlab)
+    (p,) = export.lfmat.export_lfmat(ds, tmp_path / "lf", matlab=matlab)
     assert p.suffix == (".mat" if matlab else ".h5")
     # Generate_Data_for_Training.py / _Test.py
     data = h5py.File(p, "r")

@@ -12,8 +12,8 @@ import pytest
 from support.fake import FakeDataset
 
 from lfusd import keys as keyreg
-from lfusd.data import export
-from lfusd.data.export_hf import sample_key
+from lfusd import exports as export
+from lfusd.exports.webdataset import sample_key
 
 FAKE_KEYS = ("rgb", "depth", "normal", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change",
              "valid_fwd", "valid_bwd", "occlusion_fwd", "occlusion_bwd")
@@ -148,7 +148,7 @@ def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_
     assert figures == {"scene_record": {"verified": True, "compared": 12345}, "card": {"name": "streets", "verified": True, "pixels": 999}}
     assert '"compared": 12345' in meta["description"] and "license" not in meta and "url" not in meta
     assert "license: unknown" in (tmp_path / "a" / "README.md").read_text()
-    export.export_hf(ds, tmp_path / "b", license="cc-by-4.0")
+    export.hf.export_hf(ds, tmp_path / "b", license="cc-by-4.0")
     assert json.loads((tmp_path / "b" / "metadata.json").read_text())["license"] == "cc-by-4.0"
     assert "license: cc-by-4.0" in (tmp_path / "b" / "README.md").read_text()
     # the metadata's keys and their descriptions come from lfusd.keys

@@ -15,7 +15,8 @@ from support.fake import FakeDataset
 from support.spec_readers import read_png_spec
 
 from lfusd import LfusdError
-from lfusd.data import export
+from lfusd import exports as export
+from lfusd.truth import visibility
 from lfusd.evaluation import protocols
 from lfusd.evaluation.score import dataset_truth
 
@@ -120,7 +121,7 @@ class StillPosedFake(FakeDataset):
 
 
 def test_kitti_obj_map_marks_moving_objects_foreground(fake, tmp_path):
-    tr = export.export_kitti(fake, tmp_path / "kitti")
+    tr = export.kitti.export_kitti(fake, tmp_path / "kitti")
     c = fake.rig.centre_view
     for i, t in enumerate((1, 2)):
         om = read_png_spec(tr / "obj_map" / f"{i:06d}_10.png")
@@ -130,7 +131,7 @@ def test_kitti_obj_map_marks_moving_objects_foreground(fake, tmp_path):
         np.testing.assert_array_equal(om > 0, inst == 2)
         assert (om > 0).any() and (om == 0).any()
     still = StillPosedFake(root="/data/still", rows=3, cols=3, width=24, height=20, frames=(1, 2))
-    om = export.kitti_object_map(still, 1, c)
+    om = export.kitti.kitti_object_map(still, 1, c)
     np.testing.assert_array_equal(om > 0, still.read(1, c, "instance") == 2)
 
 
@@ -150,7 +151,7 @@ def readme_noc(d0, d1, flow, occ0, occ1, w, h):
 def test_kitti_noc_is_the_readme_definition_in_export_and_dataset_mode(tmp_path):
     # a wide baseline: disparities of 4-8 px, so correspondences leave the image and the box hides wall in the right view
     ds = FakeDataset(root="/data/wide", rows=1, cols=3, width=32, height=20, frames=(1, 2), baseline=0.3)
-    tr = export.export_kitti(ds, tmp_path / "kitti")
+    tr = export.kitti.export_kitti(ds, tmp_path / "kitti")
     c = ds.rig.centre_view
     d0 = ds.read(1, c, "disparity").astype(np.float64)
     d1 = d0 + ds.read(1, c, "disparity_change")
@@ -164,7 +165,7 @@ def test_kitti_noc_is_the_readme_definition_in_export_and_dataset_mode(tmp_path)
     np.testing.assert_array_equal(got1, noc1)
     assert 0 < noc0.sum() < occ0.sum()
     # pixels occluded in the right view but landing inside it are noc: more than the visibility test keeps
-    visible = export.stereo_visible(ds, 1, c, (c[0], c[1] + 1)) & occ0
+    visible = visibility.stereo_visible(ds, 1, c, (c[0], c[1] + 1)) & occ0
     assert noc0.sum() > visible.sum()
     # dataset mode (`lfusd eval --gt OUT --protocol kitti`) uses the same masks
     k = protocols.kitti_masks(dataset_truth(ds, 1, c, "sceneflow"))
@@ -173,10 +174,10 @@ def test_kitti_noc_is_the_readme_definition_in_export_and_dataset_mode(tmp_path)
 
 
 def test_hci_valid_mask_has_three_channels_for_distgdisp(fake, tmp_path):
-    sd = export.export_hci(fake, tmp_path / "hci", frame=1)[0]
+    sd = export.hci.export_hci(fake, tmp_path / "hci", frame=1)[0]
     mask_rgb = read_png_spec(sd / "valid_mask.png")
     assert mask_rgb.shape == (20, 24, 3)
     # DistgDisp utils.py: dispGT[:, :, 1] = np.float32(mask_rgb[:, :, 1] > 0)
-    centre = export.hci_centre_view(fake)
+    centre = export.hci.hci_centre_view(fake)
     np.testing.assert_array_equal(mask_rgb[:, :, 1] > 0, np.isfinite(fake.read(1, centre, "depth")))
     assert np.all(mask_rgb[..., 0] == mask_rgb[..., 2])

@@ -518,10 +518,10 @@ def test_portrait_flow_protocols(portrait, tmp_path):
 def test_portrait_kitti_folder_gives_the_official_numbers(portrait, tmp_path):
     """`--gt` at an exported KITTI folder: rounded PNG ground truth, read here by the PNG spec."""
     from lfusd.cli import main
-    from lfusd.data import export
+    from lfusd import exports as export
 
     out, ds = portrait
-    tr = export.export_kitti(ds, tmp_path / "kitti")
+    tr = export.kitti.export_kitti(ds, tmp_path / "kitti")
     pred = tmp_path / "sub"
     (pred / "flow").mkdir(parents=True)
     (pred / "disp_0").mkdir()

@@ -1,6 +1,6 @@
-"""Export a dataset as WebDataset tar shards with Croissant metadata (``lfusd export webdataset``),
-and as a Hugging Face dataset folder (``lfusd export hf``: the same plus a dataset card whose
-YAML header points ``datasets.load_dataset`` at the shards).
+"""Export a dataset as WebDataset tar shards with Croissant metadata (``lfusd export webdataset``);
+:mod:`lfusd.exports.hf` adds a Hugging Face dataset card whose YAML header points
+``datasets.load_dataset`` at the shards (``lfusd export hf``).
 
 One sample per frame x view: a sample is what a model reads at a time (one image with its ground
 truth), it stays small whatever the grid (every key of a render-video is about 71 bytes per pixel as
@@ -37,14 +37,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import formats
+from ..data import formats
 from .. import keys as keyreg
 from .. import layout
 from ..errors import LfusdError
+from .common import frames_of, new_dest
+from .registry import TEXT, Option, register
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("hf", "webdataset")
 SHARD_MAX_BYTES = 1_000_000_000  # a new shard past 1 GB (WebDataset's usual size)
 SHARD_MAX_SAMPLES = 10_000
 SHARDS = "shards"
@@ -178,16 +179,18 @@ def hf_card(ds, croissant_doc: dict, license: str | None = None) -> str:
             "`datasets.load_dataset(\"webdataset\", data_files={\"train\": \"shards/*.tar\"})` or `datasets.load_dataset(PATH)`.\n")
 
 
+LICENSE = Option("--license", "license", TEXT, "the data's license (SPDX id or URL) for the metadata (default: none claimed)")
+
+
+@register("webdataset", "tar shards of one sample per frame and view, Croissant metadata.json", options=(LICENSE,), unit="shard")
 def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool = False, license: str | None = None) -> list[Path]:
     """Write tar shards of one sample per frame x view under ``dest/shards`` and ``dest/metadata.json``
     (and with ``hf`` a dataset card ``README.md``); returns the shards. ``license``: the data's
     license (an SPDX id or URL) for the metadata; none is claimed without it."""
-    from .export import _frames, _new_dest
-
-    frames = _frames(ds, frame)
+    frames = frames_of(ds, frame)
     views = [tuple(v) for v in (views or ds.views)]
     names = exported_keys(ds)
-    dest = _new_dest(dest)
+    dest = new_dest(dest)
     (dest / SHARDS).mkdir()
     rig = getattr(ds, "rig_name", "rig")
     stem = f"{Path(getattr(ds, 'root', 'scene')).name}-{rig}"
@@ -248,11 +251,6 @@ class _ShardWriter:
             self.tar.addfile(info, io.BytesIO(data))
         self.count += 1
         self.size += nbytes
-
-
-def export_hf(ds, dest, frame: int | None = None, views=None, license: str | None = None) -> list[Path]:
-    """:func:`export_webdataset` plus the Hugging Face dataset card (``datasets.load_dataset(dest)``)."""
-    return export_webdataset(ds, dest, frame=frame, views=views, hf=True, license=license)
 
 
 _CONTEXT = {
