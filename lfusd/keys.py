@@ -150,6 +150,49 @@ _TABLE = (
 KEYS: dict[str, Key] = {k.name: k for k in _TABLE}
 
 
+@dataclass(frozen=True)
+class RawPass:
+    """One of Blender's data passes in a view's ``passes.exr``: the raw-pass contract between the
+    render worker (lfusd.render.worker turns it on) and the reader (lfusd.data.passes.read_raw).
+
+    ``key``: the array the reader returns; ``layer``: the pass's name in Blender's multilayer EXR
+    (a render pass, or the name of an AOV of the data material); ``channels``: the channels read,
+    in order (``<layer>.<c>`` of a render pass; an AOV is one colour group whose first
+    ``len(channels)`` components are read); ``dtype``: of the array returned; ``switch``: the
+    ViewLayer property that turns a render pass on (None for an AOV); ``neighbour``: an AOV's
+    frame, ``next`` (t+1) or ``prev`` (t-1), whose vertex positions the mesh attribute
+    ``lfusd_<neighbour>`` carries (render-video only); ``required``: every data render writes it
+    (the others: render-video's AOVs, and the vector pass, which format version 1 datasets may lack).
+    """
+
+    key: str
+    layer: str
+    channels: str
+    dtype: str
+    switch: str | None = None
+    neighbour: str | None = None
+    required: bool = True
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """The EXR channel names of a render pass, without the view layer's prefix: ``Depth.Z``."""
+        return tuple(f"{self.layer}.{c}" for c in self.channels)
+
+
+RAW_PASSES = (
+    RawPass("depth", "Depth", "Z", "float32", "use_pass_z"),  # BACKGROUND_DEPTH or beyond where no surface
+    RawPass("normal", "Normal", "XYZ", "float32", "use_pass_normal"),
+    RawPass("position", "Position", "XYZ", "float32", "use_pass_position"),
+    RawPass("instance", "Object Index", "X", "int32", "use_pass_object_index"),  # a float holding the pass index
+    RawPass("vector", "Vector", "XYZW", "float32", "use_pass_vector", required=False),
+    RawPass("next_position", "next_position", "XYZ", "float32", neighbour="next", required=False),  # a COLOR AOV (RGBA)
+    RawPass("prev_position", "prev_position", "XYZ", "float32", neighbour="prev", required=False),
+)
+RAW_PASS: dict[str, RawPass] = {p.key: p for p in RAW_PASSES}
+PASS_SWITCHES = tuple(p.switch for p in RAW_PASSES if p.switch)  # the ViewLayer switches of the data render
+MOTION_AOVS = tuple(p for p in RAW_PASSES if p.neighbour)  # rendered only by render-video
+
+
 def names(*stages: str) -> tuple[str, ...]:
     """Names of the keys produced by ``stages`` (all keys without arguments), in registry order."""
     bad = [s for s in stages if s not in STAGES]
@@ -177,20 +220,23 @@ def stored(wanted) -> tuple[str, ...]:
     return tuple(k.name for k in _TABLE if k.name in need)
 
 
+_AOV_KEYS = tuple(p.key for p in MOTION_AOVS)
+
+
 def check_wanted(wanted, motion: bool, keep_raw: bool) -> tuple[str, ...]:
     """The keys a render writes, validated (``--keys``): LfusdError in one line naming the first
     unknown key, a motion key without render-video or a raw pass without ``--keep-raw``.
     ``wanted`` None: every key the render makes (raw passes with ``keep_raw``)."""
     if wanted is None:
         return tuple(k.name for k in _TABLE if (motion or k.stage != MOTION) and (keep_raw or k.storage.encoding != "raw")
-                     and (motion or k.name not in ("next_position", "prev_position")))
+                     and (motion or k.name not in _AOV_KEYS))
     for name in wanted:
         k = get(name)
         if k.stage == MOTION and not motion:
             raise LfusdError(f"--keys {name}: motion keys need 'lfusd render-video'; drop it or render a video")
         if k.storage.encoding == "raw" and not keep_raw:
             raise LfusdError(f"--keys {name}: a raw pass, kept only with --keep-raw; add --keep-raw or drop it")
-        if name in ("next_position", "prev_position") and not motion:
+        if name in _AOV_KEYS and not motion:
             raise LfusdError(f"--keys {name}: a motion AOV, rendered only by 'lfusd render-video'; drop it or render a video")
     return tuple(k.name for k in _TABLE if k.name in set(wanted))
 

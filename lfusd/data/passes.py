@@ -3,8 +3,8 @@
 Raw files per view (written by the renderer):
 - ``rgb.exr``: linear RGB (half float), the beauty render;
 - ``passes.exr``: Blender's multilayer EXR of the exact data render (1 sample at each pixel
-  centre): Depth.Z, Normal.XYZ, Position.XYZ, Vector.XYZW, Object Index.X, and with
-  render-video the AOVs next_position / prev_position. Format version 2 keeps it only with
+  centre): the passes of :data:`lfusd.keys.RAW_PASSES` (Depth.Z, Normal.XYZ, Position.XYZ,
+  Vector.XYZW, Object Index.X, and with render-video the AOVs next_position / prev_position). Format version 2 keeps it only with
   ``--keep-raw``: its keys go to gt.exr and motion.exr (lfusd.data.store).
 
 Everything here follows docs/CONVENTIONS.md; Blender's own conventions are converted in
@@ -23,9 +23,7 @@ import OpenEXR
 
 from ..camera import Camera, backproject, pixel_grid, ray_lengths
 from ..errors import LfusdError
-from ..keys import BACKGROUND_DEPTH
-# AOVs of the world position at t+1 / t-1 of the surface point seen at t (see render.worker)
-MOTION_AOVS = ("next_position", "prev_position")
+from ..keys import BACKGROUND_DEPTH, MOTION_AOVS, RAW_PASS, RAW_PASSES
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
@@ -49,25 +47,37 @@ def _channel(channels: dict[str, np.ndarray], suffix: str, path) -> np.ndarray:
 
 
 def read_raw(path: str | Path) -> dict[str, np.ndarray]:
-    """The data passes of one view, converted to the conventions: depth, normal, position,
-    instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see lfusd.truth.motion)."""
+    """The data passes of one view (:data:`lfusd.keys.RAW_PASSES`), converted to the conventions:
+    depth, normal, position, instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see
+    lfusd.truth.motion) and the motion AOVs where the file has them."""
     ch = read_exr(path)
-    depth = _channel(ch, "Depth.Z", path).astype(np.float32)
+
+    def read(p) -> np.ndarray:
+        a = np.stack([_channel(ch, c, path) for c in p.channel_names], axis=-1) if len(p.channels) > 1 else _channel(ch, p.channel_names[0], path)
+        return a if p.key == "instance" else a.astype(p.dtype)
+
+    depth = read(RAW_PASS["depth"])
     surface = depth < BACKGROUND_DEPTH
     depth = np.where(surface, depth, np.float32(np.inf))
-    stack = lambda name, comps: np.stack([_channel(ch, f"{name}.{c}", path) for c in comps], axis=-1).astype(np.float32)
     nan = np.float32(np.nan)
-    normal = np.where(surface[..., None], stack("Normal", "XYZ"), nan)
-    position = np.where(surface[..., None], stack("Position", "XYZ"), nan)
-    instance = np.rint(_channel(ch, "Object Index.X", path)).astype(np.int32)
-    instance[~surface] = 0
-    raw = {"depth": depth, "normal": normal, "position": position, "instance": instance}
-    if any(n.endswith(".Vector.X") or n == "Vector.X" for n in ch):  # Dataset.raw_passes names its absence
-        raw["vector"] = stack("Vector", "XYZW")
-    for aov in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
-        arr = next((a for n, a in ch.items() if n.endswith("." + aov)), None)
+    raw = {"depth": depth}
+    for p in RAW_PASSES:
+        if p.key == "depth" or p.neighbour:
+            continue
+        if not p.required and not any(n.endswith("." + p.channel_names[0]) or n == p.channel_names[0] for n in ch):
+            continue  # the vector pass: Dataset.raw_passes names its absence
+        if p.key == "instance":  # Blender stores the pass index as a float
+            instance = np.rint(read(p)).astype(p.dtype)
+            instance[~surface] = 0
+            raw[p.key] = instance
+        elif p.key == "vector":
+            raw[p.key] = read(p)
+        else:
+            raw[p.key] = np.where(surface[..., None], read(p), nan)
+    for p in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
+        arr = next((a for n, a in ch.items() if n.endswith("." + p.layer)), None)
         if arr is not None:
-            raw[aov] = np.where(surface[..., None], arr[..., :3].astype(np.float32), nan)
+            raw[p.key] = np.where(surface[..., None], arr[..., : len(p.channels)].astype(p.dtype), nan)
     return raw
 
 

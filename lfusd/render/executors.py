@@ -52,11 +52,13 @@ def _check_rgb(src: Path, key: str, frame: int, unit: WorkUnit):
 def _check_passes(src: Path, key: str, frame: int, unit: WorkUnit) -> None:
     """Refuse a data-pass EXR unless every channel decodes (a cut-off file does not) with the unit's
     size and passes. Decoding only, without read_raw's conversions: a third of the time."""
-    from ..data.passes import MOTION_AOVS, read_exr
+    from ..data.passes import read_exr
+    from ..keys import MOTION_AOVS, RAW_PASS
 
     try:
         channels = read_exr(src)
-        wanted = ["Depth.Z", "Vector.X"] + (list(MOTION_AOVS) if unit.motion else [])
+        # a pass every data render writes, the vector pass, and render-video's AOVs (lfusd.keys.RAW_PASSES)
+        wanted = [RAW_PASS["depth"].channel_names[0], RAW_PASS["vector"].channel_names[0]] + ([p.layer for p in MOTION_AOVS] if unit.motion else [])
         lacking = [p for p in wanted if not any(n == p or n.endswith("." + p) for n in channels)]
         if lacking:
             raise LfusdError(f"it has no {', '.join(p.split('.')[0] for p in lacking)} pass")

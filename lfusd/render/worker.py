@@ -32,6 +32,7 @@ import numpy as np
 
 from lfusd.data.folder import atomic_write
 from lfusd.data.formats import link_or_copy
+from lfusd.keys import MOTION_AOVS, PASS_SWITCHES
 from lfusd.processes import PARENT_PID_ENV, die_with_parent
 from lfusd.render.plan import WorkUnit, view_chunks
 
@@ -491,7 +492,9 @@ def realize_instances(scene, job: WorkUnit) -> None:
     scene.frame_set(first)
 
 
-NEIGHBOUR_AOVS = {"next": "next_position", "prev": "prev_position"}
+# The t+1 / t-1 position AOVs of the raw-pass contract (lfusd.keys.RAW_PASSES): mesh attribute
+# lfusd_<neighbour> -> AOV name.
+NEIGHBOUR_AOVS = {p.neighbour: p.layer for p in MOTION_AOVS}
 
 
 class MotionAttributes:
@@ -702,8 +705,8 @@ def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> No
     cyc = scene.cycles
     im = scene.render.image_settings
     lighting.set(True)
-    vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = False
-    vl.use_pass_vector = vl.use_pass_object_index = False
+    for switch in PASS_SWITCHES:  # the data passes (lfusd.keys.RAW_PASSES) off
+        setattr(vl, switch, False)
     vl.use_pass_combined = True
     cyc.samples = job.samples
     cyc.pixel_filter_type = "BLACKMAN_HARRIS"
@@ -725,8 +728,8 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     im = scene.render.image_settings
     t, c = time.perf_counter(), time.process_time()
     lighting.set(False)
-    vl.use_pass_z = vl.use_pass_normal = vl.use_pass_position = True
-    vl.use_pass_vector = vl.use_pass_object_index = True
+    for switch in PASS_SWITCHES:  # every render pass of lfusd.keys.RAW_PASSES
+        setattr(vl, switch, True)
     vl.use_pass_combined = False
     cyc.samples = 1
     cyc.pixel_filter_type = "BOX"
