@@ -148,6 +148,8 @@ _TABLE = (
 )
 
 KEYS: dict[str, Key] = {k.name: k for k in _TABLE}
+# The raw passes gt.exr stores: what a view's static keys come from before its gt.exr is written.
+GT_RAW = tuple(k.name for k in _TABLE if k.stage == RAW and k.file == _GT)
 
 
 @dataclass(frozen=True)

@@ -274,7 +274,7 @@ def scene_stats(root: Path, stats_views: str = "centre") -> dict:
     for ds in open_datasets(root, "all"):
         views = [ds.rig.centre_view] if stats_views == "centre" else [tuple(v) for v in ds.views]
         done = set(ds.frames)
-        motion = bool(ds.manifest.get("settings", {}).get("motion")) and (ds.keys is None or "flow_fwd" in ds.keys)
+        motion = ds.record.settings.motion and (ds.keys is None or "flow_fwd" in ds.keys)
         for view in views:
             key = f"{ds.rig_name} {view[0]:02d}_{view[1]:02d}"
             series = coverage.setdefault(key, [])
@@ -435,8 +435,7 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeRe
     """Make (or finish) the dataset of the recipe at ``recipe_path`` in folder ``root`` and write its card.
 
     ``progress(index, total, scene, action)`` is called per scene ('skip' or 'make')."""
-    from .data.folder import atomic_write
-    from .render.job import output_lock
+    from .data.folder import atomic_write, output_lock
 
     recipe_path, root = Path(recipe_path), Path(root)
     recipe = load_recipe(recipe_path)

@@ -203,7 +203,7 @@ def test_a_second_run_is_refused_naming_the_first_and_a_dead_runs_lock_is_taken(
     (out / ".scratch").mkdir()
     (out / ".scratch" / "work.exr").write_bytes(b"the first run's scratch file")
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from pathlib import Path; from lfusd.render.job import output_lock\n"
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; from lfusd.data.folder import output_lock\n"
          "with output_lock(Path(sys.argv[1])):\n    print('held', flush=True); time.sleep(60)", str(out)],
         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
     )

@@ -225,8 +225,9 @@ def test_overwrite_removes_all_of_lfusds_files_and_folders(tmp_path, project, fa
     (out / "logs").mkdir(exist_ok=True)
     (out / "logs" / "main-unit0000.log").write_text("blender said")
     (frame_dir(out, "main", 1) / ".frame.json.abc123de.tmp").write_text("killed mid-write")
-    manifest = json.loads((out / "manifest.json").read_text())
-    confined.remove_own(out, manifest)
+    from lfusd.data.folder import read_manifest
+
+    confined.remove_own(out, read_manifest(out))
     assert sorted(p.name for p in out.iterdir()) == [".lock"]
 
 
@@ -376,7 +377,7 @@ def test_lfusd_flow_takes_the_lock(capsys, monkeypatch, tmp_path, project, fake_
     assert render(capsys, project / "scene.usda", out)[0] == 0
     monkeypatch.undo()  # the real derivation
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time; from pathlib import Path; from lfusd.render.job import output_lock\n"
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; from lfusd.data.folder import output_lock\n"
          "with output_lock(Path(sys.argv[1])):\n    print('held', flush=True); time.sleep(60)", str(out)],
         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
     try:

@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import os
 import re
 import shutil
 import stat
-import sys
 from pathlib import Path
 
 from .. import layout
@@ -100,38 +98,6 @@ def open_new(path: str | Path, append: bool = False) -> int:
         raise
 
 
-@contextlib.contextmanager
-def dataset_lock(out: str | Path):
-    """Hold OUT/.lock (an advisory flock) while writing the dataset in ``out``: one writer per
-    folder. The kernel drops the lock of a process that dies, so a stale lock is simply taken.
-    The lock file is opened without following links: a ``.lock`` link is refused, its target untouched."""
-    from .folder import file_mode
-
-    out = Path(out)
-    path = out / layout.LOCK
-    try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), file_mode())
-    except OSError as e:
-        if e.errno == errno.ELOOP:
-            raise link_error(path) from None
-        raise LfusdError(f"cannot write to {out} ({e.strerror or e}); make it writable or choose another -o folder") from None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise LfusdError(f"{path} is not a file; remove it, then rerun")
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "unknown"
-            pid, _, command = holder.partition(" ")
-            raise LfusdError(f"output folder {out} is being written by process {pid} ({command or 'unknown command'}); "
-                             "wait for it to finish or stop it, or choose another -o folder") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()} {' '.join(['lfusd', *sys.argv[1:]]) if sys.argv else 'lfusd'}\n".encode(), 0)
-        yield
-    finally:
-        os.close(fd)  # closing drops the flock
-
-
 def _unlink(path: Path) -> None:
     """Remove a file (or a link, never its target); a missing one is fine."""
     with contextlib.suppress(FileNotFoundError):
@@ -160,7 +126,7 @@ def remove_temporaries(folder: Path) -> None:
                     _unlink(Path(e.path))
 
 
-def remove_own(out: str | Path, manifest: dict) -> None:
+def remove_own(out: str | Path, manifest) -> None:
     """Remove what lfusd wrote for the dataset in ``out`` (a validated manifest), nothing else:
     per rig of the manifest, frame and view, the files lfusd's layout names there and their
     temporaries; frame.json; the object table; the worker logs; the scratch folder; then the
@@ -169,10 +135,10 @@ def remove_own(out: str | Path, manifest: dict) -> None:
     from ..camera import RigSpec
 
     out = Path(out)
-    specs = manifest.get("settings", {}).get("rigs", {})
-    rigs = [r for r in manifest.get("rigs", []) if r in specs]
+    specs = manifest.settings.rigs  # a lfusd.data.folder.Manifest
+    rigs = [r for r in manifest.rigs if r in specs]
     check_tree(out, rigs)
-    frames = manifest.get("frames", [])
+    frames = manifest.frames
     names = set(layout.VIEW_FILES) | set(layout.VIEW_FILES_V1)
     for rig in rigs:
         views = [view_key(v) for v in RigSpec.from_dict(specs[rig]).views]

@@ -8,7 +8,6 @@ nor torch: ``from lfusd import Dataset`` stays light.
 
 from __future__ import annotations
 
-import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,12 +16,12 @@ import numpy as np
 
 from . import passes, store
 from .. import layout
+from .folder import FrameMeta, Manifest, ObjectTable, read_frame_meta, read_manifest, read_objects
 from .integrity import complete_frames
-from .metadata import validate_frame_meta, validate_manifest, validate_objects
 from ..camera import RigSpec, View
 from ..errors import LfusdError
-from ..keys import IMAGE, MOTION, STATIC, get
-from ..layout import FORMAT, frame_dir, view_key
+from ..keys import GT_RAW, IMAGE, MOTION, STATIC, get
+from ..layout import frame_dir, view_key
 
 
 @dataclass
@@ -41,6 +40,8 @@ class Dataset:
 
     The manifest, the object table and the list of complete frames are read once, when the
     dataset is opened; :meth:`refresh` reads them again (for a dataset that is still rendering).
+    ``record`` is the typed manifest (:class:`lfusd.data.folder.Manifest`), ``manifest`` its JSON
+    document as written.
     """
 
     def __init__(self, root: str | Path, rig: str | None = None):
@@ -55,8 +56,9 @@ class Dataset:
         manifest's record (which a render updates only when it ends).
         """
         path = self.root / layout.MANIFEST
-        self.manifest = read_manifest(self.root)
-        rigs = list(self.manifest["rigs"])
+        self.record: Manifest = read_manifest(self.root)
+        self.manifest: dict = self.record.to_dict()
+        rigs = list(self.record.rigs)
         rig = self._rig_arg
         if rig is None:
             if len(rigs) != 1:
@@ -64,36 +66,27 @@ class Dataset:
             rig = rigs[0]
         if rig not in rigs:
             raise LfusdError(f"{self.root} has no rig {rig!r}; it has {', '.join(rigs)}")
-        self.rig: RigSpec = rig_spec(self.root, self.manifest, rig)
+        self.rig: RigSpec = self.record.rig_spec(rig, path)
         self.rig_name = rig
-        objects_path = self.root / layout.OBJECTS
-        table = validate_objects(_read_json(objects_path, "rerun the render that made the dataset (it rewrites the object table)"),
-                                 objects_path)
-        try:
-            self.classes: list[str] = list(table["classes"])
-            self._class_of_instance = np.zeros(max([int(o["id"]) for o in table["objects"]], default=0) + 1, dtype=np.int32)
-            for o in table["objects"]:
-                if not (isinstance(o["prim_path"], str) and isinstance(o["label"], str) and int(o["class_id"]) == o["class_id"] >= 0):
-                    raise ValueError(o)
-                self._class_of_instance[o["id"]] = o["class_id"]
-        except (KeyError, TypeError, ValueError, IndexError):
-            raise LfusdError(f"{objects_path} is not an lfusd object table; rerun the render that made the dataset") from None
-        self._object_rows = table["objects"]
-        self.version = int(self.manifest.get("version", 1))  # the format version (lfusd.layout.FORMAT_VERSION)
+        self.table: ObjectTable = read_objects(self.root)
+        self.classes: list[str] = list(self.table.classes)
+        self._class_of_instance = np.zeros(max([o.id for o in self.table.objects], default=0) + 1, dtype=np.int32)
+        for o in self.table.objects:
+            self._class_of_instance[o.id] = o.class_id
+        self.version = self.record.version  # the format version (lfusd.layout.FORMAT_VERSION)
         if self.version > layout.FORMAT_VERSION:
             raise LfusdError(f"{path} is format version {self.version}, newer than this lfusd reads ({layout.FORMAT_VERSION}); upgrade lfusd")
-        keys = self.manifest["settings"].get("keys")
         # The keys the render was asked for (format version 2); None: every key it makes.
-        self.keys: tuple[str, ...] | None = tuple(keys) if keys is not None else None
+        self.keys: tuple[str, ...] | None = self.record.settings.keys
         self._objects: dict[int, DatasetObject] | None = None
-        complete = self.manifest.get("complete", {}).get(rig)
+        complete = self.record.complete_frames(rig)
         if scan or complete is None:  # manifests before the "complete" record: look at the folders
             # Sizes against each view's completion record (checksums: `lfusd verify --integrity`).
-            complete = complete_frames(self.root, rig, self.manifest["frames"], self.views)
+            complete = complete_frames(self.root, rig, list(self.record.frames), self.views)
         self.frames: list[int] = [int(f) for f in complete]  # frames with every view rendered
         # Per-instance caches, most recent last: raw passes (t-1, t, t+1 of a view for the motion derivation), frame.json files.
         self._raw_cache: dict[str, dict[str, np.ndarray]] = {}
-        self._meta_cache: dict[int, dict] = {}
+        self._meta_cache: dict[int, FrameMeta] = {}
         self._file_cache: dict[str, dict[str, np.ndarray]] = {}  # decoded gt.exr / motion.exr, most recent last
 
     # -- structure --------------------------------------------------------------------
@@ -118,15 +111,15 @@ class Dataset:
     def cam_to_world(self, frame: int, view: View) -> np.ndarray:
         """4x4 OpenCV camera-to-world pose of ``view`` at ``frame`` (metres)."""
         self._check_view(view)
-        return np.array(self._frame_meta(frame)["cam_to_world"][view_key(view)], dtype=np.float64)
+        return np.array(self._frame_meta(frame).cam_to_world[view_key(view)], dtype=np.float64)
 
     @property
     def objects(self) -> dict[int, DatasetObject]:
         """Instances by id, with their poses in every complete frame (read on first use, then kept)."""
         if self._objects is None:
-            objs = {o["id"]: DatasetObject(o["id"], o["prim_path"], o["label"], o["class_id"]) for o in self._object_rows}
+            objs = {o.id: DatasetObject(o.id, o.prim_path, o.label, o.class_id) for o in self.table.objects}
             for f in self.frames:
-                poses = self._frame_meta(f)["object_poses"]
+                poses = self._frame_meta(f).object_poses
                 for o in objs.values():
                     o.poses[f] = np.array(poses[o.prim_path], dtype=np.float64)
             self._objects = objs
@@ -192,23 +185,10 @@ class Dataset:
     def _frame_dir(self, frame: int) -> Path:
         return frame_dir(self.root, self.rig_name, frame)
 
-    def _frame_meta(self, frame: int) -> dict:
+    def _frame_meta(self, frame: int) -> FrameMeta:
         def load():
-            p = self._frame_dir(frame) / layout.FRAME_META
-            if not p.is_file():
-                raise LfusdError(f"{p} is missing; rerun the render to complete this frame")
-            meta = validate_frame_meta(_read_json(p, "delete it and rerun the render to write it again"), p)
-            try:
-                for name, m in (*meta["cam_to_world"].items(), *meta["object_poses"].items()):
-                    if np.asarray(m, dtype=np.float64).shape != (4, 4):
-                        raise ValueError(name)
-            except (KeyError, TypeError, ValueError, AttributeError):
-                raise LfusdError(f"{p} is damaged (its poses are not 4x4 matrices); delete it and rerun the render to write it again") from None
-            missing = [view_key(v) for v in self.views if view_key(v) not in meta["cam_to_world"]]
-            missing += [o["prim_path"] for o in self._object_rows if o["prim_path"] not in meta["object_poses"]]
-            if missing:
-                raise LfusdError(f"{p} is damaged (no pose of {missing[0]}); delete it and rerun the render to write it again")
-            return meta
+            return read_frame_meta(self._frame_dir(frame) / layout.FRAME_META, [view_key(v) for v in self.views],
+                                   [o.prim_path for o in self.table.objects])
 
         return _cached(self._meta_cache, frame, 64, load)
 
@@ -226,7 +206,7 @@ class Dataset:
         if self.version >= 2 and gt.is_file():
             return _cached(self._file_cache, str(gt), 4, lambda: store.read(gt))
         raw = self._raw(view_dir)
-        return raw if self.version == 1 else {k: raw[k] for k in ("depth", "normal", "instance")}
+        return raw if self.version == 1 else {k: raw[k] for k in GT_RAW}
 
     def _motion(self, d: Path, key: str) -> np.ndarray:
         """One motion key of a view: from motion.exr (format version 2) or motion.npz (version 1)."""
@@ -246,77 +226,6 @@ class Dataset:
             raise LfusdError(f"{path} holds no {key!r}; derive it again with 'lfusd flow'") from None
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
             raise LfusdError(f"{path} is unreadable ({e}); derive it again with 'lfusd flow'") from None
-
-
-MANIFEST_FIX = "restore it, or render the dataset again into a new folder"
-
-
-def read_manifest(root: str | Path) -> dict:
-    """The manifest of the dataset in ``root``, its structure checked: every command that reads a
-    dataset reads it here (through :class:`Dataset` or directly), so a missing, corrupt or incomplete
-    manifest is one LfusdError naming the file, whoever reads it. Rig specs: :func:`rig_spec`."""
-    root = Path(root)
-    path = root / layout.MANIFEST
-    if not root.is_dir():
-        raise LfusdError(f"dataset folder {root} does not exist; give the output folder of 'lfusd render'")
-    if not path.is_file():
-        raise LfusdError(f"{root} holds no lfusd dataset (no {layout.MANIFEST}); render one with 'lfusd render'")
-    m = _read_json(path, MANIFEST_FIX)
-    if not isinstance(m, dict) or m.get("format") != FORMAT:
-        raise LfusdError(f"{path} is not an lfusd dataset manifest; open the output folder of 'lfusd render'")
-    validate_manifest(m, path)  # names that become paths, sizes that become loops (lfusd.data.metadata)
-
-    def bad(what: str) -> LfusdError:
-        return LfusdError(f"{path} is damaged ({what}); {MANIFEST_FIX}")
-
-    def ints(x) -> bool:
-        return isinstance(x, list) and all(isinstance(f, int) and not isinstance(f, bool) for f in x)
-
-    rigs, settings = m.get("rigs"), m.get("settings")
-    if not isinstance(rigs, list) or not rigs or not all(isinstance(r, str) and r for r in rigs):
-        raise bad("'rigs' is not a list of rig names" if "rigs" in m else "no 'rigs'")
-    if not ints(m.get("frames")):
-        raise bad("'frames' is not a list of frame numbers" if "frames" in m else "no 'frames'")
-    if not isinstance(settings, dict):
-        raise bad("'settings' is not a record" if "settings" in m else "no 'settings'")
-    if not isinstance(settings.get("rigs"), dict) or not all(isinstance(settings["rigs"].get(r), dict) for r in rigs):
-        raise bad("'settings.rigs' lacks a record of each rig")
-    keys = settings.get("keys")
-    if keys is not None and not (isinstance(keys, list) and all(isinstance(k, str) for k in keys)):
-        raise bad("'settings.keys' is not a list of key names")
-    version = m.get("version", 1)
-    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
-        raise bad("'version' is not a format version")
-    complete = m.get("complete", {})
-    if not isinstance(complete, dict) or not all(ints(v) for v in complete.values()):
-        raise bad("'complete' is not a list of frames per rig")
-    if not isinstance(m.get("stage", {}), dict):
-        raise bad("'stage' is not a record")
-    return m
-
-
-def rig_spec(root: str | Path, manifest: dict, rig: str) -> RigSpec:
-    """The RigSpec of ``rig`` in a manifest read by :func:`read_manifest`, or LfusdError naming it."""
-    path = Path(root) / layout.MANIFEST
-    try:
-        spec = RigSpec.from_dict(manifest["settings"]["rigs"][rig])
-        grid_ok = all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in (spec.rows, spec.cols, spec.width, spec.height))
-        float(spec.baseline)
-    except (KeyError, TypeError, ValueError, LfusdError):  # RigSpec checks its own fields, in its own words
-        grid_ok = False
-    if not grid_ok:
-        raise LfusdError(f"{path} holds no readable record of rig {rig!r}; {MANIFEST_FIX}") from None
-    return spec
-
-
-def _read_json(path: Path, fix: str):
-    """The JSON in ``path``, or LfusdError naming the file and ``fix``."""
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise LfusdError(f"{path} is missing; {fix}") from None
-    except (OSError, ValueError) as e:
-        raise LfusdError(f"{path} is unreadable ({getattr(e, 'strerror', None) or str(e).splitlines()[0]}); {fix}") from None
 
 
 def _cached(cache: dict, key, size: int, load):

@@ -291,23 +291,22 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None, frame
     """
     from ..errors import LfusdError
     from ..keys import KEYS, MOTION
-    from .dataset import read_manifest, rig_spec
+    from .folder import read_manifest
 
     root = Path(root)
     manifest = read_manifest(root)  # the reader's checks and one-line errors
-    rigs = manifest["rigs"]
+    rigs = list(manifest.rigs)
     if rig not in (None, "all"):
         if rig not in rigs:
             raise LfusdError(f"{root} has no rig {rig!r}; it has {', '.join(rigs)}")
         rigs = [rig]
-    settings = manifest.get("settings", {})
-    frames_all = [int(f) for f in manifest.get("frames", [])]
+    frames_all = [int(f) for f in manifest.frames]
     chosen = frames_all if frames is None else [f for f in frames_all if f in set(frames)]
-    wanted = settings.get("keys")  # format version 2: the keys asked for (None: version 1, every key)
-    motion = settings.get("motion") and (wanted is None or any(KEYS[k].stage == MOTION for k in wanted if k in KEYS))
+    wanted = manifest.settings.keys  # format version 2: the keys asked for (None: version 1, every key)
+    motion = manifest.settings.motion and (wanted is None or any(KEYS[k].stage == MOTION for k in wanted if k in KEYS))
     checked, problems = 0, []
     for name in rigs:
-        spec = rig_spec(root, manifest, name)
+        spec = manifest.rig_spec(name, root / layout.MANIFEST)
         for f in chosen:
             for v in spec.views if views is None else [v for v in spec.views if tuple(v) in {tuple(w) for w in views}]:
                 progress and progress(name, f, v)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import json
 import logging
 import platform
 import shutil
@@ -35,8 +34,7 @@ from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
 from ..camera import RigSpec
 from ..data import confined
-from ..data.folder import atomic_write
-from ..data.metadata import validate_manifest
+from ..data.folder import FrameMeta, Manifest, ObjectRow, ObjectTable, atomic_write, existing_dataset, output_lock
 from ..errors import LfusdError
 from .. import layout
 from ..layout import FORMAT, FORMAT_VERSION, frame_dir, view_key
@@ -98,41 +96,7 @@ def _io_error(path: Path, e: OSError) -> LfusdError:
     return LfusdError(f"cannot write to {path} ({e.strerror or e}); {fix}")
 
 
-def existing_dataset(out: Path) -> dict | None:
-    """The manifest of the lfusd dataset in ``out``; None for a missing or empty folder. Raises
-    LfusdError for anything lfusd cannot prove it wrote: a file, a folder with other files, a
-    manifest without lfusd's format field and a dataset id. Reads only."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise LfusdError(f"output {out} is a file; give a folder for the dataset")
-    if not out.is_dir():
-        return None
-    if confined.is_link(out / layout.LOCK):  # planted: the lock would write through it
-        raise confined.link_error(out / layout.LOCK)
-    try:
-        entries = [p for p in out.iterdir() if p.name != layout.LOCK]
-    except OSError as e:
-        raise LfusdError(f"cannot read output folder {out} ({e.strerror}); fix its permissions or choose another -o folder") from None
-    if not entries:
-        return None
-    path = out / layout.MANIFEST
-    if not path.is_file() or path.is_symlink():
-        raise LfusdError(f"output folder {out} is not empty and holds no lfusd dataset; choose an empty or new folder")
-    try:
-        manifest = json.loads(path.read_text())
-    except (OSError, ValueError) as e:
-        raise LfusdError(f"{path} is unreadable ({getattr(e, 'strerror', None) or e}), so {out} is not provably an lfusd dataset; "
-                         "move the folder aside or choose another -o folder") from None
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        raise LfusdError(f"output folder {out} holds a {layout.MANIFEST} that is not an lfusd dataset's; choose another -o folder "
-                         "(lfusd deletes nothing it did not write, --overwrite included)")
-    if not manifest.get("id"):
-        raise LfusdError(f"output folder {out} holds an lfusd dataset of an older format (no dataset id); choose another -o folder "
-                         "or move it aside")
-    return validate_manifest(manifest, path)
-
-
-def _overwrite_refusal(req: RenderRequest, manifest: dict) -> str | None:
+def _overwrite_refusal(req: RenderRequest, manifest: Manifest) -> str | None:
     """Why ``--overwrite`` may not remove the dataset in ``req.out``, or None when it may."""
     out = req.out
     if out.is_symlink():
@@ -148,13 +112,13 @@ def _overwrite_refusal(req: RenderRequest, manifest: dict) -> str | None:
     return None
 
 
-def _own_names(manifest: dict) -> list[str]:
+def _own_names(manifest: Manifest) -> list[str]:
     """The top-level entries of OUT that lfusd wrote: its files and one folder per rig (a
     validated manifest's rig names)."""
-    return [*layout.OWN_ENTRIES, *manifest.get("rigs", [])]
+    return [*layout.OWN_ENTRIES, *manifest.rigs]
 
 
-def _remove_dataset(out: Path, manifest: dict) -> None:
+def _remove_dataset(out: Path, manifest: Manifest) -> None:
     """Remove the files lfusd wrote for the dataset in ``out`` (lfusd.data.confined.remove_own):
     never the folder itself, nor a file a user added anywhere in it; the manifest last, so an
     interrupted removal leaves a dataset that --overwrite removes."""
@@ -164,21 +128,21 @@ def _remove_dataset(out: Path, manifest: dict) -> None:
         raise _io_error(out, e) from None
 
 
-def _prepare_output(req: RenderRequest, settings: dict, files: dict, remove: bool = True) -> dict | None:
+def _prepare_output(req: RenderRequest, settings: dict, files: dict, remove: bool = True) -> Manifest | None:
     """Refuse a folder holding something else or another dataset; return the existing
     manifest, if any (``--overwrite``: remove the other dataset when ``remove``, and return None)."""
     out = req.out
     manifest = existing_dataset(out)
     if manifest is None:
         return None
-    old = manifest.get("settings", {})
+    old = manifest.settings
     # Rigs not asked for this time may already be in the folder; the ones asked for must match.
     diff = [k for k in settings if k != "rigs" and old.get(k) != settings[k]]
     diff += [f"rig {n}" for n, s in settings["rigs"].items() if old.get("rigs", {}).get(n, s) != s]
     if not diff:
         return manifest
     if "stage_id" in diff:
-        changed = changed_file(manifest.get("stage", {}).get("files") or {}, files)
+        changed = changed_file(manifest.stage.get("files") or {}, files)
         diff[diff.index("stage_id")] = f"stage file {changed} (changed since it was rendered)" if changed else "stage files"
     refusal = _overwrite_refusal(req, manifest)
     if not req.overwrite or refusal:
@@ -190,55 +154,49 @@ def _prepare_output(req: RenderRequest, settings: dict, files: dict, remove: boo
     return None
 
 
-def output_lock(out: Path):
-    """Hold OUT/.lock while writing the dataset in ``out``: :func:`lfusd.data.confined.dataset_lock`."""
-    return confined.dataset_lock(out)
-
-
-def _write_manifest(req: RenderRequest, settings: dict, previous: dict | None, rigs: list[StageRig], frames: list[int], device: str | None,
-                    files: dict, world: dict | None = None) -> None:
+def _write_manifest(req: RenderRequest, settings: dict, previous: Manifest | None, rigs: list[StageRig], frames: list[int], device: str | None,
+                    files: dict, world: dict | None = None) -> Manifest:
+    """Write OUT/manifest.json for this run over ``previous`` (the dataset's manifest before it); returns it."""
     from ..data import integrity
+    from ..data.folder import RenderSettings
 
-    rig_specs = dict(previous["settings"]["rigs"]) if previous else {}
+    rig_specs = dict(previous.settings.rigs) if previous else {}
     rig_specs.update(settings["rigs"])
-    all_frames = sorted(set(previous.get("frames", [])) | set(frames)) if previous else sorted(frames)
-    manifest = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
-        "id": (previous or {}).get("id") or uuid.uuid4().hex,  # proof that lfusd wrote the folder
-        "stage": {"path": str(Path(req.stage).resolve()), "sha256": files.get(Path(req.stage).name, {}).get("sha256"), "files": files},
+    all_frames = sorted(set(previous.frames) | set(frames)) if previous else sorted(frames)
+    manifest = Manifest.new(
+        format=FORMAT,
+        version=FORMAT_VERSION,
+        id=(previous.id if previous else None) or uuid.uuid4().hex,  # proof that lfusd wrote the folder
+        stage={"path": str(Path(req.stage).resolve()), "sha256": files.get(Path(req.stage).name, {}).get("sha256"), "files": files},
         # The stage's up axis and units, and the map of its coordinates into lfusd's world.
-        "world": world or (previous or {}).get("world"),
-        "rigs": sorted(rig_specs),
-        "frames": all_frames,
-        "settings": {**settings, "rigs": rig_specs},
-        "device": device or (previous or {}).get("device"),
+        world=world or (previous.world if previous else None),
+        rigs=tuple(sorted(rig_specs)),
+        frames=tuple(all_frames),
+        settings=RenderSettings.from_dict({**settings, "rigs": rig_specs}),
+        device=device or (previous.device if previous else None),
         # Finished units: frames whose every view matches its completion record, per rig (the
         # records are the ground truth; this is the summary a reader can trust).
-        "complete": {
+        complete={
             # sizes only: Plan has checked the checksums of this run's views, and rehashing a
             # whole dataset at every manifest write would cost minutes at the reference scale
             name: integrity.complete_frames(req.out, name, all_frames, RigSpec.from_dict(spec).views)
             for name, spec in sorted(rig_specs.items())
         },
-        "software": _software(),
-        "layout": f"OUT/<rig>/f<frame:06d>/<row:02d>_<col:02d>/{{{','.join(layout.VIEW_FILES)}}}; OUT/<rig>/f<frame:06d>/{layout.FRAME_META}",
-    }
-    atomic_write(req.out / layout.MANIFEST, json.dumps(manifest, indent=1))
+        software=_software(),
+        layout=f"OUT/<rig>/f<frame:06d>/<row:02d>_<col:02d>/{{{','.join(layout.VIEW_FILES)}}}; OUT/<rig>/f<frame:06d>/{layout.FRAME_META}",
+    )
+    atomic_write(req.out / layout.MANIFEST, manifest.to_json())
+    return manifest
 
 
 def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[StageRig], frames: list[int], objects: list[ObjectEntry],
                            classes: list[str], created: list[Path] | None = None) -> None:
     """objects.json, and each frame's frame.json that is not there yet; ``created`` collects the
     frame folders made here."""
-    table = {
-        "classes": classes,
-        "objects": [
-            {"id": o.instance_id, "prim_path": o.prim_path, "label": o.label, "class_id": o.class_id, "meshes": list(o.mesh_paths)}
-            for o in objects
-        ],
-    }
-    atomic_write(req.out / layout.OBJECTS, json.dumps(table, indent=1))
+    table = ObjectTable.new(classes=tuple(classes), objects=tuple(
+        ObjectRow.new(id=o.instance_id, prim_path=o.prim_path, label=o.label, class_id=o.class_id, meshes=tuple(o.mesh_paths))
+        for o in objects))
+    atomic_write(req.out / layout.OBJECTS, table.to_json())
     paths = [o.prim_path for o in objects]
     poses = ObjectPoses(stage)
     for rig in rigs:
@@ -249,13 +207,13 @@ def _write_static_metadata(req: RenderRequest, stage: Usd.Stage, rigs: list[Stag
             if created is not None and not d.exists():
                 created.append(d)
             d.mkdir(parents=True, exist_ok=True)
-            meta = {
-                "frame": f,
-                "time_code": f,
-                "cam_to_world": {view_key(v): _matrix(rig.cam_to_world(stage, v, f)) for v in rig.spec.views},
-                "object_poses": {p: _matrix(m) for p, m in poses.at(paths, f).items()},
-            }
-            atomic_write(d / layout.FRAME_META, json.dumps(meta))
+            meta = FrameMeta.new(
+                frame=f,
+                time_code=f,
+                cam_to_world={view_key(v): _matrix(rig.cam_to_world(stage, v, f)) for v in rig.spec.views},
+                object_poses={p: _matrix(m) for p, m in poses.at(paths, f).items()},
+            )
+            atomic_write(d / layout.FRAME_META, meta.to_json())
 
 
 def _clean_stale(out: Path, rigs: list[str]) -> None:
@@ -323,7 +281,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
         check_ray_address(req.ray_address)
     rigs, frames = _rigs_and_frames(req, stage)
     existing = existing_dataset(req.out)
-    files = stage_files(req.stage, known=(existing or {}).get("stage", {}).get("files"))
+    files = stage_files(req.stage, known=existing.stage.get("files") if existing else None)
     settings = _settings(req, files, rigs)
     # Frames that may still be rendered next to these keep their raw passes (lfusd.truth.derive):
     # an animated stage's range; None for a static stage, which renders over any range.
@@ -349,20 +307,20 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
         names = [r.spec.name for r in rigs]
         scheduler = None
         try:
-            _clean_stale(req.out, sorted(set(names) | set((previous or {}).get("rigs", []))))
-            _write_manifest(req, settings, previous, rigs, frames, None, files, world)
+            _clean_stale(req.out, sorted(set(names) | set(previous.rigs if previous else ())))
+            written = _write_manifest(req, settings, previous, rigs, frames, None, files, world)
             _write_static_metadata(req, stage, rigs, frames, objects, classes, undo.frame_dirs)
             from ..keys import KEYS, MOTION
 
             motion = req.motion and any(KEYS[k].stage == MOTION for k in req.stored_keys())
             plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames, motion=motion,
-                        dataset_frames=json.loads((req.out / layout.MANIFEST).read_text())["frames"])
+                        dataset_frames=list(written.frames))
             device = None
             # imported before any child starts: a Ctrl-C then interrupts no import
             from .executors import run_units
 
             if overlap is not None:
-                scheduler = overlap(plan, rigs, json.loads((req.out / layout.MANIFEST).read_text())["frames"])
+                scheduler = overlap(plan, rigs, list(written.frames))
             undo.done()  # from here on what is written is kept: a rerun resumes it
             if plan.remaining:
                 units = plan_units(
@@ -381,12 +339,11 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
                 except BaseException:
                     # Record what did finish; a second failure here (a full disk) must not hide the first.
                     with contextlib.suppress(OSError):
-                        _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, None, files, world)
+                        _write_manifest(req, settings, written, rigs, frames, None, files, world)
                     raise
                 finally:
                     report.close()
-            _write_manifest(req, settings, json.loads((req.out / layout.MANIFEST).read_text()), rigs, frames, device, files, world)
-            manifest = json.loads((req.out / layout.MANIFEST).read_text())
+            manifest = _write_manifest(req, settings, written, rigs, frames, device, files, world).to_dict()
             if then is not None:
                 then(names)
         except OSError as e:

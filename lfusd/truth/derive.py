@@ -48,7 +48,7 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
     from ..errors import LfusdError
     from .motion import derive_motion
 
-    frames = set(ds.manifest["frames"])
+    frames = set(ds.record.frames)
     try:
         nxt = ds.raw_passes(frame + 1, view) if frame + 1 in frames else None
         prv = ds.raw_passes(frame - 1, view) if frame - 1 in frames else None
@@ -77,7 +77,7 @@ def occluders_of(ds: Dataset, frame: int, view: View):
 def _passes_of(ds: Dataset, frame: int, view: View) -> dict[str, Path | None]:
     """The raw-pass files a derivation of (frame, view) reads: {"prev", "cur", "next"}; None where the
     dataset has no such frame (as :func:`derive_view` decides)."""
-    frames = set(ds.manifest["frames"])
+    frames = set(ds.record.frames)
     return {k: frame_dir(ds.root, ds.rig_name, g) / view_key(view) / PASSES_EXR if k == "cur" or g in frames else None
             for k, g in (("prev", frame - 1), ("cur", frame), ("next", frame + 1))}
 
@@ -89,7 +89,7 @@ def _wanted(ds: Dataset) -> tuple[str, ...]:
 
 def wants_motion(ds: Dataset) -> bool:
     """Whether the dataset holds motion keys: rendered by render-video with motion keys asked for."""
-    return bool(ds.manifest["settings"].get("motion")) and any(KEYS[k].stage == MOTION for k in _wanted(ds))
+    return ds.record.settings.motion and any(KEYS[k].stage == MOTION for k in _wanted(ds))
 
 
 def write_motion(ds: Dataset, frame: int, view: View) -> Path:
@@ -199,7 +199,7 @@ def _pool_init(parent: int) -> None:
 
 def raw_needed(ds: Dataset, frame: int, view: View) -> str | None:
     """Why the raw passes of (frame, view) must stay (None: they may go; see the module docstring)."""
-    if ds.version == 1 or ds.manifest["settings"].get("keep_raw"):
+    if ds.version == 1 or ds.record.settings.keep_raw:
         return "the dataset keeps its raw passes"
     d = ds.view_dir(frame, view)
     rec = integrity.read_record(d)
@@ -208,7 +208,7 @@ def raw_needed(ds: Dataset, frame: int, view: View) -> str | None:
     if not wants_motion(ds):
         return None
     complete = set(ds.frames)
-    first_last = ds.manifest["settings"].get("stage_frames")  # None: a static stage, every frame can come
+    first_last = ds.record.settings.stage_frames  # None: a static stage, every frame can come
     for g in range(frame - REACH, frame + REACH + 1):
         if g in complete:
             if abs(g - frame) <= 1 and integrity.motion_problem(ds.view_dir(g, view), integrity.motion_inputs(_passes_of(ds, g, view))):
@@ -220,7 +220,7 @@ def raw_needed(ds: Dataset, frame: int, view: View) -> str | None:
 
 def drop_raw(ds: Dataset, frames, views) -> int:
     """Remove the raw passes that nothing needs any more among ``frames`` x ``views``; how many went."""
-    if ds.version == 1 or ds.manifest["settings"].get("keep_raw"):
+    if ds.version == 1 or ds.record.settings.keep_raw:
         return 0
     n = 0
     for f in frames:
@@ -264,9 +264,9 @@ def derive_dataset(
     the folders it writes into (lfusd.data.confined). ``lock=False``: the caller holds it (a render)."""
     if not lock:
         return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views)
-    from ..data import confined
+    from ..data.folder import output_lock
 
-    with confined.dataset_lock(root):
+    with output_lock(root):
         return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views, check_links=True)
 
 
@@ -298,7 +298,7 @@ def _derive_dataset(
     for ds in datasets:
         ds.refresh()  # the frames complete now, not when the manifest was last written
     # lfusd flow (overwrite) derives every frame the manifest lists, and names what it cannot read
-    everything = {ds.rig_name: ds.manifest["frames"] if overwrite else ds.frames for ds in datasets}
+    everything = {ds.rig_name: list(ds.record.frames) if overwrite else ds.frames for ds in datasets}
     selected = {ds.rig_name: (set(everything[ds.rig_name] if frames is None else frames), ds.views if views is None else views)
                 for ds in datasets}
     # First the static keys (and the pixels digests of new raw passes, which motion records name),
@@ -318,7 +318,7 @@ def _derive_dataset(
         # A neighbour's motion changes when a frame next to it arrives (its t+-1 keys were masked):
         # it is a candidate too, derived again only if its record says it came from other passes.
         candidates = sorted(wanted | {g for f in wanted for g in (f - 1, f + 1) if g in ds.frames})
-        if overwrite and ds.version >= 2 and not ds.manifest["settings"].get("keep_raw"):
+        if overwrite and ds.version >= 2 and not ds.record.settings.keep_raw:
             gone = [f for f in sorted(wanted) for v in vs if not (ds.view_dir(f, v) / PASSES_EXR).is_file()]
             if gone:
                 raise LfusdError(f"{root}: 'lfusd flow' derives the motion keys again from Blender's raw passes, which this dataset removed "

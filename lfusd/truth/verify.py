@@ -744,15 +744,13 @@ def record_certificate(out, reports: dict) -> dict:
     """Write verify's figures into the dataset's manifest (``certificate``: per rig, the per-key
     pixels compared, coverage, p99, max, count over the limit, ties, and the verdict), so the
     dataset carries its own proof. Returns the certificate. Call it while holding the folder."""
-    import json
+    from dataclasses import replace
     from pathlib import Path
 
-    from ..data.folder import atomic_write
+    from ..data.folder import atomic_write, read_manifest
     from ..layout import MANIFEST
 
-    path = Path(out) / MANIFEST
-    manifest = json.loads(path.read_text())
+    manifest = read_manifest(out)
     cert = {name or "": rep.certificate() for name, rep in reports.items()}
-    manifest["certificate"] = {**(manifest.get("certificate") or {}), **cert}
-    atomic_write(path, json.dumps(manifest, indent=1))
+    atomic_write(Path(out) / MANIFEST, replace(manifest, certificate={**(manifest.certificate or {}), **cert}).to_json())
     return cert
