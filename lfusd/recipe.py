@@ -425,10 +425,16 @@ def check_recipe_size(recipe: Recipe, root: Path) -> None:
 
 
 def _check_folder(root: Path, recipe_text: str) -> None:
-    """A rerun into ``root`` must use the recipe that made it (same text)."""
-    copy = root / layout.RECIPE_COPY
-    if copy.is_file() and copy.read_text() != recipe_text:
-        raise LfusdError(f"{root} was made from a different recipe ({copy}); rerun with that recipe or choose a new -o folder")
+    """A rerun into ``root`` must use the recipe that made it (same text): lfusd.data.folder.resumable_folder
+    with the recipe's copy as the record (a folder without one is a new recipe dataset)."""
+    from .data.folder import resumable_folder
+
+    def same_recipe(copy: Path) -> str:
+        if copy.read_text() != recipe_text:
+            raise LfusdError(f"{root} was made from a different recipe ({copy}); rerun with that recipe or choose a new -o folder")
+        return recipe_text
+
+    resumable_folder(root, layout.RECIPE_COPY, "dataset", "recipe dataset", same_recipe, foreign=True)
 
 
 def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeResult:

@@ -401,16 +401,20 @@ def read_frame_meta(path: str | Path, views=(), prims=()) -> FrameMeta:
 # ---- creating, resuming and locking -----------------------------------------------------------
 
 
-def existing_dataset(out: str | Path) -> Manifest | None:
-    """The manifest of the lfusd dataset in ``out`` that a render resumes or may overwrite; None for a missing or empty folder. Raises
-    LfusdError for anything lfusd cannot prove it wrote: a file, a folder with other files, a
-    manifest without lfusd's format field and a dataset id. Reads only."""
+def resumable_folder(out: str | Path, record: str, noun: str, kind: str, read: Callable[[Path], Any], foreign: bool = False):
+    """The record of the output folder ``out`` that a run resumes (a render's dataset, a rig study,
+    a recipe's dataset), read by ``read(path of record)``, which refuses a record lfusd did not
+    write or that asks for other settings; None for a missing or empty folder (its lock aside).
+
+    One-line LfusdError for a file, a planted ``.lock`` link, an unreadable folder, and (unless
+    ``foreign``) a folder holding other files but no ``record``. ``noun``: what the folder is for
+    ('dataset', 'study'); ``kind``: what its record proves it holds ('lfusd dataset', 'rig study').
+    Reads only."""
     from . import confined
-    from .metadata import validate_manifest
 
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise LfusdError(f"output {out} is a file; give a folder for the dataset")
+        raise LfusdError(f"output {out} is a file; give a folder for the {noun}")
     if not out.is_dir():
         return None
     if confined.is_link(out / layout.LOCK):  # planted: the lock would write through it
@@ -419,11 +423,27 @@ def existing_dataset(out: str | Path) -> Manifest | None:
         entries = [p for p in out.iterdir() if p.name != layout.LOCK]
     except OSError as e:
         raise LfusdError(f"cannot read output folder {out} ({e.strerror}); fix its permissions or choose another -o folder") from None
-    if not entries:
+    path = out / record
+    if not entries or (foreign and not path.is_file()):
         return None
-    path = out / layout.MANIFEST
     if not path.is_file() or path.is_symlink():
-        raise LfusdError(f"output folder {out} is not empty and holds no lfusd dataset; choose an empty or new folder")
+        raise LfusdError(f"output folder {out} is not empty and holds no {kind}; choose an empty or new folder")
+    return read(path)
+
+
+def existing_dataset(out: str | Path) -> Manifest | None:
+    """The manifest of the lfusd dataset in ``out`` that a render resumes or may overwrite; None for
+    a missing or empty folder. Raises LfusdError for anything lfusd cannot prove it wrote: a file, a
+    folder with other files, a manifest without lfusd's format field and a dataset id. Reads only."""
+    return resumable_folder(out, layout.MANIFEST, "dataset", "lfusd dataset", _dataset_manifest)
+
+
+def _dataset_manifest(path: Path) -> Manifest:
+    """The manifest a render may resume or overwrite: lfusd's format and a dataset id, and the
+    checks of lfusd.data.metadata (names that become paths, sizes that become loops)."""
+    from .metadata import validate_manifest
+
+    out = path.parent
     try:
         manifest = json.loads(path.read_text())
     except (OSError, ValueError) as e:
@@ -435,7 +455,7 @@ def existing_dataset(out: str | Path) -> Manifest | None:
     if not manifest.get("id"):
         raise LfusdError(f"output folder {out} holds an lfusd dataset of an older format (no dataset id); choose another -o folder "
                          "or move it aside")
-    validate_manifest(manifest, path)  # names that become paths, sizes that become loops
+    validate_manifest(manifest, path)
     return Manifest._build(manifest, rigs=tuple(manifest.get("rigs", ())), frames=tuple(manifest.get("frames", ())),
                            settings=RenderSettings.from_dict(manifest.get("settings", {})))
 

@@ -113,28 +113,29 @@ def _digest(obj) -> str:
 
 
 def _prepare_folder(out: Path, record: dict) -> None:
-    """Refuse a folder that is not this study's: a file, other files, another study's record."""
-    if out.exists() and not out.is_dir():
-        raise LfusdError(f"-o {out} is a file; give a folder for the study")
-    path = out / layout.STUDY_RECORD
-    if out.is_dir() and any(out.iterdir()):
-        if not path.is_file():
-            raise LfusdError(f"study folder {out} is not empty and holds no rig study; choose an empty or new folder")
+    """Refuse a folder that is not this study's: a file, other files, another study's record
+    (lfusd.data.folder.resumable_folder); then write the record of a new study."""
+    from ..data.folder import atomic_write, resumable_folder
+
+    def same_study(path: Path) -> dict:
         try:
             old = json.loads(path.read_text())
         except (OSError, ValueError) as e:
             raise LfusdError(f"{path} is unreadable ({e}); move the folder aside or choose another -o folder") from None
-        if old.get("format") != STUDY_FORMAT:
+        if not isinstance(old, dict) or old.get("format") != STUDY_FORMAT:
             raise LfusdError(f"{path} is not a rig study's record; choose another -o folder")
-        diff = [k for k in record["settings"] if old.get("settings", {}).get(k) != record["settings"][k]]
+        diff = [k for k in record["settings"] if (old.get("settings") or {}).get(k) != record["settings"][k]]
         if old.get("stage_id") != record["stage_id"]:
             diff.insert(0, "the stage's files")
         if diff:
             raise LfusdError(f"study folder {out} holds a study with other settings (differs in {', '.join(diff)}); "
                              "choose another -o folder, or rerun with its settings to resume it")
+        return old
+
+    resumable_folder(out, layout.STUDY_RECORD, "study", "rig study", same_study)
     out.mkdir(parents=True, exist_ok=True)
-    if not path.is_file():
-        path.write_text(json.dumps(record, indent=1))
+    if not (out / layout.STUDY_RECORD).is_file():
+        atomic_write(out / layout.STUDY_RECORD, json.dumps(record, indent=1))
 
 
 def _check_apply(req: StudyRequest, stage_rigs: dict, positions: list[str]) -> list[str]:

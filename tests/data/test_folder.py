@@ -141,3 +141,31 @@ def test_the_writer_output_round_trips_and_opens_through_the_one_opener(capsys, 
 def test_a_dataset_and_the_analytic_fake_read_like_a_dataset():
     assert isinstance(FakeDataset(root="/d/s", rows=1, cols=2, width=8, height=6, frames=(1, 2)), folder.DatasetLike)
     assert not isinstance(object(), folder.DatasetLike)
+
+
+def test_one_resumable_folder_rule_for_render_study_and_recipe(tmp_path):
+    """A missing or empty folder (its lock aside) is new; a file, or other files without the
+    record, is refused in one line and left as it was; a record is read by the caller's check."""
+    def read(path):
+        return path.read_text()
+
+    def check(out, **kw):
+        return folder.resumable_folder(out, "record.json", "study", "rig study", read, **kw)
+
+    assert check(tmp_path / "new") is None
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / layout.LOCK).write_text("")
+    assert check(tmp_path / "empty") is None
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(LfusdError, match="is a file; give a folder for the study"):
+        check(tmp_path / "file")
+    users = tmp_path / "users"
+    users.mkdir()
+    (users / "notes.txt").write_text("mine")
+    with pytest.raises(LfusdError) as e:
+        check(users)
+    assert "not empty and holds no rig study" in str(e.value) and "\n" not in str(e.value)
+    assert check(users, foreign=True) is None  # a recipe's folder may hold other files
+    assert sorted(p.name for p in users.iterdir()) == ["notes.txt"]
+    (users / "record.json").write_text("ours")
+    assert check(users) == "ours"
