@@ -521,7 +521,7 @@ def test_a_full_disk_during_export_lfmat_is_one_line_and_leaves_nothing(tmp_path
 
 
 def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
-    from lfusd import exports as export
+    from lfusd.data.folder import remove_stale_partials
 
     dest = tmp_path / "exp"
     dead = tmp_path / ".exp.partial-999999999"  # no such process
@@ -531,7 +531,7 @@ def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
     alive.mkdir()
     other = tmp_path / ".exp.partial-notes"
     other.mkdir()
-    export._remove_stale_partials(dest)
+    remove_stale_partials(dest)
     assert not dead.exists() and alive.is_dir() and other.is_dir()
 
 

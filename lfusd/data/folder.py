@@ -27,6 +27,8 @@ import fcntl
 import functools
 import json
 import os
+import re
+import shutil
 import stat
 import sys
 import tempfile
@@ -491,3 +493,46 @@ def output_lock(out: str | Path):
         yield
     finally:
         os.close(fd)  # closing drops the flock
+
+
+def remove_stale_partials(dest: Path) -> None:
+    """Remove the partial folders of writes to ``dest`` that were killed (``.<name>.partial-<pid>``
+    of a process no longer running; never a link), so that a rerun leaves nothing behind."""
+    pattern = re.compile(rf"\.{re.escape(dest.name)}\.partial-(\d+)")
+    for p in dest.parent.iterdir() if dest.parent.is_dir() else ():
+        m = pattern.fullmatch(p.name)
+        if not m or p.is_symlink() or not p.is_dir():
+            continue
+        try:
+            os.kill(int(m[1]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(p, ignore_errors=True)
+        except (PermissionError, OverflowError):
+            pass  # another user's running process, or no pid
+
+
+@contextlib.contextmanager
+def new_folder(dest: str | Path, what: str = "export"):
+    """A new folder ``dest`` written whole or not at all (an export): yields the hidden path
+    ``.<name>.partial-<pid>`` beside it for the writer to create and fill, renamed to ``dest`` when
+    the block ends, removed when it fails (an OSError becomes one line). The partial folders of
+    killed writes to ``dest`` are removed first; an existing ``dest`` is refused."""
+    from .formats import why_unwritable
+
+    dest = Path(dest)
+    if dest.exists():
+        raise LfusdError(f"{what} target {dest} already exists; choose a new folder or remove it first")
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise LfusdError(f"cannot create {what} target {dest} ({e.strerror}): {why_unwritable(dest)}") from None
+    remove_stale_partials(dest)
+    tmp = dest.parent / f".{dest.name}.partial-{os.getpid()}"
+    try:
+        yield tmp
+        tmp.rename(dest)
+    except OSError as e:
+        raise LfusdError(f"cannot write {what} {dest} ({e.strerror or e}): {why_unwritable(tmp / 'x')}") from None
+    finally:
+        if tmp.is_dir() and not tmp.is_symlink():
+            shutil.rmtree(tmp, ignore_errors=True)
