@@ -20,6 +20,7 @@ sys.path.insert(0, str(ROOT))
 
 from lfusd import LfusdError  # noqa: E402
 from lfusd import layout  # noqa: E402
+from lfusd.data.folder import atomic_write  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 
@@ -173,9 +174,8 @@ class Run:
     def save(self, model, opt, step: int, config: dict) -> None:
         """Write the checkpoint (atomically) and the log up to ``step``."""
         self.ckpt.parent.mkdir(exist_ok=True)
-        tmp = self.ckpt.with_suffix(".tmp")
-        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step, "config": config, "rng": torch.get_rng_state()}, tmp)
-        os.replace(tmp, self.ckpt)  # a crash mid-write leaves the previous checkpoint whole
+        state = {"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step, "config": config, "rng": torch.get_rng_state()}
+        atomic_write(self.ckpt, lambda tmp: torch.save(state, tmp))  # a crash mid-write leaves the previous checkpoint whole
         self.log["checkpoint_step"] = step
         self.write_log()
 
