@@ -52,11 +52,11 @@ def _warm() -> None:
 
 def _derive(root: str, rig: str, view: View, frames: list[int], cached_views: int) -> int:
     """In a lane: derive the motion of ``frames`` of one view that is not current; how many were written."""
-    from ..data.dataset import Dataset
+    from ..data.folder import open_dataset
     from ..truth.derive import derive_if_stale
 
     key = (root, rig, view)
-    ds = _DATASETS.pop(key, None) or Dataset(root, rig=rig)
+    ds = _DATASETS.pop(key, None) or open_dataset(root, rig)
     _DATASETS[key] = ds
     while len(_DATASETS) > cached_views:
         _DATASETS.popitem(last=False)

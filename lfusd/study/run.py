@@ -205,9 +205,9 @@ def _render(req: StudyRequest, render_layer: Path, frames: list[int]) -> None:
 
 def load_views(root: Path, rig: str, frame: int, index: dict[str, int]) -> Views:
     """Every camera of a union rig at one frame, from the study's renders."""
-    from ..data.dataset import Dataset
+    from ..data.folder import open_dataset
 
-    ds = Dataset(root, rig=rig)
+    ds = open_dataset(root, rig)
     n = len(index)
     rgb = np.stack([ds.read(frame, (0, k), "rgb") for k in range(n)])
     depth = np.stack([ds.read(frame, (0, k), "depth") for k in range(n)])
@@ -317,11 +317,11 @@ def _score_all(req, todo, results, unions, bands, scores_dir, settings_id, devic
 
 
 def _scene_flow(req, c: Candidate, v0: Views, v1: Views, q0, t: int, device) -> dict:
-    from ..data.dataset import Dataset
+    from ..data.folder import open_dataset
 
     centre = v0.index[c.cameras[c.spec.views.index(c.spec.centre_view)]]
     q1 = estimate_inverse_depth(v1, centre, sorted({v1.index[i] for i in c.cameras}), req.n_planes, device=device)
-    ds = Dataset(req.out / layout.STUDY_RENDERS, rig=union_rig_name(c.position))
+    ds = open_dataset(req.out / layout.STUDY_RENDERS, union_rig_name(c.position))
     gt, valid = ds.read(t, (0, centre), "scene_flow"), ds.read(t, (0, centre), "valid_fwd")
     return scene_flow_error(q0, q1, v0.rgb[centre], v1.rgb[centre], v0.K, v0.poses[centre], v1.poses[centre], gt, valid)
 

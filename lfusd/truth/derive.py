@@ -30,7 +30,7 @@ import numpy as np
 
 from ..data import integrity, store
 from ..processes import die_with_parent, own_process_group
-from ..data.folder import atomic_write
+from ..data.folder import atomic_write, open_dataset
 from ..data.dataset import Dataset
 from ..camera import View
 from ..errors import LfusdError
@@ -181,7 +181,7 @@ def derive_if_stale(ds: Dataset, frame: int, view: View) -> bool:
 
 def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) -> tuple[int, int]:
     root, rig, view, static, motion = args
-    ds = Dataset(root, rig=rig)
+    ds = open_dataset(root, rig)
     checked = 0
     for f in sorted(set(static) | set(motion)):
         if f in static:
@@ -242,7 +242,7 @@ def drop_raw_near(root: str | Path, rigs: list[str], frames) -> int:
     any more around ``frames`` of ``rigs``, as :func:`derive_dataset` does at its end."""
     n = 0
     for rig in rigs:
-        ds = Dataset(root, rig=rig)
+        ds = open_dataset(root, rig)
         ds.refresh()
         near = sorted({g for f in frames for g in range(f - REACH, f + REACH + 1) if g in ds.frames})
         n += drop_raw(ds, near, ds.views)
@@ -290,7 +290,7 @@ def _derive_dataset(
     """
     from ..data.folder import open_datasets
 
-    datasets = list(open_datasets(root) if rigs is None else [Dataset(root, rig=rig) for rig in rigs])
+    datasets = list(open_datasets(root) if rigs is None else [open_dataset(root, rig) for rig in rigs])
     if check_links:
         from ..data import confined
 
