@@ -15,7 +15,7 @@ from ..data.folder import new_folder
 from .registry import FORMATS, Format, find_export, get
 
 # The formats, in the order the command line lists them (each module registers itself).
-from . import hci, kitti, spring, flo, pfm, lfmat, hf, webdataset, npy  # noqa: E402,F401  the registry import
+from . import hci, kitti, spring, flo, pfm, lfmat, hf, webdataset  # noqa: E402,F401  the registry import
 
 __all__ = ["FORMATS", "Format", "export", "find_export", "get"]
 

@@ -138,12 +138,3 @@ def test_hci_export_of_a_rendered_scene(box_dataset, tmp_path):
     assert (cfg["width"], cfg["height"], cfg["num_cams_x"]) == (ds.rig.width, ds.rig.height, ds.rig.cols)
     pose = ds.cam_to_world(t, c)
     assert (cfg["center_cam_x_m"], cfg["center_cam_y_m"], cfg["center_cam_z_m"]) == pytest.approx(tuple(pose[:3, 3]))
-
-
-def test_npy_export_through_the_cli(ds, tmp_path, monkeypatch, capsys):
-    import lfusd.data.folder
-
-    monkeypatch.setattr(lfusd.data.folder, "open_dataset", lambda path, rig=None: ds)
-    assert main(["export", "npy", "/data/fakescene", str(tmp_path / "n"), "--frame", "2", "--all-views"]) == 0
-    assert "9 items" in capsys.readouterr().out
-    np.testing.assert_array_equal(np.load(tmp_path / "n" / "depth" / "0002_01_02.npy"), ds.read(2, (1, 2), "depth"))
