@@ -98,13 +98,12 @@ def _sha256(path: Path) -> str:
 
 def verification_figures(ds) -> dict:
     """What the dataset's certificate says about its verification, where lfusd wrote one: the
-    manifest's ``verify`` record, a recipe's scene record (``scenes/<scene>.json``) and card."""
+    manifest's ``certificate`` (lfusd verify's figures), a recipe's scene record (``scenes/<scene>.json``) and card."""
     root = Path(getattr(ds, "root", "."))
     out = {}
-    manifest = getattr(ds, "manifest", {}) or {}
-    for k in ("verify", "verification", "certificate"):
-        if k in manifest:
-            out[k] = manifest[k]
+    record = getattr(ds, "record", None)  # the typed manifest of a Dataset (lfusd.data.folder.Manifest)
+    if record is not None and record.certificate is not None:
+        out["certificate"] = record.certificate
     record = root.parent / f"{root.name}.json"
     card = root.parent.parent / layout.RECIPE_CARD_JSON
     for name, path, fields in (("scene_record", record, ("verified", "compared")), ("card", card, ("name", "verified", "pixels"))):

@@ -626,8 +626,8 @@ def dataset_stage_path(ds) -> str | None:
     path = getattr(ds, "stage_path", None)
     if path:
         return str(path)
-    manifest = getattr(ds, "manifest", None) or {}
-    return (manifest.get("stage") or {}).get("path")
+    record = getattr(ds, "record", None)  # a Dataset's typed manifest (lfusd.data.folder.Manifest)
+    return (record.stage or {}).get("path") if record is not None else None
 
 
 def verify_dataset(
@@ -643,7 +643,7 @@ def verify_dataset(
 
     ``ds`` needs ``frames``, ``views``, ``intrinsics(view)``, ``cam_to_world(frame, view)``,
     ``read(frame, view, key)`` and ``objects`` ({id: obj with .prim_path, .label}); the stage
-    comes from ``stage_path``, ``ds.stage_path`` or ``ds.manifest['stage']['path']``; ``baseline`` (or ``ds.baseline``) enables
+    comes from ``stage_path``, ``ds.stage_path`` or ``ds.record.stage['path']``; ``baseline`` (or ``ds.baseline``) enables
     the disparity-change check. ``progress(frame, view)`` is called before each view.
     """
     from ..author.geometry import StageGeometry
@@ -655,9 +655,9 @@ def verify_dataset(
     geo = StageGeometry(open_stage(stage_path))
     baseline = baseline if baseline is not None else getattr(ds, "baseline", None)
     # Every frame the manifest lists, complete or not: a view missing there is a failure, not a skip.
-    manifest = getattr(ds, "manifest", None) or {}
-    all_frames = sorted(int(f) for f in manifest.get("frames") or ds.frames)
-    expect_motion = bool(manifest.get("settings", {}).get("motion"))
+    record = getattr(ds, "record", None)  # a Dataset's typed manifest; analytic fakes have none
+    all_frames = sorted(int(f) for f in (record.frames if record is not None else ()) or ds.frames)
+    expect_motion = record is not None and record.settings.motion
     frames = all_frames if frames is None else [int(f) for f in frames]
     views = list(ds.views) if views is None else [tuple(v) for v in views]
     for f in frames:
