@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..data.folder import new_folder
+from ..data.folder import DatasetLike, new_folder
 from .registry import FORMATS, Format, find_export, get
 
 # The formats, in the order the command line lists them (each module registers itself).
@@ -20,7 +20,7 @@ from . import hci, kitti, spring, flo, pfm, lfmat, hf, webdataset  # noqa: E402,
 __all__ = ["FORMATS", "Format", "export", "find_export", "get"]
 
 
-def export(ds, fmt: str, dest, frame: int | None = None, **kw):
+def export(ds: DatasetLike, fmt: str, dest, frame: int | None = None, **kw):
     """Write ``ds`` in format ``fmt`` (:data:`FORMATS`) into the new folder ``dest``, whole or not at
     all (:func:`lfusd.data.folder.new_folder`): a failed export leaves nothing that blocks its retry."""
     writer = get(fmt).writer

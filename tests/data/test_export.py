@@ -138,3 +138,19 @@ def test_hci_export_of_a_rendered_scene(box_dataset, tmp_path):
     assert (cfg["width"], cfg["height"], cfg["num_cams_x"]) == (ds.rig.width, ds.rig.height, ds.rig.cols)
     pose = ds.cam_to_world(t, c)
     assert (cfg["center_cam_x_m"], cfg["center_cam_y_m"], cfg["center_cam_z_m"]) == pytest.approx(tuple(pose[:3, 3]))
+
+
+def test_the_facade_export_is_the_registry_dispatch_and_the_cli_offers_every_registered_format():
+    import argparse
+
+    import lfusd
+    from lfusd.commands import export as command
+
+    assert lfusd.export is export.export  # the subpackage is lfusd.exports, so lfusd.export stays the function
+    parser = argparse.ArgumentParser()
+    command.register(parser.add_subparsers())
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["export"]
+    fmt = next(a for a in sub._actions if a.dest == "format")
+    assert list(fmt.choices) == list(export.FORMATS) == ["hci", "kitti", "spring", "flo", "pfm", "lfmat", "hf", "webdataset"]
+    flags = {s for a in sub._actions for s in a.option_strings}
+    assert {o.flag for f in export.FORMATS.values() for o in f.options} <= flags
