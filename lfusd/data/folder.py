@@ -12,7 +12,11 @@ the exports) and every reader goes through here:
   :mod:`lfusd.data.metadata` (names that become paths, sizes that become loops) and written back
   exactly as read (the fields a record does not type keep their place and value);
 - :class:`DatasetLike`: what reads like a :class:`lfusd.data.dataset.Dataset` (exports,
-  evaluation and verification take any such object).
+  evaluation and verification take any such object);
+- creating, resuming and locking: :func:`resumable_folder` (the one rule for the output folder a
+  render, a rig study or a recipe resumes; :func:`existing_dataset` is the render's),
+  :func:`output_lock` (one writer per folder), :func:`new_folder` (an export target written whole
+  or not at all).
 
 Imports only the standard library and lfusd's base modules at module level (the Blender worker
 imports it), never pxr, bpy or torch.
