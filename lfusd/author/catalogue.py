@@ -144,7 +144,7 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
     from pxr import Sdf, Usd, UsdLux
 
     from .geometry import StageGeometry, check_geometry
-    from .stage import files_digest, stage_files, usd_warnings
+    from .stage import files_digest, usd_warnings
 
     file = Path(file)
     if file.suffix.lower() not in USD_SUFFIXES:
@@ -186,10 +186,10 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
         triangles += len(m.triangles)
     pts = np.concatenate(verts) if verts else np.zeros((0, 3))
     lo, hi = (pts.min(0), pts.max(0)) if len(pts) else (np.zeros(3), np.zeros(3))
-    if not len(pts) or not np.all(hi - lo > 1e-6):
+    if not len(pts) or np.sum(hi - lo > 1e-6) < 2:  # a point or a line; a flat asset (a rug, a sign) is fine
         raise LfusdError(f"asset {file} has empty bounds ({np.round(lo, 6).tolist()} to {np.round(hi, 6).tolist()} m); "
-                         "give an asset with extent on all three axes")
-    files = stage_files(file)
+                         "give an asset with extent on at least two axes")
+    files = content_files(file)
     missing = sorted(k for k, v in files.items() if v.get("missing"))
     if missing:
         raise LfusdError(f"asset {file} names {missing[0]}, which does not exist; put the file beside the asset or fix the path")
@@ -200,6 +200,16 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
                  meters_per_unit=geometry.frame.meters_per_unit, up_axis=geometry.frame.up_axis,
                  ground=round(float(lo[2]), 6), licence=(licence or _licence(stage, prim)), sha256=files_digest(files),
                  triangles=int(triangles), textured_materials=textured_materials(stage))
+
+
+def content_files(file: str | Path) -> dict[str, dict]:
+    """The files an asset's content hash covers (lfusd.author.stage.stage_files: its layers and
+    the textures they name), less the entries inside a .usdz package (``pkg.usdz[inner]``),
+    which the package's own hash covers."""
+    from .stage import stage_files
+
+    files = stage_files(file)
+    return {k: v for k, v in files.items() if not (".usdz[" in k and k.endswith("]") and k.split("[", 1)[0] in files)}
 
 
 # -- the catalogue file ---------------------------------------------------------------------------
@@ -347,7 +357,7 @@ def builtin_entries() -> list[dict]:
 def draw_assets(catalogues) -> dict[str, list[Asset]]:
     """The catalogues' assets by class, for a template (classes in :data:`DRAWN` only); every
     asset's files must still hash as recorded (a changed asset would silently change stages)."""
-    from .stage import files_digest, stage_files
+    from .stage import files_digest
 
     out: dict[str, list[Asset]] = {}
     for c in catalogues or ():
@@ -355,7 +365,7 @@ def draw_assets(catalogues) -> dict[str, list[Asset]]:
             f = a.path()
             if not f.is_file():
                 raise LfusdError(f"asset {a.name} of catalogue {c} is missing ({f}); restore it or run `lfusd assets check`")
-            if files_digest(stage_files(f)) != a.sha256:
+            if files_digest(content_files(f)) != a.sha256:
                 raise LfusdError(f"asset {a.name} ({f}) changed since it was added to catalogue {c}; "
                                  f"run `lfusd assets add {f}` again")
             if a.cls in DRAWN:

@@ -48,16 +48,21 @@ def _textured(material: UsdShade.Material) -> bool:
     return False
 
 
+def _key(mat: UsdShade.Material) -> str:
+    """A material's identity: its path, or its prototype's for one seen through an instance."""
+    prim = mat.GetPrim()
+    return str(prim.GetPrimInPrototype().GetPath()) if prim.IsInstanceProxy() else str(prim.GetPath())
+
+
 def _bound_materials(gprims) -> dict[str, UsdShade.Material]:
     out = {}
     for g in gprims:
-        mat, _ = UsdShade.MaterialBindingAPI(g).ComputeBoundMaterial()
-        if mat:
-            out[str(mat.GetPath())] = mat
-        for subset in UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(g)) if g.IsA(UsdGeom.Imageable) else []:
-            m, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+        mats = [UsdShade.MaterialBindingAPI(g).ComputeBoundMaterial()[0]]
+        mats += [UsdShade.MaterialBindingAPI(s.GetPrim()).ComputeBoundMaterial()[0]
+                 for s in UsdGeom.Subset.GetAllGeomSubsets(UsdGeom.Imageable(g))]
+        for m in mats:
             if m:
-                out[str(m.GetPath())] = m
+                out.setdefault(_key(m), m)
     return out
 
 

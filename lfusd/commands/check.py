@@ -54,6 +54,9 @@ def handler(args) -> int:
 
         for footage in rig_footage(stage).values():
             print(footage.line())
+    from ..author.statistics import stage_statistics
+
+    print(stage_statistics(stage).line())
     first, last = frame_range(stage)
     n_rules = sum(len([k for k in r.rules if k not in ("draft", "tolerance")]) for r in checker.rules)
     summary = (f"{args.stage}: {len(checker.labelled)} labelled objects, {n_rules} rules, frames {first}-{last}"
