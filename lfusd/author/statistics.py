@@ -49,9 +49,18 @@ def _textured(material: UsdShade.Material) -> bool:
 
 
 def _key(mat: UsdShade.Material) -> str:
-    """A material's identity: its path, or its prototype's for one seen through an instance."""
+    """A material's identity: its prototype's path for one seen through an instance; its path in
+    its asset for one of a catalogue asset (however often placed); else its path."""
     prim = mat.GetPrim()
-    return str(prim.GetPrimInPrototype().GetPath()) if prim.IsInstanceProxy() else str(prim.GetPath())
+    if prim.IsInstanceProxy():
+        return str(prim.GetPrimInPrototype().GetPath())
+    p = prim.GetParent()
+    while p and not p.IsPseudoRoot():
+        attr = p.GetAttribute(ASSET)
+        if attr and attr.HasAuthoredValue():
+            return f"{attr.Get()}:{prim.GetPath().MakeRelativePath(p.GetPath())}"
+        p = p.GetParent()
+    return str(prim.GetPath())
 
 
 def _bound_materials(gprims) -> dict[str, UsdShade.Material]:

@@ -162,8 +162,8 @@ def write_tree(folder: str | Path, name: str = "oak") -> Path:
     return out
 
 
-def write_bench(folder: str | Path, name: str = "park_bench") -> Path:
-    """A Z-up metre bench without a class label: a 1.6 x 0.5 m seat at 0.45 m on two legs."""
+def write_bench(folder: str | Path, name: str = "park_bench", length: float = 1.6) -> Path:
+    """A Z-up metre bench without a class label: a ``length`` x 0.5 m seat at 0.42-0.47 m on two legs."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.usda"
@@ -172,8 +172,8 @@ def write_bench(folder: str | Path, name: str = "park_bench") -> Path:
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     root = UsdGeom.Xform.Define(stage, "/Bench")
     stage.SetDefaultPrim(root.GetPrim())
-    _mesh(stage, "/Bench/Seat", (-0.8, -0.25, 0.42), (0.8, 0.25, 0.47))
-    for k, x in enumerate((-0.7, 0.7)):
+    _mesh(stage, "/Bench/Seat", (-length / 2, -0.25, 0.42), (length / 2, 0.25, 0.47))
+    for k, x in enumerate((-length / 2 + 0.1, length / 2 - 0.1)):
         _mesh(stage, f"/Bench/Leg_{k}", (x - 0.03, -0.2, 0.0), (x + 0.03, 0.2, 0.42))
     stage.GetRootLayer().Save()
     return path

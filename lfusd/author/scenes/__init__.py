@@ -169,7 +169,7 @@ def is_asset(parts) -> bool:
 
 
 def reference_asset(stage: Usd.Stage, stage_path: Path, path: str, asset) -> None:
-    """Author ``<path>/Asset``, a reference to the catalogue asset's default prim under one
+    """Author ``<path>/Asset/Model``, a reference to the catalogue asset's default prim, under one
     transform that takes it into the object's frame (Z up, metres, grounded on its lowest point,
     centred: lfusd.author.catalogue.placement_matrix), and mark the object prim with the asset's
     content hash (``lfusd:asset``: everything below it is one object, lfusd.author.labels)."""
@@ -184,7 +184,8 @@ def reference_asset(stage: Usd.Stage, stage_path: Path, path: str, asset) -> Non
     x = UsdGeom.Xform.Define(stage, f"{path}/Asset")
     m = placement_matrix(asset)
     x.AddTransformOp().Set(Gf.Matrix4d(*[float(v) for v in m.ravel()]))
-    x.GetPrim().GetReferences().AddReference(Path(ref).as_posix(), asset.prim)
+    # the reference one level down: the asset's root keeps its own transform (a converter's turn or scale)
+    stage.DefinePrim(f"{path}/Asset/Model").GetReferences().AddReference(Path(ref).as_posix(), asset.prim)
     stage.GetPrimAtPath(path).CreateAttribute(ASSET, Sdf.ValueTypeNames.String, custom=True).Set(asset.sha256)
 
 

@@ -1,0 +1,256 @@
+"""The asset catalogue (issue 25 item 3): `lfusd assets add|list|check` on assets shaped like real
+ones (tests/support/catalogue_assets.py: a Y-up centimetre .usdc car with instanced wheels and a
+foreign textured material, a .usdz tree whose leaves are point instances), refusals, and
+generated scenes that draw them (placed in the one world frame, one object each, rules kept).
+Expected numbers are closed-form: the assets' authored dimensions in metres."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from support.catalogue_assets import (CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, TREE_HEIGHT, TREE_WIDTH, write_bad, write_bench,
+                                      write_car, write_tree)
+from support.cli import assert_one_line_error, run_cli
+
+from lfusd.author.catalogue import load_catalogue
+
+CM = 0.01
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    """A folder with the car (.usdc + textures/) and the tree (.usdz), catalogued beside them."""
+    folder = tmp_path_factory.mktemp("library")
+    write_car(folder)
+    write_tree(folder)
+    from lfusd.author.catalogue import add_assets
+
+    path, added = add_assets(folder)
+    return folder, path, {a.name: a for a in added}
+
+
+def test_add_records_class_bounds_units_up_ground_licence_and_hash(tmp_path, capsys):
+    write_car(tmp_path / "lib")
+    write_tree(tmp_path / "lib")
+    code, out, err = run_cli(capsys, "assets", "add", tmp_path / "lib")
+    assert code == 0, err
+    cat = tmp_path / "lib" / "catalogue.json"  # beside the assets: the default place
+    assert f"added 2 assets to {cat}" in out
+    entries = {a.name: a for a in load_catalogue(cat)}
+    car, tree = entries["sedan"], entries["oak"]
+    assert (car.file, tree.file) == ("sedan.usdc", "oak.usdz")  # relative: the folder can move
+    assert (car.cls, tree.cls) == ("car", "tree")  # from the assets' UsdSemantics labels
+    assert car.meters_per_unit == tree.meters_per_unit == pytest.approx(CM)
+    assert car.up_axis == tree.up_axis == "Y"
+    # bounds in lfusd's world (Z up, metres): the root's rotateY 90 and Y-up turn the car's length onto y
+    size = np.subtract(car.bounds[1], car.bounds[0])
+    assert size == pytest.approx([CAR_WIDTH * CM, CAR_LENGTH * CM, CAR_HEIGHT * CM], abs=1e-5)
+    assert car.ground == pytest.approx(0.0, abs=1e-6) and tree.ground == pytest.approx(0.0, abs=1e-6)
+    assert np.subtract(tree.bounds[1], tree.bounds[0])[2] == pytest.approx(TREE_HEIGHT * CM, abs=1e-5)
+    assert np.subtract(tree.bounds[1], tree.bounds[0])[0] == pytest.approx(TREE_WIDTH * CM, abs=1e-5)
+    assert (car.licence, tree.licence) == ("CC-BY-4.0", "CC0-1.0")  # from customLayerData
+    # triangles: the body's 12 and four instanced 8-sided wheels (8 quads + two octagons: 28 each);
+    # the trunk's 12 and six point-instanced leaf boxes
+    assert (car.triangles, tree.triangles) == (12 + 4 * 28, 12 + 6 * 12)
+    assert car.textured_materials == 1 and tree.textured_materials == 1
+    # the content hash covers the texture beside the car (a changed texture changes the asset)
+    before = car.sha256
+    (tmp_path / "lib" / "textures" / "sedan_paint.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"0" * 64)
+    code, out, _ = run_cli(capsys, "assets", "check", cat)
+    assert code == 1 and "sedan" in out and "changed since it was added" in out and "oak" not in out
+    run_cli(capsys, "assets", "add", tmp_path / "lib" / "sedan.usdc")  # re-added: replaced, not duplicated
+    entries = load_catalogue(cat)
+    assert sorted(a.name for a in entries) == ["oak", "sedan"]
+    assert next(a for a in entries if a.name == "sedan").sha256 != before
+    assert run_cli(capsys, "assets", "check", cat)[0] == 0
+
+
+def test_list_shows_assets_and_the_procedural_generators(library, capsys):
+    _, cat, _ = library
+    code, out, _ = run_cli(capsys, "assets", "list", cat)
+    assert code == 0
+    lines = out.splitlines()
+    assert any(ln.startswith("sedan: car, 1.92 x 4.20 x 1.40 m, metersPerUnit 0.01, Y-up") for ln in lines), out
+    assert any(ln.startswith("oak: tree,") and "CC0-1.0" in ln for ln in lines), out
+    assert "procedural:car: car, procedural (lfusd.author.scenes.objects.car)" in lines
+
+
+def test_check_reports_a_missing_asset(tmp_path, capsys):
+    write_car(tmp_path)
+    run_cli(capsys, "assets", "add", tmp_path)
+    (tmp_path / "sedan.usdc").unlink()
+    code, out, err = run_cli(capsys, "assets", "check", tmp_path)
+    assert code == 1 and "sedan: file" in out and "is missing" in out and "1 of 1 assets" in err
+
+
+def test_class_option_labels_an_unlabelled_asset(tmp_path, capsys):
+    bench = write_bench(tmp_path / "b")
+    code, _, err = run_cli(capsys, "assets", "add", bench)
+    assert_one_line_error(code, err, "has no class", "--class")
+    assert not (tmp_path / "b" / "catalogue.json").exists()
+    code, _, err = run_cli(capsys, "assets", "add", bench, "--class", "spaceship")
+    assert_one_line_error(code, err, "'spaceship' is not an object class")
+    (tmp_path / "cats").mkdir()
+    code, _, err = run_cli(capsys, "assets", "add", bench, "--class", "bench", "--licence", "MIT",
+                           "--catalogue", tmp_path / "cats" / "mine.json")
+    assert code == 0, err
+    (a,) = load_catalogue(tmp_path / "cats" / "mine.json")
+    assert (a.cls, a.licence, a.up_axis, a.meters_per_unit) == ("bench", "MIT", "Z", 1.0)
+    assert a.file == str(bench.resolve())  # outside the catalogue's folder: absolute
+    assert run_cli(capsys, "assets", "add", bench, "--class", "bench", "--catalogue", tmp_path / "c.json")[0] == 0
+    assert load_catalogue(tmp_path / "c.json")[0].file == "b/park_bench.usda"  # inside it: relative
+    assert np.subtract(a.bounds[1], a.bounds[0]) == pytest.approx([1.6, 0.5, 0.47], abs=1e-6)
+
+
+@pytest.mark.parametrize("kind, needle", [
+    ("unlabelled", "has no class"), ("sphere", "is a Sphere"), ("index", "face index 42 outside its 8 points"),
+    ("nan", "non-finite points"), ("flat", "empty bounds"), ("nomesh", "is not a mesh asset"), ("light", "has lights"),
+])
+def test_bad_assets_are_refused_in_one_line_and_nothing_is_written(tmp_path, capsys, kind, needle):
+    write_car(tmp_path / "lib")
+    bad = write_bad(tmp_path / "lib", kind)
+    code, _, err = run_cli(capsys, "assets", "add", tmp_path / "lib")  # a good asset and a bad one
+    assert code == 2
+    assert_one_line_error(code, err, str(bad), needle)
+    assert not (tmp_path / "lib" / "catalogue.json").exists()  # a refused run leaves nothing
+
+
+def test_catalogue_is_written_only_where_named_and_never_through_links(tmp_path, capsys):
+    write_car(tmp_path / "lib")
+    theirs = tmp_path / "theirs.json"
+    theirs.write_text('{"a user\'s": "file"}')
+    code, _, err = run_cli(capsys, "assets", "add", tmp_path / "lib", "--catalogue", theirs)
+    assert_one_line_error(code, err, "is not an lfusd catalogue")
+    assert theirs.read_text() == '{"a user\'s": "file"}'
+    target = tmp_path / "elsewhere.json"
+    os.symlink(target, tmp_path / "lib" / "catalogue.json")
+    code, _, err = run_cli(capsys, "assets", "add", tmp_path / "lib")
+    assert_one_line_error(code, err, "is a symbolic link")
+    assert not target.exists()
+    code, _, err = run_cli(capsys, "assets", "add", tmp_path / "lib", "--catalogue", tmp_path / "no" / "cat.json")
+    assert_one_line_error(code, err, "does not exist")
+    assert not (tmp_path / "no").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lib", "theirs.json"]
+
+
+def _asset_objects(stage):
+    from lfusd.author.labels import object_table
+    from lfusd.author.vocabulary import ASSET
+
+    objs = object_table(stage)[0]
+    return [o for o in objs if stage.GetPrimAtPath(o.prim_path).HasAttribute(ASSET)], objs
+
+
+def test_generated_street_draws_catalogue_assets_in_the_world_frame(library, tmp_path, capsys):
+    """Catalogue cars and trees appear in a generated street: each one object of its class (its
+    instanced wheels and point-instanced leaves are parts of it), grounded 1 mm above the road or
+    grass top (z = 0), its size the authored centimetres in metres, its longer side along x
+    (cars parked along the road); `lfusd check` passes. The same seed and catalogue give the same bytes."""
+    from lfusd.author.geometry import StageGeometry
+    from lfusd.author.scenes import GAP, generate
+
+    _, cat, assets = library
+    stage = generate("street", tmp_path / "s.usda", 1, frames=1, rigs=1, grid=(2, 2), resolution=(32, 32), catalogues=[cat])
+    placed, objs = _asset_objects(stage)
+    labels = {o.label for o in placed}
+    assert labels == {"car", "tree"}, labels
+    # no procedural cars or trees are left: the catalogue's assets replace their class's generator
+    assert all(o.prim_path in {p.prim_path for p in placed} for o in objs if o.label in ("car", "tree"))
+    # one object per placed asset, not one per wheel instance or leaf
+    assert not any("Wheel" in o.prim_path or "[" in o.prim_path for o in objs)
+    geo = StageGeometry(stage)
+    for o in placed:
+        pts = np.concatenate([geo.mesh(p, 1).vertices for p in geo.parts_of(o.prim_path)])
+        lo, hi = pts.min(0), pts.max(0)
+        assert lo[2] == pytest.approx(GAP, abs=1e-6), o.prim_path
+        if o.label == "car":
+            assert hi - lo == pytest.approx([CAR_LENGTH * CM, CAR_WIDTH * CM, CAR_HEIGHT * CM], abs=1e-5), o.prim_path
+        else:
+            assert hi[2] - lo[2] == pytest.approx(TREE_HEIGHT * CM, abs=1e-5)
+        n = len(geo.parts_of(o.prim_path))
+        assert n == (5 if o.label == "car" else 7)  # body + 4 wheels; trunk + 6 leaves
+    code, out, err = run_cli(capsys, "check", tmp_path / "s.usda", "--no-coverage")
+    assert code == 0, out + err
+    assert "all constraints hold, USD validation clean" in out
+    again = generate("street", tmp_path / "t.usda", 1, frames=1, rigs=1, grid=(2, 2), resolution=(32, 32), catalogues=[cat])
+    assert again.GetRootLayer().ExportToString() == stage.GetRootLayer().ExportToString()
+
+
+def test_room_draws_a_catalogue_bench_chair_and_table(tmp_path, capsys):
+    """Assets of other classes: an unlabelled stool added as a chair and a bench added as a table
+    land in the room template on the floor, and the room passes `lfusd check`."""
+    from lfusd.author.scenes import generate
+
+    bench = write_bench(tmp_path / "b")
+    stool = write_bench(tmp_path / "s", "stool", length=0.5)
+    assert run_cli(capsys, "assets", "add", stool, "--class", "chair", "--catalogue", tmp_path / "c.json")[0] == 0
+    assert run_cli(capsys, "assets", "add", bench, "--class", "table", "--catalogue", tmp_path / "t.json")[0] == 0
+    stage = generate("room", tmp_path / "r.usda", 0, frames=1, rigs=1, grid=(2, 2), resolution=(32, 32),
+                     catalogues=[tmp_path / "c.json", tmp_path / "t.json"])
+    placed, _ = _asset_objects(stage)
+    assert {o.label for o in placed} == {"chair", "table"}
+    code, out, err = run_cli(capsys, "check", tmp_path / "r.usda", "--no-coverage", "--no-usd-validation")
+    assert code == 0, out + err
+
+
+def test_a_changed_asset_is_refused_when_a_scene_draws_it(library, tmp_path, capsys):
+    folder, cat, _ = library
+    copy = tmp_path / "lib"
+    copy.mkdir()
+    write_car(copy)
+    assert run_cli(capsys, "assets", "add", copy)[0] == 0
+    (copy / "textures" / "sedan_paint.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"1" * 64)
+    code, _, err = run_cli(capsys, "stage", "new", "street", "-o", tmp_path / "s.usda", "--rigs", "1", "--frames", "1",
+                           "--catalogue", copy / "catalogue.json")
+    assert_one_line_error(code, err, "changed since it was added", "lfusd assets add")
+    assert not (tmp_path / "s.usda").exists()
+
+
+def test_check_prints_triangles_distinct_assets_and_textured_materials(library, tmp_path):
+    """On a stage the test authors: a road box and the car asset placed twice: triangles are the
+    road's 12 plus twice the car's 124, distinct assets 2 (the road; the car once), materials 2
+    (the car's paint, textured, and its wheels' rubber, shared by the instances)."""
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.scenes import reference_asset
+    from lfusd.author.stage import new_stage
+    from lfusd.author.statistics import stage_statistics
+    from pxr import Gf, UsdGeom
+
+    _, _, assets = library
+    path = tmp_path / "two.usda"
+    stage = new_stage(path)
+    road = UsdGeom.Cube.Define(stage, "/World/Road")
+    set_class_label(road.GetPrim(), "road")
+    for k in range(2):
+        x = UsdGeom.Xform.Define(stage, f"/World/Car_{k}")
+        x.AddTranslateOp().Set(Gf.Vec3d(6.0 * k, 0, 1.0))
+        set_class_label(x.GetPrim(), "car")
+        reference_asset(stage, path, f"/World/Car_{k}", assets["sedan"])
+    s = stage_statistics(stage)
+    assert (s.triangles, s.objects, s.distinct_assets, s.catalogue_assets) == (12 + 2 * 124, 3, 2, 1)
+    assert (s.textured_materials, s.materials) == (1, 2)
+    assert s.line() == "content: 260 triangles, 3 objects from 2 distinct assets (1 from catalogues), 1 of 2 materials textured"
+
+
+def test_recipe_names_catalogues_relative_to_itself(library, tmp_path):
+    from lfusd.errors import LfusdError
+    from lfusd.recipe import _spec_dict, load_recipe, scene_specs
+
+    folder, cat, _ = library
+    body = ('[dataset]\nname = "x"\ngrid = [2, 2]\nresolution = [32, 32]\n{extra}\n'
+            '[[part]]\nname = "p"\ntemplates = ["street"]\nscenes = 1\n')
+    rel = os.path.relpath(cat, tmp_path)
+    (tmp_path / "r.toml").write_text(body.format(extra=f'catalogues = ["{rel}"]'))
+    recipe = load_recipe(tmp_path / "r.toml")
+    assert recipe.catalogues == (str(cat.resolve()),)
+    (spec,) = scene_specs(recipe)
+    assert spec.catalogues == recipe.catalogues and _spec_dict(spec)["catalogues"] == [str(cat.resolve())]
+    (tmp_path / "plain.toml").write_text(body.format(extra=""))
+    assert "catalogues" not in _spec_dict(scene_specs(load_recipe(tmp_path / "plain.toml"))[0])  # old records still match
+    (tmp_path / "bad.toml").write_text(body.format(extra='catalogues = ["nowhere.json"]'))
+    with pytest.raises(LfusdError, match="nowhere.json does not exist"):
+        load_recipe(tmp_path / "bad.toml")
+    assert json.loads(cat.read_text())["format"] == "lfusd-catalogue"
