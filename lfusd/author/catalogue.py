@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LfusdError
-from .vocabulary import OBJECTS
+from .vocabulary import LICENCE, OBJECTS
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
 # Metadata keys read as an asset's licence (the layer's customLayerData, then the default
 # prim's assetInfo / customData), first found wins.
-LICENCE_KEYS = ("license", "licence", "License", "Licence", "lfusd:licence", "copyright")
+LICENCE_KEYS = ("license", "licence", "License", "Licence", LICENCE, "copyright")
 
 # lfusd's procedural generators, registered as catalogue entries (lfusd.author.scenes.objects):
 # class -> generator. A template that finds no catalogue asset of a class uses its generator.
@@ -247,14 +247,23 @@ def load_catalogue(path: str | Path) -> list[Asset]:
 
 
 def _write_catalogue(path: Path, assets: list[Asset]) -> None:
-    from ..data.confined import is_link
-    from ..data.formats import atomic_write_text
+    import tempfile
 
-    if is_link(path):
+    if path.is_symlink():
         raise LfusdError(f"catalogue {path} is a symbolic link; lfusd writes catalogues only as plain files: "
                          "remove the link or pass another --catalogue")
     body = {"format": FORMAT, "version": VERSION, "assets": [a.to_json() for a in sorted(assets, key=lambda a: a.name)]}
-    atomic_write_text(path, json.dumps(body, indent=1) + "\n")
+    # written beside itself under a temporary name, then renamed into place (replacing a link's
+    # target is impossible by construction: the rename replaces the directory entry)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.fchmod(fd, 0o644)
+        with os.fdopen(fd, "w") as f:
+            f.write(json.dumps(body, indent=1) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _stored_file(file: Path, folder: Path) -> str:

@@ -37,6 +37,7 @@ WHEEL_RADIUS = "lfusd:wheelRadius"  # double on a car's wheel* mesh
 # string on an object prim placed from an asset catalogue (lfusd.author.catalogue): the asset's
 # content hash. Everything drawn below it (instances, point instances) is that one object.
 ASSET = "lfusd:asset"
+LICENCE = "lfusd:licence"  # an asset's licence in its layer's customLayerData (read beside "license", "licence", ...)
 
 # -- customData of the default prim of a generated stage -------------------------------------
 TEMPLATE = "lfusd:template"
