@@ -1,6 +1,6 @@
 """Per-scene content statistics: triangles drawn, distinct assets, textured materials.
 
-``lfusd check`` prints them (:func:`stage_statistics`, :meth:`SceneStatistics.line`).
+``lfusd check`` prints them in its summary line (:func:`stage_statistics`, :meth:`SceneStatistics.line`).
 
 - triangles: every drawn gprim's triangles (fan triangulation, as lfusd's geometry and Blender
   draw them), each instance and point instance counted, at the stage's first frame;
@@ -32,7 +32,7 @@ class SceneStatistics:
     materials: int
 
     def line(self) -> str:
-        return (f"content: {self.triangles} triangles, {self.objects} objects from {self.distinct_assets} distinct assets "
+        return (f"{self.triangles} triangles, {self.objects} objects from {self.distinct_assets} distinct assets "
                 f"({self.catalogue_assets} from catalogues), {self.textured_materials} of {self.materials} materials textured")
 
 

@@ -175,6 +175,7 @@ def test_generated_street_draws_catalogue_assets_in_the_world_frame(library, tmp
     code, out, err = run_cli(capsys, "check", tmp_path / "s.usda", "--no-coverage")
     assert code == 0, out + err
     assert "all constraints hold, USD validation clean" in out
+    assert f"from {len(objs) - len(placed) + 2} distinct assets (2 from catalogues)" in out  # the car and the tree, once each
     again = generate("street", tmp_path / "t.usda", 1, frames=1, rigs=1, grid=(2, 2), resolution=(32, 32), catalogues=[cat])
     assert again.GetRootLayer().ExportToString() == stage.GetRootLayer().ExportToString()
 
@@ -232,7 +233,7 @@ def test_check_prints_triangles_distinct_assets_and_textured_materials(library, 
     s = stage_statistics(stage)
     assert (s.triangles, s.objects, s.distinct_assets, s.catalogue_assets) == (12 + 2 * 124, 3, 2, 1)
     assert (s.textured_materials, s.materials) == (1, 2)
-    assert s.line() == "content: 260 triangles, 3 objects from 2 distinct assets (1 from catalogues), 1 of 2 materials textured"
+    assert s.line() == "260 triangles, 3 objects from 2 distinct assets (1 from catalogues), 1 of 2 materials textured"
 
 
 def test_recipe_names_catalogues_relative_to_itself(library, tmp_path):
