@@ -255,3 +255,19 @@ def test_recipe_names_catalogues_relative_to_itself(library, tmp_path):
     with pytest.raises(LfusdError, match="nowhere.json does not exist"):
         load_recipe(tmp_path / "bad.toml")
     assert json.loads(cat.read_text())["format"] == "lfusd-catalogue"
+
+
+@pytest.mark.slow
+def test_dynamic_street_keeps_catalogue_assets_and_its_rules(library, tmp_path, capsys):
+    """A dynamic street drawn from the catalogue: people walk and cars drive around the parked
+    catalogue cars and the trees (whose point-instanced leaves have no prim of their own), and
+    `lfusd check` passes at every frame."""
+    from lfusd.author.scenes import generate
+
+    _, cat, _ = library
+    stage = generate("street", tmp_path / "d.usda", 5, frames=6, rigs=1, grid=(2, 2), resolution=(32, 32), dynamic=True,
+                     catalogues=[cat])
+    placed, _ = _asset_objects(stage)
+    assert {o.label for o in placed} == {"car", "tree"}
+    code, out, err = run_cli(capsys, "check", tmp_path / "d.usda", "--no-coverage")
+    assert code == 0 and "all constraints hold" in out, out + err
