@@ -193,7 +193,14 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
     missing = sorted(k for k, v in files.items() if v.get("missing"))
     if missing:
         raise LfusdError(f"asset {file} names {missing[0]}, which does not exist; put the file beside the asset or fix the path")
+    from .rules import usd_validation
     from .statistics import textured_materials
+
+    issues = usd_validation(stage)
+    if issues:  # the asset is usable; the scenes that draw it will be reported by `lfusd check`
+        log.warning("asset %s fails USD validation (%s%s): `lfusd check` reports it in every scene that draws it; "
+                    "fix the asset, or check those scenes with --no-usd-validation", file, issues[0],
+                    f"; and {len(issues) - 1} more" if len(issues) > 1 else "")
 
     return Asset(name=name or file.stem, file=str(file), prim=str(prim.GetPath()), cls=cls,
                  bounds=(tuple(round(float(v), 6) for v in lo), tuple(round(float(v), 6) for v in hi)),

@@ -271,3 +271,47 @@ def test_dynamic_street_keeps_catalogue_assets_and_its_rules(library, tmp_path, 
     assert {o.label for o in placed} == {"car", "tree"}
     code, out, err = run_cli(capsys, "check", tmp_path / "d.usda", "--no-coverage")
     assert code == 0 and "all constraints hold" in out, out + err
+
+
+def test_a_recipe_scene_is_generated_from_its_catalogues(library, tmp_path, monkeypatch):
+    """`dataset make` generates each scene with the recipe's catalogues (the render is stopped
+    here: rendering a catalogue scene is the render test's)."""
+    import lfusd.render.job
+    from lfusd.author.stage import open_stage
+    from lfusd.recipe import load_recipe, make_scene, scene_specs
+
+    _, cat, _ = library
+    (tmp_path / "r.toml").write_text(f'[dataset]\nname = "x"\ngrid = [2, 2]\nresolution = [32, 32]\ncatalogues = ["{cat}"]\n'
+                                     '[[part]]\nname = "p"\ntemplates = ["street"]\nscenes = 1\nfirst_seed = 1\n')
+    recipe = load_recipe(tmp_path / "r.toml")
+
+    class Stop(Exception):
+        pass
+
+    def stop(req):
+        raise Stop
+
+    monkeypatch.setattr(lfusd.render.job, "render", stop)
+    (spec,) = scene_specs(recipe)
+    with pytest.raises(Stop):
+        make_scene(recipe, spec, tmp_path / "out")
+    (stage_path,) = (tmp_path / "out").rglob("*.usda")
+    placed, _ = _asset_objects(open_stage(stage_path))
+    assert {o.label for o in placed} == {"car", "tree"}
+
+
+def test_an_asset_failing_usd_validation_is_added_with_a_warning(tmp_path, capsys):
+    """Converters often author a primvar reader's varname as a token (USD wants a string): the
+    asset is usable, so it is added, with one warning that `lfusd check` will report it."""
+    from pxr import Sdf, Usd
+
+    car = write_car(tmp_path)
+    stage = Usd.Stage.Open(str(car))
+    reader = stage.GetPrimAtPath("/Car/Materials/M_CarPaint/TexCoordReader")
+    reader.RemoveProperty("inputs:varname")
+    reader.CreateAttribute("inputs:varname", Sdf.ValueTypeNames.Token).Set("st")
+    stage.GetRootLayer().Save()
+    code, out, err = run_cli(capsys, "assets", "add", car)
+    assert code == 0 and "added 1 asset" in out
+    warnings = [ln for ln in err.splitlines() if ln.startswith("lfusd: warning:")]
+    assert len(warnings) == 1 and "fails USD validation" in warnings[0] and "varname" in warnings[0], err
