@@ -88,7 +88,7 @@ class Asset:
         return d
 
     @classmethod
-    def from_json(cls, d: dict, folder: Path) -> "Asset":
+    def from_json(cls, d: dict, folder: Path) -> Asset:
         d = dict(d)
         d["cls"] = d.pop("class")
         d["bounds"] = tuple(tuple(float(v) for v in c) for c in d["bounds"])
@@ -141,7 +141,7 @@ def _asset_class(stage, prim, file: Path, given: str | None) -> str:
 def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None = None, name: str | None = None) -> Asset:
     """Read, check and describe the asset at ``file`` (a .usd/.usda/.usdc/.usdz file); LfusdError
     in one line when it is refused (see the module docstring)."""
-    from pxr import Sdf, Usd, UsdLux
+    from pxr import Sdf, Tf, Usd, UsdLux
 
     from .geometry import StageGeometry, check_geometry
     from .stage import files_digest, usd_warnings
@@ -152,8 +152,8 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
     try:
         with usd_warnings():
             stage = Usd.Stage.Open(str(file))
-    except Exception as e:  # pxr raises Tf.ErrorException for an unreadable layer
-        raise LfusdError(f"cannot open asset {file} ({str(e).strip().splitlines()[-1][:160] if str(e).strip() else e}); "
+    except Tf.ErrorException:  # an unreadable layer (pxr's message is a multi-line C++ trace)
+        raise LfusdError(f"cannot open asset {file}: USD cannot read it (not a USD layer, or damaged); "
                          "give a readable USD file") from None
     if stage is None:
         raise LfusdError(f"cannot open asset {file}; give a readable USD file")
@@ -386,8 +386,8 @@ def draw_assets(catalogues) -> dict[str, list[Asset]]:
                                  f"run `lfusd assets add {f}` again")
             if a.cls in DRAWN:
                 out.setdefault(a.cls, []).append(a)
-    for cls in out:
-        out[cls].sort(key=lambda a: (a.name, a.sha256))
+    for pool in out.values():
+        pool.sort(key=lambda a: (a.name, a.sha256))
     return out
 
 

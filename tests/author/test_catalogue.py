@@ -11,8 +11,17 @@ import os
 
 import numpy as np
 import pytest
-from support.catalogue_assets import (CAR_HEIGHT, CAR_LENGTH, CAR_WIDTH, TREE_HEIGHT, TREE_WIDTH, write_bad, write_bench,
-                                      write_car, write_tree)
+from support.catalogue_assets import (
+    CAR_HEIGHT,
+    CAR_LENGTH,
+    CAR_WIDTH,
+    TREE_HEIGHT,
+    TREE_WIDTH,
+    write_bad,
+    write_bench,
+    write_car,
+    write_tree,
+)
 from support.cli import assert_one_line_error, run_cli
 
 from lfusd.author.catalogue import load_catalogue
@@ -118,6 +127,16 @@ def test_bad_assets_are_refused_in_one_line_and_nothing_is_written(tmp_path, cap
     assert not (tmp_path / "lib" / "catalogue.json").exists()  # a refused run leaves nothing
 
 
+def test_an_unreadable_file_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / "broken.usda").write_text("not USD at all\n")
+    code, _, err = run_cli(capsys, "assets", "add", tmp_path / "broken.usda")
+    assert_one_line_error(code, err, "cannot open asset", "USD cannot read it")
+    (tmp_path / "notes.txt").write_text("x")
+    code, _, err = run_cli(capsys, "assets", "add", tmp_path / "notes.txt")
+    assert_one_line_error(code, err, "is not a USD file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken.usda", "notes.txt"]
+
+
 def test_catalogue_is_written_only_where_named_and_never_through_links(tmp_path, capsys):
     write_car(tmp_path / "lib")
     theirs = tmp_path / "theirs.json"
@@ -152,7 +171,7 @@ def test_generated_street_draws_catalogue_assets_in_the_world_frame(library, tmp
     from lfusd.author.geometry import StageGeometry
     from lfusd.author.scenes import GAP, generate
 
-    _, cat, assets = library
+    _, cat, _ = library
     stage = generate("street", tmp_path / "s.usda", 1, frames=1, rigs=1, grid=(2, 2), resolution=(32, 32), catalogues=[cat])
     placed, objs = _asset_objects(stage)
     labels = {o.label for o in placed}
@@ -197,8 +216,7 @@ def test_room_draws_a_catalogue_bench_chair_and_table(tmp_path, capsys):
     assert code == 0, out + err
 
 
-def test_a_changed_asset_is_refused_when_a_scene_draws_it(library, tmp_path, capsys):
-    folder, cat, _ = library
+def test_a_changed_asset_is_refused_when_a_scene_draws_it(tmp_path, capsys):
     copy = tmp_path / "lib"
     copy.mkdir()
     write_car(copy)
@@ -214,11 +232,12 @@ def test_check_prints_triangles_distinct_assets_and_textured_materials(library, 
     """On a stage the test authors: a road box and the car asset placed twice: triangles are the
     road's 12 plus twice the car's 124, distinct assets 2 (the road; the car once), materials 2
     (the car's paint, textured, and its wheels' rubber, shared by the instances)."""
+    from pxr import Gf, UsdGeom
+
     from lfusd.author.labels import set_class_label
     from lfusd.author.scenes import reference_asset
     from lfusd.author.stage import new_stage
     from lfusd.author.statistics import stage_statistics
-    from pxr import Gf, UsdGeom
 
     _, _, assets = library
     path = tmp_path / "two.usda"
@@ -240,7 +259,7 @@ def test_recipe_names_catalogues_relative_to_itself(library, tmp_path):
     from lfusd.errors import LfusdError
     from lfusd.recipe import _spec_dict, load_recipe, scene_specs
 
-    folder, cat, _ = library
+    _, cat, _ = library
     body = ('[dataset]\nname = "x"\ngrid = [2, 2]\nresolution = [32, 32]\n{extra}\n'
             '[[part]]\nname = "p"\ntemplates = ["street"]\nscenes = 1\n')
     rel = os.path.relpath(cat, tmp_path)
