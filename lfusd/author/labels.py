@@ -6,8 +6,10 @@ Instances are objects too (docs/CONVENTIONS.md): a scenegraph instance prim (its
 reached through instance proxies) unless a labelled prim inside it is nearer to the geometry,
 labelled as itself or else as its labelled ancestor; every PointInstancer instance, named
 ``/path/to/Instancer[i]`` (nested: ``/A[i]/B[j]``), labelled as its instancer or the instancer's
-labelled ancestor, else as its prototype. Ids are assigned in path order (instance indices in
-numeric order), so the same stage always gives the same ids.
+labelled ancestor, else as its prototype. A catalogue asset placed in a generated stage (a child
+of the default prim carrying ``lfusd:asset``, lfusd.author.catalogue) is one object, whatever it
+instances or labels inside. Ids are assigned in path order (instance indices in numeric order),
+so the same stage always gives the same ids.
 """
 
 from __future__ import annotations

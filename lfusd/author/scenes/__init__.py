@@ -117,9 +117,11 @@ class Scene:
         self.builder.obj(path, label, pos, yaw_deg)
         if is_asset(parts):
             reference_asset(self.stage, self.builder.stage_path, path, parts[0][2].asset)
-        for part, data, texture in ([] if is_asset(parts) else parts):
-            r = (roughness or {}).get(part)  # None: the texture's finish (build.FINISHES)
-            self.builder.mesh(f"{path}/{part}", data, texture, roughness=r, metallic=0.6 if part == "body" and label == "car" else None)
+        else:
+            for part, data, texture in parts:
+                r = (roughness or {}).get(part)  # None: the texture's finish (build.FINISHES)
+                self.builder.mesh(f"{path}/{part}", data, texture, roughness=r,
+                                  metallic=0.6 if part == "body" and label == "car" else None)
         if track:
             lo, hi = world_box([d for _, d, _ in parts], pos, yaw_deg)
             self.placed.append(Placed(path, lo, hi))
