@@ -211,12 +211,10 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
 
 def content_files(file: str | Path) -> dict[str, dict]:
     """The files an asset's content hash covers (lfusd.author.stage.stage_files: its layers and
-    the textures they name), less the entries inside a .usdz package (``pkg.usdz[inner]``),
-    which the package's own hash covers."""
+    the textures they name; a .usdz package as one file)."""
     from .stage import stage_files
 
-    files = stage_files(file)
-    return {k: v for k, v in files.items() if not (".usdz[" in k and k.endswith("]") and k.split("[", 1)[0] in files)}
+    return stage_files(file)
 
 
 # -- the catalogue file ---------------------------------------------------------------------------

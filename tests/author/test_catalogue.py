@@ -334,3 +334,30 @@ def test_an_asset_failing_usd_validation_is_added_with_a_warning(tmp_path, capsy
     assert code == 0 and "added 1 asset" in out
     warnings = [ln for ln in err.splitlines() if ln.startswith("lfusd: warning:")]
     assert len(warnings) == 1 and "fails USD validation" in warnings[0] and "varname" in warnings[0], err
+
+
+def test_a_usdz_package_is_one_file_of_a_stages_identity(tmp_path):
+    """A stage referencing the .usdz tree: its identity (lfusd.author.stage.stage_files) holds the
+    package as one file, hashed, and nothing from inside it as missing or as an outside file."""
+    import logging
+
+    from pxr import Usd
+
+    from lfusd.author.stage import file_hash, stage_files
+
+    tree = write_tree(tmp_path / "lib")
+    stage = Usd.Stage.CreateNew(str(tmp_path / "s.usda"))
+    stage.DefinePrim("/T").GetReferences().AddReference("./lib/oak.usdz")
+    stage.GetRootLayer().Save()
+    seen: list[logging.LogRecord] = []
+    handler = logging.Handler(logging.WARNING)
+    handler.emit = seen.append
+    log = logging.getLogger("lfusd")
+    log.addHandler(handler)
+    try:
+        files = stage_files(tmp_path / "s.usda")
+    finally:
+        log.removeHandler(handler)
+    assert sorted(files) == ["lib/oak.usdz", "s.usda"]
+    assert files["lib/oak.usdz"]["sha256"] == file_hash(tree)
+    assert not seen, [r.getMessage() for r in seen]
