@@ -15,8 +15,9 @@ are given, and from its procedural generator otherwise (:func:`draw_assets`).
 
 An asset is refused, in one line, when it is not a mesh asset (no drawn geometry), has no class
 (no UsdSemantics ``class`` label in the vocabulary and no ``--class``), empty bounds, implicit
-shapes, faces out of range or non-finite points (lfusd.author.geometry's checks), lights (the
-templates light their scenes), or files it names that do not resolve.
+shapes, faces out of range or non-finite points (lfusd.author.geometry's checks), a light inside
+an instance, or files it names that do not resolve. Its other lights are recorded and switched
+off where it is placed (the templates light their scenes).
 """
 
 from __future__ import annotations
@@ -74,6 +75,7 @@ class Asset:
     sha256: str
     triangles: int
     textured_materials: int
+    lights: tuple[str, ...] = ()  # the asset's lights, relative to its prim: switched off where it is placed
     folder: str = ""  # the catalogue's folder (not stored)
 
     def path(self) -> Path:
@@ -85,6 +87,7 @@ class Asset:
         d.pop("folder")
         d["class"] = d.pop("cls")
         d["bounds"] = [list(c) for c in self.bounds]
+        d["lights"] = list(self.lights)
         return d
 
     @classmethod
@@ -92,6 +95,7 @@ class Asset:
         d = dict(d)
         d["cls"] = d.pop("class")
         d["bounds"] = tuple(tuple(float(v) for v in c) for c in d["bounds"])
+        d["lights"] = tuple(d.get("lights", ()))
         return cls(**d, folder=str(folder))
 
 
@@ -163,11 +167,19 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
         if len(roots) != 1:
             raise LfusdError(f"asset {file} has no defaultPrim and {len(roots)} root prims; set its defaultPrim to the asset's root")
         prim = roots[0]
-    lights = [str(p.GetPath()) for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
+    # Lights (glTF converters bring the exporter's): switched off where the asset is placed, as the
+    # template lights its scene; one inside an instance cannot be, so the asset is refused.
+    lights = [p for p in Usd.PrimRange(prim, Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate))
               if p.HasAPI(UsdLux.LightAPI) or p.IsA(UsdLux.BoundableLightBase) or p.IsA(UsdLux.NonboundableLightBase)]
+    inside = [p for p in lights if p.IsInstanceProxy()]
+    if inside:
+        raise LfusdError(f"asset {file} has a light inside an instance ({inside[0].GetPath()}), which lfusd cannot switch "
+                         "off; remove the asset's lights")
+    if prim.HasAPI(UsdLux.LightAPI) or any(p.GetPath() == prim.GetPath() for p in lights):
+        raise LfusdError(f"asset {file}'s root prim {prim.GetPath()} is a light; give an asset with geometry")
     if lights:
-        raise LfusdError(f"asset {file} has lights ({lights[0]}{' and more' if len(lights) > 1 else ''}); generated scenes "
-                         "are lit by their template: remove or deactivate the asset's lights")
+        log.warning("asset %s has %d light%s (%s): switched off where it is placed (templates light their scenes)",
+                    file, len(lights), "s" if len(lights) > 1 else "", lights[0].GetPath())
     try:
         geometry = StageGeometry(stage)
         check_geometry(geometry)
@@ -206,7 +218,8 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
                  bounds=(tuple(round(float(v), 6) for v in lo), tuple(round(float(v), 6) for v in hi)),
                  meters_per_unit=geometry.frame.meters_per_unit, up_axis=geometry.frame.up_axis,
                  ground=round(float(lo[2]), 6), licence=(licence or _licence(stage, prim)), sha256=files_digest(files),
-                 triangles=int(triangles), textured_materials=textured_materials(stage))
+                 triangles=int(triangles), textured_materials=textured_materials(stage),
+                 lights=tuple(str(p.GetPath().MakeRelativePath(prim.GetPath())) for p in lights))
 
 
 def content_files(file: str | Path) -> dict[str, dict]:

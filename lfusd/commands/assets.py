@@ -10,7 +10,7 @@ def register(sub) -> None:
     asub = p.add_subparsers(dest="assets_command", metavar="ACTION")
     a = asub.add_parser("add", help="check assets and add them to a catalogue",
                         description="Read a USD asset (or every asset of a folder), check it (a mesh asset with a class, "
-                                    "non-empty bounds, no implicit shapes, lights or broken meshes) and record its class, "
+                                    "non-empty bounds, no implicit shapes or broken meshes) and record its class, "
                                     "bounds, units, up axis, ground contact, licence and content hash in the catalogue. "
                                     "A refused asset is one line (exit 2) and nothing is written.")
     a.add_argument("target", metavar="FOLDER|FILE", help="a .usd/.usda/.usdc/.usdz asset, or a folder of them")

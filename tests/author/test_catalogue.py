@@ -116,7 +116,7 @@ def test_class_option_labels_an_unlabelled_asset(tmp_path, capsys):
 
 @pytest.mark.parametrize("kind, needle", [
     ("unlabelled", "has no class"), ("sphere", "is a Sphere"), ("index", "face index 42 outside its 8 points"),
-    ("nan", "non-finite points"), ("flat", "empty bounds"), ("nomesh", "is not a mesh asset"), ("light", "has lights"),
+    ("nan", "non-finite points"), ("flat", "empty bounds"), ("nomesh", "is not a mesh asset"),
 ])
 def test_bad_assets_are_refused_in_one_line_and_nothing_is_written(tmp_path, capsys, kind, needle):
     write_car(tmp_path / "lib")
@@ -361,3 +361,59 @@ def test_a_usdz_package_is_one_file_of_a_stages_identity(tmp_path):
     assert sorted(files) == ["lib/oak.usdz", "s.usda"]
     assert files["lib/oak.usdz"]["sha256"] == file_hash(tree)
     assert not seen, [r.getMessage() for r in seen]
+
+
+def test_a_glTF_shaped_character_with_a_light_is_a_catalogue_person_whose_light_is_off(tmp_path, capsys):
+    """A glTF-converted character (Y-up, centimetres, a rotation above its SkelRoot, skinned,
+    textured, and the exporter's light): added as a person with one warning naming the light;
+    placed in a street, each copy is one person object standing on the pavement with its light
+    switched off, and the street passes `lfusd check`."""
+    from pxr import Usd, UsdLux
+    from support.characters import gltf_numbered
+
+    from lfusd.author.geometry import StageGeometry
+    from lfusd.author.scenes import GAP, generate
+
+    man = tmp_path / "people" / "man.usda"
+    man.parent.mkdir()
+    gltf_numbered(man)
+    code, out, err = run_cli(capsys, "assets", "add", man, "--class", "person")
+    assert code == 0, err
+    assert "switched off where it is placed" in err and "/Root/Light" in err
+    (a,) = load_catalogue(tmp_path / "people" / "catalogue.json")
+    assert a.lights == ("Light",) and a.up_axis == "Y" and a.meters_per_unit == pytest.approx(CM)
+    stage = generate("street", tmp_path / "s.usda", 1, frames=1, rigs=1, grid=(2, 2), resolution=(32, 32),
+                     catalogues=[tmp_path / "people" / "catalogue.json"])
+    placed, _ = _asset_objects(stage)
+    assert placed and {o.label for o in placed} == {"person"}
+    lights = [p for p in Usd.PrimRange(stage.GetPseudoRoot()) if p.HasAPI(UsdLux.LightAPI) or p.IsA(UsdLux.BoundableLightBase)]
+    assert not any(str(p.GetPath()).startswith(tuple(o.prim_path + "/" for o in placed)) for p in lights)
+    for o in placed:
+        assert not stage.GetPrimAtPath(f"{o.prim_path}/Asset/Model/Light").IsActive()
+    geo = StageGeometry(stage)
+    for o in placed:  # standing on the pavement (its top 0.15 m) or the bridge of the street's people: 1 mm above
+        z = np.concatenate([geo.mesh(p, 1).vertices for p in geo.parts_of(o.prim_path)])[:, 2].min()
+        assert z == pytest.approx(0.15 + GAP, abs=1e-5), o.prim_path
+    code, out, err = run_cli(capsys, "check", tmp_path / "s.usda", "--no-coverage")
+    assert code == 0 and "all constraints hold" in out, out + err
+
+
+def test_a_light_inside_an_instance_is_refused(tmp_path, capsys):
+    from pxr import Usd, UsdGeom, UsdLux
+
+    from lfusd.author.labels import set_class_label
+
+    path = tmp_path / "lamp_post.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    root = stage.DefinePrim("/Post", "Xform")
+    stage.SetDefaultPrim(root)
+    set_class_label(root, "bench")
+    proto = stage.CreateClassPrim("/_Head")
+    UsdLux.SphereLight.Define(stage, "/_Head/Bulb")
+    UsdGeom.Cube.Define(stage, "/_Head/Box")
+    head = stage.DefinePrim("/Post/Head", "Xform")
+    head.GetReferences().AddInternalReference(proto.GetPath())
+    head.SetInstanceable(True)
+    stage.GetRootLayer().Save()
+    code, _, err = run_cli(capsys, "assets", "add", path)
+    assert_one_line_error(code, err, "light inside an instance", "/Post/Head/Bulb")

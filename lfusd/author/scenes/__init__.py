@@ -188,6 +188,8 @@ def reference_asset(stage: Usd.Stage, stage_path: Path, path: str, asset) -> Non
     x.AddTransformOp().Set(Gf.Matrix4d(*[float(v) for v in m.ravel()]))
     # the reference one level down: the asset's root keeps its own transform (a converter's turn or scale)
     stage.DefinePrim(f"{path}/Asset/Model").GetReferences().AddReference(Path(ref).as_posix(), asset.prim)
+    for light in asset.lights:  # the template lights the scene
+        stage.OverridePrim(f"{path}/Asset/Model/{light}").SetActive(False)
     stage.GetPrimAtPath(path).CreateAttribute(ASSET, Sdf.ValueTypeNames.String, custom=True).Set(asset.sha256)
 
 
