@@ -181,7 +181,7 @@ def write_bench(folder: str | Path, name: str = "park_bench", length: float = 1.
 
 def write_bad(folder: str | Path, kind: str) -> Path:
     """A refused asset: ``unlabelled``, ``sphere`` (implicit), ``index`` (face out of range),
-    ``nan`` (non-finite point), ``flat`` (empty bounds), ``nomesh``, ``light``."""
+    ``nan`` (non-finite point), ``flat`` (empty bounds), ``nomesh``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"bad_{kind}.usda"
@@ -205,9 +205,5 @@ def write_bad(folder: str | Path, kind: str) -> Path:
             m.GetPointsAttr().Set(pts)
         elif kind == "flat":
             m.GetPointsAttr().Set([Gf.Vec3f(0, 0, 0)] * 8)
-        elif kind == "light":
-            from pxr import UsdLux
-
-            UsdLux.SphereLight.Define(stage, "/Thing/Bulb")
     stage.GetRootLayer().Save()
     return path
