@@ -74,6 +74,7 @@ class Recipe:
     verify: str = "all"
     stats_views: str = "centre"
     thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
+    catalogues: tuple[str, ...] = ()  # dataset.catalogues: asset catalogue files (lfusd.author.catalogue), resolved
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,7 @@ class SceneSpec:
     grid: tuple[int, int]
     resolution: tuple[int, int]
     samples: int
+    catalogues: tuple[str, ...] = ()  # asset catalogues the template draws from (left out of a record when none)
 
 
 # -- reading and checking a recipe ------------------------------------------------------------
@@ -131,7 +133,8 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     ds = data.get("dataset")
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
-    known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds"}
+    known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
+             "catalogues"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -171,6 +174,19 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
             raise _bad(source, f"{w}thresholds.{k}", v, "must be a positive number")
         thresholds.append((k, float(v)))
+
+    raw_catalogues = _get(ds, "catalogues", list, source, w, "must be a list of catalogue files", [])
+    catalogues = []
+    for c in raw_catalogues:
+        if not isinstance(c, str) or not c:
+            raise _bad(source, w + "catalogues", c, "must list catalogue files (paths relative to the recipe's folder)")
+        p = Path(c).expanduser()
+        if not p.is_absolute() and source != "<recipe>":
+            p = Path(source).parent / p
+        from .author.catalogue import load_catalogue
+
+        load_catalogue(p)  # a missing or foreign file: refused here, before any scene is made
+        catalogues.append(str(p.resolve()))
 
     raw_parts = data.get("part")
     if not isinstance(raw_parts, list) or not raw_parts:
@@ -223,7 +239,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
-                  tuple(sorted(thresholds)))
+                  tuple(sorted(thresholds)), tuple(catalogues))
 
 
 def load_recipe(path) -> Recipe:
@@ -248,7 +264,7 @@ def scene_specs(recipe: Recipe) -> list[SceneSpec]:
             template, seed = p.templates[k % len(p.templates)], p.first_seed + k
             lo, hi = p.rigs
             out.append(SceneSpec(f"{p.name}_{k:03d}_{template}_s{seed}", p.name, template, seed, lo + seed % (hi - lo + 1),
-                                 p.frames, p.dynamic, recipe.grid, recipe.resolution, recipe.samples))
+                                 p.frames, p.dynamic, recipe.grid, recipe.resolution, recipe.samples, recipe.catalogues))
     return out
 
 
@@ -332,7 +348,10 @@ class MakeResult:
 
 
 def _spec_dict(spec: SceneSpec) -> dict:
-    return json.loads(json.dumps(asdict(spec)))  # tuples as lists, as they come back from a record
+    d = asdict(spec)
+    if not d["catalogues"]:
+        del d["catalogues"]  # records of recipes without catalogues keep their identity
+    return json.loads(json.dumps(d))  # tuples as lists, as they come back from a record
 
 
 def _read_record(path: Path) -> dict | None:
@@ -392,7 +411,7 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
     out = root / layout.RECIPE_SCENES / spec.name
     if not stage.is_file():
         generate(spec.template, stage, spec.seed, frames=spec.frames, rigs=spec.rigs, grid=spec.grid,
-                 resolution=spec.resolution, dynamic=spec.dynamic)
+                 resolution=spec.resolution, dynamic=spec.dynamic, catalogues=spec.catalogues)
     req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
                         executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet)
     if spec.dynamic:

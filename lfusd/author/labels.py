@@ -6,8 +6,10 @@ Instances are objects too (docs/CONVENTIONS.md): a scenegraph instance prim (its
 reached through instance proxies) unless a labelled prim inside it is nearer to the geometry,
 labelled as itself or else as its labelled ancestor; every PointInstancer instance, named
 ``/path/to/Instancer[i]`` (nested: ``/A[i]/B[j]``), labelled as its instancer or the instancer's
-labelled ancestor, else as its prototype. Ids are assigned in path order (instance indices in
-numeric order), so the same stage always gives the same ids.
+labelled ancestor, else as its prototype. A catalogue asset placed in a generated stage (a child
+of the default prim carrying ``lfusd:asset``, lfusd.author.catalogue) is one object, whatever it
+instances or labels inside. Ids are assigned in path order (instance indices in numeric order),
+so the same stage always gives the same ids.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdSemantics
 
 from ..errors import LfusdError
+from .vocabulary import ASSET
 
 TAXONOMY = "class"
 
@@ -131,6 +134,8 @@ class _Walk:
         self.placements: dict[str, Placement] = {}  # point-instance name -> placement
         self._label_cache: dict[Sdf.Path, list[str]] = {}
         instancers, gprims = [], []
+        world = stage.GetDefaultPrim()
+        self._has_assets = any(c.HasAttribute(ASSET) for c in (world.GetChildren() if world else []))
         it = iter(Usd.PrimRange.Stage(stage, _PROXIES))
         for prim in it:
             if prim.IsA(UsdGeom.PointInstancer):
@@ -150,7 +155,11 @@ class _Walk:
             anchor = self._anchor(g)
             self.parts.append(Part(str(g.GetPath()), g, None, key, anchor))
         for pi in instancers:
-            self._instances(pi, str(pi.GetPath()), None, self._anchor(pi) or str(pi.GetPath()))
+            whole = self._whole(pi) if self._has_assets else None
+            if whole is not None:
+                self.labels.setdefault(str(whole.GetPath()), self._label(whole))
+            self._instances(pi, str(pi.GetPath()), None, self._anchor(pi) or str(pi.GetPath()),
+                            str(whole.GetPath()) if whole else None)
 
     def _own(self, prim: Usd.Prim) -> list[str]:
         path = prim.GetPath()
@@ -166,8 +175,20 @@ class _Walk:
             p = p.GetParent()
         return ""
 
+    def _whole(self, prim: Usd.Prim) -> Usd.Prim | None:
+        """The outermost catalogue asset (a prim with ``lfusd:asset``) at or above ``prim``, or None."""
+        out, p = None, prim
+        while p and not p.IsPseudoRoot():
+            if p.HasAttribute(ASSET):
+                out = p
+            p = p.GetParent()
+        return out
+
     def _owner(self, g: Usd.Prim) -> Usd.Prim:
-        """The nearest labelled or instance prim at or above ``g``; else ``g`` itself."""
+        """The catalogue asset placed above ``g`` (one object, whatever it instances), else the
+        nearest labelled or instance prim at or above ``g``; else ``g`` itself."""
+        if self._has_assets and (whole := self._whole(g)):
+            return whole
         p = g
         while p and not p.IsPseudoRoot():
             if p.IsInstance() or self._own(p):
@@ -199,8 +220,9 @@ class _Walk:
                 return labels[0]
         return ""
 
-    def _instances(self, pi: Usd.Prim, name: str, outer: Placement | None, anchor: str) -> None:
-        """Objects and parts of every instance of PointInstancer ``pi`` (named ``name``)."""
+    def _instances(self, pi: Usd.Prim, name: str, outer: Placement | None, anchor: str, whole: str | None = None) -> None:
+        """Objects and parts of every instance of PointInstancer ``pi`` (named ``name``); ``whole``:
+        the catalogue asset that owns them all (None: each instance is an object)."""
         inst = UsdGeom.PointInstancer(pi)
         roots = [self.stage.GetPrimAtPath(t) for t in inst.GetPrototypesRel().GetForwardedTargets()]
         indices = inst.GetProtoIndicesAttr().Get(Usd.TimeCode.EarliestTime())
@@ -226,12 +248,12 @@ class _Walk:
             place = Placement(pi, i, roots[k], outer, path)
             self.placements[path] = place
             gprims, nested, label = content[int(k)]
-            if gprims:
+            if gprims and whole is None:
                 self.labels[path] = label
             for rel, g in gprims:
-                self.parts.append(Part(path + rel, g, place, path, anchor))
+                self.parts.append(Part(path + rel, g, place, whole or path, anchor))
             for rel, sub in nested:
-                self._instances(sub, path + rel, place, anchor)
+                self._instances(sub, path + rel, place, anchor, whole)
 
     def objects(self) -> tuple[list[ObjectEntry], list[str]]:
         owners: dict[str, list[str]] = {}

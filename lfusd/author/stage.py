@@ -199,6 +199,12 @@ def _stat_key(st: os.stat_result) -> dict:
     return {"size": st.st_size, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns, "inode": st.st_ino}
 
 
+def _package(path: str) -> str:
+    """A file inside a .usdz package (``pkg.usdz[inner/file.png]``) is read from the package,
+    whose hash covers it: the package's path; any other path as it is."""
+    return path.split("[", 1)[0] if path.endswith("]") and "[" in path else path
+
+
 def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
     """Every file that affects a render of the stage at ``path``: its layer stack (sublayers,
     references, payloads) and the assets its layers name (textures, ...), as
@@ -215,8 +221,8 @@ def stage_files(path: str | Path, known: dict | None = None) -> dict[str, dict]:
     except Tf.ErrorException as e:
         reason = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), "a layer failed to load")[:200]
         raise LfusdError(f"cannot resolve the files stage {path} depends on ({reason}); fix its references") from None
-    layer_paths = {Path(layer.realPath).resolve() for layer in layers if layer.realPath} | {stage_path}
-    asset_paths = {Path(a).resolve() for a in assets} - layer_paths
+    layer_paths = {Path(_package(layer.realPath)).resolve() for layer in layers if layer.realPath} | {stage_path}
+    asset_paths = {Path(_package(a)).resolve() for a in assets} - layer_paths
     outside = sorted(p for p in asset_paths if not p.is_relative_to(root) and not _image_or_layer(p))
     for p in outside:
         log.warning("stage %s names %s, outside its folder and neither an image nor a USD layer: "

@@ -34,6 +34,10 @@ RULE = "lfusd:rule:"  # lfusd:rule:<class>:<kind>, class rules on the default pr
 CONSTRAINT = "lfusd:constraint:"  # lfusd:constraint:<kind>, the rules of one object prim
 BOUNDS = "lfusd:bounds"  # double3[2] (min, max corner) on the default prim
 WHEEL_RADIUS = "lfusd:wheelRadius"  # double on a car's wheel* mesh
+# string on an object prim placed from an asset catalogue (lfusd.author.catalogue): the asset's
+# content hash. Everything drawn below it (instances, point instances) is that one object.
+ASSET = "lfusd:asset"
+LICENCE = "lfusd:licence"  # an asset's licence in its layer's customLayerData (read beside "license", "licence", ...)
 
 # -- customData of the default prim of a generated stage -------------------------------------
 TEMPLATE = "lfusd:template"

@@ -54,9 +54,12 @@ def handler(args) -> int:
 
         for footage in rig_footage(stage).values():
             print(footage.line())
+    from ..author.statistics import stage_statistics
+
+    content = stage_statistics(stage).line()
     first, last = frame_range(stage)
     n_rules = sum(len([k for k in r.rules if k not in ("draft", "tolerance")]) for r in checker.rules)
-    summary = (f"{args.stage}: {len(checker.labelled)} labelled objects, {n_rules} rules, frames {first}-{last}"
+    summary = (f"{args.stage}: {len(checker.labelled)} labelled objects, {n_rules} rules, frames {first}-{last}; {content}"
                f" ({time.perf_counter() - t0:.1f} s)")
     if lines:
         print(f"{summary}: {len(lines)} violation{'s' if len(lines) != 1 else ''}", file=sys.stderr)

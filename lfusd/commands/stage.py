@@ -26,6 +26,9 @@ def register(sub) -> None:
     n.add_argument("--force", action="store_true", help="replace an existing stage file; allow grids and resolutions beyond the limits")
     n.add_argument("--dynamic", action="store_true",
                    help="add walking/running people, drifting boats, driving cars, swinging doors over the frames")
+    n.add_argument("--catalogue", action="append", default=[], metavar="FILE",
+                   help="an asset catalogue (`lfusd assets add`) whose assets replace the procedural objects of their "
+                        "class (repeatable)")
     n.set_defaults(func=new_handler)
     t = ssub.add_parser("templates", help="list the templates")
     t.set_defaults(func=lambda args: print("\n".join(TEMPLATES)) or 0)
@@ -50,7 +53,7 @@ def new_handler(args) -> int:
         check_rig_size(args.grid, args.resolution, args.force)
     try:
         generate(args.template, out, args.seed, frames=args.frames, rigs=args.rigs, grid=args.grid, resolution=args.resolution,
-                 dynamic=args.dynamic)
+                 dynamic=args.dynamic, catalogues=args.catalogue)
     except OSError as e:
         raise LfusdError(f"cannot write stage {out} ({e.strerror or e}): {why_unwritable(out)}") from None
     except Exception as e:  # pxr reports an unwritable layer as Tf.ErrorException

@@ -34,8 +34,8 @@ from ...camera import RigSpec
 from ..stage import new_stage, round_layer
 from ..rigs import add_rig
 from ..rules import set_class_rule
-from ..vocabulary import BOUNDS, DYNAMIC, LIGHTING, SEED, TEMPLATE
-from .build import Builder, MeshData
+from ..vocabulary import ASSET, BOUNDS, DYNAMIC, LIGHTING, SEED, TEMPLATE
+from .build import Builder, MeshData, box
 
 # Rules for the object kit's classes (lfusd.author.scenes.objects), which every generated stage
 # adds to the default rulebook (stored as lfusd:rule:* attributes); a template adds its own.
@@ -84,6 +84,7 @@ class Scene:
     near_foreground: bool = True
     lighting: dict = field(default_factory=dict)  # the drawn lighting setup (customData lfusd:lighting)
     ctx: object = None  # the dynamic variant's state (lfusd.author.scenes.dynamic.Ctx)
+    assets: dict = field(default_factory=dict)  # class -> catalogue assets drawn instead of its generator (catalogue.draw_assets)
 
     @property
     def stage(self) -> Usd.Stage:
@@ -95,13 +96,32 @@ class Scene:
         self.counters[base] = n + 1
         return f"/World/{base}_{n:02d}"
 
+    def draw(self, cls: str, make: Callable, *args):
+        """An object of class ``cls``: a catalogue asset of that class when the scene has any
+        (drawn uniformly, one draw of the generator), else ``make(rng, *args)``, the procedural
+        generator's result. An asset comes as parts ``[("asset", its box, AssetPart)]``, which
+        :meth:`place` and :meth:`add` take like any kit's parts (:func:`is_asset`)."""
+        pool = self.assets.get(cls)
+        if not pool:
+            return make(self.rng, *args)
+        from ..catalogue import placed_size
+
+        asset = pool[int(self.rng.integers(len(pool)))]
+        sx, sy, sz = placed_size(asset)
+        return [("asset", box((sx, sy, sz), (0.0, 0.0, sz / 2)), AssetPart(asset))]
+
     def add(self, path: str, label: str | None, parts: list[tuple[str, MeshData, str]], pos=(0.0, 0.0, 0.0),
             yaw_deg: float = 0.0, roughness: dict | None = None, track: bool = True) -> str:
-        """Author an object from named mesh parts (local coordinates) at ``pos`` turned ``yaw_deg``."""
+        """Author an object from named mesh parts (local coordinates) at ``pos`` turned ``yaw_deg``
+        (a catalogue asset: a reference to it, see :func:`reference_asset`)."""
         self.builder.obj(path, label, pos, yaw_deg)
-        for part, data, texture in parts:
-            r = (roughness or {}).get(part)  # None: the texture's finish (build.FINISHES)
-            self.builder.mesh(f"{path}/{part}", data, texture, roughness=r, metallic=0.6 if part == "body" and label == "car" else None)
+        if is_asset(parts):
+            reference_asset(self.stage, self.builder.stage_path, path, parts[0][2].asset)
+        else:
+            for part, data, texture in parts:
+                r = (roughness or {}).get(part)  # None: the texture's finish (build.FINISHES)
+                self.builder.mesh(f"{path}/{part}", data, texture, roughness=r,
+                                  metallic=0.6 if part == "body" and label == "car" else None)
         if track:
             lo, hi = world_box([d for _, d, _ in parts], pos, yaw_deg)
             self.placed.append(Placed(path, lo, hi))
@@ -136,6 +156,41 @@ class Scene:
             if self.free(lo + [x, y, 0], hi + [x, y, 0], margin, ignore):
                 return (x, y, z), yaw
         return None
+
+
+@dataclass(frozen=True)
+class AssetPart:
+    """Stands in a part's texture slot for a catalogue asset (:meth:`Scene.draw`)."""
+
+    asset: object  # lfusd.author.catalogue.Asset
+
+
+def is_asset(parts) -> bool:
+    """Whether ``parts`` (a kit's parts) are a catalogue asset drawn by :meth:`Scene.draw`."""
+    return isinstance(parts, list) and len(parts) == 1 and isinstance(parts[0][2], AssetPart)
+
+
+def reference_asset(stage: Usd.Stage, stage_path: Path, path: str, asset) -> None:
+    """Author ``<path>/Asset/Model``, a reference to the catalogue asset's default prim, under one
+    transform that takes it into the object's frame (Z up, metres, grounded on its lowest point,
+    centred: lfusd.author.catalogue.placement_matrix), and mark the object prim with the asset's
+    content hash (``lfusd:asset``: everything below it is one object, lfusd.author.labels)."""
+    from ..catalogue import placement_matrix
+
+    file = asset.path().resolve()
+    try:
+        ref = os.path.relpath(file, Path(stage_path).resolve().parent)
+    except ValueError:  # another drive
+        ref = str(file)
+    ref = ref if os.path.isabs(ref) or ref.startswith("..") else f"./{ref}"
+    x = UsdGeom.Xform.Define(stage, f"{path}/Asset")
+    m = placement_matrix(asset)
+    x.AddTransformOp().Set(Gf.Matrix4d(*[float(v) for v in m.ravel()]))
+    # the reference one level down: the asset's root keeps its own transform (a converter's turn or scale)
+    stage.DefinePrim(f"{path}/Asset/Model").GetReferences().AddReference(Path(ref).as_posix(), asset.prim)
+    for light in asset.lights:  # the template lights the scene
+        stage.OverridePrim(f"{path}/Asset/Model/{light}").SetActive(False)
+    stage.GetPrimAtPath(path).CreateAttribute(ASSET, Sdf.ValueTypeNames.String, custom=True).Set(asset.sha256)
 
 
 def world_box(datas: list[MeshData], pos, yaw_deg: float) -> tuple[np.ndarray, np.ndarray]:
@@ -234,10 +289,13 @@ def add_rigs(scene: Scene, count: int, sample_position, look_at, spec_kwargs: di
 
 
 def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs: int = 10,
-             grid: tuple[int, int] = (9, 9), resolution: tuple[int, int] = (1024, 1024), dynamic: bool = False) -> Usd.Stage:
+             grid: tuple[int, int] = (9, 9), resolution: tuple[int, int] = (1024, 1024), dynamic: bool = False,
+             catalogues=()) -> Usd.Stage:
     """Write the stage of ``template`` with ``seed`` to ``path`` (textures into ``path``'s textures/).
 
-    ``dynamic``: add walking people and movers over the frame range (lfusd.author.scenes.dynamic)."""
+    ``dynamic``: add walking people and movers over the frame range (lfusd.author.scenes.dynamic).
+    ``catalogues``: asset catalogue files (lfusd.author.catalogue) whose assets the template
+    draws instead of its procedural objects of the same class."""
     t = TEMPLATES.get(template)
     if t is None:
         raise LfusdError(f"unknown template {template!r}; choose one of: {', '.join(TEMPLATES)}")
@@ -249,6 +307,9 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
         raise LfusdError(f"--rigs must be between 0 and 10 (rig_00..rig_09), got {rigs}")
     if seed < 0:
         raise LfusdError(f"--seed must be a non-negative integer, got {seed}")
+    from ..catalogue import draw_assets
+
+    assets = draw_assets(catalogues)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # Authored under a temporary name beside ``path`` (textures are found relative to the folder)
@@ -257,7 +318,7 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     _remove_stale_temporaries(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
     try:
-        _build(t, tmp, seed, frames, rigs, grid, resolution, dynamic, template)
+        _build(t, tmp, seed, frames, rigs, grid, resolution, dynamic, template, assets)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -283,12 +344,13 @@ def _remove_stale_temporaries(path: Path) -> None:
                 pass  # alive under another user, or no pid: not ours to remove
 
 
-def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, dynamic: bool, template: str) -> None:
+def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, dynamic: bool, template: str,
+           assets: dict | None = None) -> None:
     """Author and save the stage of template ``t`` at ``path`` (see :func:`generate`)."""
     stage = new_stage(path, 1, frames)
     UsdGeom.Scope.Define(stage, "/World/Looks")
     UsdGeom.Xform.Define(stage, "/World/Lights")
-    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), t.seed_key]))
+    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), t.seed_key]), assets=dict(assets or {}))
     site = t.build(scene)
     if dynamic:
         from .dynamic import populate

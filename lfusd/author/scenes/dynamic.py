@@ -77,7 +77,8 @@ class Occupancy:
             if o.label in SURFACES:
                 continue
             for m in o.mesh_paths:
-                r = cache.ComputeWorldBound(stage.GetPrimAtPath(m)).ComputeAlignedRange()
+                # a point instance (a catalogue asset's /Leaves[3]) has no prim: its object's box
+                r = cache.ComputeWorldBound(stage.GetPrimAtPath(m if "[" not in m else o.prim_path)).ComputeAlignedRange()
                 occ.boxes.append((o.prim_path, np.array(r.GetMin()), np.array(r.GetMax())))
         return occ
 

@@ -55,14 +55,14 @@ def mixed(scene: Scene) -> MixedSite:
         if pose and not _overlaps(pose, parts, (px0 - 1, py0 - 1), (px1 + 1, py1 + 1)):
             scene.add(scene.name("House"), "building", parts, pose[0], pose[1])
     for _ in range(int(rng.integers(2, 5))):
-        parts = kit.car(rng)
+        parts = scene.draw("car", kit.car)
         pose = scene.place(parts, ((-S + 2, ry0 + 0.3), (S - 2, ry1 - 0.3)), GAP, yaw_choices=[0.0, 180.0], margin=0.8)
         if pose:
             scene.add(scene.name("Car"), "car", parts, pose[0], pose[1])
     for kind, n, label in (("tree", (3, 8), "tree"), ("bench", (1, 4), "bench"), ("litter_bin", (1, 3), "bin"),
                            ("person", (3, 7), "person")):
         for _ in range(int(rng.integers(*n))):
-            parts = getattr(kit, kind)(rng)
+            parts = scene.draw(label, getattr(kit, kind))
             region = north if kind != "person" or rng.random() < 0.6 else ((-S + 2, ry0 + 0.3), (S - 2, ry1 - 0.3))
             pose = scene.place(parts, region, GAP, margin=0.3)
             if pose and not _overlaps(pose, parts, (px0 - 0.3, py0 - 0.3), (px1 + 0.3, py1 + 0.3)):

@@ -63,7 +63,7 @@ def river(scene: Scene) -> RiverSite:
 
     # People: on the banks and on the bridge deck.
     for _ in range(int(rng.integers(3, 7))):
-        parts = kit.person(rng)
+        parts = scene.draw("person", kit.person)
         if rng.random() < 0.3:
             region = ((bx - bw / 2 + 0.4, -span + 2.6), (bx + bw / 2 - 0.4, span - 2.6))
             z = deck_z + 2 * GAP
@@ -75,14 +75,14 @@ def river(scene: Scene) -> RiverSite:
         if pose:
             scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
     for _ in range(int(rng.integers(3, 8))):
-        parts = kit.tree(rng)
+        parts = scene.draw("tree", kit.tree)
         s = 1 if rng.random() < 0.5 else -1
         y0, y1 = sorted((s * (half + 2.0), s * (half + bank - 1.0)))
         pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)
         if pose:
             scene.add(scene.name("Tree"), "tree", parts, pose[0], pose[1])
     for _ in range(int(rng.integers(1, 4))):
-        parts = kit.bench(rng)
+        parts = scene.draw("bench", kit.bench)
         s = 1 if rng.random() < 0.5 else -1
         y0, y1 = sorted((s * (half + 1.0), s * (half + 6.0)))
         pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, yaw_choices=[90.0 if s < 0 else 270.0], margin=0.3)
@@ -98,7 +98,7 @@ def river(scene: Scene) -> RiverSite:
         if pose:
             scene.add(scene.name("Railing"), "railing", parts, pose[0], pose[1])
     for _ in range(int(rng.integers(1, 3))):
-        parts = kit.litter_bin(rng)
+        parts = scene.draw("bin", kit.litter_bin)
         s = 1 if rng.random() < 0.5 else -1
         y0, y1 = sorted((s * (half + 1.0), s * (half + 6.0)))
         pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)

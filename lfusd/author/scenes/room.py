@@ -12,7 +12,8 @@ from pxr import UsdGeom
 
 from .. import movers
 from ..labels import object_table
-from . import GAP, Placed, Scene, Site, template
+from ..catalogue import placed_size
+from . import GAP, Placed, Scene, Site, is_asset, template
 from . import objects as kit
 from .build import box
 
@@ -47,13 +48,17 @@ def room(scene: Scene) -> RoomSite:
 
     inner = ((-hx + 0.05, -hy + 0.05), (hx - 0.05, hy - 0.05))
     # Table near the middle; chairs face it; bowls stand on its top.
-    parts, top_h, (lx, ly) = kit.table(rng)
+    drawn = scene.draw("table", kit.table)
+    if is_asset(drawn):  # a catalogue table: its top is its highest point; nothing is put on it
+        parts, (lx, ly, top_h) = drawn, placed_size(drawn[0][2].asset)
+    else:
+        parts, top_h, (lx, ly) = drawn
     tx, ty = float(rng.uniform(-hx * 0.3, hx * 0.3)), float(rng.uniform(-hy * 0.3, hy * 0.3))
     yaw = float(rng.choice([0.0, 90.0]))
     table_path = scene.add("/World/Table", "table", parts, (tx, ty, GAP), yaw)
     ex, ey = (lx, ly) if yaw == 0.0 else (ly, lx)
     for k in range(int(rng.integers(2, 5))):
-        parts = kit.chair(rng)
+        parts = scene.draw("chair", kit.chair)
         # four sides of the table: the chair faces the table centre
         side = k % 4
         d = [(-1, 0), (1, 0), (0, -1), (0, 1)][side]
@@ -77,13 +82,13 @@ def room(scene: Scene) -> RoomSite:
             scene.placed.append(Placed("/World#walk", lo, hi))
             break
     top = ((tx - ex / 2 + 0.05, ty - ey / 2 + 0.05), (tx + ex / 2 - 0.05, ty + ey / 2 - 0.05))
-    for _ in range(int(rng.integers(2, 6))):
+    for _ in range(int(rng.integers(2, 6)) if not is_asset(drawn) else 0):
         parts = kit.bowl_kit(rng)
         pose = scene.place(parts, top, top_h + 2 * GAP, margin=0.05, ignore=(table_path,))
         if pose:
             scene.add(scene.name("Bowl"), "bowl", parts, pose[0], pose[1])
 
-    if rng.random() < 0.6:  # a table lamp among the bowls
+    if rng.random() < 0.6 and not is_asset(drawn):  # a table lamp among the bowls
         parts = kit.table_lamp(rng)
         pose = scene.place(parts, top, top_h + 2 * GAP, margin=0.05, ignore=(table_path,))
         if pose:
@@ -92,7 +97,7 @@ def room(scene: Scene) -> RoomSite:
     # Cabinets and bookshelves against the walls (backs to the wall), a floor lamp, a person.
     for k in range(int(rng.integers(2, 5))):
         kind = "cabinet" if k % 2 == 0 else "shelf"
-        parts = getattr(kit, kind)(rng)
+        parts = scene.draw(kind, getattr(kit, kind))
         side = int(rng.integers(4))
         yaw = [0.0, 180.0, 90.0, 270.0][side]
         if side == 0:
@@ -113,7 +118,7 @@ def room(scene: Scene) -> RoomSite:
         scene.add("/World/Lamp", "lamp", parts, (x, y, z), pose[1])
         b.sphere_light("LampBulb", (x + 0.12, y, z + light_h), 0.05, float(rng.uniform(20, 60)))
     if rng.random() < 0.7:
-        parts = kit.person(rng)
+        parts = scene.draw("person", kit.person)
         pose = scene.place(parts, inner, GAP, margin=0.25)
         if pose:
             scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])

@@ -55,7 +55,7 @@ def street(scene: Scene) -> StreetSite:
 
     # Parked cars near the kerbs, driving lanes kept clear for issue-6 movers.
     for _ in range(int(rng.integers(4, 8))):
-        parts = kit.car(rng)
+        parts = scene.draw("car", kit.car)
         s = 1 if rng.random() < 0.5 else -1
         y0, y1 = sorted((s * (road_w - 0.1), s * (road_w - 2.1)))
         region = ((-L / 2 + 3, y0), (L / 2 - 3, y1))
@@ -86,14 +86,14 @@ def street(scene: Scene) -> StreetSite:
 
     # People on the pavements, trees on the verges in front of the buildings.
     for _ in range(int(rng.integers(3, 7))):
-        parts = kit.person(rng)
+        parts = scene.draw("person", kit.person)
         s = 1 if rng.random() < 0.5 else -1
         y0, y1 = sorted((s * (road_w + 0.6), s * (road_w + walk_w - 0.2)))
         pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), curb + GAP, margin=0.3)
         if pose:
             scene.add(scene.name("Person"), "person", parts, pose[0], pose[1])
     for _ in range(int(rng.integers(2, 6))):
-        parts = kit.tree(rng)
+        parts = scene.draw("tree", kit.tree)
         s = 1 if rng.random() < 0.5 else -1
         y0, y1 = sorted((s * (road_w + walk_w + 0.2), s * (road_w + walk_w + verge - 0.5)))
         pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, margin=0.3)
@@ -108,7 +108,7 @@ def street(scene: Scene) -> StreetSite:
             if kind == "railing":
                 parts, yaw, depth = kit.railing(float(rng.uniform(4.0, 9.0))), 0.0, 0.2
             else:
-                parts, yaw, depth = getattr(kit, kind)(rng), (270.0 if s > 0 else 90.0), 1.2
+                parts, yaw, depth = scene.draw(kind.split("_")[-1], getattr(kit, kind)), (270.0 if s > 0 else 90.0), 1.2
             y0, y1 = sorted((s * (road_w + walk_w + 0.1), s * (road_w + walk_w + 0.1 + depth)))
             pose = scene.place(parts, ((-L / 2 + 2, y0), (L / 2 - 2, y1)), GAP, yaw_choices=[yaw], margin=0.3)
             if pose:

@@ -1,0 +1,78 @@
+"""`lfusd assets add|list|check`: the asset catalogue (lfusd.author.catalogue)."""
+
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    p = sub.add_parser("assets", help="catalogue USD assets that generated scenes draw by class",
+                       description="Keep a catalogue of USD assets (a JSON file) that `lfusd stage new --catalogue` and "
+                                   "recipes draw objects from by semantic class, instead of lfusd's procedural ones.")
+    asub = p.add_subparsers(dest="assets_command", metavar="ACTION")
+    a = asub.add_parser("add", help="check assets and add them to a catalogue",
+                        description="Read a USD asset (or every asset of a folder), check it (a mesh asset with a class, "
+                                    "non-empty bounds, no implicit shapes or broken meshes) and record its class, "
+                                    "bounds, units, up axis, ground contact, licence and content hash in the catalogue. "
+                                    "A refused asset is one line (exit 2) and nothing is written.")
+    a.add_argument("target", metavar="FOLDER|FILE", help="a .usd/.usda/.usdc/.usdz asset, or a folder of them")
+    a.add_argument("--catalogue", metavar="FILE",
+                   help="the catalogue file (.json; made when missing); default: catalogue.json in the asset's folder")
+    a.add_argument("--class", dest="cls", metavar="CLASS",
+                   help="the assets' semantic class (default: their UsdSemantics 'class' label)")
+    a.add_argument("--licence", "--license", dest="licence", metavar="TEXT",
+                   help="the assets' licence (default: the one in their metadata, e.g. customLayerData 'license')")
+    a.set_defaults(func=add_handler)
+    ls = asub.add_parser("list", help="list a catalogue's assets and lfusd's procedural generators",
+                         description="One line per asset: name, class, size, units, up axis, triangles, licence, file; "
+                                     "then lfusd's procedural generators, which templates use for classes no catalogue "
+                                     "asset has.")
+    ls.add_argument("catalogue", nargs="?", help="the catalogue file or its folder (default: only the procedural entries)")
+    ls.set_defaults(func=list_handler)
+    c = asub.add_parser("check", help="read every asset of a catalogue again",
+                        description="Check every asset of the catalogue again: one line per asset that is missing, "
+                                    "refused, or changed since it was added; exit 1 if any.")
+    c.add_argument("catalogue", help="the catalogue file or its folder")
+    c.set_defaults(func=check_handler)
+    p.set_defaults(func=lambda args: p.print_help() or 2)
+
+
+def add_handler(args) -> int:
+    from ..author.catalogue import add_assets
+
+    path, added = add_assets(args.target, args.catalogue, args.cls, args.licence)
+    for a in added:
+        print(_line(a))
+    print(f"added {len(added)} asset{'s' if len(added) != 1 else ''} to {path}")
+    return 0
+
+
+def _line(a) -> str:
+    size = " x ".join(f"{hi - lo:.2f}" for lo, hi in zip(*a.bounds))
+    return (f"{a.name}: {a.cls}, {size} m, metersPerUnit {a.meters_per_unit:g}, {a.up_axis}-up, ground {a.ground:+.3f} m, "
+            f"{a.triangles} triangles, {a.textured_materials} textured materials, licence {a.licence or 'unknown'}, {a.file}")
+
+
+def list_handler(args) -> int:
+    from ..author.catalogue import builtin_entries, load_catalogue
+
+    if args.catalogue:
+        for a in load_catalogue(args.catalogue):
+            print(_line(a))
+    for e in builtin_entries():
+        print(f"{e['name']}: {e['class']}, procedural ({e['source']})")
+    return 0
+
+
+def check_handler(args) -> int:
+    import sys
+
+    from ..author.catalogue import check_catalogue, load_catalogue
+
+    problems = check_catalogue(args.catalogue)
+    for line in problems:
+        print(line)
+    n = len(load_catalogue(args.catalogue))
+    if problems:
+        print(f"{args.catalogue}: {len(problems)} of {n} assets need attention", file=sys.stderr)
+        return 1
+    print(f"{args.catalogue}: {n} assets, all as recorded")
+    return 0
