@@ -11,7 +11,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "lfusd"
 
-BASE = {"errors", "keys", "layout", "camera", "processes"}
+BASE = {"errors", "keys", "layout", "camera", "processes", "files"}
 # Which parts of lfusd each part may import (a part is a subpackage or a top-level module).
 ALLOWED = {
     "errors": set(),
@@ -19,6 +19,7 @@ ALLOWED = {
     "layout": {"errors"},
     "camera": {"errors"},
     "processes": set(),
+    "files": set(),
     "data": BASE | {"data"},
     "author": BASE | {"author"},
     "truth": BASE | {"data", "truth", "author"},  # verify traces motion on the stage itself

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LfusdError
+from ..files import atomic_write
 from .vocabulary import LICENCE, OBJECTS
 
 log = logging.getLogger(__name__)
@@ -265,23 +266,13 @@ def load_catalogue(path: str | Path) -> list[Asset]:
 
 
 def _write_catalogue(path: Path, assets: list[Asset]) -> None:
-    import tempfile
-
     if path.is_symlink():
         raise LfusdError(f"catalogue {path} is a symbolic link; lfusd writes catalogues only as plain files: "
                          "remove the link or pass another --catalogue")
     body = {"format": FORMAT, "version": VERSION, "assets": [a.to_json() for a in sorted(assets, key=lambda a: a.name)]}
     # written beside itself under a temporary name, then renamed into place (replacing a link's
     # target is impossible by construction: the rename replaces the directory entry)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, 0o644)
-        with os.fdopen(fd, "w") as f:
-            f.write(json.dumps(body, indent=1) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, json.dumps(body, indent=1) + "\n")
 
 
 def _stored_file(file: Path, folder: Path) -> str:

@@ -3,8 +3,9 @@
 Every writer of a dataset folder (the render, the ground-truth derivation, the rig study, a recipe,
 the exports) and every reader goes through here:
 
-- :func:`atomic_write`: a file appears whole or not at all (text, bytes, or a writer that takes
-  a path), readable like the folder's other files;
+- :func:`atomic_write` (defined in :mod:`lfusd.files`, below every layer, so that authoring uses
+  the same one): a file appears whole or not at all (text, bytes, or a writer that takes a path),
+  readable like the folder's other files;
 - :func:`open_dataset` / :func:`open_datasets`: a reader of one rig / of every rig, with one-line
   errors for a folder that is missing or holds no dataset;
 - the typed records of its metadata: :class:`Manifest` (with :class:`RenderSettings`),
@@ -28,63 +29,19 @@ import contextlib
 import dataclasses
 import errno
 import fcntl
-import functools
 import json
 import os
 import re
 import shutil
 import stat
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol, runtime_checkable
 
 from .. import layout
+from ..files import atomic_write, file_mode  # noqa: F401  (the folder's writers take them from here)
 from ..errors import LfusdError
-
-
-@functools.cache
-def file_mode() -> int:
-    """The mode of a new file under the process's umask (0644 under the usual 022): for files
-    made with ``tempfile.mkstemp`` (0600), which a shared dataset must not keep."""
-    try:  # Linux states the umask; setting it to read it races with threads creating files
-        with open("/proc/self/status") as f:
-            mask = next(int(ln.split()[1], 8) for ln in f if ln.startswith("Umask:"))
-    except (OSError, StopIteration, ValueError):
-        mask = os.umask(0o022)
-        os.umask(mask)
-    return 0o666 & ~mask
-
-
-def atomic_write(path, content: str | bytes | Callable[[str], object], *, prefix: str | None = None, suffix: str = ".tmp",
-                 sync: bool = False) -> Path:
-    """Write ``path`` under a temporary name in the same folder, then rename it into place.
-
-    ``content``: text, bytes, or a function that writes the file at the path it is given (an EXR
-    or .npz writer). The temporary is ``<prefix><8 random><suffix>`` (default prefix
-    ``.<name>.``: the names :mod:`lfusd.data.confined` removes after a killed run); ``sync``
-    flushes it to disk before the rename. Returns ``path``.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}." if prefix is None else prefix, suffix=suffix)
-    try:
-        if callable(content):
-            os.close(fd)
-            content(tmp)
-            os.chmod(tmp, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
-        else:
-            os.fchmod(fd, file_mode())
-            with os.fdopen(fd, "w" if isinstance(content, str) else "wb") as f:
-                f.write(content)
-                if sync:
-                    f.flush()
-                    os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def open_dataset(path, rig: str | None = None):

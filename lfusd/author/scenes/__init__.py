@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import uuid
 import math
 import pkgutil
 import re
@@ -30,6 +29,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
 
 from ...errors import LfusdError
+from ...files import atomic_write
 from ...camera import RigSpec
 from ..stage import new_stage, round_layer
 from ..rigs import add_rig
@@ -316,13 +316,8 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
     # and renamed into place once saved: a killed generation leaves no half-written stage that a
     # rerun (`lfusd dataset make`) would take for the scene.
     _remove_stale_temporaries(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
-    try:
-        _build(t, tmp, seed, frames, rigs, grid, resolution, dynamic, template, assets)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: _build(t, Path(tmp), seed, frames, rigs, grid, resolution, dynamic, template, assets),
+                 prefix=f".{path.stem}.{os.getpid()}-", suffix=f".tmp{path.suffix}")
     layer = Sdf.Layer.Find(str(path))
     if layer is not None:  # a stage regenerated in this process: the cached layer holds the old one
         layer.Reload(force=True)
@@ -332,7 +327,7 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
 def _remove_stale_temporaries(path: Path) -> None:
     """Remove the temporaries a killed generation of ``path`` left (``.<stem>.<pid>-<hex>.tmp<suffix>``
     beside it, of a process no longer running); nothing else."""
-    pattern = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[0-9a-f]{{8}}\.tmp{re.escape(path.suffix)}")
+    pattern = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[a-z0-9_]{{8}}\.tmp{re.escape(path.suffix)}")
     for p in path.parent.iterdir():
         m = pattern.fullmatch(p.name)
         if m and not p.is_symlink() and p.is_file():
