@@ -1,4 +1,4 @@
-"""lfusd.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
+"""lfusd.truth.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
 
 import re
 from types import SimpleNamespace
