@@ -7,7 +7,7 @@ The pipeline steps, one library function each (the `lfusd` commands call the sam
     lfusd.add_person(stage, points, ...)          # lfusd animate add-person
     lfusd.render_frame(RenderRequest(...))        # lfusd render
     lfusd.render_video(...)                       # lfusd render-video
-    lfusd.derive(out, rigs, frames)               # lfusd flow
+    lfusd.derive(out, rigs, frames)               # lfusd derive
     lfusd.verify(out)                             # lfusd verify
     lfusd.export(Dataset(out), "hci", dest)       # lfusd export
     lfusd.evaluate(out, pred_dir, "disparity")    # lfusd eval

@@ -405,7 +405,7 @@ def test_a_failed_export_leaves_nothing_that_blocks_the_retry(capsys, monkeypatc
 
 
 def test_an_os_error_anywhere_is_one_line_with_exit_2(capsys, monkeypatch, tmp_path, project, fake_render):
-    """A failure of the machine (here: a full disk while `lfusd flow` writes) is no bug: one line, exit 2."""
+    """A failure of the machine (here: a full disk while `lfusd derive` writes) is no bug: one line, exit 2."""
     from lfusd.truth import derive
 
     out = tmp_path / "out"

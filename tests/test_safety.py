@@ -171,7 +171,7 @@ def test_a_manifest_naming_a_folder_outside_as_a_rig_is_refused_before_any_file_
         code, _, err = render(capsys, project / "scene.usda", out, *extra)
         assert_one_line_error(code, err, "manifest.json", "rig name")
         assert code == 2 and intact(canary) and snap(out) == before
-    monkeypatch.undo()  # the real derivation for 'lfusd flow'
+    monkeypatch.undo()  # the real derivation for 'lfusd derive'
     for argv in (("verify", out, "--integrity"), ("flow", out), ("export", "pfm", out, tmp_path / "exp")):
         code, _, err = run_cli(capsys, *argv)
         assert_one_line_error(code, err, "manifest.json", "rig name")

@@ -24,10 +24,10 @@ def register(sub) -> None:
     p.add_argument("--no-usd-validation", action="store_true", help="skip pxr.UsdValidation's validators")
     p.add_argument("--no-coverage", action="store_true",
                    help="skip the per-rig report of motion in view and disparity range (ray casting every frame)")
-    p.set_defaults(func=handler)
+    p.set_defaults(func=run)
 
 
-def handler(args) -> int:
+def run(args) -> int:
     from ..author.rules import Checker, load_rules_file, usd_validation
     from ..author.stage import frame_range, open_stage
 

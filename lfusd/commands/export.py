@@ -20,7 +20,7 @@ def register(subparsers) -> None:
     p.add_argument("--view", type=argtypes.view, default=None, help="ROW,COL view for flo/pfm (default: the centre view)")
     p.add_argument("--all-views", action="store_true", help="flo/pfm: every view; hci: also per-view disparity PFMs")
     p.add_argument("--matlab", action="store_true", help="lfmat: write MATLAB v7.3 .mat files instead of .h5 (both: LF [U,V,H,W,3] in [0,1] as BasicLFSR reads it)")
-    p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
+    argtypes.add_rig_option(p, "dataset")
     p.add_argument("--license", default=None, help="hf/webdataset: the data's license (SPDX id or URL) for the metadata (default: none claimed)")
     p.set_defaults(func=run)
 

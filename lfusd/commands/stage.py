@@ -26,13 +26,20 @@ def register(sub) -> None:
     n.add_argument("--force", action="store_true", help="replace an existing stage file; allow grids and resolutions beyond the limits")
     n.add_argument("--dynamic", action="store_true",
                    help="add walking/running people, drifting boats, driving cars, swinging doors over the frames")
-    n.set_defaults(func=new_handler)
+    n.set_defaults(func=run_new)
     t = ssub.add_parser("templates", help="list the templates")
-    t.set_defaults(func=lambda args: print("\n".join(TEMPLATES)) or 0)
-    p.set_defaults(func=lambda args: p.print_help() or 2)
+    t.set_defaults(func=run_templates)
+    p.set_defaults(func=argtypes.run_help(p))
 
 
-def new_handler(args) -> int:
+def run_templates(args) -> int:
+    from ..author.scenes import TEMPLATES
+
+    print("\n".join(TEMPLATES))
+    return 0
+
+
+def run_new(args) -> int:
     from ..author.scenes import generate
 
     t0 = time.perf_counter()

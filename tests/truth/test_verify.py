@@ -210,12 +210,12 @@ def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
     parts = [p for p in OpenEXR.File(str(exr)).parts if "Vector" not in p.name()]
     OpenEXR.File([OpenEXR.Part(p.header, p.channels) for p in parts]).write(str(exr))
     capsys.readouterr()
-    assert main(["flow", str(tmp_path / "out")]) == 2
+    assert main(["derive", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("lfusd: error:") and "has no vector pass" in err and str(exr) in err and len(err.splitlines()) == 1
     assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "still"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
     capsys.readouterr()
-    assert main(["flow", str(tmp_path / "still")]) == 2  # a still render has no motion keys to derive
+    assert main(["derive", str(tmp_path / "still")]) == 2  # a still render has no motion keys to derive
     err = capsys.readouterr().err.strip()
     assert "holds no motion keys" in err and "render-video" in err and len(err.splitlines()) == 1
 
@@ -329,7 +329,7 @@ def blender_video(tmp_path_factory):
     stage.Save()
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "lfusd", "render-video", str(tmp_path / "s.usda"), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu",
-           "--keep-raw"]  # raw passes: the tests below derive the motion again with lfusd flow
+           "--keep-raw"]  # raw passes: the tests below derive the motion again with lfusd derive
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     return out
