@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -47,14 +47,12 @@ class RigSpec:
     layout: str = "plane"
     radius: float | None = None
     axes: str = "parallel"
-    extra: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         validate(self)
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d.pop("extra")
         d["at"], d["look_at"] = list(self.at), list(self.look_at)
         return d
 

@@ -565,12 +565,3 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
             raise LfusdError(f"the person would break the stage's rules ({bad[0]}); change the path or start frame")
     return prim
 
-
-def add_person_to_file(stage_path: str | Path, points, **kwargs) -> str:
-    """Open ``stage_path``, add a person (see add_person), save; returns the person's prim path."""
-    from .stage import open_stage
-
-    stage = open_stage(stage_path)
-    prim = add_person(stage, points, **kwargs)
-    stage.GetRootLayer().Save()
-    return str(prim.GetPath())

@@ -50,10 +50,6 @@ def _gf(m: np.ndarray) -> Gf.Matrix4d:
     return Gf.Matrix4d(*np.asarray(m, float).T.ravel().tolist())
 
 
-def _np(m: Gf.Matrix4d) -> np.ndarray:
-    return np.array(m, dtype=np.float64).T
-
-
 def _rig_in_stage(spec: RigSpec, world: WorldFrame) -> np.ndarray:
     """The rig prim's transform in the stage's axes and units (column vectors).
 

@@ -70,7 +70,6 @@ class RenderRequest:
     light: str = "auto"  # one of LIGHTS
     keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
     keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
-    extra_settings: dict = field(default_factory=dict)
 
     def check(self) -> None:
         """Raise LfusdError naming the first impossible setting."""
