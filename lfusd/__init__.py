@@ -34,7 +34,7 @@ _LAZY = {
     "evaluate": ("lfusd.evaluation.score", "evaluate"),
 }
 
-__all__ = ["LfusdError", "__version__", *_LAZY]
+__all__ = ["LfusdError", "__version__", *_LAZY]  # noqa: PLE0604 (_LAZY's keys are the names)
 
 
 def __getattr__(name):

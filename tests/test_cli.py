@@ -10,7 +10,6 @@ import shutil
 import pytest
 from support.scenes import write_box_stage, write_motion_stage
 
-from lfusd.cli import main
 from support.cli import assert_one_line_error, run_cli
 from lfusd.camera import RigSpec
 from lfusd.author.stage import open_stage

@@ -58,8 +58,6 @@ on the first frame (no ``prv``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..camera import Camera, backproject, pixel_grid, project

@@ -9,7 +9,6 @@ from support.motion_scenes import Box, Scene, intrinsics, pose, rot
 from pxr import Gf, UsdGeom
 
 from lfusd.errors import LfusdError
-from lfusd.truth.motion import derive_motion
 from lfusd.author.labels import set_class_label
 from lfusd.author.stage import new_stage
 from lfusd.truth.verify import THRESHOLDS, trace_motion, verify_dataset
