@@ -315,6 +315,7 @@ def test_character_with_rotated_joint_frames_moves_like_the_builtin_human(tmp_pa
         assert np.abs(a - b).max() < 1e-4
 
 
+@pytest.mark.blender
 def test_blender_skinning_equals_pxr_skinning(tmp_path):
     """Acceptance: Blender's evaluated skinned vertices = UsdSkel ComputeSkinnedPoints within 1e-4 m."""
     char = tmp_path / "hero.usda"
