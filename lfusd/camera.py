@@ -26,6 +26,25 @@ SPACINGS = ("uniform", "linear", "inverse", "exponential")
 LAYOUTS = ("plane", "sphere")
 AXES = ("parallel", "converge")
 
+# Beyond these a rig is a mistake more often than a plan (authoring a million cameras takes
+# hours); `--force` lifts them. 64x64 views; 16384x16384 pixels (Blender's render result alone
+# is about 50 GB there).
+MAX_VIEWS = 4096
+MAX_PIXELS = 16384 * 16384
+
+
+def check_rig_size(grid: tuple[int, int], resolution: tuple[int, int] | None, force: bool = False) -> None:
+    """Refuse, up front, a grid of more than MAX_VIEWS views or a view of more than MAX_PIXELS pixels."""
+    if force:
+        return
+    rows, cols = grid
+    if rows * cols > MAX_VIEWS:
+        raise LfusdError(f"--grid {rows}x{cols} is {rows * cols} views, more than {MAX_VIEWS} per rig; use a smaller grid or pass --force")
+    if resolution and resolution[0] * resolution[1] > MAX_PIXELS:
+        w, h = resolution
+        raise LfusdError(f"--resolution {w}x{h} is {w * h / 1e6:.0f} Mpixel per view, more than {MAX_PIXELS / 1e6:.0f}; "
+                         "use a smaller resolution or pass --force")
+
 View = tuple[int, int]
 
 

@@ -44,7 +44,7 @@ def run_new(args) -> int:
 
     t0 = time.perf_counter()
     from ..data.formats import why_unwritable
-    from ..render.request import check_rig_size
+    from ..camera import check_rig_size
 
     out = Path(args.output)
     if not str(out).endswith((".usda", ".usdc", ".usd")):
