@@ -415,7 +415,7 @@ def test_an_os_error_anywhere_is_one_line_with_exit_2(capsys, monkeypatch, tmp_p
         raise OSError(errno.ENOSPC, "No space left on device", str(out / "main"))
 
     monkeypatch.setattr(derive, "derive_dataset", full)
-    code, _, err = run_cli(capsys, "flow", out)
+    code, _, err = run_cli(capsys, "derive", out)
     assert_one_line_error(code, err, "No space left on device", "free disk space")
     assert code == 2
 

@@ -194,7 +194,7 @@ def test_verify_fails_when_it_compares_nothing(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.render
-def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
+def test_derive_command_names_a_missing_vector_pass(tmp_path, capsys):
     """A dataset whose raw passes lack Blender's vector pass: one line naming the file."""
     import OpenEXR
     from support.scenes import write_box_stage
@@ -368,7 +368,7 @@ def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_vide
 
     out = tmp_path / "out"
     shutil.copytree(blender_video, out)
-    assert main(["flow", str(out), "--frames", "2", "--views", "0,1"]) == 0  # re-derives in place
+    assert main(["derive", str(out), "--frames", "2", "--views", "0,1"]) == 0  # re-derives in place
     assert main(["verify", str(out), "--frames", "2"]) == 0
     capsys.readouterr()
     # Flip the sign of the v component of flow_fwd in one view's motion file.
@@ -385,7 +385,7 @@ def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_vide
     geometry = [ln for ln in fails if "motion.exr" not in ln]
     assert geometry and all(ln.startswith("FAIL flow_fwd") and "frame 2 view 0,1 pixel" in ln for ln in geometry), fails
     # Depth 1 % too far in another view (the reader serves the shifted array).
-    assert main(["flow", str(out), "--frames", "2", "--views", "0,1"]) == 0
+    assert main(["derive", str(out), "--frames", "2", "--views", "0,1"]) == 0
     real_read = Dataset.read
 
     def shifted(self, f, v, k):
@@ -408,7 +408,7 @@ def test_lfusd_flow_names_a_missing_next_frame(blender_video, tmp_path, capsys):
     out = tmp_path / "out"
     shutil.copytree(blender_video, out)
     shutil.rmtree(Dataset(out).view_dir(3, (0, 1)))
-    assert main(["flow", str(out)]) == 2
+    assert main(["derive", str(out)]) == 2
     err = capsys.readouterr().err
     assert "frame 3" in err and str(out) in err
 
