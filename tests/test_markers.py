@@ -67,3 +67,18 @@ def test_make_test_fast_deselects_blender_and_so_arms_the_guard():
     makefile = (TESTS.parent / "Makefile").read_text()
     recipe = makefile.split("\ntest-fast:", 1)[1].split("\n\n", 1)[0]
     assert '-m "not blender and not slow"' in recipe, recipe
+
+
+def test_the_guard_survives_a_test_that_forbids_file_access(tmp_path):
+    """The guard reads its log without pathlib or open, which tests monkeypatch (test_dataset's no-I/O test)."""
+    (tmp_path / "test_probe.py").write_text(
+        "import builtins, pathlib\n\n"
+        "def test_no_io(monkeypatch):\n"
+        "    for name in ('stat', 'exists', 'read_text'):\n"
+        "        monkeypatch.setattr(pathlib.Path, name, lambda *a, **k: 1 / 0)\n"
+        "    monkeypatch.setattr(builtins, 'open', lambda *a, **k: 1 / 0)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "support.markers", "-p", "no:cacheprovider", "-p", "no:dash",
+                        "--rootdir", str(tmp_path), str(tmp_path / "test_probe.py"), "-m", "not blender"],
+                       capture_output=True, text=True, cwd=tmp_path, env=env, timeout=240)
+    assert r.returncode == 0 and "1 passed" in r.stdout, r.stdout + r.stderr

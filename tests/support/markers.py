@@ -57,7 +57,8 @@ def pytest_configure(config) -> None:
     os.environ[LOG_ENV] = str(log)
     os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(folder), os.environ.get("PYTHONPATH", "")) if p)
     sys.path.insert(0, str(folder))
-    config._lfusd_blender_log = log
+    # read through a descriptor with os.fstat/os.pread: tests monkeypatch pathlib and open
+    config._lfusd_blender_log = os.open(log, os.O_RDONLY)
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -72,16 +73,15 @@ def pytest_collection_modifyitems(config, items) -> None:
 
 
 def _guarded(item):
-    log = getattr(item.config, "_lfusd_blender_log", None)
-    if log is None:
+    fd = getattr(item.config, "_lfusd_blender_log", None)
+    if fd is None:
         return (yield)
-    before = log.stat().st_size
+    before = os.fstat(fd).st_size
     try:
         return (yield)
     finally:
-        with open(log) as f:
-            f.seek(before)
-            started = f.read().strip().splitlines()
+        grown = os.fstat(fd).st_size - before
+        started = os.pread(fd, grown, before).decode(errors="replace").strip().splitlines() if grown > 0 else []
         if started:
             pytest.fail(f"{item.nodeid} started Blender ({started[0]}) but is not marked blender; "
                         "add @pytest.mark.blender (or render) to it", pytrace=False)
