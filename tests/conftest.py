@@ -12,6 +12,7 @@ from support.markers import (  # noqa: E402, F401
     pytest_runtest_call,
     pytest_runtest_setup,
     pytest_runtest_teardown,
+    pytest_unconfigure,
 )
 
 

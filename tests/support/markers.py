@@ -18,6 +18,7 @@ Loaded by tests/conftest.py; a pytest run elsewhere loads it with ``-p support.m
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -59,6 +60,15 @@ def pytest_configure(config) -> None:
     sys.path.insert(0, str(folder))
     # read through a descriptor with os.fstat/os.pread: tests monkeypatch pathlib and open
     config._lfusd_blender_log = os.open(log, os.O_RDONLY)
+    config._lfusd_blender_folder = folder
+
+
+def pytest_unconfigure(config) -> None:
+    """Remove the stand-in and its log (the run's processes have ended)."""
+    fd = getattr(config, "_lfusd_blender_log", None)
+    if fd is not None:
+        os.close(fd)
+        shutil.rmtree(config._lfusd_blender_folder, ignore_errors=True)
 
 
 @pytest.hookimpl(tryfirst=True)
