@@ -6,7 +6,7 @@ DEMO_OUT ?= out/default
 # as a 3x3 light-field video at a preview size, with every ground-truth key.
 DEMO_STAGE ?= stages/street_dynamic_00.usda
 
-.PHONY: setup demo test test-fast docs clean
+.PHONY: setup demo test test-fast lint docs clean
 setup:
 	@bash scripts/setup.sh
 
@@ -19,8 +19,13 @@ test: setup
 	$(VENV)/bin/python -m pytest -q
 
 # The inner loop: everything that needs neither Blender nor a long run (make test stays the full suite).
+# Deselecting `blender` arms tests/support/markers.py: a test that starts Blender anyway fails.
 test-fast: setup
-	$(VENV)/bin/python -m pytest -q -m "not render and not slow"
+	$(VENV)/bin/python -m pytest -q -m "not blender and not slow"
+
+# ruff with the rule set of pyproject.toml; `make test` runs it too (tests/test_lint.py).
+lint: setup
+	$(VENV)/bin/python -m ruff check .
 
 # The documentation site (mkdocs.yml, docs/) into site/; `make test` builds it too (tests/test_docs.py).
 docs: setup

@@ -7,7 +7,7 @@ The pipeline steps, one library function each (the `lfusd` commands call the sam
     lfusd.add_person(stage, points, ...)          # lfusd animate add-person
     lfusd.render_frame(RenderRequest(...))        # lfusd render
     lfusd.render_video(...)                       # lfusd render-video
-    lfusd.derive(out, rigs, frames)               # lfusd flow
+    lfusd.derive(out, rigs, frames)               # lfusd derive
     lfusd.verify(out)                             # lfusd verify
     lfusd.export(Dataset(out), "hci", dest)       # lfusd export
     lfusd.evaluate(out, pred_dir, "disparity")    # lfusd eval
@@ -34,7 +34,7 @@ _LAZY = {
     "evaluate": ("lfusd.evaluation.score", "evaluate"),
 }
 
-__all__ = ["LfusdError", "__version__", *_LAZY]
+__all__ = ["LfusdError", "__version__", *_LAZY]  # noqa: PLE0604 (_LAZY's keys are the names)
 
 
 def __getattr__(name):

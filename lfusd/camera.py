@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -25,6 +25,25 @@ from .errors import LfusdError
 SPACINGS = ("uniform", "linear", "inverse", "exponential")
 LAYOUTS = ("plane", "sphere")
 AXES = ("parallel", "converge")
+
+# Beyond these a rig is a mistake more often than a plan (authoring a million cameras takes
+# hours); `--force` lifts them. 64x64 views; 16384x16384 pixels (Blender's render result alone
+# is about 50 GB there).
+MAX_VIEWS = 4096
+MAX_PIXELS = 16384 * 16384
+
+
+def check_rig_size(grid: tuple[int, int], resolution: tuple[int, int] | None, force: bool = False) -> None:
+    """Refuse, up front, a grid of more than MAX_VIEWS views or a view of more than MAX_PIXELS pixels."""
+    if force:
+        return
+    rows, cols = grid
+    if rows * cols > MAX_VIEWS:
+        raise LfusdError(f"--grid {rows}x{cols} is {rows * cols} views, more than {MAX_VIEWS} per rig; use a smaller grid or pass --force")
+    if resolution and resolution[0] * resolution[1] > MAX_PIXELS:
+        w, h = resolution
+        raise LfusdError(f"--resolution {w}x{h} is {w * h / 1e6:.0f} Mpixel per view, more than {MAX_PIXELS / 1e6:.0f}; "
+                         "use a smaller resolution or pass --force")
 
 View = tuple[int, int]
 
@@ -47,14 +66,12 @@ class RigSpec:
     layout: str = "plane"
     radius: float | None = None
     axes: str = "parallel"
-    extra: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         validate(self)
 
     def to_dict(self) -> dict:
         d = asdict(self)
-        d.pop("extra")
         d["at"], d["look_at"] = list(self.at), list(self.look_at)
         return d
 

@@ -1,7 +1,7 @@
 """The `lfusd` command: a thin dispatcher over lfusd.commands.* modules.
 
 Each command module in lfusd/commands defines ``register(subparsers)``, adding its subcommand with
-``set_defaults(func=...)``; ``func(args)`` returns an exit code. Arguments are typed by
+``set_defaults(func=run)`` (``run_<action>`` in a command group); ``func(args)`` returns an exit code. Arguments are typed by
 :mod:`lfusd.commands.args`.
 
 Exit codes: 0 success; 1 ``check``/``verify`` found violations; 2 bad input (usage or an

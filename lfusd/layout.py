@@ -8,7 +8,7 @@
     OUT/<rig>/f000001/00_00/          one folder per view (row 00, col 00), format version 2:
         rgb.exr                       the beauty render (linear half RGB); rgb.png instead when only `rgb` is asked for
         gt.exr                        depth, normal, instance (lfusd.data.store)
-        motion.exr                    the motion keys (render-video, ``lfusd flow``)
+        motion.exr                    the motion keys (render-video, ``lfusd derive``)
         passes.exr                    Blender's raw passes: removed once the keys above are written and
                                       checked, kept with ``--keep-raw``
         geometry.npz                  (render-video) the frame's world triangles as Blender rendered them,

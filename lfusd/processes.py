@@ -6,7 +6,6 @@ import contextlib
 import os
 import signal
 import sys
-import threading
 
 # The environment variable through which a Blender worker learns its parent's pid.
 PARENT_PID_ENV = "LFUSD_PARENT_PID"

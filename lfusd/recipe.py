@@ -235,7 +235,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
         elif frames != 1:
             raise _bad(source, w + "frames", frames, "must be 1 in a static part (set dynamic = true for a video)")
         parts.append(Part(pname, tuple(templates), scenes, first_seed, rigs, frames, dynamic))
-    from .render.request import check_rig_size
+    from .camera import check_rig_size
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,

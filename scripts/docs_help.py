@@ -26,9 +26,16 @@ BLOCK = re.compile(r"(<!-- BEGIN help: (?P<cmd>[^>]+?) -->\n)(?P<body>.*?)(<!-- 
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """Name -> parser of each subcommand; an alias (`lfusd flow`, the old name of `lfusd derive`)
+    shares its command's parser and is documented with it."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
-            return dict(action.choices)
+            out, seen = {}, set()
+            for name, sub in action.choices.items():  # a command's own name comes before its aliases
+                if id(sub) not in seen:
+                    seen.add(id(sub))
+                    out[name] = sub
+            return out
     return {}
 
 

@@ -29,7 +29,7 @@ command -v "$PY" >/dev/null || { echo "lfusd setup: $PY not found; lfusd needs C
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 stamp=.venv/.lfusd-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  echo "lfusd setup: installing Python packages into .venv (bpy, usd-core, OpenEXR, open3d, torch, ray; pytest and mkdocs for the tests)"
+  echo "lfusd setup: installing Python packages into .venv (bpy, usd-core, OpenEXR, open3d, torch, ray; pytest, pytest-timeout, ruff and mkdocs for the tests)"
   .venv/bin/python -m pip install -q --upgrade pip
   .venv/bin/python -m pip install -q -e ".[test]"
   touch "$stamp"

@@ -1,7 +1,7 @@
 """Regenerate every committed template stage from the template, seed and sizes it records.
 
 Run after a change to the scene library: ``python stages/regenerate.py``. The test suite
-regenerates them the same way and compares bytes (tests/test_scenes.py).
+regenerates them the same way and compares bytes (tests/author/test_scenes.py).
 """
 
 from __future__ import annotations

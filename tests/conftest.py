@@ -3,7 +3,17 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))  # tests/analytic.py, tests/scenes.py
+sys.path.insert(0, str(Path(__file__).parent))  # tests/support/...
+
+# The `blender` marker and the guard that keeps `make test-fast` free of Blender (its hooks, by import).
+from support.markers import (  # noqa: E402, F401
+    pytest_collection_modifyitems,
+    pytest_configure,
+    pytest_runtest_call,
+    pytest_runtest_setup,
+    pytest_runtest_teardown,
+    pytest_unconfigure,
+)
 
 
 @pytest.fixture(scope="session")

@@ -142,3 +142,59 @@ def test_reading_a_dataset_needs_neither_pxr_nor_bpy_nor_torch():
         if part_of(name) in ("data", "keys", "layout", "camera", "errors") and name != "lfusd.data.torch":
             heavy = [m for _, m in imports(path) if m.split(".")[0] in ("pxr", "bpy", "torch")]
             assert not heavy, (name, heavy)
+
+
+
+def _facade_imports(path: Path, text: str) -> list[tuple[int, str]]:
+    """(line, name) of each facade name (``lfusd.Dataset``, ``lfusd.render_video``, ...) a module of
+    the package imports from ``lfusd`` itself (``from lfusd import X``, ``from .. import X``), and
+    ``(line, "*")`` for a plain ``import lfusd``, through which every facade name can be reached."""
+    package = list(path.relative_to(PACKAGE.parent).parts[:-1])
+    out = []
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, "*") for a in node.names if a.name == "lfusd"]
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            if ".".join(base + ([node.module] if node.module else [])) == "lfusd":
+                out += [(node.lineno, a.name) for a in node.names if not _is_module(f"lfusd.{a.name}")]
+    return out
+
+
+def facade_violations(sources) -> list[str]:
+    """The facade (lfusd/__init__.py) loads its names lazily from their modules: importing one from
+    inside the package imports that module and must follow the data flow like any other import;
+    ``import lfusd`` is refused (it reaches every part at once). ``sources``: (path, module, text)."""
+    import lfusd
+
+    bad = []
+    for path, name, text in sources:
+        allowed = ALLOWED[part_of(name) if name != "lfusd" else "__init__"]
+        if allowed is None:
+            continue
+        for line, attr in _facade_imports(path, text):
+            where = f"{path.relative_to(PACKAGE.parent)}:{line}"
+            if attr == "*":
+                bad.append(f"{where} imports lfusd itself; import the module that owns the name")
+            elif attr in lfusd._LAZY:
+                owner = lfusd._LAZY[attr][0]
+                if part_of(owner) not in allowed | {part_of(name)}:
+                    bad.append(f"{where} imports lfusd.{attr}, that is {owner}")
+            elif attr not in ("__version__", "LfusdError"):
+                bad.append(f"{where} imports lfusd.{attr}, which the facade does not have")
+    return bad
+
+
+def test_facade_imports_follow_the_data_flow_too():
+    bad = facade_violations((path, name, path.read_text()) for path, name in modules())
+    assert not bad, "\n".join(bad)
+
+
+def test_the_facade_check_sees_facade_imports():
+    """Not blind: an `author` module importing lfusd.Dataset (lfusd.data.dataset) is caught through
+    either spelling, as is `import lfusd`; a `data` module may import it."""
+    text = "from .. import Dataset\nfrom lfusd import render_video\nimport lfusd\nfrom lfusd import __version__, keys\n"
+    bad = facade_violations([(PACKAGE / "author" / "probe.py", "lfusd.author.probe", text)])
+    assert [b.split(" ", 1)[0] for b in bad] == ["lfusd/author/probe.py:1", "lfusd/author/probe.py:2", "lfusd/author/probe.py:3"], bad
+    assert "lfusd.data.dataset" in bad[0] and "lfusd.render.job" in bad[1]
+    assert facade_violations([(PACKAGE / "data" / "probe.py", "lfusd.data.probe", "from .. import Dataset\n")]) == []

@@ -52,7 +52,7 @@ def parse(*argv):
 def test_commands_share_the_grammars():
     a = parse("verify", "OUT", "--frames", "1-5,8", "--views", "0,0", "4_4", "--threshold", "flow_fwd=0.1")
     assert a.frames == [1, 2, 3, 4, 5, 8] and a.views == [(0, 0), (4, 4)] and a.threshold == [("flow_fwd", 0.1)]
-    a = parse("flow", "OUT", "--frames", "2", "--views", "1_2")
+    a = parse("derive", "OUT", "--frames", "2", "--views", "1_2")
     assert a.frames == [2] and a.views == [(1, 2)]
     assert parse("export", "pfm", "OUT", "DEST", "--view", "3_4").view == (3, 4)
     assert parse("render-video", "S.usda", "-o", "O", "--frames", "3-5", "--resolution", "64x48").frames == (3, 5)
@@ -71,7 +71,7 @@ def test_negative_values_are_values_for_every_command():
     (["verify", "OUT", "--frames", "5-1"], ["argument --frames", "range 5-1 is reversed"]),
     (["render-video", "S.usda", "-o", "O", "--frames", "1-5,8"], ["--frames", "not one contiguous range A-B"]),
     (["render-video", "S.usda", "-o", "O", "--frames", "3-2"], ["--frames", "A-B"]),
-    (["flow", "OUT", "--views", "4"], ["argument --views", "ROW,COL"]),
+    (["derive", "OUT", "--views", "4"], ["argument --views", "ROW,COL"]),
     (["export", "pfm", "OUT", "DEST", "--view", "x"], ["argument --view", "ROW,COL"]),
     (["verify", "OUT", "--threshold", "depth"], ["--threshold", "not KEY=NUMBER"]),
     (["stage", "new", "street", "-o", "s.usda", "--grid", "0x3"], ["--grid", "positive"]),

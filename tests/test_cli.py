@@ -10,7 +10,6 @@ import shutil
 import pytest
 from support.scenes import write_box_stage, write_motion_stage
 
-from lfusd.cli import main
 from support.cli import assert_one_line_error, run_cli
 from lfusd.camera import RigSpec
 from lfusd.author.stage import open_stage
@@ -158,13 +157,13 @@ def test_errors_are_one_line_and_traceback_shows_the_hidden_cause(capsys, monkey
 
 
 def test_an_unexpected_exception_is_a_summary_line_and_a_traceback_file(capsys, monkeypatch):
-    import lfusd.commands.flow as flow
+    import lfusd.commands.derive as derive
 
     def bug(args):
         return {}["missing"]
 
-    monkeypatch.setattr(flow, "handler", bug)
-    code, _, err = run_cli(capsys, "flow", "OUT")
+    monkeypatch.setattr(derive, "run", bug)
+    code, _, err = run_cli(capsys, "derive", "OUT")
     assert code == 3 and len(err.strip().splitlines()) == 1
     m = re.match(r"lfusd: internal error: KeyError: 'missing'; the traceback is in (\S+) \(please report it\)$", err.strip())
     assert m, err
@@ -176,7 +175,7 @@ def test_an_unexpected_exception_is_a_summary_line_and_a_traceback_file(capsys, 
 def test_warnings_are_logged_on_one_line(capsys, monkeypatch):
     import logging
 
-    import lfusd.commands.flow as flow
+    import lfusd.commands.derive as derive
 
     def chatty(args):
         log = logging.getLogger("lfusd.truth.derive")
@@ -184,11 +183,48 @@ def test_warnings_are_logged_on_one_line(capsys, monkeypatch):
         log.info("detail")
         return 0
 
-    monkeypatch.setattr(flow, "handler", chatty)
-    code, _, err = run_cli(capsys, "flow", "OUT")
+    monkeypatch.setattr(derive, "run", chatty)
+    code, _, err = run_cli(capsys, "derive", "OUT")
     assert code == 0 and err == "lfusd: warning: something is off in OUT\n"
-    code, _, err = run_cli(capsys, "flow", "OUT", "-v")
+    code, _, err = run_cli(capsys, "derive", "OUT", "-v")
     assert err == "lfusd: warning: something is off in OUT\nlfusd: info: detail\n"
+
+
+def test_flow_is_the_old_name_of_derive_and_says_so_in_one_line(capsys, monkeypatch):
+    import lfusd.commands.derive as derive
+
+    seen = []
+    monkeypatch.setattr("lfusd.truth.derive.derive_dataset", lambda out, rigs, frames, views, overwrite: seen.append((out, rigs, frames)) or 3)
+    code, out, err = run_cli(capsys, "derive", "OUT", "--rig", "main", "--frames", "1-2")
+    assert (code, err, seen) == (0, "", [("OUT", ["main"], [1, 2])]) and "motion derived for 3 views" in out
+    code, out, err = run_cli(capsys, "flow", "OUT", "--rig", "main", "--frames", "1-2")
+    assert code == 0 and seen[-1] == ("OUT", ["main"], [1, 2]) and "motion derived for 3 views" in out
+    assert err == "lfusd: warning: 'lfusd flow' is deprecated; use 'lfusd derive' (same arguments)\n"
+    assert derive.DEPRECATED == {"flow": "derive"}
+
+
+def test_every_command_has_one_handler_name_and_the_one_rig_option():
+    """Handlers are ``run`` (a command) or ``run_<action>`` (an action of a command group), and every
+    --rig comes from the argument layer (commands/args.py), so it reads the same everywhere."""
+    import argparse
+
+    from lfusd.cli import build_parser
+    from lfusd.commands.args import RIG_HELP
+
+    todo, seen = [("lfusd", build_parser())], 0
+    while todo:
+        name, parser = todo.pop()
+        func = parser.get_default("func")
+        group = any(isinstance(a, argparse._SubParsersAction) for a in parser._actions)
+        if name != "lfusd" and not (group and func is None):  # a group may leave an action to argparse
+            assert func is not None and re.fullmatch(r"run(_[a-z_]+)?", func.__name__), (name, func)
+            seen += 1
+        rig = [a for a in parser._actions if "--rig" in a.option_strings]
+        assert not rig or rig[0].help in RIG_HELP.values(), (name, rig[0].help)
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [(f"{name} {n}", p) for n, p in a.choices.items()]
+    assert seen >= 15
 
 
 FACADE = ("Dataset", "render_frame", "render_video", "generate", "add_rig", "add_person", "derive", "verify", "export", "evaluate")

@@ -25,6 +25,7 @@ def _docs_help():
     return module
 
 
+@pytest.mark.timeout(600)  # mkdocs build, up to 300 s on busy cores
 def test_site_builds_strict_without_pxr_bpy_or_torch(tmp_path):
     # mkdocs, mkdocs-material and mkdocstrings[python] are in the test extra (scripts/setup.sh
     # installs it): a missing one fails here rather than skipping the build.

@@ -1,5 +1,5 @@
 """One error contract (issue 26 item 3): every command that reads a dataset (verify, verify --integrity,
-flow, eval, export, preview, dataset make) answers a corrupt or incomplete manifest, object table or
+derive, eval, export, preview, dataset make) answers a corrupt or incomplete manifest, object table or
 frame record with one line naming the file and the fix, exit 2, as ``lfusd.Dataset`` does: they all
 read it through lfusd.data.dataset.read_manifest. On main, verify and flow ended in internal errors
 (JSONDecodeError, KeyError, TypeError; exit 3).
@@ -100,7 +100,7 @@ def commands(out, tmp_path):
     return {
         "verify": ("verify", out),
         "verify --integrity": ("verify", out, "--integrity"),
-        "flow": ("flow", out),
+        "derive": ("derive", out),
         "eval": ("eval", "--task", "disparity", "--pred", pred, "--gt", out),
         "export": ("export", "flo", out, tmp_path / "flo"),
         "preview": ("preview", out, "-o", tmp_path / "preview", "--no-video"),
@@ -142,7 +142,7 @@ def test_a_corrupt_object_table_or_frame_record_is_one_line(capsys, tmp_path, da
         ds.objects
     assert str(path) in str(e.value) and words in str(e.value) and "\n" not in str(e.value)
     for name, argv in commands(out, tmp_path).items():
-        if name in ("verify --integrity", "flow") or (file == FRAME_META and name != "verify"):
+        if name in ("verify --integrity", "derive") or (file == FRAME_META and name != "verify"):
             continue  # they read neither (records and raw passes only); the others read poses after the (fake) pixels
         code, _, err = run_cli(capsys, *argv)
         assert code == 2, (name, err)

@@ -406,7 +406,7 @@ def test_a_failed_export_leaves_nothing_that_blocks_the_retry(capsys, monkeypatc
 
 
 def test_an_os_error_anywhere_is_one_line_with_exit_2(capsys, monkeypatch, tmp_path, project, fake_render):
-    """A failure of the machine (here: a full disk while `lfusd flow` writes) is no bug: one line, exit 2."""
+    """A failure of the machine (here: a full disk while `lfusd derive` writes) is no bug: one line, exit 2."""
     from lfusd.truth import derive
 
     out = tmp_path / "out"
@@ -416,7 +416,7 @@ def test_an_os_error_anywhere_is_one_line_with_exit_2(capsys, monkeypatch, tmp_p
         raise OSError(errno.ENOSPC, "No space left on device", str(out / "main"))
 
     monkeypatch.setattr(derive, "derive_dataset", full)
-    code, _, err = run_cli(capsys, "flow", out)
+    code, _, err = run_cli(capsys, "derive", out)
     assert_one_line_error(code, err, "No space left on device", "free disk space")
     assert code == 2
 

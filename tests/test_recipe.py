@@ -4,7 +4,6 @@ on the rendered arrays), resume, and one-line errors for bad recipes."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np

@@ -175,6 +175,7 @@ def test_invalid_up_axis_is_refused_at_once(tmp_path, capsys):
     assert not (tmp_path / "out").exists() and not (tmp_path / "r.usda").exists()
 
 
+@pytest.mark.timeout(600)  # its subprocess may take 300 s
 def test_pxr_warnings_fold_into_one_lfusd_line_each(tmp_path):
     stage = tmp_path / "looks.usda"
     stage.write_text('#usda 1.0\n(\n    upAxis = "Z"\n    metersPerUnit = 1\n)\n'
@@ -191,6 +192,7 @@ def test_pxr_warnings_fold_into_one_lfusd_line_each(tmp_path):
     assert len(usd) == 2 and "a.mtlx" in usd[0] + usd[1] and "b.mtlx" in usd[0] + usd[1]
 
 
+@pytest.mark.slow  # compiles the numba kernels afresh (about 2 minutes)
 def test_compile_note_when_numba_has_no_cached_kernels(tmp_path):
     code = ("from lfusd.cli import configure_logging; configure_logging(); "
             "from lfusd.truth.motion import announce_compile; announce_compile(); announce_compile()")

@@ -171,8 +171,8 @@ def test_a_manifest_naming_a_folder_outside_as_a_rig_is_refused_before_any_file_
         code, _, err = render(capsys, project / "scene.usda", out, *extra)
         assert_one_line_error(code, err, "manifest.json", "rig name")
         assert code == 2 and intact(canary) and snap(out) == before
-    monkeypatch.undo()  # the real derivation for 'lfusd flow'
-    for argv in (("verify", out, "--integrity"), ("flow", out), ("export", "pfm", out, tmp_path / "exp")):
+    monkeypatch.undo()  # the real derivation for 'lfusd derive'
+    for argv in (("verify", out, "--integrity"), ("derive", out), ("export", "pfm", out, tmp_path / "exp")):
         code, _, err = run_cli(capsys, *argv)
         assert_one_line_error(code, err, "manifest.json", "rig name")
     with pytest.raises(LfusdError, match="rig name"):
@@ -383,7 +383,7 @@ def test_lfusd_flow_takes_the_lock(capsys, monkeypatch, tmp_path, project, fake_
     try:
         assert holder.stdout.readline().strip() == "held"
         before = snap(out)
-        code, _, err = run_cli(capsys, "flow", out)
+        code, _, err = run_cli(capsys, "derive", out)
         assert_one_line_error(code, err, "is being written by process", str(holder.pid))
         assert snap(out) == before
     finally:
@@ -398,7 +398,7 @@ def test_lfusd_flow_refuses_a_linked_view_folder(capsys, monkeypatch, tmp_path, 
     view = frame_dir(out, "main", 1) / "00_00"
     os.rename(view, tmp_path / "moved")
     view.symlink_to(canary)
-    code, _, err = run_cli(capsys, "flow", out)
+    code, _, err = run_cli(capsys, "derive", out)
     assert_one_line_error(code, err, str(view), "symbolic link")
     assert intact(canary)
 

@@ -335,53 +335,110 @@ def _pitched(offset: np.ndarray, angle: np.ndarray) -> np.ndarray:
 
 
 def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = FPS) -> Motion:
-    """Pose ``rig`` at every frame of ``traj`` with gait ``params``."""
+    """Pose ``rig`` at every frame of ``traj`` with gait ``params``.
+
+    The steps, each a function below: the root follows the path (:func:`_root_along`); each foot
+    gets a world target per frame, planted or stepping (:func:`_foot_targets`), and an orientation
+    (:func:`_foot_rotations`); the upper body moves with the gait's phase (:func:`_body_motion`);
+    the pelvis is lowered where a leg could not reach (:func:`_pelvis`); the joints are posed from
+    the root down, the legs by two-bone IK (:func:`_pose_joints`); and the poses become the
+    skeleton's joint-local matrices (:func:`_skeleton_locals`).
+    """
     F = len(traj.frames)
     s = np.asarray(traj.distance, dtype=np.float64)
     moving = params.gait != "idle"
-    S = params.stride if moving else 1.0
-    beta = params.duty
-    table = traj.phase_table if moving else None
+    clock = _Clock(traj.phase_table if moving else None, params.stride if moving else 1.0, moving)
     t = (traj.frames - traj.frames[0]) / fps
-
-    def phase_at(dist):
-        return np.interp(dist, table[0], table[1]) if table is not None else np.asarray(dist) / S
-
-    def dist_at(phase):
-        # With a journey, distances clamp to the path: before and after it the person stands.
-        return np.interp(phase, table[1], table[0]) if table is not None else np.asarray(phase) * S
-
-    def act_of(dist):
-        if table is None:
-            return np.full(np.shape(dist), 1.0 if moving else 0.0)
-        return np.interp(dist, table[0], table[2])
-
-    phi = phase_at(s) if moving else np.zeros(F)
-    act = act_of(s)  # scales the upper body's motion and the foot roll with the gait's development
+    phi = clock.phase_at(s) if moving else np.zeros(F)
+    act = clock.act_of(s)  # scales the upper body's motion and the foot roll with the gait's development
 
     xy, heading = traj.path_at(s)
-    root_z = traj.ground(xy)
+    root = _root_along(xy, heading, traj.ground(xy))
+    sole = _Sole.of(rig, params.gait)
+    targets, foot_yaw, pitch, stance = _foot_targets(rig, params, traj, clock, sole, phi, act, xy, heading)
+
+    # --- Everything below is in the character frame (root^-1 * world).
+    inv_rot = np.transpose(root[:, :3, :3], (0, 2, 1))
+    tgt_c = np.einsum("fij,fkj->fki", inv_rot, targets - root[:, None, :3, 3])
+    foot_rot, toe_rot = _foot_rotations(traj, sole, targets, foot_yaw, pitch, heading)
+    body = _body_motion(params, rig.height, phi, act, t, F)
+    d_pelvis = rz(body.pel_yaw) @ ry(body.pel_roll)
+    pel = _pelvis(rig, body, d_pelvis, tgt_c, act, moving, F)
+    upper = _upper_body(rig, body, d_pelvis, F)
+    D, P = _pose_joints(rig, pel, upper, d_pelvis, tgt_c, foot_rot, toe_rot, F)
+    return Motion(np.asarray(traj.frames), root, _skeleton_locals(rig, D, P), targets, stance)
+
+
+@dataclass(frozen=True)
+class _Clock:
+    """The gait's phase (in cycles) against the distance travelled, and its development
+    (activity: 0 at rest, 1 at full speed), from a journey's ``table`` (Trajectory.phase_table)
+    or, without one, a steady cycle of one ``stride`` per cycle."""
+
+    table: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    stride: float
+    moving: bool
+
+    def phase_at(self, dist):
+        return np.interp(dist, self.table[0], self.table[1]) if self.table is not None else np.asarray(dist) / self.stride
+
+    def dist_at(self, phase):
+        # With a journey, distances clamp to the path: before and after it the person stands.
+        return np.interp(phase, self.table[1], self.table[0]) if self.table is not None else np.asarray(phase) * self.stride
+
+    def act_of(self, dist):
+        if self.table is None:
+            return np.full(np.shape(dist), 1.0 if self.moving else 0.0)
+        return np.interp(dist, self.table[0], self.table[2])
+
+
+def _root_along(xy: np.ndarray, heading: np.ndarray, root_z: np.ndarray) -> np.ndarray:
+    """(F, 4, 4) root matrices: on the path at the ground's height, the character (facing +Y) facing along it."""
     yaw = heading - np.pi / 2  # the character faces +Y
-    root = np.tile(np.eye(4), (F, 1, 1))
+    root = np.tile(np.eye(4), (len(xy), 1, 1))
     root[:, :3, :3] = rz(yaw)
     root[:, :2, 3] = xy
     root[:, 2, 3] = root_z
+    return root
 
-    # --- Foot targets (world), per side: plants at mid-stance under the path.
-    ankle_h = rig.ankle_height
-    heel_fwd, ball_fwd, tip_fwd = rig.foot
-    # Pivots in the foot's (forward, up) plane relative to the ankle, on the sole: the foot lands
-    # on the back of its heel and pushes off from its ball (from its tip without toe joints).
-    has_toes = "l_toe" in rig.roles and "r_toe" in rig.roles
-    heel_pt = np.array([heel_fwd, -ankle_h])
-    ball_pt = np.array([tip_fwd, -ankle_h])
-    if has_toes:
-        # Halfway between the sole and the toe joint: turning the foot about the sole would slide
-        # the toes (held flat, they turn about their joint), about the joint the sole under it.
-        joint = float(rig.pos("l_toe")[2] - rig.pos("l_ankle")[2])
-        ball_pt = np.array([ball_fwd, 0.5 * (joint - ankle_h)])
-    th0, th1, r1, r2 = _ROLL.get(params.gait, (0.0, 0.0, 0.1, 0.1))
 
+@dataclass(frozen=True)
+class _Sole:
+    """The foot against the ground: the ankle's height above the sole, (heel, ball, tip) forward
+    of the ankle, the pivots in the foot's (forward, up) plane relative to the ankle about which it
+    lands (the back of its heel) and pushes off (its ball; its tip without toe joints), and the
+    gait's foot roll (:data:`_ROLL`)."""
+
+    ankle_h: float
+    heel_fwd: float
+    ball_fwd: float
+    tip_fwd: float
+    heel_pt: np.ndarray
+    ball_pt: np.ndarray
+    has_toes: bool
+    roll: tuple[float, float, float, float]
+
+    @classmethod
+    def of(cls, rig: CharacterRig, gait: str) -> "_Sole":
+        ankle_h = rig.ankle_height
+        heel_fwd, ball_fwd, tip_fwd = rig.foot
+        has_toes = "l_toe" in rig.roles and "r_toe" in rig.roles
+        heel_pt = np.array([heel_fwd, -ankle_h])
+        ball_pt = np.array([tip_fwd, -ankle_h])
+        if has_toes:
+            # Halfway between the sole and the toe joint: turning the foot about the sole would slide
+            # the toes (held flat, they turn about their joint), about the joint the sole under it.
+            joint = float(rig.pos("l_toe")[2] - rig.pos("l_ankle")[2])
+            ball_pt = np.array([ball_fwd, 0.5 * (joint - ankle_h)])
+        return cls(ankle_h, heel_fwd, ball_fwd, tip_fwd, heel_pt, ball_pt, has_toes, _ROLL.get(gait, (0.0, 0.0, 0.1, 0.1)))
+
+
+def _foot_targets(rig: CharacterRig, params: GaitParams, traj: Trajectory, clock: _Clock, sole: _Sole,
+                  phi: np.ndarray, act: np.ndarray, xy: np.ndarray, heading: np.ndarray):
+    """Per frame and side (left, right): the ankle's world target, the foot's yaw and pitch, and
+    whether it is in stance. Standing, both feet stay beside the root; moving, each plants at
+    mid-stance under the path (:func:`_stepping_foot`), the right half a cycle after the left."""
+    F = len(phi)
     half_width = 0.5 * abs(rig.pos("l_ankle")[0] - rig.pos("r_ankle")[0])
     targets = np.zeros((F, 2, 3))
     foot_yaw = np.zeros((F, 2))
@@ -389,106 +446,137 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
     stance = np.zeros((F, 2), bool)
     for k, (side, offset) in enumerate((("l", 0.0), ("r", 0.5))):
         lateral = -half_width if side == "l" else half_width
-        if not moving:
-            pxy, ph = xy, heading
-            c, sn = np.cos(ph - np.pi / 2), np.sin(ph - np.pi / 2)
-            fxy = pxy + np.stack([lateral * c, lateral * sn], axis=1)
+        if params.gait == "idle":
+            fxy, _ = _beside(xy, heading, lateral)
             targets[:, k, :2] = fxy
-            targets[:, k, 2] = traj.ground(fxy) + ankle_h
-            foot_yaw[:, k] = ph
+            targets[:, k, 2] = traj.ground(fxy) + sole.ankle_h
+            foot_yaw[:, k] = heading
             stance[:, k] = True
             continue
-        n = np.floor(phi - offset)
-        local = phi - offset - n
-        phi_end = table[1][-1] if table is not None else np.inf
+        targets[:, k], foot_yaw[:, k], pitch[:, k], stance[:, k] = _stepping_foot(params, traj, clock, sole, phi, act, offset, lateral)
+    return targets, foot_yaw, pitch, stance
 
-        def duty(cycle):
-            # A run's first and last stances are long (walk-like), so the person stands with
-            # both feet down before setting off and after stopping at a half-cycle.
-            if table is None or beta >= 0.55:
-                return np.full(np.shape(cycle), beta)
-            ends = (cycle + offset <= 0) | (cycle + offset > phi_end - 0.6 - 1e-9)
-            return np.where(ends, 0.6, beta)
 
-        def foot_at(sm):
-            pxy, ph = traj.path_at(sm)
-            c, sn = np.cos(ph - np.pi / 2), np.sin(ph - np.pi / 2)
-            return pxy + np.stack([lateral * c, lateral * sn], axis=1), ph
+def _beside(pxy: np.ndarray, ph: np.ndarray, lateral: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``lateral`` metres to the right of path points ``pxy`` with headings ``ph``, and the headings."""
+    c, sn = np.cos(ph - np.pi / 2), np.sin(ph - np.pi / 2)
+    return pxy + np.stack([lateral * c, lateral * sn], axis=1), ph
 
-        def plant_s(cycle):
-            return dist_at(cycle + offset + duty(cycle) / 2)  # where mid-stance is reached
 
-        def plant(sm):
-            fxy, ph = foot_at(sm)
-            return np.column_stack([fxy, traj.ground(fxy) + ankle_h]), ph
+def _duty(cycle, beta: float, offset: float, table, phi_end: float):
+    """The stance fraction of each ``cycle``: a run's first and last stances are long (walk-like),
+    so the person stands with both feet down before setting off and after stopping at a half-cycle."""
+    if table is None or beta >= 0.55:
+        return np.full(np.shape(cycle), beta)
+    ends = (cycle + offset <= 0) | (cycle + offset > phi_end - 0.6 - 1e-9)
+    return np.where(ends, 0.6, beta)
 
-        def slope(sm):
-            # The ground's pitch along the foot (heel to ball); a step edge (steeper than 20
-            # degrees) leaves the foot level.
-            fxy, ph = foot_at(sm)
-            fwd = np.column_stack([np.cos(ph), np.sin(ph)])
-            zb, zh = traj.ground(fxy + fwd * ball_pt[0]), traj.ground(fxy + fwd * heel_pt[0])
-            a = np.arctan2(zb - zh, ball_pt[0] - heel_pt[0])
-            return np.where(np.abs(a) < np.radians(20), a, 0.0)
 
-        s0, s1 = plant_s(n), plant_s(n + 1)
-        p0, h0 = plant(s0)
-        p1, h1 = plant(s1)
-        g0, g1 = slope(s0), slope(s1)
-        h1 = h0 + (h1 - h0 + np.pi) % (2 * np.pi) - np.pi
-        b0 = duty(n)
-        in_stance = local < b0
-        u = np.clip((local - b0) / (1 - b0), 0.0, 1.0)
-        w = 0.5 - 0.5 * np.cos(np.pi * u)
-        # Swing along the path (not the chord between plants), so feet do not cross on turns.
-        sxy, _ = foot_at(s0 + (s1 - s0) * w)
-        swing = np.column_stack([sxy, p0[:, 2] + (p1[:, 2] - p0[:, 2]) * w])
-        # Short steps (setting off, stopping) lift the foot less.
-        lift = params.lift * np.clip(np.abs(s1 - s0) / (S * max(beta, 0.5)), 0.25, 1.0)
-        swing[:, 2] += lift * np.sin(np.pi * u)
-        # Heel-to-toe roll: the foot lands toe-up pivoting on the heel and leaves heel-up pivoting
-        # on the ball; the pivot stays put, so the contact does not slide while the ankle moves.
-        leave0, land1 = act_of(dist_at(n + offset + b0)), act_of(dist_at(n + 1 + offset))
-        # Landing rolls as much as the gait was developed when the foot landed; pushing off
-        # follows the momentary activity (none while standing still), which is leave0 at toe-off,
-        # so stance and swing join up at both ends.
-        land0 = act_of(dist_at(n + offset))
-        th_in = th0 * land0 * (1 - _smoothstep(local / r1))
-        th_out = -th1 * act * _smoothstep((local - (b0 - r2)) / r2)
-        st_off = _pitched(np.where((local < r1)[:, None], _roll_offset(th_in, heel_pt), _roll_offset(th_out, ball_pt)), g0)
-        st_pitch = g0 + np.where(local < r1, th_in, th_out)
-        off_out = _pitched(_roll_offset(-th1 * leave0, ball_pt), g0)  # at toe-off of plant n
-        off_in = _pitched(_roll_offset(th0 * land1, heel_pt), g1)  # landing on plant n+1
-        sw_off = off_out + (off_in - off_out) * w[:, None]
-        sw_pitch = (g0 - th1 * leave0) * (1 - w) + (g1 + th0 * land1) * w
-        off = np.where(in_stance[:, None], st_off, sw_off)
-        yaw_k = np.where(in_stance, h0, h0 + (h1 - h0) * w)
-        fwd = np.column_stack([np.cos(yaw_k), np.sin(yaw_k)])
-        targets[:, k] = np.where(in_stance[:, None], p0, swing)
-        targets[:, k, :2] += fwd * off[:, :1]
-        targets[:, k, 2] += off[:, 1]
-        foot_yaw[:, k] = yaw_k
-        pitch[:, k] = np.where(in_stance, st_pitch, sw_pitch)
-        stance[:, k] = in_stance
+def _ground_pitch(traj: Trajectory, sole: _Sole, sm: np.ndarray, lateral: float) -> np.ndarray:
+    """The ground's pitch along the foot (heel to ball) planted at arc lengths ``sm``; a step edge
+    (steeper than 20 degrees) leaves the foot level."""
+    fxy, ph = _beside(*traj.path_at(sm), lateral)
+    fwd = np.column_stack([np.cos(ph), np.sin(ph)])
+    zb, zh = traj.ground(fxy + fwd * sole.ball_pt[0]), traj.ground(fxy + fwd * sole.heel_pt[0])
+    a = np.arctan2(zb - zh, sole.ball_pt[0] - sole.heel_pt[0])
+    return np.where(np.abs(a) < np.radians(20), a, 0.0)
 
-    # --- Everything below is in the character frame (root^-1 * world).
-    inv_rot = np.transpose(root[:, :3, :3], (0, 2, 1))
-    tgt_c = np.einsum("fij,fkj->fki", inv_rot, targets - root[:, None, :3, 3])
+
+def _stepping_foot(params: GaitParams, traj: Trajectory, clock: _Clock, sole: _Sole, phi: np.ndarray, act: np.ndarray,
+                   offset: float, lateral: float):
+    """One foot of a moving gait, its cycle ``offset`` after the left: (target, yaw, pitch, stance)
+    per frame. In stance the foot stays on its plant n (rolling heel to toe about fixed pivots); in
+    swing it moves along the path from plant n to plant n+1 on a lifted arc."""
+    S, beta = clock.stride, params.duty
+    th0, th1, r1, r2 = sole.roll
+    n = np.floor(phi - offset)
+    local = phi - offset - n
+    phi_end = clock.table[1][-1] if clock.table is not None else np.inf
+
+    def plant_s(cycle):
+        return clock.dist_at(cycle + offset + _duty(cycle, beta, offset, clock.table, phi_end) / 2)  # where mid-stance is reached
+
+    def plant(sm):
+        fxy, ph = _beside(*traj.path_at(sm), lateral)
+        return np.column_stack([fxy, traj.ground(fxy) + sole.ankle_h]), ph
+
+    s0, s1 = plant_s(n), plant_s(n + 1)
+    p0, h0 = plant(s0)
+    p1, h1 = plant(s1)
+    g0, g1 = _ground_pitch(traj, sole, s0, lateral), _ground_pitch(traj, sole, s1, lateral)
+    h1 = h0 + (h1 - h0 + np.pi) % (2 * np.pi) - np.pi
+    b0 = _duty(n, beta, offset, clock.table, phi_end)
+    in_stance = local < b0
+    u = np.clip((local - b0) / (1 - b0), 0.0, 1.0)
+    w = 0.5 - 0.5 * np.cos(np.pi * u)
+    # Swing along the path (not the chord between plants), so feet do not cross on turns.
+    sxy, _ = _beside(*traj.path_at(s0 + (s1 - s0) * w), lateral)
+    swing = np.column_stack([sxy, p0[:, 2] + (p1[:, 2] - p0[:, 2]) * w])
+    # Short steps (setting off, stopping) lift the foot less.
+    lift = params.lift * np.clip(np.abs(s1 - s0) / (S * max(beta, 0.5)), 0.25, 1.0)
+    swing[:, 2] += lift * np.sin(np.pi * u)
+    # Heel-to-toe roll: the foot lands toe-up pivoting on the heel and leaves heel-up pivoting
+    # on the ball; the pivot stays put, so the contact does not slide while the ankle moves.
+    leave0, land1 = clock.act_of(clock.dist_at(n + offset + b0)), clock.act_of(clock.dist_at(n + 1 + offset))
+    # Landing rolls as much as the gait was developed when the foot landed; pushing off
+    # follows the momentary activity (none while standing still), which is leave0 at toe-off,
+    # so stance and swing join up at both ends.
+    land0 = clock.act_of(clock.dist_at(n + offset))
+    th_in = th0 * land0 * (1 - _smoothstep(local / r1))
+    th_out = -th1 * act * _smoothstep((local - (b0 - r2)) / r2)
+    st_off = _pitched(np.where((local < r1)[:, None], _roll_offset(th_in, sole.heel_pt), _roll_offset(th_out, sole.ball_pt)), g0)
+    st_pitch = g0 + np.where(local < r1, th_in, th_out)
+    off_out = _pitched(_roll_offset(-th1 * leave0, sole.ball_pt), g0)  # at toe-off of plant n
+    off_in = _pitched(_roll_offset(th0 * land1, sole.heel_pt), g1)  # landing on plant n+1
+    sw_off = off_out + (off_in - off_out) * w[:, None]
+    sw_pitch = (g0 - th1 * leave0) * (1 - w) + (g1 + th0 * land1) * w
+    off = np.where(in_stance[:, None], st_off, sw_off)
+    yaw_k = np.where(in_stance, h0, h0 + (h1 - h0) * w)
+    fwd = np.column_stack([np.cos(yaw_k), np.sin(yaw_k)])
+    target = np.where(in_stance[:, None], p0, swing)
+    target[:, :2] += fwd * off[:, :1]
+    target[:, 2] += off[:, 1]
+    return target, yaw_k, np.where(in_stance, st_pitch, sw_pitch), in_stance
+
+
+def _foot_rotations(traj: Trajectory, sole: _Sole, targets: np.ndarray, foot_yaw: np.ndarray, pitch: np.ndarray,
+                    heading: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per side, the foot's and the toes' rotations in the character frame. Toes bend at the ball:
+    they never point down into the ground's slope, so they stay flat on the ground while the heel
+    rises and lift with the ball when the foot leaves it."""
     foot_rot = [rz(foot_yaw[:, k] - heading) @ rx(pitch[:, k]) for k in range(2)]
-    # Toes bend at the ball: they never point down into the ground's slope, so they stay flat on
-    # the ground while the heel rises and lift with the ball when the foot leaves it.
     toe_rot = foot_rot
-    toe_len = tip_fwd - ball_fwd
-    if has_toes and toe_len > 1e-3:
+    toe_len = sole.tip_fwd - sole.ball_fwd
+    if sole.has_toes and toe_len > 1e-3:
         toe_rot = []
         for k in range(2):
             fwd = np.column_stack([np.cos(foot_yaw[:, k]), np.sin(foot_yaw[:, k])])
-            ball_xy = targets[:, k, :2] + fwd * (np.cos(pitch[:, k]) * ball_pt[0] - np.sin(pitch[:, k]) * ball_pt[1])[:, None]
+            ball_xy = targets[:, k, :2] + fwd * (np.cos(pitch[:, k]) * sole.ball_pt[0] - np.sin(pitch[:, k]) * sole.ball_pt[1])[:, None]
             slope_t = np.arctan2(traj.ground(ball_xy + fwd * toe_len) - traj.ground(ball_xy), toe_len)
             slope_t = np.where(np.abs(slope_t) < np.radians(20), slope_t, 0.0)
             toe_rot.append(rz(foot_yaw[:, k] - heading) @ rx(np.maximum(pitch[:, k], slope_t)))
+    return foot_rot, toe_rot
 
-    H = rig.height
+
+@dataclass(frozen=True)
+class _Body:
+    """The upper body's motion per frame: pelvis height (bob), sideways sway, yaw and roll, the
+    arms' swing, the torso's lean and the elbows' bend."""
+
+    bob: np.ndarray
+    pel_x: np.ndarray
+    pel_yaw: np.ndarray
+    pel_roll: np.ndarray
+    arm: np.ndarray
+    lean: np.ndarray
+    elbow: np.ndarray
+
+
+def _body_motion(params: GaitParams, H: float, phi: np.ndarray, act: np.ndarray, t: np.ndarray, F: int) -> _Body:
+    """Walk and run: periodic in the gait phase ``phi``, scaled by the activity; idle: breathing
+    and a slow weight shift over time ``t``. ``H``: the character's stature."""
+    moving = params.gait != "idle"
+    beta = params.duty
     two_pi_phi = 2 * np.pi * phi
     mid = 2 * np.pi * (phi - beta / 2)  # 0 at left mid-stance
     if params.gait == "walk":
@@ -515,16 +603,19 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
         arm = 0.03 * np.sin(2 * np.pi * t / (IDLE_SECONDS / 2))
         lean_a = np.zeros(F)
         elbow_a = np.full(F, elbow)
+    return _Body(bob, pel_x, pel_yaw, pel_roll, arm, lean_a, elbow_a)
 
-    D = np.tile(np.eye(3), (F, len(rig.joints), 1, 1))
-    P = np.zeros((F, len(rig.joints), 3))
-    R = rig.roles
-    d_pelvis = rz(pel_yaw) @ ry(pel_roll)
+
+def _pelvis(rig: CharacterRig, body: _Body, d_pelvis: np.ndarray, tgt_c: np.ndarray, act: np.ndarray, moving: bool,
+            F: int) -> np.ndarray:
+    """The pelvis position per frame (character frame): its rest position moved by the body's
+    sway and bob, lowered a little with the gait, and further where a leg could not otherwise
+    reach its ankle target ``tgt_c``."""
+    H = rig.height
     pelvis_rest = rig.pos("pelvis")
     pel = np.tile(pelvis_rest, (F, 1))
-    pel[:, 0] += pel_x
-    pel[:, 2] += bob - (0.01 * H if moving else 0.005 * H) * np.maximum(act, 0.0 if moving else 1.0)
-    # Lower the pelvis where a leg could not otherwise reach its target.
+    pel[:, 0] += body.pel_x
+    pel[:, 2] += body.bob - (0.01 * H if moving else 0.005 * H) * np.maximum(act, 0.0 if moving else 1.0)
     for k, side in enumerate("lr"):
         l1, l2 = rig.leg_length(side)
         reach = 0.995 * (l1 + l2)
@@ -532,28 +623,67 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
         dxy = np.linalg.norm(pel[:, :2] + hip_off[:, :2] - tgt_c[:, k, :2], axis=1)
         zmax = tgt_c[:, k, 2] - hip_off[:, 2] + np.sqrt(np.maximum(reach**2 - dxy**2, 0.0))
         pel[:, 2] = np.minimum(pel[:, 2], zmax)
+    return pel
 
+
+def _upper_body(rig: CharacterRig, body: _Body, d_pelvis: np.ndarray, F: int) -> dict[str, np.ndarray]:
+    """Role -> (F, 3, 3) rotation in the character frame of the pelvis, spine, chest, neck, head
+    and arms. Arms hang in lfusd's A-pose direction whatever the character's rest pose (e.g. a T-pose)."""
+    R = rig.roles
     upper = {
         "pelvis": d_pelvis,
-        "spine": rz(-0.3 * pel_yaw) @ rx(-0.5 * lean_a),
-        "chest": rz(0.6 * pel_yaw) @ rx(-lean_a),
-        "neck": rx(-0.5 * lean_a),
+        "spine": rz(-0.3 * body.pel_yaw) @ rx(-0.5 * body.lean),
+        "chest": rz(0.6 * body.pel_yaw) @ rx(-body.lean),
+        "neck": rx(-0.5 * body.lean),
         "head": np.tile(np.eye(3), (F, 1, 1)),
     }
-    # Arms hang in lfusd's A-pose direction whatever the character's rest pose (e.g. a T-pose).
     for side, sgn in (("l", 1.0), ("r", -1.0)):
         hang = np.array([(-1 if side == "l" else 1) * np.sin(np.radians(_human.ARM_OUT_DEG)), 0.0, -np.cos(np.radians(_human.ARM_OUT_DEG))])
         segs = [(f"{side}_shoulder", f"{side}_elbow"), (f"{side}_elbow", f"{side}_wrist")]
-        swing = sgn * arm
+        swing = sgn * body.arm
         for j, (a, b) in enumerate(segs):
             if a not in R or b not in R:
                 continue
             align = _align(rig.pos(b) - rig.pos(a), hang)
-            bend = rx(swing) if j == 0 else rx(swing + elbow_a)
+            bend = rx(swing) if j == 0 else rx(swing + body.elbow)
             upper[a] = upper["chest"] @ bend @ align
         if f"{side}_wrist" in R and f"{side}_elbow" in upper:
             upper[f"{side}_wrist"] = upper[f"{side}_elbow"]
+    return upper
 
+
+def _leg_ik(rig: CharacterRig, side: str, hip_joint: int, hip: np.ndarray, target: np.ndarray, d_pelvis: np.ndarray,
+            foot_rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Analytic two-bone IK: the hip's and the knee's rotations (character frame) that put the
+    ankle at ``target`` (clamped to the leg's reach), the knee bending forward (the pelvis's and
+    the foot's forward direction)."""
+    R = rig.roles
+    j = hip_joint
+    ki, ai = R[f"{side}_knee"], R[f"{side}_ankle"]
+    l1, l2 = rig.leg_length(side)
+    to = target - hip
+    d = np.clip(np.linalg.norm(to, axis=1), abs(l1 - l2) + 1e-6, (l1 + l2) * (1 - 1e-9))
+    u = _unit(to)
+    fwd = _unit(np.einsum("fij,j->fi", d_pelvis, [0, 1.0, 0]) + foot_rot[:, :, 1])
+    wv = _unit(fwd - np.sum(fwd * u, axis=1, keepdims=True) * u)
+    cos_a = np.clip((l1**2 + d**2 - l2**2) / (2 * l1 * d), -1, 1)
+    knee = hip + l1 * (cos_a[:, None] * u + np.sqrt(1 - cos_a**2)[:, None] * wv)
+    ankle = hip + u * d[:, None]
+    rest_f = np.array([0, 1.0, 0])
+    r_thigh = _frame(rig.rest[ki] - rig.rest[j], rest_f)
+    r_shin = _frame(rig.rest[ai] - rig.rest[ki], rest_f)
+    return _frame(knee - hip, fwd) @ r_thigh.T, _frame(ankle - knee, fwd) @ r_shin.T
+
+
+def _pose_joints(rig: CharacterRig, pel: np.ndarray, upper: dict[str, np.ndarray], d_pelvis: np.ndarray, tgt_c: np.ndarray,
+                 foot_rot: list[np.ndarray], toe_rot: list[np.ndarray], F: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every joint's rotation D (F, J, 3, 3) and position P (F, J, 3) in the character frame, from
+    the root down: a joint follows its parent rigidly unless its role is posed (the pelvis's
+    position, the ``upper`` body's rotations, the legs by :func:`_leg_ik`, the feet and toes)."""
+    D = np.tile(np.eye(3), (F, len(rig.joints), 1, 1))
+    P = np.zeros((F, len(rig.joints), 3))
+    R = rig.roles
+    upper = dict(upper)  # the legs add their knee, ankle and toe rotations as they are solved
     for j in range(len(rig.joints)):
         p = rig.parents[j]
         if p < 0:
@@ -569,28 +699,17 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
         elif role and role[2:] == "hip":
             k = 0 if role[0] == "l" else 1
             side = role[0]
-            ki, ai = R[f"{side}_knee"], R[f"{side}_ankle"]
-            l1, l2 = rig.leg_length(side)
-            hip = P[:, j]
-            to = tgt_c[:, k] - hip
-            d = np.clip(np.linalg.norm(to, axis=1), abs(l1 - l2) + 1e-6, (l1 + l2) * (1 - 1e-9))
-            u = _unit(to)
-            fwd = _unit(np.einsum("fij,j->fi", d_pelvis, [0, 1.0, 0]) + foot_rot[k][:, :, 1])
-            wv = _unit(fwd - np.sum(fwd * u, axis=1, keepdims=True) * u)
-            cos_a = np.clip((l1**2 + d**2 - l2**2) / (2 * l1 * d), -1, 1)
-            knee = hip + l1 * (cos_a[:, None] * u + np.sqrt(1 - cos_a**2)[:, None] * wv)
-            ankle = hip + u * d[:, None]
-            rest_f = np.array([0, 1.0, 0])
-            r_thigh = _frame(rig.rest[ki] - rig.rest[j], rest_f)
-            r_shin = _frame(rig.rest[ai] - rig.rest[ki], rest_f)
-            D[:, j] = _frame(knee - hip, fwd) @ r_thigh.T
-            D_knee = _frame(ankle - knee, fwd) @ r_shin.T
-            upper[f"{side}_knee"] = D_knee
+            D[:, j], upper[f"{side}_knee"] = _leg_ik(rig, side, j, P[:, j], tgt_c[:, k], d_pelvis, foot_rot[k])
             upper[f"{side}_ankle"] = foot_rot[k]
             if f"{side}_toe" in R:
                 upper[f"{side}_toe"] = toe_rot[k]
+    return D, P
 
-    # Skeleton-space joint matrices: G_j = C^-1 M_j C B_j, with M_j the rigid motion of joint j.
+
+def _skeleton_locals(rig: CharacterRig, D: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Joint-local matrices (F, J, 4, 4) in skeleton space: G_j = C^-1 M_j C B_j, with M_j the
+    rigid motion of joint j (D, P against the rest pose), each then relative to its parent's G."""
+    F = len(D)
     C = rig.skel_to_char
     Ci = np.linalg.inv(C)
     M = np.tile(np.eye(4), (F, len(rig.joints), 1, 1))
@@ -601,7 +720,7 @@ def bake(rig: CharacterRig, params: GaitParams, traj: Trajectory, fps: float = F
     for j in range(len(rig.joints)):
         if rig.parents[j] >= 0:
             L[:, j] = np.linalg.inv(G[:, rig.parents[j]]) @ G[:, j]
-    return Motion(np.asarray(traj.frames), root, L, targets, stance)
+    return L
 
 
 # ---------------------------------------------------------------------------------------------

@@ -566,11 +566,40 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     return prim
 
 
-def add_person_to_file(stage_path: str | Path, points, **kwargs) -> str:
-    """Open ``stage_path``, add a person (see add_person), save; returns the person's prim path."""
-    from .stage import open_stage
 
-    stage = open_stage(stage_path)
-    prim = add_person(stage, points, **kwargs)
-    stage.GetRootLayer().Save()
-    return str(prim.GetPath())
+SPEEDS = {"walk": 1.3, "run": 3.5, "idle": 3.5}  # m/s when none is given (idle does not move)
+
+
+def add_person_to_file(stage_path: str | Path, points, out: str | Path | None = None, *, gait: str = "walk",
+                       speed: float | None = None, start: int | None = None, character: str | Path | None = None,
+                       height: float = 1.75, build: float = 0.5, name: str | None = None,
+                       force: bool = False) -> tuple[Usd.Prim, str, float]:
+    """`lfusd animate add-person`: add a person (:func:`add_person`) to the stage file ``stage_path``
+    (into a new layer ``out`` over it when given) and save; returns the person's prim, the file
+    written and the speed used (``speed`` None: :data:`SPEEDS`).
+
+    ``height`` and ``build`` shape lfusd's procedural human (not a ``character``). ``name``: the
+    person's absolute prim path, refused when a prim is there unless ``force`` (it is replaced)."""
+    from .stage import open_for_edit, save_stage
+
+    speed = SPEEDS.get(gait, SPEEDS["run"]) if speed is None else speed
+    spec = _human.HumanSpec(height, build)
+    spec.validate()
+    stage = open_for_edit(stage_path, out)
+    if name is not None:
+        _clear_person_path(stage, name, force)
+    prim = add_person(stage, points, gait=gait, speed=speed, start=start, character=character, spec=spec, path=name)
+    target = str(out or stage_path)
+    save_stage(stage, target)
+    return prim, target, speed
+
+
+def _clear_person_path(stage: Usd.Stage, name: str, force: bool) -> None:
+    """Refuse a --name that is not an absolute prim path, or names a prim that exists (unless --force: removed)."""
+    path = Sdf.Path(name) if Sdf.Path.IsValidPathString(name) else None
+    if path is None or not path.IsAbsolutePath() or not path.IsPrimPath() or path == Sdf.Path.absoluteRootPath:
+        raise LfusdError(f"--name {name!r} is not an absolute prim path; give one such as /World/People/Alice")
+    if stage.GetPrimAtPath(path):
+        if not force:
+            raise LfusdError(f"stage already has a prim at {name}; choose another --name or pass --force to replace it")
+        stage.RemovePrim(path)

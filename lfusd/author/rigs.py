@@ -50,10 +50,6 @@ def _gf(m: np.ndarray) -> Gf.Matrix4d:
     return Gf.Matrix4d(*np.asarray(m, float).T.ravel().tolist())
 
 
-def _np(m: Gf.Matrix4d) -> np.ndarray:
-    return np.array(m, dtype=np.float64).T
-
-
 def _rig_in_stage(spec: RigSpec, world: WorldFrame) -> np.ndarray:
     """The rig prim's transform in the stage's axes and units (column vectors).
 
@@ -178,6 +174,53 @@ def add_rig_at_camera(stage: Usd.Stage, spec: RigSpec, prim_path: str, parent: s
         for f in range(first, last + 1):
             op.Set(local(Usd.TimeCode(f)), Usd.TimeCode(f))
     return prim, spec
+
+
+def add_rig_to_file(stage_path: str | Path, out: str | Path | None = None, *, name: str = "main",
+                    grid: tuple[int, int] | None = None, baseline: float | None = None, focal_length_mm: float | None = None,
+                    sensor_mm: float | None = None, resolution: tuple[int, int] | None = None, at=None, look_at=None,
+                    spacing: str | None = None, layout: str | None = None, radius: float | None = None, axes: str | None = None,
+                    from_camera: str | None = None, force: bool = False) -> tuple[RigSpec, str]:
+    """`lfusd rig add`: author a rig into the stage file ``stage_path`` (into a new layer ``out``
+    over it when given) and save; returns the rig as authored and the file written.
+
+    None takes :class:`RigSpec`'s default; the pose is then stated in lfusd's world (Z up) and
+    turned into the stage's axes, so the default rig stands upright on any stage. ``at`` and
+    ``look_at`` are metres along the stage's own axes. ``from_camera``: centre the rig on that
+    camera prim (:func:`add_rig_at_camera`), its aspect giving the height when ``resolution`` is
+    None. ``force`` lifts the size limits (:func:`lfusd.camera.check_rig_size`)."""
+    from ..camera import check_rig_size
+    from .stage import open_for_edit, save_stage
+
+    d = RigSpec()
+    if from_camera is not None:
+        given = [o for o, v in (("--at", at), ("--look-at", look_at), ("--focal-length", focal_length_mm), ("--sensor", sensor_mm)) if v is not None]
+        if given:
+            raise LfusdError(f"--from-camera takes the pose and lens from the camera; drop {given[0]}")
+    rows, cols = grid or (d.rows, d.cols)
+    check_rig_size((rows, cols), resolution or (d.width, d.height), force)  # a million cameras take hours to author: refuse first
+    layout = layout or d.layout
+    axes = axes or ("converge" if layout == "sphere" else "parallel")
+    stage = open_for_edit(stage_path, out)
+    width, height = resolution or (d.width, d.height)
+    if from_camera is not None and resolution is None:
+        _, h_ap, v_ap = camera_lens(stage, from_camera)
+        height = max(1, round(width * v_ap / h_ap)) if h_ap > 0 and v_ap > 0 else height
+    turn = world_frame(stage).rotation.T
+    at = at if at is not None else tuple(float(x) for x in turn @ d.at)
+    look_at = look_at if look_at is not None else tuple(float(x) for x in turn @ d.look_at)
+    spec = RigSpec(
+        name=name, rows=rows, cols=cols, baseline=d.baseline if baseline is None else baseline,
+        focal_length_mm=focal_length_mm or d.focal_length_mm, sensor_mm=sensor_mm or d.sensor_mm, width=width, height=height,
+        at=at, look_at=look_at, spacing=spacing or d.spacing, layout=layout, radius=radius, axes=axes,
+    )
+    if from_camera is not None:
+        _, spec = add_rig_at_camera(stage, spec, from_camera)
+    else:
+        add_rig(stage, spec)
+    target = str(out or stage_path)
+    save_stage(stage, target)
+    return spec, target
 
 
 @dataclass(frozen=True)

@@ -744,3 +744,64 @@ def usd_validation(stage: Usd.Stage) -> list[str]:
         msg = " ".join(e.GetMessage().split())
         out.append(f"{where}: usd:{e.GetValidator().GetMetadata().name} ({e.GetName()}): {msg}")
     return sorted(set(out))
+
+
+# -- `lfusd check` -------------------------------------------------------------------------------
+@dataclass
+class StageCheck:
+    """What checking a stage found (:func:`check_stage`): ``problems`` are rule violations and USD
+    validation errors, one line each; ``footage`` one line per rig on what its centre view sees move."""
+
+    stage: str
+    problems: list[str]
+    footage: list[str]
+    labelled: int  # labelled objects
+    rules: int  # rules evaluated per object set (draft and tolerance settings not counted)
+    frames: tuple[int, int]
+    seconds: float
+    usd_validated: bool
+    content: str = ""  # triangles, distinct assets, textured materials (lfusd.author.statistics)
+
+    def summary(self) -> str:
+        """One line: what was checked, the scene's content and the verdict."""
+        content = f"; {self.content}" if self.content else ""
+        head = (f"{self.stage}: {self.labelled} labelled objects, {self.rules} rules, frames {self.frames[0]}-{self.frames[1]}"
+                f"{content} ({self.seconds:.1f} s)")
+        if self.problems:
+            return f"{head}: {len(self.problems)} violation{'s' if len(self.problems) != 1 else ''}"
+        return f"{head}: all constraints hold" + (", USD validation clean" if self.usd_validated else "")
+
+
+def check_stage(path: str | Path, rules_file: str | Path | None = None, usd: bool = True, coverage: bool = True) -> StageCheck:
+    """Check the stage at ``path`` (`lfusd check`): every constraint (default rulebook, ``rules_file``,
+    the stage's own rules) at every frame, USD's validators unless ``usd`` is False, and, unless
+    ``coverage`` is False, per rig what its centre view sees move (:func:`lfusd.author.choreography.rig_footage`).
+    A broken mesh raises LfusdError before any rule runs; implicit shapes are reported as problems."""
+    import logging
+    import time
+
+    from .stage import open_stage
+
+    t0 = time.perf_counter()
+    stage = open_stage(path)
+    from .geometry import check_geometry
+
+    check_geometry(StageGeometry(stage), implicit=False)
+    checker = Checker(stage, load_rules_file(rules_file) if rules_file else None)
+    if not checker.labelled:
+        logging.getLogger(__name__).warning("stage %s has no class labels (UsdSemantics LabelsAPI, taxonomy 'class'); "
+                                            "the label rulebook cannot apply, checking the rest", path)
+    problems = [v.line() for v in checker.check()]
+    if usd:
+        problems += usd_validation(stage)
+    footage = []
+    if coverage:
+        from .choreography import rig_footage
+
+        footage = [f.line() for f in rig_footage(stage).values()]
+    from .statistics import stage_statistics
+
+    content = stage_statistics(stage).line()
+    n_rules = sum(len([k for k in r.rules if k not in ("draft", "tolerance")]) for r in checker.rules)
+    return StageCheck(str(path), problems, footage, len(checker.labelled), n_rules, frame_range(stage),
+                      time.perf_counter() - t0, usd, content)

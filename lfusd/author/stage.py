@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdUtils, Vt
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdUtils
 
 from ..errors import LfusdError
 
@@ -125,6 +125,15 @@ def open_for_edit(path: str | Path, out: str | Path | None = None) -> Usd.Stage:
     else:
         return stage
     raise LfusdError(f"cannot write into {path} ({why}); author in a new layer over it with -o scene.usda")
+
+
+def save_stage(stage: Usd.Stage, target: str | Path) -> None:
+    """Save the root layer that :func:`open_for_edit` opened (``target``: the file it writes, for
+    the message); a failure is one line naming the file."""
+    try:
+        stage.GetRootLayer().Save()
+    except Exception as e:  # pxr reports an unwritable layer as Tf.ErrorException
+        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
 
 
 def frame_range(stage: Usd.Stage) -> tuple[int, int]:

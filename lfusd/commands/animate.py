@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
-
-from ..errors import LfusdError
 
 
 def register(sub) -> None:
@@ -49,38 +46,12 @@ def run_write_cycles(args) -> int:
 
 
 def run_add_person(args) -> int:
-    from ..author.people import add_person, parse_points
-    from ..author.human import HumanSpec
-    from ..author.stage import open_for_edit
+    from ..author.people import add_person_to_file, parse_points
 
-    points = parse_points(args.path)
-    speed = args.speed if args.speed is not None else (1.3 if args.gait == "walk" else 3.5)
-    spec = HumanSpec(args.height, args.build)
-    spec.validate()
     t0 = time.perf_counter()
-    stage = open_for_edit(args.stage, args.out)
-    if args.name is not None:
-        _check_person_path(stage, args.name, args.force)
-    prim = add_person(stage, points, gait=args.gait, speed=speed, start=args.start, character=args.character,
-                      spec=spec, path=args.name)
-    target = args.out or args.stage
-    try:
-        stage.GetRootLayer().Save()
-    except Exception as e:
-        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
+    prim, target, speed = add_person_to_file(
+        args.stage, parse_points(args.path), args.out, gait=args.gait, speed=args.speed, start=args.start,
+        character=args.character, height=args.height, build=args.build, name=args.name, force=args.force)
     how = "standing" if args.gait == "idle" else f"{args.gait} at {speed:g} m/s"
     print(f"added {prim.GetPath()} ({how}) to {target} in {time.perf_counter() - t0:.2f} s")
     return 0
-
-
-def _check_person_path(stage, name: str, force: bool) -> None:
-    """Refuse a --name that is not an absolute prim path, or names a prim that exists (unless --force: removed)."""
-    from pxr import Sdf
-
-    path = Sdf.Path(name) if Sdf.Path.IsValidPathString(name) else None
-    if path is None or not path.IsAbsolutePath() or not path.IsPrimPath() or path == Sdf.Path.absoluteRootPath:
-        raise LfusdError(f"--name {name!r} is not an absolute prim path; give one such as /World/People/Alice")
-    if stage.GetPrimAtPath(path):
-        if not force:
-            raise LfusdError(f"stage already has a prim at {name}; choose another --name or pass --force to replace it")
-        stage.RemovePrim(path)

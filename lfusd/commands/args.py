@@ -93,13 +93,27 @@ threshold = _argtype(_threshold, "threshold")
 _key_list = _argtype(_keys, "keys")
 
 
+# What --rig means, by what the command reads: a stage (render, rig-study), one rig of a dataset
+# (eval, export, preview), or a subset of a dataset's rigs (derive, verify, view).
+RIG_HELP = {
+    "stage": "rig name, or 'all' (default: the stage's only rig)",
+    "dataset": "rig name, for a dataset that holds several rigs (default: its only rig)",
+    "every": "rig name (default: every rig of the dataset)",
+}
+
+
+def add_rig_option(p: argparse.ArgumentParser, reads: str) -> None:
+    """The one ``--rig`` option; ``reads`` is a key of :data:`RIG_HELP`."""
+    p.add_argument("--rig", default=None, metavar="RIG", help=RIG_HELP[reads])
+
+
 def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
     """The options `lfusd render` and `lfusd render-video` share, and their `RenderRequest` fields
     (see :func:`render_request_fields`)."""
     from ..render.request import DEVICES, LIGHTS
 
     p.add_argument("-o", "--out", required=True, help="dataset folder (created; rerunning resumes)")
-    p.add_argument("--rig", default=None, help="rig name, or 'all' (default: the stage's only rig)")
+    add_rig_option(p, "stage")
     p.add_argument("--samples", type=int, default=16, help=f"Cycles samples for {samples_help} (default 16)")
     p.add_argument("--workers", type=int, default=1, help="Blender worker processes / Ray task slots (default 1)")
     p.add_argument("--device", default="auto", choices=DEVICES, help="Cycles device (default auto: OptiX, CUDA, else CPU)")
@@ -111,6 +125,16 @@ def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
     p.add_argument("--keys", type=_key_list, default=None, metavar="KEY,...",
                    help="ground-truth keys to store, e.g. rgb,depth,flow_fwd (default: every key the command makes)")
     p.add_argument("--keep-raw", action="store_true", help="keep Blender's raw passes (passes.exr) beside the stored keys")
+
+
+def run_help(parser: argparse.ArgumentParser):
+    """The handler of a command group given no action: its help, exit 2."""
+
+    def run_help(args) -> int:
+        parser.print_help()
+        return 2
+
+    return run_help
 
 
 def render_request_fields(args: argparse.Namespace) -> dict:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from . import args as argtypes
+
 
 def register(sub) -> None:
     p = sub.add_parser("assets", help="catalogue USD assets that generated scenes draw by class",
@@ -20,22 +22,22 @@ def register(sub) -> None:
                    help="the assets' semantic class (default: their UsdSemantics 'class' label)")
     a.add_argument("--licence", "--license", dest="licence", metavar="TEXT",
                    help="the assets' licence (default: the one in their metadata, e.g. customLayerData 'license')")
-    a.set_defaults(func=add_handler)
+    a.set_defaults(func=run_add)
     ls = asub.add_parser("list", help="list a catalogue's assets and lfusd's procedural generators",
                          description="One line per asset: name, class, size, units, up axis, triangles, licence, file; "
                                      "then lfusd's procedural generators, which templates use for classes no catalogue "
                                      "asset has.")
     ls.add_argument("catalogue", nargs="?", help="the catalogue file or its folder (default: only the procedural entries)")
-    ls.set_defaults(func=list_handler)
+    ls.set_defaults(func=run_list)
     c = asub.add_parser("check", help="read every asset of a catalogue again",
                         description="Check every asset of the catalogue again: one line per asset that is missing, "
                                     "refused, or changed since it was added; exit 1 if any.")
     c.add_argument("catalogue", help="the catalogue file or its folder")
-    c.set_defaults(func=check_handler)
-    p.set_defaults(func=lambda args: p.print_help() or 2)
+    c.set_defaults(func=run_check)
+    p.set_defaults(func=argtypes.run_help(p))
 
 
-def add_handler(args) -> int:
+def run_add(args) -> int:
     from ..author.catalogue import add_assets
 
     path, added = add_assets(args.target, args.catalogue, args.cls, args.licence)
@@ -51,7 +53,7 @@ def _line(a) -> str:
             f"{a.triangles} triangles, {a.textured_materials} textured materials, licence {a.licence or 'unknown'}, {a.file}")
 
 
-def list_handler(args) -> int:
+def run_list(args) -> int:
     from ..author.catalogue import builtin_entries, load_catalogue
 
     if args.catalogue:
@@ -62,7 +64,7 @@ def list_handler(args) -> int:
     return 0
 
 
-def check_handler(args) -> int:
+def run_check(args) -> int:
     import sys
 
     from ..author.catalogue import check_catalogue, load_catalogue

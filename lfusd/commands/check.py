@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import logging
 import sys
-import time
-
-log = logging.getLogger(__name__)
 
 
 def register(sub) -> None:
@@ -24,45 +20,17 @@ def register(sub) -> None:
     p.add_argument("--no-usd-validation", action="store_true", help="skip pxr.UsdValidation's validators")
     p.add_argument("--no-coverage", action="store_true",
                    help="skip the per-rig report of motion in view and disparity range (ray casting every frame)")
-    p.set_defaults(func=handler)
+    p.set_defaults(func=run)
 
 
-def handler(args) -> int:
-    from ..author.rules import Checker, load_rules_file, usd_validation
-    from ..author.stage import frame_range, open_stage
+def run(args) -> int:
+    from ..author.rules import check_stage
 
-    t0 = time.perf_counter()
-    stage = open_stage(args.stage)
-    from ..author.geometry import StageGeometry, check_geometry
-
-    # a broken mesh is one line (exit 2), before any rule evaluates it; implicit shapes are reported
-    # as violations below, with everything else checked
-    check_geometry(StageGeometry(stage), implicit=False)
-    file_rules = load_rules_file(args.rules) if args.rules else None
-    checker = Checker(stage, file_rules)
-    if not checker.labelled:
-        log.warning("stage %s has no class labels (UsdSemantics LabelsAPI, taxonomy 'class'); "
-                    "the label rulebook cannot apply, checking the rest", args.stage)
-    violations = checker.check()
-    lines = [v.line() for v in violations]
-    if not args.no_usd_validation:
-        lines += usd_validation(stage)
-    for line in lines:
+    found = check_stage(args.stage, args.rules, usd=not args.no_usd_validation, coverage=not args.no_coverage)
+    for line in found.problems + found.footage:
         print(line)
-    if not args.no_coverage:
-        from ..author.choreography import rig_footage
-
-        for footage in rig_footage(stage).values():
-            print(footage.line())
-    from ..author.statistics import stage_statistics
-
-    content = stage_statistics(stage).line()
-    first, last = frame_range(stage)
-    n_rules = sum(len([k for k in r.rules if k not in ("draft", "tolerance")]) for r in checker.rules)
-    summary = (f"{args.stage}: {len(checker.labelled)} labelled objects, {n_rules} rules, frames {first}-{last}; {content}"
-               f" ({time.perf_counter() - t0:.1f} s)")
-    if lines:
-        print(f"{summary}: {len(lines)} violation{'s' if len(lines) != 1 else ''}", file=sys.stderr)
+    if found.problems:
+        print(found.summary(), file=sys.stderr)
         return 1
-    print(f"{summary}: all constraints hold" + ("" if args.no_usd_validation else ", USD validation clean"))
+    print(found.summary())
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from . import args as argtypes
+
 
 def register(sub) -> None:
     p = sub.add_parser("dataset", help="make a whole dataset from a recipe (scenes, rigs, renders, verification, card)")
@@ -13,11 +15,11 @@ def register(sub) -> None:
     m.add_argument("recipe", help="the recipe, a TOML file (see recipes/default.toml)")
     m.add_argument("-o", "--out", required=True, metavar="DIR", help="dataset folder (created; rerunning the same recipe resumes)")
     m.add_argument("--quiet", action="store_true", help="no progress bars from the renders")
-    m.set_defaults(func=make)
-    p.set_defaults(func=lambda args: p.print_help() or 2)
+    m.set_defaults(func=run_make)
+    p.set_defaults(func=argtypes.run_help(p))
 
 
-def make(args) -> int:
+def run_make(args) -> int:
     from ..recipe import make_dataset
 
     def progress(i, n, scene, action):

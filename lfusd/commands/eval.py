@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from ..evaluation import score
+from . import args as argtypes
 from ..evaluation.protocols import PROTOCOLS
 from ..evaluation.score import TASKS
 
@@ -22,7 +23,7 @@ def register(subparsers) -> None:
     p.add_argument("--protocol", default="lfusd", choices=PROTOCOLS, help="whose masks, NaN policy, percentiles, pooling and metric names to use (default lfusd, the native protocol)")
     p.add_argument("--json", default=None, help="write results as JSON here (default: PRED/eval_<task>[_<protocol>].json)")
     p.add_argument("--csv", default=None, help="write results as CSV here (default: PRED/eval_<task>[_<protocol>].csv)")
-    p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
+    argtypes.add_rig_option(p, "dataset")
     p.set_defaults(func=run)
 
 

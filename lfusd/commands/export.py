@@ -26,7 +26,7 @@ def register(subparsers) -> None:
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
     p.add_argument("dest", help="new folder to write")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
-    p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
+    argtypes.add_rig_option(p, "dataset")
     # Each format's options, once per flag; its help names the formats that take it.
     options: dict[str, list] = {}
     for f in FORMATS.values():

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from . import args as argtypes
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("preview", help="write preview pictures and a video of a dataset", description="Write preview images of dataset OUT (default into OUT/preview).")
@@ -12,7 +14,7 @@ def register(subparsers) -> None:
     p.add_argument("--frame", type=int, default=None, help="frame for the still pictures (default: the first)")
     p.add_argument("--no-video", action="store_true", help="skip the MP4 of the centre view over time")
     p.add_argument("--fps", type=float, default=12.0, help="video frame rate")
-    p.add_argument("--rig", default=None, help="rig name, for a dataset that holds several rigs")
+    argtypes.add_rig_option(p, "dataset")
     p.set_defaults(func=run)
 
 

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from ..errors import LfusdError
 from ..camera import AXES, LAYOUTS, SPACINGS, RigSpec
 from . import args as argtypes
 
@@ -40,48 +37,13 @@ def register(sub) -> None:
 
 
 def run_add(args) -> int:
-    from ..author.stage import open_for_edit, world_frame
-    from ..author.rigs import add_rig
+    from ..author.rigs import add_rig_to_file
 
-    from ..render.request import check_rig_size
-
-    d = RigSpec()
-    if args.from_camera is not None:
-        given = [o for o, v in (("--at", args.at), ("--look-at", args.look_at), ("--focal-length", args.focal_length), ("--sensor", args.sensor)) if v is not None]
-        if given:
-            raise LfusdError(f"--from-camera takes the pose and lens from the camera; drop {given[0]}")
-    check_rig_size(args.grid, args.resolution or (d.width, d.height), args.force)  # a million cameras take hours to author: refuse first
-    rows, cols = args.grid
-    axes = args.axes or ("converge" if args.layout == "sphere" else "parallel")
-    stage = open_for_edit(args.stage, args.out)
-    width, height = args.resolution or (d.width, d.height)
-    if args.from_camera is not None and args.resolution is None:
-        from ..author.rigs import camera_lens
-
-        _, h_ap, v_ap = camera_lens(stage, args.from_camera)
-        height = max(1, round(width * v_ap / h_ap)) if h_ap > 0 and v_ap > 0 else height
-    # The default pose is stated in lfusd's world (Z up); on a stage with another up axis it is
-    # turned into the stage's axes, so the default rig stands upright on any stage.
-    turn = world_frame(stage).rotation.T
-    at = args.at if args.at is not None else tuple(float(x) for x in turn @ d.at)
-    look_at = args.look_at if args.look_at is not None else tuple(float(x) for x in turn @ d.look_at)
-    spec = RigSpec(
-        name=args.name, rows=rows, cols=cols, baseline=args.baseline, focal_length_mm=args.focal_length or d.focal_length_mm,
-        sensor_mm=args.sensor or d.sensor_mm, width=width, height=height, at=at, look_at=look_at, spacing=args.spacing,
-        layout=args.layout, radius=args.radius, axes=axes,
-    )
-    if args.from_camera is not None:
-        from ..author.rigs import add_rig_at_camera
-
-        _, spec = add_rig_at_camera(stage, spec, args.from_camera)
-    else:
-        add_rig(stage, spec)
-    target = args.out or args.stage
-    try:
-        stage.GetRootLayer().Save()
-    except Exception as e:
-        raise LfusdError(f"cannot save stage {Path(target)} ({(str(e).strip().splitlines() or [type(e).__name__])[-1]}); check the file is writable") from None
+    spec, target = add_rig_to_file(
+        args.stage, args.out, name=args.name, grid=args.grid, baseline=args.baseline, focal_length_mm=args.focal_length,
+        sensor_mm=args.sensor, resolution=args.resolution, at=args.at, look_at=args.look_at, spacing=args.spacing,
+        layout=args.layout, radius=args.radius, axes=args.axes, from_camera=args.from_camera, force=args.force)
     over = f" (a new layer over {args.stage})" if args.out else ""
     cam = f", centre view at camera {args.from_camera} ({spec.focal_length_mm:g} mm lens, {spec.sensor_mm:g} mm aperture)" if args.from_camera else ""
-    print(f"added rig {spec.name} ({rows}x{cols} views, {width}x{height} px){cam} to {target}{over}")
+    print(f"added rig {spec.name} ({spec.rows}x{spec.cols} views, {spec.width}x{spec.height} px){cam} to {target}{over}")
     return 0

@@ -35,7 +35,7 @@ def register(sub) -> None:
     p.add_argument("--axes", type=_list(str, "axes"), default=",".join(AXES), help=f"any of {','.join(AXES)} (default both)")
     p.add_argument("--frames", type=argtypes.frames, default=None, help="frames to score, N, A-B or lists (default: the stage's first)")
     p.add_argument("--task", default="disparity", choices=("disparity", "views", "sceneflow"), help="what the ranking serves (default disparity)")
-    p.add_argument("--rig", default=None, help="the stage's rig to study at, or 'all' (default: the stage's only rig)")
+    argtypes.add_rig_option(p, "stage")
     p.add_argument("--resolution", type=argtypes.resolution, default="64x64", help="WIDTHxHEIGHT of the study's views (default 64x64)")
     p.add_argument("--samples", type=int, default=4, help="Cycles samples of the images (default 4; the ground truth is exact at any)")
     p.add_argument("--bands", type=_list(float, "bands"), default="1,3,10,30", help="depth band edges in metres (default 1,3,10,30)")

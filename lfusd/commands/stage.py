@@ -29,18 +29,25 @@ def register(sub) -> None:
     n.add_argument("--catalogue", action="append", default=[], metavar="FILE",
                    help="an asset catalogue (`lfusd assets add`) whose assets replace the procedural objects of their "
                         "class (repeatable)")
-    n.set_defaults(func=new_handler)
+    n.set_defaults(func=run_new)
     t = ssub.add_parser("templates", help="list the templates")
-    t.set_defaults(func=lambda args: print("\n".join(TEMPLATES)) or 0)
-    p.set_defaults(func=lambda args: p.print_help() or 2)
+    t.set_defaults(func=run_templates)
+    p.set_defaults(func=argtypes.run_help(p))
 
 
-def new_handler(args) -> int:
+def run_templates(args) -> int:
+    from ..author.scenes import TEMPLATES
+
+    print("\n".join(TEMPLATES))
+    return 0
+
+
+def run_new(args) -> int:
     from ..author.scenes import generate
 
     t0 = time.perf_counter()
     from ..data.formats import why_unwritable
-    from ..render.request import check_rig_size
+    from ..camera import check_rig_size
 
     out = Path(args.output)
     if not str(out).endswith((".usda", ".usdc", ".usd")):

@@ -15,12 +15,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=argtypes.frames, help="frames to verify, e.g. 1-3 or 1-5,8 (default: all)")
     p.add_argument("--views", nargs="+", type=argtypes.view, metavar="R,C", help="views to verify (default: all)")
     p.add_argument("--stage", help="the stage the dataset was rendered from (default: the one its manifest records)")
-    p.add_argument("--rig", help="rig to verify (default: every rig of the dataset)")
+    argtypes.add_rig_option(p, "every")
     p.add_argument("--threshold", nargs="+", type=argtypes.threshold, metavar="KEY=VALUE",
                    help="override limits, e.g. occlusion_fwd=0.02 flow_fwd=0.1")
     p.add_argument("--integrity", action="store_true",
                    help="only check every view's files against its completion record (sizes and checksums), no ray casting")
-    p.set_defaults(func=handler)
+    p.set_defaults(func=run)
 
 
 def progress(frame: int, view: tuple[int, int]) -> None:
@@ -52,13 +52,13 @@ def integrity(out: str, rig: str | None) -> int:
     if problems:
         views = len({(p.rig, p.frame, p.view) for p in problems})
         print(f"verify --integrity: {views} of {checked} views damaged or incomplete; rerun the render command to repair them "
-              "('lfusd flow' for motion.npz alone)")
+              "('lfusd derive' for motion.npz alone)")
         return 1
     print(f"verify --integrity: all {checked} views match their records")
     return 0
 
 
-def handler(args) -> int:
+def run(args) -> int:
     from ..truth.verify import verify
 
     if args.integrity:

@@ -12,7 +12,7 @@ def register(subparsers) -> None:
                     "point cloud with scene-flow arrows, flow and segmentation images, on a timeline over frames.")
     p.add_argument("out", help="dataset folder (output of `lfusd render` / `lfusd render-video`)")
     p.add_argument("--save", default=None, metavar="FILE.rrd", help="write a recording to this new file instead of opening the viewer")
-    p.add_argument("--rig", default=None, help="one rig (default: every rig of the dataset)")
+    argtypes.add_rig_option(p, "every")
     p.add_argument("--views", type=argtypes.view, nargs="+", default=None, metavar="ROW,COL", help="views to show (default: all)")
     p.add_argument("--frames", type=argtypes.frames, default=None, help="frames to show: N, A-B or a list 1-5,8 (default: all)")
     p.add_argument("--every", type=int, default=1, metavar="N", help="show every N-th of those frames (default 1)")

@@ -213,7 +213,7 @@ class Dataset:
         name = layout.MOTION_FILE if self.version >= 2 else layout.MOTION_FILE_V1
         path = d / name
         if not path.is_file():
-            raise LfusdError(f"{d} has no {name} for key {key!r}; derive the motion keys with 'lfusd flow' (or render with 'lfusd render-video')")
+            raise LfusdError(f"{d} has no {name} for key {key!r}; derive the motion keys with 'lfusd derive' (or render with 'lfusd render-video')")
         try:
             if self.version >= 2:
                 keys = _cached(self._file_cache, str(path), 4, lambda: store.read(path))
@@ -223,9 +223,9 @@ class Dataset:
             with np.load(path) as z:
                 return z[key]
         except KeyError:
-            raise LfusdError(f"{path} holds no {key!r}; derive it again with 'lfusd flow'") from None
+            raise LfusdError(f"{path} holds no {key!r}; derive it again with 'lfusd derive'") from None
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-            raise LfusdError(f"{path} is unreadable ({e}); derive it again with 'lfusd flow'") from None
+            raise LfusdError(f"{path} is unreadable ({e}); derive it again with 'lfusd derive'") from None
 
 
 def _cached(cache: dict, key, size: int, load):

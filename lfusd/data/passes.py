@@ -145,7 +145,7 @@ DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
 
 @dataclass
 class RawPasses:
-    """The raw passes of one view at one frame (see CONVENTIONS.md and BLENDER_FACTS.md).
+    """The raw passes of one view at one frame (see docs/CONVENTIONS.md and docs/blender-facts.md).
 
     depth (H,W) planar z in metres, inf (or >= 1e9) on background; vector (H,W,4) Blender's raw
     vector pass; position (H,W,3) world position; instance (H,W) int, 0 = background;

@@ -136,7 +136,7 @@ def read(path: str | Path) -> dict[str, np.ndarray]:
         return decode(channels, names)
     except (KeyError, ValueError, RuntimeError, OSError) as e:
         raise LfusdError(f"cannot read {path} ({str(e).splitlines()[0] if str(e) else type(e).__name__}); "
-                         "derive it again (rerun the render command, or 'lfusd flow' for motion.exr)") from None
+                         "derive it again (rerun the render command, or 'lfusd derive' for motion.exr)") from None
     except Exception as e:  # OpenEXR raises plain exceptions for missing or corrupt files
         raise LfusdError(f"cannot read {path} ({e}); derive it again (rerun the render command)") from None
 

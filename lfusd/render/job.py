@@ -1,13 +1,14 @@
 """Render a stage's light-field rig(s) into a dataset folder, with Blender in worker processes.
 
-Dataset layout (docs/layout.md has the whole of it):
+Dataset layout, format version 2 (the file names are spelled in :mod:`lfusd.layout`, whose
+docstring lists them; docs/layout.md has the whole of it):
 
-    OUT/manifest.json                 stage path and hash, rigs, frames, settings, versions
+    OUT/manifest.json                 format, stage files and hashes, rigs, frames, settings, versions
     OUT/logs/                         Blender's output of each worker
     OUT/objects.json                  class table and instance table (id -> prim path, label)
     OUT/<rig>/f000001/frame.json      per-view cam_to_world and per-object world poses
     OUT/<rig>/f000001/00_00/          one folder per view (row 00, col 00):
-        rgb.png, rgb.exr, passes.exr
+        rgb.exr, gt.exr, motion.exr (render-video), view.json; passes.exr only with --keep-raw
 
 A view folder appears only when complete: it is assembled under a hidden temporary name and
 renamed, so an interrupted run leaves nothing half-written and a rerun renders only what is
@@ -81,7 +82,6 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         "format_version": FORMAT_VERSION,
         "keys": list(req.stored_keys()),
         "keep_raw": req.keep_raw,
-        **req.extra_settings,
     }
 
 

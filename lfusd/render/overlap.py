@@ -171,7 +171,6 @@ class MotionScheduler:
 
     def stop(self, now: bool = False) -> None:
         """Stop the lanes now (the render failed or ended); what they wrote is complete or absent."""
-        pending = now or not all(f.done() for f in self.futures)
         for lane in self.lanes:
             lane.shutdown(wait=True, cancel_futures=True)
 

@@ -118,9 +118,6 @@ class WorkUnit:
     # checks that Blender's import lands in lfusd's world (Z-up, metres) by this map.
     world: dict = field(default_factory=dict)
     scratch: str = ""  # where the worker writes; set by the executor
-    seed: int = 0
-    max_bounces: int = 12
-    persistent: bool = False
     add_light: bool = False  # the stage has no lights and --light auto: add a neutral sky and sun
     # Instanced gprims (scenegraph instance proxies, point instances), which Blender draws as copies
     # under an anchor object: [anchor prim path, instance id, vertex count, centroid x, y, z in the

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ..errors import LfusdError
@@ -28,26 +28,6 @@ MEMORY_BYTES_PER_PIXEL = 200
 # Frames of a view whose raw passes may be on disk at once while motion is derived from them
 # (lfusd.truth.derive.REACH frames on either side of the one being derived).
 RAW_FRAMES_ON_DISK = 5
-# Beyond these a rig is a mistake more often than a plan (authoring a million cameras takes
-# hours); `--force` lifts them. 64x64 views; 16384x16384 pixels (Blender's render result alone
-# is about 50 GB there).
-MAX_VIEWS = 4096
-MAX_PIXELS = 16384 * 16384
-
-
-def check_rig_size(grid: tuple[int, int], resolution: tuple[int, int] | None, force: bool = False) -> None:
-    """Refuse, up front, a grid of more than MAX_VIEWS views or a view of more than MAX_PIXELS pixels."""
-    if force:
-        return
-    rows, cols = grid
-    if rows * cols > MAX_VIEWS:
-        raise LfusdError(f"--grid {rows}x{cols} is {rows * cols} views, more than {MAX_VIEWS} per rig; use a smaller grid or pass --force")
-    if resolution and resolution[0] * resolution[1] > MAX_PIXELS:
-        w, h = resolution
-        raise LfusdError(f"--resolution {w}x{h} is {w * h / 1e6:.0f} Mpixel per view, more than {MAX_PIXELS / 1e6:.0f}; "
-                         "use a smaller resolution or pass --force")
-
-
 @dataclass
 class RenderRequest:
     """What `lfusd render` / `render-video` asks for."""
@@ -70,7 +50,6 @@ class RenderRequest:
     light: str = "auto"  # one of LIGHTS
     keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
     keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
-    extra_settings: dict = field(default_factory=dict)
 
     def check(self) -> None:
         """Raise LfusdError naming the first impossible setting."""

@@ -2,7 +2,7 @@
 
 Run as ``python -m lfusd.render.worker`` with a JSON job on stdin (see ``lfusd.render.job``).
 This is the only module that imports ``bpy``; it must not import usd-core's ``pxr`` (Blender
-carries its own USD, see ../shared/BLENDER_FACTS.md). It talks back through stdout lines
+carries its own USD, see docs/blender-facts.md). It talks back through stdout lines
 starting with ``LFUSD `` followed by JSON; everything else on stdout is Blender's chatter.
 
 Per frame it renders twice, into a scratch folder the parent owns:
@@ -363,7 +363,7 @@ def setup_scene(job: WorkUnit) -> tuple[object, list[str]]:
     # default records the first one at least half opaque, chosen per sample): ground truth of a
     # window is the pane, as Open3D's ray casts in verify see it (CONVENTIONS).
     scene.view_layers[0].pass_alpha_threshold = 0.0
-    render.use_persistent_data = bool(job.persistent)
+    render.use_persistent_data = False  # with passes switched between renders it crashes Cycles (docs/blender-facts.md)
     render.use_multiview = True
     render.views_format = "MULTIVIEW"
     for v in render.views:
@@ -376,7 +376,7 @@ def setup_scene(job: WorkUnit) -> tuple[object, list[str]]:
         render.threads = int(job.threads)
     scene.view_settings.view_transform = "Standard"
     scene.view_settings.look = "None"
-    scene.cycles.seed = int(job.seed)
+    scene.cycles.seed = 0
     scene.cycles.use_denoising = False
     scene.cycles.use_adaptive_sampling = False
     return scene, suffixes
@@ -711,7 +711,7 @@ def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> No
     cyc.samples = job.samples
     cyc.pixel_filter_type = "BLACKMAN_HARRIS"
     cyc.filter_width = 1.5
-    cyc.max_bounces = job.max_bounces
+    cyc.max_bounces = 12  # Blender's default
     im.media_type = "IMAGE"
     im.file_format = "OPEN_EXR"
     im.color_mode = "RGB"

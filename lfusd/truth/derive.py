@@ -260,7 +260,7 @@ def derive_dataset(
     lock: bool = True,
 ) -> int:
     """:func:`_derive_dataset` holding the dataset's lock (OUT/.lock: one writer per folder, so
-    ``lfusd flow`` never writes into a folder a render is writing), after refusing links among
+    ``lfusd derive`` never writes into a folder a render is writing), after refusing links among
     the folders it writes into (lfusd.data.confined). ``lock=False``: the caller holds it (a render)."""
     if not lock:
         return _derive_dataset(root, rigs, frames, workers, overwrite, progress, views)
@@ -297,7 +297,7 @@ def _derive_dataset(
         confined.check_tree(root, [ds.rig_name for ds in datasets])
     for ds in datasets:
         ds.refresh()  # the frames complete now, not when the manifest was last written
-    # lfusd flow (overwrite) derives every frame the manifest lists, and names what it cannot read
+    # lfusd derive (overwrite) derives every frame the manifest lists, and names what it cannot read
     everything = {ds.rig_name: list(ds.record.frames) if overwrite else ds.frames for ds in datasets}
     selected = {ds.rig_name: (set(everything[ds.rig_name] if frames is None else frames), ds.views if views is None else views)
                 for ds in datasets}
@@ -311,7 +311,7 @@ def _derive_dataset(
     for ds in datasets:
         wanted, vs = selected[ds.rig_name]
         if not wants_motion(ds):
-            if overwrite:  # lfusd flow
+            if overwrite:  # lfusd derive
                 raise LfusdError(f"{root} holds no motion keys (rendered by 'lfusd render', or by render-video with --keys naming none); "
                                  "render a video with 'lfusd render-video'")
             continue
@@ -321,7 +321,7 @@ def _derive_dataset(
         if overwrite and ds.version >= 2 and not ds.record.settings.keep_raw:
             gone = [f for f in sorted(wanted) for v in vs if not (ds.view_dir(f, v) / PASSES_EXR).is_file()]
             if gone:
-                raise LfusdError(f"{root}: 'lfusd flow' derives the motion keys again from Blender's raw passes, which this dataset removed "
+                raise LfusdError(f"{root}: 'lfusd derive' derives the motion keys again from Blender's raw passes, which this dataset removed "
                                  f"once they were derived (frame {gone[0]}: rendered without --keep-raw); render it again with --keep-raw")
         for v in vs:
             # view_dir raises naming a view or frame the dataset lacks

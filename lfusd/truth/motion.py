@@ -2,8 +2,8 @@
 
 No Blender. Inputs are the raw passes of one view at frames t, t+1 and t-1 (:class:`RawPasses`);
 outputs follow docs/CONVENTIONS.md exactly (:data:`MOTION_KEYS`). Two backends compute the
-same thing: a NumPy reference (vectorised) and, when numba is installed, a compiled one-pass
-kernel (``lfusd.truth._motion_numba``, the default): for a 1024x1024 view with both neighbours about
+same thing: a NumPy reference (vectorised) and a compiled one-pass kernel
+(``lfusd.truth._motion_numba``, the default; numba is a required dependency): for a 1024x1024 view with both neighbours about
 1.4 s against 27 ms (2 threads) or 50 ms (1 thread); see benchmarks/bench_flow.py.
 
 Which route produces which key
@@ -57,8 +57,6 @@ on the first frame (no ``prv``).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -262,13 +260,10 @@ def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position,
     return flow, z_exp, exact, visible, vector_ok, idx, (x, y)
 
 
-try:  # the compiled kernels (same algorithm as the NumPy code, one pass per pixel)
-    from . import _motion_numba as _flow_numba
+# The compiled kernels (same algorithm as the NumPy code, one pass per pixel); numba is required.
+from . import _motion_numba as _flow_numba  # noqa: E402
 
-    BACKEND = "numba"
-except ImportError:  # pragma: no cover - numba is optional
-    _flow_numba = None
-    BACKEND = "numpy"
+BACKEND = "numba"
 
 
 _ANNOUNCED = False
@@ -278,7 +273,7 @@ def announce_compile() -> None:
     """Say once, in one line, that the motion kernels are being compiled when numba has not cached
     them yet: the first derivation otherwise sits silent for about two minutes."""
     global _ANNOUNCED
-    if _ANNOUNCED or _flow_numba is None:
+    if _ANNOUNCED:
         return
     _ANNOUNCED = True
     if not _flow_numba.kernels_cached():
@@ -291,7 +286,7 @@ def announce_compile() -> None:
 def compile_kernels() -> bool:
     """Compile numba's motion kernels into its on-disk cache (scripts/setup.sh calls this, so a
     fresh clone's first render-video does not wait minutes); whether anything was compiled."""
-    if _flow_numba is None or _flow_numba.kernels_cached():
+    if _flow_numba.kernels_cached():
         return False
     cam = Camera(np.array([[4.0, 0, 1.5], [0, 4.0, 1.5], [0, 0, 1]]), np.eye(4))
     depth = np.full((4, 4), 2.0, np.float32)
@@ -314,14 +309,14 @@ def derive_motion(
     ``nxt`` / ``prv``: the same view's raw passes at t+1 / t-1 (None on the last / first frame).
     ``baseline``: the rig baseline b in metres for disparity d = f_px * b / z (K[0,0] is f_px);
     without it ``disparity_change`` is 0 and only the other keys are meaningful.
-    ``backend``: 'numba' (compiled, default when numba is installed) or 'numpy' (reference).
+    ``backend``: 'numba' (compiled, the default) or 'numpy' (reference).
     ``occluders``: {"next": Occluders, "prev": Occluders, "here": Occluders}, the triangles of t+1 /
     t-1 / t as rendered (lfusd.truth.visibility): occlusion is then exact ray-cast visibility, not
     the image-space test, and ``mixed`` (2x2 sub-pixel rays) is computed from "here".
     """
     backend = backend or BACKEND
-    if backend not in ("numba", "numpy") or (backend == "numba" and _flow_numba is None):
-        raise LfusdError(f"flow backend {backend!r} is not available; use 'numpy'" + ("" if _flow_numba else " or install numba"))
+    if backend not in ("numba", "numpy"):
+        raise LfusdError(f"flow backend {backend!r} is not available; use 'numba' or 'numpy'")
     hw = _check(cur, "frame t")
     if nxt is not None:
         _check(nxt, "frame t+1", hw)

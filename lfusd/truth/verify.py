@@ -684,7 +684,7 @@ def verify_dataset(
             lacking = [k for k in KEYS[2:] if data[k] is None]
             if expect_motion and lacking:
                 report.problems.append(f"{where}: no {', '.join(lacking)} to compare ({MOTION_FILE} missing or damaged); "
-                                       "rerun render-video or 'lfusd flow' to repair it")
+                                       "rerun render-video or 'lfusd derive' to repair it")
             H, W = np.asarray(data["depth"]).shape[:2]
             K = np.asarray(ds.intrinsics(view), np.float64)
             c2w = np.asarray(ds.cam_to_world(f, view), np.float64)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Gf, Usd, UsdGeom, UsdShade
+from pxr import Usd, UsdGeom, UsdShade
 
 from lfusd.author import movers
 from lfusd.author.human import REGIONS, HumanSpec, appearance, body_mesh, define_human, rest_positions

@@ -11,7 +11,7 @@ import pytest
 from pxr import Gf, Usd, UsdGeom, UsdLux
 
 from lfusd import cli
-from lfusd.author.choreography import DISPARITY_GOAL, GOAL_COVERAGE, GOAL_FRAMES, GOAL_PERSON, Watch, rig_footage
+from lfusd.author.choreography import DISPARITY_GOAL, GOAL_COVERAGE, GOAL_FRAMES, GOAL_PERSON, rig_footage
 from lfusd.author.labels import set_class_label
 from lfusd.author.rigs import add_rig
 from lfusd.author.scenes import TEMPLATES, generate

@@ -9,7 +9,7 @@ from pxr import Gf, Sdf, UsdGeom
 from lfusd.errors import LfusdError
 from lfusd.author.geometry import StageGeometry, triangulate
 from lfusd.author.stage import new_stage
-from support.skinned import ANGLES, hom, quat, rot_x, rot_z, skinned_stage
+from support.skinned import ANGLES, hom, rot_x, rot_z, skinned_stage
 
 
 def cube_stage(mpu=1.0, size=2.0):

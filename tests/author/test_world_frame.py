@@ -13,12 +13,10 @@ import pytest
 from pxr import Gf, Usd, UsdGeom, UsdSemantics
 
 from lfusd import cli
-from lfusd.author.people import add_person
 from lfusd.author.rules import set_constraint
-from lfusd.errors import LfusdError
 
 from lfusd.author.geometry import StageGeometry, local_to_world
-from lfusd.author.rigs import add_rig, rigs
+from lfusd.author.rigs import rigs
 from lfusd.author.stage import WorldFrame, open_stage, world_frame
 from lfusd.camera import RigSpec
 from tests.support.cli import run_cli

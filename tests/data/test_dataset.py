@@ -89,5 +89,5 @@ def test_unknown_and_underived_keys_are_one_line_errors(tmp_path):
     ds = Dataset(make(tmp_path / "ds", complete=[1, 2]))
     with pytest.raises(LfusdError, match="unknown ground-truth key 'flow'"):
         ds.read(1, (0, 0), "flow")
-    with pytest.raises(LfusdError, match=f"no {layout.MOTION_FILE} .*'lfusd flow'"):
+    with pytest.raises(LfusdError, match=f"no {layout.MOTION_FILE} .*'lfusd derive'"):
         ds.read(1, (0, 0), "flow_fwd")

@@ -1,4 +1,4 @@
-"""File formats: bytes checked with readers written from the specs (tests/spec_readers.py)."""
+"""File formats: bytes checked with readers written from the specs (tests/support/spec_readers.py)."""
 
 from __future__ import annotations
 

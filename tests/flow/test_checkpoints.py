@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -39,6 +38,7 @@ def _good_state() -> dict:
             "config": {"train_frames": [1], "eval_frames": [2], "lr": 1e-3, "tiny": True, "data": "/d"}}
 
 
+@pytest.mark.timeout(600)  # its subprocess may take 300 s
 def test_a_pickle_payload_checkpoint_does_not_run_with_resume(tmp_path):
     marker = tmp_path / "pwned.txt"
     run = tmp_path / "run"

@@ -36,7 +36,7 @@ def test_worker_warnings_reach_the_parent_log(tmp_path, monkeypatch, caplog):
 
 
 def test_work_unit_round_trips_through_json():
-    u = unit(cameras={"00_01": "/Rigs/main/cam_00_01"}, scratch="/tmp/x", seed=3)
+    u = unit(cameras={"00_01": "/Rigs/main/cam_00_01"}, scratch="/tmp/x", threads=3)
     assert WorkUnit.from_json(json.loads(json.dumps(u.to_json()))) == u
 
 

@@ -59,6 +59,7 @@ def _watch(proc: subprocess.Popen, until: float, seen: dict) -> None:
 # dashboard and runtime-env agents running; measured 3 failing runs of 4 on this 2-core machine.
 # Exit codes and the one line hold; the leftover agents are what fails.
 @pytest.mark.xfail(reason="Ray's agents can outlive a Ctrl-C during ray.init (issue 26, open)", strict=False)
+@pytest.mark.timeout(1800)  # a full run (up to 600 s) and interrupted runs
 def test_ctrl_c_and_sigterm_at_random_moments_under_ray(tmp_path):
     stage = tmp_path / "movers.usda"
     write_motion_stage(stage, RIG, 4, (0.05, -0.03, 0.0))

@@ -12,7 +12,6 @@ import shutil
 import numpy as np
 import pytest
 from support.analytic import cast, pixel_rays, project
-from support.cli import run_cli
 from support.scenes import GROUND_HALF, MOVERS, movers_world, rig_offset, write_motion_stage
 
 from lfusd import Dataset

@@ -53,7 +53,7 @@ def test_default_render_stores_the_keys_checks_them_and_drops_the_raw_passes(sta
     code, text, err = run_cli(capsys, "verify", out)
     assert code == 0, text + err  # verify passes on the stored (compressed) keys
     assert run_cli(capsys, "verify", out, "--integrity")[0] == 0
-    code, _, err = run_cli(capsys, "flow", out)
+    code, _, err = run_cli(capsys, "derive", out)
     assert_one_line_error(code, err, "raw passes", "--keep-raw")
     code, text, err = run_cli(capsys, "render-video", stage, "-o", out, *TINY)  # a rerun: nothing to render or derive
     assert code == 0 and "motion derived for 0 views" in text, text + err
@@ -81,7 +81,7 @@ def test_keys_subset_with_keep_raw_writes_only_those(stage, capsys):
         with pytest.raises(LfusdError, match=f"key '{key}' was not written .*--keys") as e:
             ds.read(2, (0, 0), key)
         assert "\n" not in str(e.value)
-    assert run_cli(capsys, "flow", out)[0] == 0  # the raw passes are kept: motion derives again
+    assert run_cli(capsys, "derive", out)[0] == 0  # the raw passes are kept: motion derives again
 
 
 def test_bad_keys_are_one_line_usage_errors(stage, tmp_path, capsys):

@@ -1,6 +1,6 @@
 """Closed-form ray casting of moving oriented boxes: synthetic raw passes and a visibility oracle.
 
-Independent of lfusd.truth.motion and lfusd.verify: rays are intersected with boxes by the slab method,
+Independent of lfusd.truth.motion and lfusd.truth.verify: rays are intersected with boxes by the slab method,
 and the raw vector pass is built from its definition in BLENDER_FACTS.md (X, Y = previous -
 current, Z, W = current - next, raster pixels with y up).
 """

@@ -3,14 +3,14 @@ checked on every foreground pixel (silhouettes included) against the closed-form
 
 import numpy as np
 import pytest
-from test_flow import BACKENDS, exact_truth, occluder_scene
+from test_motion import BACKENDS, exact_truth, occluder_scene
 
 from lfusd.truth.motion import derive_motion
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("name", ["sliding", "spinning", "moving-rig"])
 def test_exact_occlusion_agrees_with_ray_cast_visibility_on_every_pixel(name, backend):
-    from test_flow import SCENES
+    from test_motion import SCENES
 
     scene = occluder_scene(**SCENES[name])
     m = scene.derive(2, backend=backend)
@@ -76,7 +76,7 @@ def test_static_point_off_the_pixel_ray_has_zero_flow():
 def test_mixed_marks_footprints_with_more_than_one_surface_or_motion(name):
     """``mixed`` against the closed-form oracle: four sub-pixel rays (+-1/4 px) cast at the boxes,
     their instances, depths and forward flows (hits moved with their box to t+1) compared."""
-    from test_flow import SCENES
+    from test_motion import SCENES
 
     from lfusd.truth.visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX, SUBSAMPLES
 

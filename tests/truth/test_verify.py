@@ -1,4 +1,4 @@
-"""lfusd.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
+"""lfusd.truth.verify: Open3D tracing of pxr geometry against closed-form boxes, and dataset verification."""
 
 import re
 from types import SimpleNamespace
@@ -9,7 +9,6 @@ from support.motion_scenes import Box, Scene, intrinsics, pose, rot
 from pxr import Gf, UsdGeom
 
 from lfusd.errors import LfusdError
-from lfusd.truth.motion import derive_motion
 from lfusd.author.labels import set_class_label
 from lfusd.author.stage import new_stage
 from lfusd.truth.verify import THRESHOLDS, trace_motion, verify_dataset
@@ -195,7 +194,7 @@ def test_verify_fails_when_it_compares_nothing(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.render
-def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
+def test_derive_command_names_a_missing_vector_pass(tmp_path, capsys):
     """A dataset whose raw passes lack Blender's vector pass: one line naming the file."""
     import OpenEXR
     from support.scenes import write_box_stage
@@ -210,12 +209,12 @@ def test_flow_command_names_a_missing_vector_pass(tmp_path, capsys):
     parts = [p for p in OpenEXR.File(str(exr)).parts if "Vector" not in p.name()]
     OpenEXR.File([OpenEXR.Part(p.header, p.channels) for p in parts]).write(str(exr))
     capsys.readouterr()
-    assert main(["flow", str(tmp_path / "out")]) == 2
+    assert main(["derive", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("lfusd: error:") and "has no vector pass" in err and str(exr) in err and len(err.splitlines()) == 1
     assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "still"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
     capsys.readouterr()
-    assert main(["flow", str(tmp_path / "still")]) == 2  # a still render has no motion keys to derive
+    assert main(["derive", str(tmp_path / "still")]) == 2  # a still render has no motion keys to derive
     err = capsys.readouterr().err.strip()
     assert "holds no motion keys" in err and "render-video" in err and len(err.splitlines()) == 1
 
@@ -329,7 +328,7 @@ def blender_video(tmp_path_factory):
     stage.Save()
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "lfusd", "render-video", str(tmp_path / "s.usda"), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu",
-           "--keep-raw"]  # raw passes: the tests below derive the motion again with lfusd flow
+           "--keep-raw"]  # raw passes: the tests below derive the motion again with lfusd derive
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     return out
@@ -369,7 +368,7 @@ def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_vide
 
     out = tmp_path / "out"
     shutil.copytree(blender_video, out)
-    assert main(["flow", str(out), "--frames", "2", "--views", "0,1"]) == 0  # re-derives in place
+    assert main(["derive", str(out), "--frames", "2", "--views", "0,1"]) == 0  # re-derives in place
     assert main(["verify", str(out), "--frames", "2"]) == 0
     capsys.readouterr()
     # Flip the sign of the v component of flow_fwd in one view's motion file.
@@ -386,7 +385,7 @@ def test_lfusd_verify_names_the_key_and_view_of_a_corrupted_dataset(blender_vide
     geometry = [ln for ln in fails if "motion.exr" not in ln]
     assert geometry and all(ln.startswith("FAIL flow_fwd") and "frame 2 view 0,1 pixel" in ln for ln in geometry), fails
     # Depth 1 % too far in another view (the reader serves the shifted array).
-    assert main(["flow", str(out), "--frames", "2", "--views", "0,1"]) == 0
+    assert main(["derive", str(out), "--frames", "2", "--views", "0,1"]) == 0
     real_read = Dataset.read
 
     def shifted(self, f, v, k):
@@ -409,7 +408,7 @@ def test_lfusd_flow_names_a_missing_next_frame(blender_video, tmp_path, capsys):
     out = tmp_path / "out"
     shutil.copytree(blender_video, out)
     shutil.rmtree(Dataset(out).view_dir(3, (0, 1)))
-    assert main(["flow", str(out)]) == 2
+    assert main(["derive", str(out)]) == 2
     err = capsys.readouterr().err
     assert "frame 3" in err and str(out) in err
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..human import HumanSpec, body_regions
-from .build import MeshData, blob, bowl, box, cylinder, extrude_y, loft, merge, moved, rod, slab
+from .build import MeshData, blob, bowl, box, cylinder, loft, merge, moved, rod, slab
 
 PAINTS = ("paint_red", "paint_blue", "paint_white", "paint_yellow", "paint_dark", "paint_green", "paint_silver")
 

@@ -121,7 +121,7 @@ def river(scene: Scene) -> RiverSite:
 def _animate(ctx, site: RiverSite) -> None:
     from .dynamic import boats, loop_beside, walker
 
-    half, level, bank = site.half, site.level, site.bank
+    half, level = site.half, site.level
     bx, bw, span, deck = site.bx, site.bw, site.span, site.deck_z
     rng = ctx.rng
     boats(ctx, level, -L / 2 + 0.5, L / 2 - 0.5, -half + 0.1, half - 0.1)

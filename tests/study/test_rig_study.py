@@ -19,7 +19,7 @@ from lfusd.camera import RigSpec, grid_offset
 from lfusd.study.candidates import arrangements, build
 from lfusd.study.score import PSNR_CAP, Bands, Views, estimate_inverse_depth, neighbours, parallax, redundancy, visibility
 
-STAGES = Path(__file__).resolve().parents[1] / "stages"
+STAGES = Path(__file__).resolve().parents[2] / "stages"
 H = W = 48
 F_PX = 50.0
 K = np.array([[F_PX, 0, (W - 1) / 2], [0, F_PX, (H - 1) / 2], [0, 0, 1.0]])

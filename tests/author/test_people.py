@@ -315,6 +315,7 @@ def test_character_with_rotated_joint_frames_moves_like_the_builtin_human(tmp_pa
         assert np.abs(a - b).max() < 1e-4
 
 
+@pytest.mark.blender
 def test_blender_skinning_equals_pxr_skinning(tmp_path):
     """Acceptance: Blender's evaluated skinned vertices = UsdSkel ComputeSkinnedPoints within 1e-4 m."""
     char = tmp_path / "hero.usda"
@@ -409,3 +410,20 @@ def test_parse_points_api():
         parse_points(["1,1"])
     with pytest.raises(LfusdError, match="at least two points"):
         add_person(Usd.Stage.CreateInMemory(), [(0, 0)])
+
+
+def test_add_person_to_file_refuses_a_taken_or_bad_name_before_writing(tmp_path):
+    """The library function behind `lfusd animate add-person`: --name must be an absolute prim path
+    and free (or --force); a refusal leaves the file as it was."""
+    from lfusd.author.people import add_person_to_file
+
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=8)
+    before = path.read_bytes()
+    with pytest.raises(LfusdError, match="--name 'Alice' is not an absolute prim path"):
+        add_person_to_file(path, [(-5, 0), (-1, 0)], name="Alice")
+    with pytest.raises(LfusdError, match="stage already has a prim at /World; choose another --name or pass --force"):
+        add_person_to_file(path, [(-5, 0), (-1, 0)], name="/World")
+    with pytest.raises(LfusdError, match="build"):
+        add_person_to_file(path, [(-5, 0), (-1, 0)], build=7.0)
+    assert path.read_bytes() == before

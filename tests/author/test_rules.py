@@ -13,7 +13,7 @@ import pytest
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdSemantics
 
 from lfusd import cli
-from lfusd.author.rules import Checker, set_class_rule, set_constraint
+from lfusd.author.rules import Checker, check_stage, set_class_rule, set_constraint
 
 WATER_Z = -0.3
 
@@ -53,6 +53,25 @@ def run_check(capsys, path, *extra):
     code = cli.main(["check", str(path), *extra])
     out, err = capsys.readouterr()
     return code, out.strip().splitlines(), err.strip().splitlines()
+
+
+def test_check_stage_is_the_library_behind_lfusd_check(tmp_path, capsys):
+    """check_stage finds what `lfusd check` prints: the walker over the river, and nothing on the road."""
+    bad = world(tmp_path / "bad.usda", frames=2)
+    person(bad, "/World/Walker", 10.0, z=WATER_Z + 0.001)
+    bad.Save()
+    found = check_stage(tmp_path / "bad.usda", usd=False, coverage=False)
+    assert found.problems and all(p.startswith("/World/Walker:") for p in found.problems), found.problems
+    assert (found.labelled, found.frames, found.footage) == (4, (1, 2), [])
+    n = len(found.problems)
+    assert found.summary().endswith(f": {n} violation{'s' if n != 1 else ''}")
+    code, out, err = run_check(capsys, tmp_path / "bad.usda", "--no-usd-validation", "--no-coverage")
+    assert code == 1 and out == found.problems and len(err) == 1 and err[0].endswith(f": {n} violation{'s' if n != 1 else ''}")
+    good = world(tmp_path / "good.usda")
+    person(good, "/World/Walker", -3.0)
+    good.Save()
+    found = check_stage(tmp_path / "good.usda", usd=False, coverage=False)
+    assert found.problems == [] and found.summary().endswith(": all constraints hold")
 
 
 def test_person_on_road_passes_and_on_river_fails(tmp_path, capsys):

@@ -172,3 +172,27 @@ def test_parsers():
             parse_grid(bad)
     with pytest.raises(LfusdError, match="X,Y,Z"):
         parse_point("1,2", "--at")
+
+
+def test_add_rig_to_file_writes_what_it_returns_and_refuses_before_writing(tmp_path):
+    """The library function behind `lfusd rig add`: the rig read back from the saved file is the
+    spec returned, centred where asked; a pose given with --from-camera is refused, file untouched."""
+    from pxr import Usd
+
+    from lfusd.author.rigs import add_rig_to_file
+
+    path = tmp_path / "s.usda"
+    new_stage(path, 1, 1).Save()
+    spec, target = add_rig_to_file(path, name="r", grid=(2, 3), resolution=(8, 6), at=(1.0, -4.0, 2.0), look_at=(1.0, 0.0, 2.0))
+    assert target == str(path) and (spec.rows, spec.cols, spec.width, spec.height) == (2, 3, 8, 6)
+    back = rigs(Usd.Stage.Open(str(path)))["r"]
+    assert back.spec == spec
+    stage = Usd.Stage.Open(str(path))
+    centre = np.mean([back.cam_to_world(stage, v, 1)[:3, 3] for v in spec.views], axis=0)
+    np.testing.assert_allclose(centre, (1.0, -4.0, 2.0), atol=1e-9)  # the rig centre is --at
+    before = path.read_bytes()
+    with pytest.raises(LfusdError, match="--from-camera takes the pose and lens from the camera; drop --at"):
+        add_rig_to_file(path, name="c", at=(0.0, 0.0, 1.0), from_camera="/Cam")
+    with pytest.raises(LfusdError, match="--grid 100x100 is 10000 views"):
+        add_rig_to_file(path, name="big", grid=(100, 100))
+    assert path.read_bytes() == before

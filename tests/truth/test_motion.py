@@ -5,9 +5,9 @@ import pytest
 from support.motion_scenes import Box, Scene, intrinsics, pose, rot
 
 from lfusd.errors import LfusdError
-from lfusd.truth.motion import BACKEND, MOTION_KEYS, RawPasses, derive_motion
+from lfusd.truth.motion import MOTION_KEYS, RawPasses, derive_motion
 
-BACKENDS = ["numpy"] + (["numba"] if BACKEND == "numba" else [])
+BACKENDS = ["numpy", "numba"]  # numba is a required dependency
 from lfusd.camera import look_at_pose
 
 H = W = 32
@@ -195,7 +195,6 @@ def test_mismatched_resolution_names_the_pass_and_frame():
         derive_motion(bad, nxt, None)
 
 
-@pytest.mark.skipif(BACKEND != "numba", reason="numba not installed")
 @pytest.mark.parametrize("exact", [True, False], ids=["position-aov", "vector+depth"])
 def test_numba_backend_matches_the_numpy_reference(exact):
     scene = occluder_scene(spin=True, cam_motion=True)

@@ -1,0 +1,112 @@
+"""The test markers and what enforces them: a test that starts Blender says so (`blender`), and
+`make test-fast` starts none; every test has a time limit (pytest-timeout).
+
+Every test that starts Blender (the render worker, a `lfusd render*` command, a script importing
+bpy, or a fixture doing any of that) carries ``@pytest.mark.blender``; ``render`` (renders with
+Blender) implies it. When the run deselects them (``-m "not blender ..."``, as `make test-fast`
+does, or ``LFUSD_NO_BLENDER=1``), the guard puts a stand-in ``bpy`` first on the module path of
+this process and of every process it starts (PYTHONPATH): importing it records the process in a
+log and fails, so Blender never starts, and the test that caused it fails naming the marker to add.
+
+Time limits: pytest's ``timeout`` option (pyproject.toml, 300 s) holds for a plain test; a test
+marked ``blender`` or ``slow`` gets :data:`LONG_TIMEOUT` (a render on two busy cores, a numba
+compilation), and ``@pytest.mark.timeout(N)`` on a test overrides both.
+
+Loaded by tests/conftest.py; a pytest run elsewhere loads it with ``-p support.markers``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+MARKERS = (
+    "blender: starts a Blender process (bpy, the render worker, an lfusd render command); make test-fast deselects it",
+    "render: renders with Blender (tiny images, seconds each); implies blender",
+)
+LONG_TIMEOUT = 1200  # seconds, for tests marked blender or slow (setup included: a session fixture renders)
+LOG_ENV = "LFUSD_BLENDER_STARTS"  # the stand-in's log: one line per process that imported it
+
+STAND_IN = '''"""A stand-in for bpy (tests/support/markers.py): this run deselects the tests that start Blender."""
+import os, sys
+with open(os.environ["{log}"], "a") as f:
+    f.write(f"{{os.getpid()}} {{' '.join(sys.argv)}}\\n")
+raise ImportError("Blender is blocked in this run (tests marked blender are deselected); mark the test @pytest.mark.blender")
+'''
+
+
+def active(config) -> bool:
+    """True when the run deselects the tests that start Blender."""
+    expr = (config.getoption("markexpr", "") or "").replace(" ", "")
+    return os.environ.get("LFUSD_NO_BLENDER", "") not in ("", "0") or "notblender" in expr
+
+
+def pytest_configure(config) -> None:
+    for line in MARKERS:
+        config.addinivalue_line("markers", line)
+    if not active(config):
+        return
+    folder = Path(tempfile.mkdtemp(prefix="lfusd-no-blender-"))
+    log = folder / "starts.log"
+    log.touch()
+    (folder / "bpy.py").write_text(STAND_IN.format(log=LOG_ENV))
+    os.environ[LOG_ENV] = str(log)
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(folder), os.environ.get("PYTHONPATH", "")) if p)
+    sys.path.insert(0, str(folder))
+    # read through a descriptor with os.fstat/os.pread: tests monkeypatch pathlib and open
+    config._lfusd_blender_log = os.open(log, os.O_RDONLY)
+    config._lfusd_blender_folder = folder
+
+
+def pytest_unconfigure(config) -> None:
+    """Remove the stand-in and its log (the run's processes have ended)."""
+    fd = getattr(config, "_lfusd_blender_log", None)
+    if fd is not None:
+        os.close(fd)
+        shutil.rmtree(config._lfusd_blender_folder, ignore_errors=True)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items) -> None:
+    """``render`` implies ``blender``, before -m deselects anything (tryfirst); long tests get
+    :data:`LONG_TIMEOUT` unless they name their own."""
+    for item in items:
+        if item.get_closest_marker("render") and not item.get_closest_marker("blender"):
+            item.add_marker(pytest.mark.blender)
+        if (item.get_closest_marker("blender") or item.get_closest_marker("slow")) and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(LONG_TIMEOUT))
+
+
+def _guarded(item):
+    fd = getattr(item.config, "_lfusd_blender_log", None)
+    if fd is None:
+        return (yield)
+    before = os.fstat(fd).st_size
+    try:
+        return (yield)
+    finally:
+        grown = os.fstat(fd).st_size - before
+        started = os.pread(fd, grown, before).decode(errors="replace").strip().splitlines() if grown > 0 else []
+        if started:
+            pytest.fail(f"{item.nodeid} started Blender ({started[0]}) but is not marked blender; "
+                        "add @pytest.mark.blender (or render) to it", pytrace=False)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item):
+    return (yield from _guarded(item))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item):
+    return (yield from _guarded(item))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    return (yield from _guarded(item))

@@ -1,0 +1,84 @@
+"""The `blender` marker's guard (tests/support/markers.py): with Blender's tests deselected, as
+in `make test-fast`, a test that starts Blender without the marker fails naming the marker, and
+Blender does not start; `render` implies `blender`."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+TESTS = Path(__file__).resolve().parent
+
+PROBE = '''
+import subprocess, sys
+import pytest
+
+def _start_blender():
+    # the way the render worker and tests/support/blender_skin_probe.py start Blender: a process importing bpy
+    return subprocess.run([sys.executable, "-c", "import bpy; print('BPY-LOADED')"], capture_output=True, text=True)
+
+def test_unmarked_starts_blender():
+    _start_blender()
+
+@pytest.mark.blender
+def test_marked_blender():
+    assert "BPY-LOADED" in _start_blender().stdout
+
+@pytest.mark.render
+def test_marked_render():
+    assert "BPY-LOADED" in _start_blender().stdout
+
+def test_no_blender():
+    assert subprocess.run([sys.executable, "-c", "import json"]).returncode == 0
+'''
+
+
+def _pytest(tmp_path, *args):
+    (tmp_path / "test_probe.py").write_text(PROBE)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    env.pop("LFUSD_NO_BLENDER", None)
+    return subprocess.run([sys.executable, "-m", "pytest", "-p", "support.markers", "-p", "no:cacheprovider", "-p", "no:dash",
+                           "-rA", "--rootdir", str(tmp_path), str(tmp_path / "test_probe.py"), *args],
+                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=240)
+
+
+def test_test_fast_fails_an_unmarked_test_that_starts_blender_and_runs_the_rest(tmp_path):
+    r = _pytest(tmp_path, "-m", "not blender and not slow")
+    out = r.stdout
+    assert r.returncode == 1, out + r.stderr
+    assert "FAILED test_probe.py::test_unmarked_starts_blender" in out
+    assert "test_probe.py::test_unmarked_starts_blender started Blender" in out and "add @pytest.mark.blender" in out
+    assert "PASSED test_probe.py::test_no_blender" in out
+    assert "1 failed, 1 passed, 2 deselected" in out  # render implies blender: both marked tests deselected
+    assert "BPY-LOADED" not in out  # the stand-in bpy stopped it
+
+
+def test_render_implies_blender_when_selecting(tmp_path):
+    r = _pytest(tmp_path, "-m", "blender", "--collect-only", "-q")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "test_probe.py::test_marked_blender" in r.stdout and "test_probe.py::test_marked_render" in r.stdout
+    assert "test_unmarked" not in r.stdout and "test_no_blender" not in r.stdout
+
+
+
+def test_make_test_fast_deselects_blender_and_so_arms_the_guard():
+    makefile = (TESTS.parent / "Makefile").read_text()
+    recipe = makefile.split("\ntest-fast:", 1)[1].split("\n\n", 1)[0]
+    assert '-m "not blender and not slow"' in recipe, recipe
+
+
+def test_the_guard_survives_a_test_that_forbids_file_access(tmp_path):
+    """The guard reads its log without pathlib or open, which tests monkeypatch (test_dataset's no-I/O test)."""
+    (tmp_path / "test_probe.py").write_text(
+        "import builtins, pathlib\n\n"
+        "def test_no_io(monkeypatch):\n"
+        "    for name in ('stat', 'exists', 'read_text'):\n"
+        "        monkeypatch.setattr(pathlib.Path, name, lambda *a, **k: 1 / 0)\n"
+        "    monkeypatch.setattr(builtins, 'open', lambda *a, **k: 1 / 0)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")])}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "support.markers", "-p", "no:cacheprovider", "-p", "no:dash",
+                        "--rootdir", str(tmp_path), str(tmp_path / "test_probe.py"), "-m", "not blender"],
+                       capture_output=True, text=True, cwd=tmp_path, env=env, timeout=240)
+    assert r.returncode == 0 and "1 passed" in r.stdout, r.stdout + r.stderr
