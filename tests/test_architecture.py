@@ -10,7 +10,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "lfusd"
 
-BASE = {"errors", "keys", "layout", "camera", "processes"}
+BASE = {"errors", "keys", "layout", "camera", "processes", "cpu_account"}
 # Which parts of lfusd each part may import (a part is a subpackage or a top-level module).
 ALLOWED = {
     "errors": set(),
@@ -18,6 +18,7 @@ ALLOWED = {
     "layout": {"errors"},
     "camera": {"errors"},
     "processes": set(),
+    "cpu_account": set(),
     "data": BASE | {"data"},
     "author": BASE | {"author"},
     "truth": BASE | {"data", "truth", "author"},  # verify traces motion on the stage itself

@@ -25,7 +25,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import layout
+from .. import cpu_account, layout
 from ..layout import frame_dir, view_key
 from .formats import file_mode
 
@@ -47,7 +47,8 @@ def file_entry(path: str | Path) -> dict | None:
             memo = (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
             digest = _DIGESTS.get(memo)
             if digest is None:
-                digest = hashlib.file_digest(f, "sha256").hexdigest()
+                with cpu_account.phase("hashing"):
+                    digest = hashlib.file_digest(f, "sha256").hexdigest()
                 if len(_DIGESTS) > 100_000:
                     _DIGESTS.clear()
                 _DIGESTS[memo] = digest
@@ -68,6 +69,11 @@ def read_record(view_dir: str | Path) -> dict | None:
 def write_record(view_dir: str | Path, record: dict) -> None:
     """Write ``view.json`` under a temporary name and rename it into place."""
     d = Path(view_dir)
+    with cpu_account.phase("commit"):
+        _write_record(d, record)
+
+
+def _write_record(d: Path, record: dict) -> None:
     fd, tmp = tempfile.mkstemp(dir=d, prefix=".view.", suffix=".json")
     try:
         os.fchmod(fd, file_mode())  # mkstemp makes 0600; a dataset is shared like its other files
@@ -232,10 +238,11 @@ def pixels_digest(arrays: dict) -> str:
     header: Blender stamps the date and render time into it, so a view rendered again has other
     bytes but, measured, the same pixels."""
     h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = arrays[name]
-        h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
-        h.update(a.tobytes())
+    with cpu_account.phase("hashing"):
+        for name in sorted(arrays):
+            a = arrays[name]
+            h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+            h.update(a.tobytes())
     return h.hexdigest()
 
 

@@ -23,6 +23,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from .. import cpu_account
 from ..data import confined
 from ..data.formats import link_or_copy
 from ..data.passes import read_rgb_linear
@@ -100,9 +101,10 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
     if unit is not None:
-        if beauty:
-            _check_rgb(sources["rgb"], key, frame, unit)
-        _check_passes(sources["passes"], key, frame, unit)
+        with cpu_account.phase("raw check"):
+            if beauty:
+                _check_rgb(sources["rgb"], key, frame, unit)
+            _check_passes(sources["passes"], key, frame, unit)
     geometry = scratch / layout.GEOMETRY  # one per chunk of views (render-video): each view gets its own link
     if geometry.is_file():
         sources["geometry"] = scratch / f"geometry_{key}.npz"
@@ -207,12 +209,14 @@ def run_unit(unit: WorkUnit, out: Path, report=None, stopping: threading.Event |
                     log.debug("rig %s frame %d: %d views in %.2f s %s, scene evaluated at %d times so far", unit.rig, event["frame"],
                               len(event["views"]), event.get("seconds", 0.0), event.get("phases", {}), event.get("evaluations", 0))
                     for key in event["views"]:
-                        commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]), unit)
+                        with cpu_account.phase("commit"):
+                            commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]), unit)
                         if report is not None:
                             report.advance(1)
                         if committed is not None:
                             committed(unit.rig, event["frame"], key)
                     shutil.rmtree(event["scratch"], ignore_errors=True)
+                    cpu_account.flush("parent")
                 elif event["event"] == "warning":
                     log.warning("%s (rig %s, log %s)", event["message"], unit.rig, log_path)
                 elif event["event"] == "error":

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import cpu_account
 from ..data import integrity, store
 from ..processes import die_with_parent, own_process_group
 from ..data.formats import file_mode
@@ -70,7 +71,8 @@ def occluders_of(ds: Dataset, frame: int, view: View):
     if not path.is_file():
         return None
     try:
-        return Occluders.load(path)
+        with cpu_account.phase("occluders"):
+            return Occluders.load(path)
     except (OSError, ValueError, KeyError) as e:
         raise LfusdError(f"{path} is unreadable ({e}); rerun the render command to repair it") from None
 
@@ -148,7 +150,10 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
             from ..data.formats import write_png
             from ..data.passes import linear_to_srgb8, read_rgb_linear
 
-            write_png(d / RGB_PNG, linear_to_srgb8(read_rgb_linear(d / RGB_EXR)))
+            with cpu_account.phase("read"):
+                rgb = read_rgb_linear(d / RGB_EXR)
+            with cpu_account.phase("encode"):
+                write_png(d / RGB_PNG, linear_to_srgb8(rgb))
             add[RGB_PNG] = {}
         if "rgb_linear" not in keep:
             remove.append(RGB_EXR)
@@ -197,6 +202,7 @@ def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) ->
             checked += write_static(ds, f, view)
         if f in motion:
             checked += _write_motion(ds, f, view)[1]
+    cpu_account.flush("derive")
     return len(set(static) | set(motion)), checked
 
 

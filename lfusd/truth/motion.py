@@ -62,6 +62,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import cpu_account
 from ..camera import Camera, backproject, pixel_grid, project
 from ..data.passes import RawPasses  # noqa: F401  (the input of derive_motion, re-exported)
 from ..errors import LfusdError
@@ -293,12 +294,19 @@ def compile_kernels() -> bool:
     fresh clone's first render-video does not wait minutes); whether anything was compiled."""
     if _flow_numba is None or _flow_numba.kernels_cached():
         return False
+    load_kernels()
+    return True
+
+
+def load_kernels() -> None:
+    """Load numba's motion kernels (from its cache, or compiling them) with a derivation of a 4x4 view."""
+    if _flow_numba is None:
+        return
     cam = Camera(np.array([[4.0, 0, 1.5], [0, 4.0, 1.5], [0, 0, 1]]), np.eye(4))
     depth = np.full((4, 4), 2.0, np.float32)
     pos = backproject(*pixel_grid(4, 4), depth, cam).astype(np.float32)
     raw = RawPasses(depth, np.zeros((4, 4, 4), np.float32), cam, pos, np.ones((4, 4), np.int32), pos, pos)
     derive_motion(raw, raw, raw, baseline=0.1, backend="numba")
-    return True
 
 
 def derive_motion(
@@ -333,18 +341,21 @@ def derive_motion(
     if nxt is None and prv is None:
         return out
     fb = float(cur.camera.K[0, 0]) * float(baseline) if baseline else 0.0
-    if backend == "numba":
-        _derive_numba(cur, nxt, prv, fb, out)
-    else:
-        _derive_numpy(cur, nxt, prv, fb, fg, out)
+    with cpu_account.phase("derive"):
+        if backend == "numba":
+            _derive_numba(cur, nxt, prv, fb, out)
+        else:
+            _derive_numpy(cur, nxt, prv, fb, fg, out)
     for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position)):
         if other is not None and opos is not None and (occluders or {}).get(key) is not None:
-            exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
+            with cpu_account.phase("visibility"):
+                exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
     if (occluders or {}).get("here") is not None:
         from .visibility import mixed_footprint
 
-        out["mixed"] = mixed_footprint(cur.camera, h, w, occluders["here"], (occluders or {}).get("next"),
-                                       nxt.camera if nxt is not None else None)
+        with cpu_account.phase("mixed"):
+            out["mixed"] = mixed_footprint(cur.camera, h, w, occluders["here"], (occluders or {}).get("next"),
+                                           nxt.camera if nxt is not None else None)
     return out
 
 
