@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent, own_process_group
+from ..processes import die_with_parent, own_process_group, quiet_thread_pools
 from . import request
 
 log = logging.getLogger(__name__)
@@ -42,6 +42,7 @@ _DATASETS: OrderedDict = OrderedDict()  # in a lane: (root, rig, view) -> Datase
 def _lane_init(parent: int) -> None:
     """Lane processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_thread_pools()
     die_with_parent(parent)
 
 

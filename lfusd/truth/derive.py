@@ -31,7 +31,7 @@ import numpy as np
 
 from .. import cpu_account
 from ..data import integrity, store
-from ..processes import die_with_parent, own_process_group
+from ..processes import die_with_parent, own_process_group, quiet_thread_pools
 from ..data.formats import file_mode
 from ..data.dataset import Dataset
 from ..camera import View
@@ -209,6 +209,7 @@ def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) ->
 def _pool_init(parent: int) -> None:
     """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_thread_pools()
     die_with_parent(parent)
 
 

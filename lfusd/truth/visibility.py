@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera, project
+from ..camera import Camera
 
 VISIBLE_EPS = 1e-4
 
@@ -83,18 +83,29 @@ class Occluders:
         return self.scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))["t_hit"].numpy()
 
 
-def visibility(points: np.ndarray, camera: Camera, h: int, w: int, occluders: Occluders,
-               eps: float = VISIBLE_EPS) -> tuple[np.ndarray, np.ndarray]:
-    """(visible, t_hit) of world points (N,3) in ``camera`` at the occluders' frame (see the module
-    docstring); t_hit is the first hit's ray parameter (NaN for points outside the image)."""
-    pts = np.asarray(points, np.float64)
-    u, v, z = project(pts, camera)
-    inside = np.isfinite(u) & np.isfinite(v) & (z > 0) & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
-    t_hit = np.full(len(pts), np.nan, np.float32)
+def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: int, occluders: Occluders,
+            eps: float = VISIBLE_EPS) -> np.ndarray:
+    """Whether each world point (N,3) with ``valid`` (N,) is visible in ``camera`` at the occluders'
+    frame (see the module docstring): it projects inside the image, in front of the camera, and no
+    surface lies on the segment from the camera centre before ray parameter ``1 - eps`` (Embree's
+    any-hit query, Open3D's ``test_occlusions``: the first hit is not needed, only whether one is
+    that near)."""
+    import open3d as o3d
+
+    from ._motion_numba import segment_rays
+
+    R, C = camera.world_to_cam()
+    M = np.asarray(camera.K, np.float64) @ R
+    rays, inside = segment_rays(np.ascontiguousarray(points, np.float32).reshape(-1, 3), np.ascontiguousarray(valid).ravel(),
+                                M, np.asarray(C, np.float64), np.ascontiguousarray(R[2], np.float64), h, w)
+    out = np.zeros(inside.size, bool)
     idx = np.flatnonzero(inside)
-    C = np.asarray(camera.cam_to_world, np.float64)[:3, 3]
-    t_hit[idx] = occluders.first_hit(np.broadcast_to(C, (idx.size, 3)), pts[idx])
-    return inside & (t_hit >= 1 - eps), t_hit
+    if idx.size and len(occluders.triangles):
+        hidden = occluders.scene.test_occlusions(o3d.core.Tensor(rays[idx]), tnear=0.0, tfar=1.0 - eps).numpy()
+        out[idx] = ~hidden.astype(bool)
+    else:
+        out[idx] = True
+    return out
 
 
 MIXED_DEPTH_REL = 0.01  # sub-samples whose depths differ by more than this see different surfaces
@@ -112,36 +123,30 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     same order: same count) each hit is carried to t+1 on its triangle (same barycentric
     coordinates) and projected with ``camera_next``, and forward flows more than ``MIXED_FLOW_PX``
     apart differ too."""
-    from ..camera import pixel_grid, ray_directions
+    import open3d as o3d
 
-    u, v = pixel_grid(h, w, np.float64)
-    C = np.asarray(camera.cam_to_world, np.float64)[:3, 3]
-    inst, depth, flow = [], [], []
-    carry = nxt is not None and camera_next is not None and len(nxt.triangles) == len(here.triangles)
-    for du, dv in SUBSAMPLES:
-        d = ray_directions(u + du, v + dv, camera).reshape(-1, 3)  # camera-z 1: t is planar depth
-        t, tri, uv = here.cast(np.broadcast_to(C, d.shape), d)
-        hit = tri >= 0
-        ids = np.zeros(tri.size, np.int64)
-        if here.instance is not None:
-            ids[hit] = np.asarray(here.instance)[tri[hit]]
-        inst.append(np.where(hit, ids, -1))
-        depth.append(np.where(hit, t, np.inf))
-        if carry:
-            # float32 is plenty for a 0.5 px threshold
-            P1 = np.full((tri.size, 3), np.nan, np.float32)
-            V = nxt.corners[tri[hit]]  # (n, 3, 3)
-            b1, b2 = uv[hit, 0:1], uv[hit, 1:2]
-            P1[hit] = V[:, 0] + b1 * (V[:, 1] - V[:, 0]) + b2 * (V[:, 2] - V[:, 0])
-            pu, pv, _ = project(P1, camera_next)
-            flow.append((pu - (u + du).ravel(), pv - (v + dv).ravel()))
-    mixed = (inst[1] != inst[0]) | (inst[2] != inst[0]) | (inst[3] != inst[0])
-    with np.errstate(invalid="ignore"):
-        lo = np.minimum(np.minimum(depth[0], depth[1]), np.minimum(depth[2], depth[3]))
-        hi = np.maximum(np.maximum(depth[0], depth[1]), np.maximum(depth[2], depth[3]))
-        mixed |= np.isfinite(lo) & (hi - lo > MIXED_DEPTH_REL * lo)
-        for a in range(len(flow)):  # the six pairs of sub-samples (NaN: a miss, compared above)
-            for b in range(a + 1, len(flow)):
-                du, dv = flow[a][0] - flow[b][0], flow[a][1] - flow[b][1]
-                mixed |= du * du + dv * dv > MIXED_FLOW_PX**2
+    from ._motion_numba import mixed_pixels, pixel_rays
+
+    _, C = camera.world_to_cam()
+    A = camera._pixel_to_world(np.float64)
+    n = h * w
+    if len(here.triangles):
+        hits = [here.scene.cast_rays(o3d.core.Tensor(pixel_rays(A, np.asarray(C, np.float64), du, dv, h, w))) for du, dv in SUBSAMPLES]
+        t = tuple(a["t_hit"].numpy() for a in hits)
+        tri = tuple(a["primitive_ids"].numpy() for a in hits)  # uint32; Open3D's invalid id where t is inf (not read)
+        uv = tuple(a["primitive_uvs"].numpy() for a in hits)
+    else:
+        t = tuple(np.full(n, np.inf, np.float32) for _ in SUBSAMPLES)
+        tri = tuple(np.zeros(n, np.uint32) for _ in SUBSAMPLES)
+        uv = tuple(np.zeros((n, 2), np.float32) for _ in SUBSAMPLES)
+    inst = np.ascontiguousarray(here.instance if here.instance is not None else np.zeros(len(here.triangles)), np.int32)
+    carry = nxt is not None and camera_next is not None and len(nxt.triangles) == len(here.triangles) and len(here.triangles) > 0
+    if carry:
+        Rn, Cn = camera_next.world_to_cam()
+        args = (nxt.vertices, np.ascontiguousarray(nxt.triangles, np.uint32), np.asarray(camera_next.K, np.float64) @ Rn,
+                np.asarray(Cn, np.float64))
+    else:
+        args = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
+    mixed = mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args,
+                         np.array(SUBSAMPLES, np.float64), w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
     return mixed.reshape(h, w)
