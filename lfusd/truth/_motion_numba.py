@@ -400,42 +400,45 @@ def _carried_flow(t, tri, uv, k, i, j, du, dv, vn, tn, M, C):
     return (M[0, 0] * px + M[0, 1] * py + M[0, 2] * pz) / hz - (j + du), (M[1, 0] * px + M[1, 1] * py + M[1, 2] * pz) / hz - (i + dv)
 
 
-@njit(cache=True, inline="always", error_model="numpy")
-def _apart(a, b, limit):
-    du, dv = a[0] - b[0], a[1] - b[1]
-    return du * du + dv * dv > limit * limit  # False when either is NaN (a miss: compared by instance)
-
-
 @njit(cache=True, error_model="numpy")
-def mixed_pixels(t, tri, uv, tri_instance, carry, vertices_next, triangles_next, M_next, C_next, offsets, w, depth_rel, flow_px):
-    """The mixed mask (N,) from the hits of the four sub-pixel rays of each pixel: tuples of four
-    arrays t (N,), tri (N,), uv (N, 2), as Open3D's cast_rays gives them (t inf where missed), at the
-    sub-pixel ``offsets`` (4, 2). The samples differ in instance (tri_instance per triangle; -1 for a
-    miss), in depth by more than ``depth_rel``, or (``carry``) in forward flow by more than
-    ``flow_px``, each hit carried to t+1 (:func:`_carried_flow`). One thread: the derivation runs in
-    processes of its own, and a parallel loop this light costs more CPU than it saves."""
-    n = t[0].shape[0]
-    mixed = np.zeros(n, np.bool_)
-    for k in range(n):
-        ident0 = tri_instance[tri[0][k]] if math.isfinite(t[0][k]) else -1
-        ident1 = tri_instance[tri[1][k]] if math.isfinite(t[1][k]) else -1
-        ident2 = tri_instance[tri[2][k]] if math.isfinite(t[2][k]) else -1
-        ident3 = tri_instance[tri[3][k]] if math.isfinite(t[3][k]) else -1
-        if ident1 != ident0 or ident2 != ident0 or ident3 != ident0:
-            mixed[k] = True
-            continue
-        lo = min(min(t[0][k], t[1][k]), min(t[2][k], t[3][k]))
-        hi = max(max(t[0][k], t[1][k]), max(t[2][k], t[3][k]))
-        if math.isfinite(lo) and hi - lo > depth_rel * lo:
-            mixed[k] = True
-            continue
-        if not carry or ident0 == -1:
-            continue
-        i, j = k // w, k % w
-        f0 = _carried_flow(t[0], tri[0], uv[0], k, i, j, offsets[0, 0], offsets[0, 1], vertices_next, triangles_next, M_next, C_next)
-        f1 = _carried_flow(t[1], tri[1], uv[1], k, i, j, offsets[1, 0], offsets[1, 1], vertices_next, triangles_next, M_next, C_next)
-        f2 = _carried_flow(t[2], tri[2], uv[2], k, i, j, offsets[2, 0], offsets[2, 1], vertices_next, triangles_next, M_next, C_next)
-        f3 = _carried_flow(t[3], tri[3], uv[3], k, i, j, offsets[3, 0], offsets[3, 1], vertices_next, triangles_next, M_next, C_next)
-        mixed[k] = (_apart(f0, f1, flow_px) or _apart(f0, f2, flow_px) or _apart(f0, f3, flow_px)
-                    or _apart(f1, f2, flow_px) or _apart(f1, f3, flow_px) or _apart(f2, f3, flow_px))
+def mixed_pixels(t, tri, uv, tri_instance, carry, vertices_next, triangles_next, M_next, C_next, h, w, depth_rel, flow_px):
+    """The mixed mask (H, W) from the hits of the rays through the pixel corners: t, tri, uv over the
+    (H+1) x (W+1) corner grid ((H+1)(W+1),), (.,), (., 2), as Open3D's cast_rays gives them (t inf
+    where missed); corner (i, j) lies at (u, v) = (j - 1/2, i - 1/2). A pixel's four corners differ
+    in instance (tri_instance per triangle; -1 for a miss), in depth by more than ``depth_rel``, or
+    (``carry``) in forward flow by more than ``flow_px``, each hit carried to t+1
+    (:func:`_carried_flow`). Each corner is carried once and serves its four pixels. One thread: the
+    derivation runs in processes of its own, and a loop this light costs more CPU in parallel."""
+    wc = w + 1
+    nc = t.shape[0]
+    ident = np.empty(nc, np.int64)
+    fu = np.full(nc, np.nan)
+    fv = np.full(nc, np.nan)
+    for k in range(nc):
+        hit = math.isfinite(t[k])
+        ident[k] = tri_instance[tri[k]] if hit else -1
+        if carry and hit:
+            fu[k], fv[k] = _carried_flow(t, tri, uv, k, k // wc, k % wc, -0.5, -0.5, vertices_next, triangles_next, M_next, C_next)
+    mixed = np.zeros((h, w), np.bool_)
+    limit = flow_px * flow_px
+    for i in range(h):
+        for j in range(w):
+            a = i * wc + j
+            corners = (a, a + 1, a + wc, a + wc + 1)
+            i0 = ident[a]
+            if ident[a + 1] != i0 or ident[a + wc] != i0 or ident[a + wc + 1] != i0:
+                mixed[i, j] = True
+                continue
+            lo = min(min(t[a], t[a + 1]), min(t[a + wc], t[a + wc + 1]))
+            hi = max(max(t[a], t[a + 1]), max(t[a + wc], t[a + wc + 1]))
+            if math.isfinite(lo) and hi - lo > depth_rel * lo:
+                mixed[i, j] = True
+                continue
+            if not carry or i0 == -1:
+                continue
+            for x in range(4):
+                for y in range(x + 1, 4):
+                    du, dv = fu[corners[x]] - fu[corners[y]], fv[corners[x]] - fv[corners[y]]
+                    if du * du + dv * dv > limit:  # False when either is NaN
+                        mixed[i, j] = True
     return mixed

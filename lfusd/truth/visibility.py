@@ -108,37 +108,36 @@ def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: in
     return out
 
 
-MIXED_DEPTH_REL = 0.01  # sub-samples whose depths differ by more than this see different surfaces
+MIXED_DEPTH_REL = 0.01  # corners whose depths differ by more than this see different surfaces
 MIXED_FLOW_PX = 0.5  # ... or whose forward flows differ by more than this move differently
-SUBSAMPLES = ((-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25))
+CORNERS = ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))  # a pixel's corners, (du, dv) from its centre
 
 
 def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occluders | None = None,
                     camera_next: Camera | None = None) -> np.ndarray:
     """(H, W) bool: the pixel's footprint holds more than one surface or motion (key ``mixed``).
 
-    Four rays per pixel at (u +- 1/4, v +- 1/4) are cast against the frame's rendered triangles
-    (``here``): they differ when their hits differ in instance (or hit and miss), or in depth by
-    more than ``MIXED_DEPTH_REL``; with the next frame's triangles (``nxt``, same triangles in the
-    same order: same count) each hit is carried to t+1 on its triangle (same barycentric
+    A ray through each pixel corner (u +- 1/2, v +- 1/2) is cast against the frame's rendered
+    triangles (``here``), once per corner for the four pixels that share it ((H+1)(W+1) rays): a
+    pixel's four corners differ when their hits differ in instance (or hit and miss), or in depth
+    by more than ``MIXED_DEPTH_REL``; with the next frame's triangles (``nxt``, same triangles in
+    the same order: same count) each hit is carried to t+1 on its triangle (same barycentric
     coordinates) and projected with ``camera_next``, and forward flows more than ``MIXED_FLOW_PX``
-    apart differ too."""
+    apart differ too. The corners are the footprint's extreme points: a straight edge that crosses
+    the footprint separates two of them, wherever it crosses."""
     import open3d as o3d
 
     from ._motion_numba import mixed_pixels, pixel_rays
 
     _, C = camera.world_to_cam()
-    A = camera._pixel_to_world(np.float64)
-    n = h * w
+    n = (h + 1) * (w + 1)
     if len(here.triangles):
-        hits = [here.scene.cast_rays(o3d.core.Tensor(pixel_rays(A, np.asarray(C, np.float64), du, dv, h, w))) for du, dv in SUBSAMPLES]
-        t = tuple(a["t_hit"].numpy() for a in hits)
-        tri = tuple(a["primitive_ids"].numpy() for a in hits)  # uint32; Open3D's invalid id where t is inf (not read)
-        uv = tuple(a["primitive_uvs"].numpy() for a in hits)
+        # the corner grid is the pixel grid of an (H+1) x (W+1) image shifted by half a pixel
+        rays = pixel_rays(camera._pixel_to_world(np.float64), np.asarray(C, np.float64), -0.5, -0.5, h + 1, w + 1)
+        hits = here.scene.cast_rays(o3d.core.Tensor(rays))
+        t, tri, uv = hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), hits["primitive_uvs"].numpy()  # tri: not read where t is inf
     else:
-        t = tuple(np.full(n, np.inf, np.float32) for _ in SUBSAMPLES)
-        tri = tuple(np.zeros(n, np.uint32) for _ in SUBSAMPLES)
-        uv = tuple(np.zeros((n, 2), np.float32) for _ in SUBSAMPLES)
+        t, tri, uv = np.full(n, np.inf, np.float32), np.zeros(n, np.uint32), np.zeros((n, 2), np.float32)
     inst = np.ascontiguousarray(here.instance if here.instance is not None else np.zeros(len(here.triangles)), np.int32)
     carry = nxt is not None and camera_next is not None and len(nxt.triangles) == len(here.triangles) and len(here.triangles) > 0
     if carry:
@@ -147,6 +146,4 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
                 np.asarray(Cn, np.float64))
     else:
         args = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
-    mixed = mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args,
-                         np.array(SUBSAMPLES, np.float64), w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
-    return mixed.reshape(h, w)
+    return mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
