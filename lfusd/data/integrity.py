@@ -25,6 +25,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .. import cpu_account, layout
 from ..layout import frame_dir, view_key
 from .formats import file_mode
@@ -242,7 +244,7 @@ def pixels_digest(arrays: dict) -> str:
         for name in sorted(arrays):
             a = arrays[name]
             h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
-            h.update(a.tobytes())
+            h.update(memoryview(np.ascontiguousarray(a)).cast("B"))  # the bytes of tobytes(), without a copy
     return h.hexdigest()
 
 

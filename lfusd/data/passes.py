@@ -71,16 +71,31 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     return raw
 
 
-def read_rgb_linear(path: str | Path) -> np.ndarray:
-    """Linear RGB float32 (H,W,3) of the beauty render."""
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Linear RGB (H,W,3) of the beauty render, as stored (half float for lfusd's renders)."""
     ch = read_exr(path)
     if "RGB" in ch:  # OpenEXR's Python API groups R, G, B into one (H,W,3) array
-        return ch["RGB"].astype(np.float32)
-    return np.stack([_channel(ch, c, path) for c in "RGB"], axis=-1).astype(np.float32)
+        return ch["RGB"]
+    return np.stack([_channel(ch, c, path) for c in "RGB"], axis=-1)
+
+
+def read_rgb_linear(path: str | Path) -> np.ndarray:
+    """Linear RGB float32 (H,W,3) of the beauty render."""
+    return read_rgb(path).astype(np.float32)
+
+
+_SRGB8_OF_HALF: list[np.ndarray] = []
 
 
 def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB (IEC 61966-2-1 transfer function, clipped, rounded)."""
+    """Linear RGB -> 8-bit sRGB (IEC 61966-2-1 transfer function, clipped, rounded). Half-float input
+    is looked up in a table of this function's value for every half (the same numbers as converting it
+    to float32 first, in a tenth of the time)."""
+    if np.asarray(rgb).dtype == np.float16:
+        if not _SRGB8_OF_HALF:
+            with np.errstate(invalid="ignore"):  # the table holds the NaN halves too
+                _SRGB8_OF_HALF.append(linear_to_srgb8(np.arange(1 << 16, dtype=np.uint16).view(np.float16).astype(np.float32)))
+        return _SRGB8_OF_HALF[0][np.asarray(rgb).view(np.uint16)]
     x = np.clip(rgb, 0.0, 1.0)
     s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.rint(s * 255.0).astype(np.uint8)

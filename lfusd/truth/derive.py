@@ -148,10 +148,10 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
     if integrity.present(rec, RGB_EXR):
         if "rgb" in keep and not integrity.present(rec, RGB_PNG):
             from ..data.formats import write_png
-            from ..data.passes import linear_to_srgb8, read_rgb_linear
+            from ..data.passes import linear_to_srgb8, read_rgb
 
             with cpu_account.phase("read"):
-                rgb = read_rgb_linear(d / RGB_EXR)
+                rgb = read_rgb(d / RGB_EXR)  # half: linear_to_srgb8 looks each value up
             with cpu_account.phase("encode"):
                 write_png(d / RGB_PNG, linear_to_srgb8(rgb))
             add[RGB_PNG] = {}
