@@ -52,22 +52,24 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     """The data passes of one view, converted to the conventions: depth, normal, position,
     instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see lfusd.truth.motion)."""
     ch = read_exr(path)
-    depth = _channel(ch, "Depth.Z", path).astype(np.float32)
-    surface = depth < BACKGROUND_DEPTH
-    depth = np.where(surface, depth, np.float32(np.inf))
-    stack = lambda name, comps: np.stack([_channel(ch, f"{name}.{c}", path) for c in comps], axis=-1).astype(np.float32)
-    nan = np.float32(np.nan)
-    normal = np.where(surface[..., None], stack("Normal", "XYZ"), nan)
-    position = np.where(surface[..., None], stack("Position", "XYZ"), nan)
+    # Each key is built once and masked in place (no np.where copies: a third of the time at 1024x1024).
+    depth = np.array(_channel(ch, "Depth.Z", path), np.float32)
+    background = ~(depth < BACKGROUND_DEPTH)
+    depth[background] = np.inf
+    stack = lambda name, comps: np.stack([_channel(ch, f"{name}.{c}", path) for c in comps], axis=-1).astype(np.float32, copy=False)
+    normal, position = stack("Normal", "XYZ"), stack("Position", "XYZ")
+    normal[background] = np.nan
+    position[background] = np.nan
     instance = np.rint(_channel(ch, "Object Index.X", path)).astype(np.int32)
-    instance[~surface] = 0
+    instance[background] = 0
     raw = {"depth": depth, "normal": normal, "position": position, "instance": instance}
     if any(n.endswith(".Vector.X") or n == "Vector.X" for n in ch):  # Dataset.raw_passes names its absence
         raw["vector"] = stack("Vector", "XYZW")
     for aov in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
         arr = next((a for n, a in ch.items() if n.endswith("." + aov)), None)
         if arr is not None:
-            raw[aov] = np.where(surface[..., None], arr[..., :3].astype(np.float32), nan)
+            raw[aov] = np.array(arr[..., :3], np.float32)
+            raw[aov][background] = np.nan
     return raw
 
 
