@@ -14,6 +14,7 @@ derived static keys of lfusd.keys are computed by the functions in :data:`DERIVE
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -39,6 +40,82 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
         for name, ch in part.channels.items():
             out[name] = ch.pixels
     return out
+
+
+_PIXEL_BYTES = {0: 4, 1: 2, 2: 4}  # OpenEXR pixel types: UINT, HALF, FLOAT
+
+
+def _exr_header(head: bytes, pos: int) -> tuple[dict[str, bytes], int]:
+    """The attributes of one EXR header starting at ``pos`` (name -> raw value), and where it ends."""
+    import struct
+
+    attrs = {}
+    while head[pos] != 0:
+        name_end = head.index(b"\0", pos)
+        type_end = head.index(b"\0", name_end + 1)
+        (n,) = struct.unpack_from("<i", head, type_end + 1)
+        attrs[head[pos:name_end].decode()] = head[type_end + 5 : type_end + 5 + n]
+        pos = type_end + 5 + n
+    return attrs, pos + 1
+
+
+def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]] | None:
+    """(channel names, (H, W)) of an uncompressed scanline EXR (single- or multi-part, as Blender
+    writes a multilayer file) whose every scanline is in the file, checked without decoding: the
+    line offset tables must put each line, of the size its part's channels give, one after the
+    other up to the file's last byte. None for any other EXR (decode it to check it); LfusdError
+    for an uncompressed file that is cut off or longer (OpenEXR's decoder only warns about a cut-off
+    uncompressed file). The Blender worker writes transient raw passes this way
+    (lfusd.render.request.raw_codec); this check reads the headers and the offset tables alone."""
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 20)
+            size = os.fstat(f.fileno()).st_size
+            flags = struct.unpack_from("<i", head, 4)[0] if len(head) >= 8 else 0
+            if head[:4] != b"\x76\x2f\x31\x01" or flags & 0xFF != 2 or flags & 0xA00:
+                return None  # not an EXR, tiled or deep: decode it
+            multi = bool(flags & 0x1000)
+            parts, pos = [], 8
+            while True:
+                attrs, pos = _exr_header(head, pos)
+                parts.append(attrs)
+                if not multi or head[pos] == 0:
+                    pos += multi  # the empty header that ends a multi-part file's list
+                    break
+            names, shapes, chunks = [], set(), []
+            for attrs in parts:
+                if attrs.get("compression") != b"\x00" or (multi and attrs.get("type") != b"scanlineimage"):
+                    return None
+                x0, y0, x1, y1 = struct.unpack("<4i", attrs["dataWindow"])
+                h, w = y1 - y0 + 1, x1 - x0 + 1
+                line, chl, i = 0, attrs["channels"], 0
+                while chl[i] != 0:
+                    end = chl.index(b"\0", i)
+                    ptype, _, xs, ys = struct.unpack_from("<iB3xii", chl, end + 1)
+                    if (xs, ys) != (1, 1) or ptype not in _PIXEL_BYTES:
+                        return None
+                    names.append(chl[i:end].decode())
+                    line += w * _PIXEL_BYTES[ptype]
+                    i = end + 17
+                shapes.add((h, w))
+                chunks.append((h, (12 if multi else 8) + line))  # uncompressed: one line per chunk
+            f.seek(pos)
+            tables = [np.frombuffer(f.read(8 * n), "<u8") for n, _ in chunks]
+    except (OSError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError):
+        return None  # unreadable or a header this parser does not know: decoding it decides
+    data = pos + 8 * sum(n for n, _ in chunks)
+    offsets = np.concatenate(tables) if tables else np.zeros(0, "<u8")
+    lengths = np.concatenate([np.full(n, k, np.uint64) for n, k in chunks]) if chunks else offsets
+    order = np.argsort(offsets, kind="stable")
+    start, length = offsets[order], lengths[order]
+    whole = offsets.size == sum(n for n, _ in chunks) and offsets.size > 0 and int(start[0]) == data
+    whole = whole and np.array_equal(start[1:], start[:-1] + length[:-1]) and int(start[-1] + length[-1]) == size
+    if not whole:
+        need = data + sum(n * k for n, k in chunks)
+        raise LfusdError(f"cannot read EXR {path} (it holds {size} bytes where its headers need {need}); re-render this view")
+    return names, shapes.pop() if len(shapes) == 1 else (0, 0)
 
 
 def _channel(channels: dict[str, np.ndarray], suffix: str, path) -> np.ndarray:

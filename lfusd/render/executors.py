@@ -53,18 +53,27 @@ def _check_rgb(src: Path, key: str, frame: int, unit: WorkUnit):
 def _check_passes(src: Path, key: str, frame: int, unit: WorkUnit) -> None:
     """Refuse a data-pass EXR unless every channel decodes (a cut-off file does not) with the unit's
     size and passes. Decoding only, without read_raw's conversions: a third of the time."""
-    from ..data.passes import MOTION_AOVS, read_exr
+    from ..data.passes import MOTION_AOVS, read_exr, uncompressed_channels
 
     try:
-        channels = read_exr(src)
+        # uncompressed (transient raw passes): complete when its size is what its header needs, no
+        # decoding (the derivation decodes it once); compressed: every channel must decode
+        layout_ = uncompressed_channels(src)
+        if layout_ is not None:
+            names, shape = layout_
+        else:
+            channels = read_exr(src)
+            names = list(channels)
+            shapes = {a.shape[:2] for a in channels.values()}
+            shape = shapes.pop() if len(shapes) == 1 else (0, 0)
         wanted = ["Depth.Z", "Vector.X"] + (list(MOTION_AOVS) if unit.motion else [])
-        lacking = [p for p in wanted if not any(n == p or n.endswith("." + p) for n in channels)]
+        # OpenEXR's Python API groups an AOV's R, G, B, A into one array named after the AOV
+        lacking = [p for p in wanted if not any(n == p or n.endswith("." + p) or n.startswith(p + ".") or f".{p}." in n for n in names)]
         if lacking:
             raise LfusdError(f"it has no {', '.join(p.split('.')[0] for p in lacking)} pass")
     except LfusdError as e:
         raise _damaged(src, key, frame, e) from None
-    shapes = {a.shape[:2] for a in channels.values()}
-    _check_shape(src, shapes.pop() if len(shapes) == 1 else (0, 0), key, frame, unit)
+    _check_shape(src, shape, key, frame, unit)
 
 
 def _damaged(src: Path, key: str, frame: int, e: LfusdError) -> LfusdError:
