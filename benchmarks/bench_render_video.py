@@ -13,7 +13,9 @@ integrity records: that is lfusd's overhead.
 Prints, per sample count, from runs interleaved side by side (floor, lfusd, floor, lfusd, ...):
 wall seconds of each (best of --repeat), views per second, the ratio of the bests, the median
 of the per-pair ratios and the ratio of CPU seconds (the machine may be shared), and the peak
-resident memory of the largest process and of the whole process tree (polled with psutil). Then the peak memory of lfusd for two
+resident memory of the largest process and of the whole process tree (polled with psutil); then the
+CPU account of lfusd's last run per sample count (core-seconds per phase, scaled to a 1024x1024
+view, as bench_reference.py prints it). Then the peak memory of lfusd for two
 video lengths (flat in frames is the goal).
 """
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -184,11 +187,17 @@ def run_floor(stage: Path, out: Path, samples: int, frames: int, resolution) -> 
     return timed([sys.executable, "-c", FLOOR, json.dumps(job)], "the bare Blender render")
 
 
-def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1) -> tuple[float, float, float, float]:
+def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1, account: Path | None = None) -> tuple[float, float, float, float]:
+    """One render-video; with ``account``, its CPU account goes there (lfusd.cpu_account, emptied first)."""
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "lfusd", "render-video", str(stage), "-o", str(out), "--samples", str(samples),
            "--device", "cpu", "--quiet", "--frames", f"1-{frames}", "--workers", str(workers)]
-    return timed(cmd, "lfusd render-video", cwd=ROOT)
+    env = None
+    if account is not None:
+        shutil.rmtree(account, ignore_errors=True)
+        account.mkdir()
+        env = {**os.environ, "LFUSD_CPU_ACCOUNT": str(account)}
+    return timed(cmd, "lfusd render-video", cwd=ROOT, env=env)
 
 
 def pair(text: str) -> tuple[int, int]:
@@ -217,11 +226,12 @@ def main() -> None:
               f"{args.frames} frames ({views} views), CPU, lfusd --workers {args.workers}; best of {args.repeat}, interleaved")
         print(f"{'samples':>7} {'floor s':>8} {'lfusd s':>8} {'floor v/s':>9} {'lfusd v/s':>9} {'ratio':>6} {'median':>6}"
               f" {'CPU ratio':>9} {'floor MiB max/sum':>18} {'lfusd MiB max/sum':>18}")
+        account_of: dict[int, str] = {}
         for samples in (int(s) for s in args.samples.split(",")):
             floors, runs = [], []
             for _ in range(args.repeat):
                 floors.append(run_floor(stage, tmp / "floor", samples, args.frames, args.resolution))
-                runs.append(run_lfusd(stage, tmp / "lfusd", samples, args.frames, args.workers))
+                runs.append(run_lfusd(stage, tmp / "lfusd", samples, args.frames, args.workers, account=tmp / "cpu"))
             fb, lb = min(r[0] for r in floors), min(r[0] for r in runs)
             med = statistics.median(r[0] / f[0] for f, r in zip(floors, runs))
             cpu = min(r[3] for r in runs) / min(f[3] for f in floors)  # CPU seconds: what a loaded machine distorts least
@@ -229,6 +239,9 @@ def main() -> None:
             lm = f"{max(r[1] for r in runs):.0f}/{max(r[2] for r in runs):.0f}"
             print(f"{samples:7d} {fb:8.2f} {lb:8.2f} {views / fb:9.2f} {views / lb:9.2f} {lb / fb:6.3f} {med:6.3f} {cpu:9.3f} {fm:>18} {lm:>18}",
                   flush=True)
+            account_of[samples] = cpu_account(tmp / "cpu", views, args.resolution[0] * args.resolution[1], runs[-1][3])
+        for samples, text in account_of.items():
+            print(f"CPU account of the last lfusd run at {samples} samples:\n{text}")
         if args.memory_frames:
             lengths = [int(x) for x in args.memory_frames.split(",")]
             print(f"memory of lfusd render-video, {args.memory_grid[0]}x{args.memory_grid[1]} views, "
