@@ -331,11 +331,12 @@ def direction(here, other, cams, s, out):
 
 def kernels_cached() -> bool:
     """Whether numba's on-disk cache holds the kernels (else their first call compiles them, which
-    takes minutes): the cache index files of both entry points exist."""
+    takes minutes): the cache index files of every entry point exist."""
     from pathlib import Path
 
     try:
-        return all(Path(k._cache._cache_file._index_path).is_file() for k in (direction, inverse_depth_and_back))
+        return all(Path(k._cache._cache_file._index_path).is_file()
+                   for k in (direction, inverse_depth_and_back, segment_rays, pixel_rays, mixed_pixels))
     except AttributeError:  # another numba's internals: say nothing rather than guess
         return True
 

@@ -307,6 +307,10 @@ def load_kernels() -> None:
     pos = backproject(*pixel_grid(4, 4), depth, cam).astype(np.float32)
     raw = RawPasses(depth, np.zeros((4, 4, 4), np.float32), cam, pos, np.ones((4, 4), np.int32), pos, pos)
     derive_motion(raw, raw, raw, baseline=0.1, backend="numba")
+    from .visibility import Occluders  # and the exact-occlusion and mixed kernels, on one triangle
+
+    tri = Occluders(np.array([[-9, -9, 3], [9, -9, 3], [0, 9, 3]], np.float32), np.array([[0, 1, 2]]), np.ones(1, np.int32))
+    derive_motion(raw, raw, raw, baseline=0.1, backend="numba", occluders={"next": tri, "prev": tri, "here": tri})
 
 
 def derive_motion(
@@ -415,6 +419,7 @@ def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, 
     here = k.Here(depth, f32(cur.vector), f32(cur.position) if has_pos else none3,
                   np.ascontiguousarray(cur.instance if cur.instance is not None else foreground(depth), dtype=np.int32))
     R, C = cur.camera.world_to_cam()
+    C = np.ascontiguousarray(C, np.float64)  # one array type whatever the pose came from: one compiled signature
     A_cur = R.T @ np.linalg.inv(np.asarray(cur.camera.K, np.float64))
     M_cur = np.asarray(cur.camera.K, np.float64) @ R
     for other, opos, key in ((nxt, cur.next_position, "next"), (prv, cur.prev_position, "prev")):
@@ -428,6 +433,7 @@ def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, 
         else:  # the exact route at every pixel, occlusion from the caller's rays: the other frame's images are not read
             inv_o, back_o, inst_o = np.zeros((1, 1), np.float32), np.zeros((1, 1, 2), np.float32), np.zeros((1, 1), np.int32)
         Ro, Co = other.camera.world_to_cam()
+        Co = np.ascontiguousarray(Co, np.float64)
         Ko = np.asarray(other.camera.K, np.float64)
         sfx = "fwd" if forward else "bwd"
         k.direction(

@@ -97,7 +97,7 @@ def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: in
     R, C = camera.world_to_cam()
     M = np.asarray(camera.K, np.float64) @ R
     rays, inside = segment_rays(np.ascontiguousarray(points, np.float32).reshape(-1, 3), np.ascontiguousarray(valid).ravel(),
-                                M, np.asarray(C, np.float64), np.ascontiguousarray(R[2], np.float64), h, w)
+                                M, np.ascontiguousarray(C, np.float64), np.ascontiguousarray(R[2], np.float64), h, w)
     out = np.zeros(inside.size, bool)
     idx = np.flatnonzero(inside)
     if idx.size and len(occluders.triangles):
@@ -133,7 +133,7 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     n = (h + 1) * (w + 1)
     if len(here.triangles):
         # the corner grid is the pixel grid of an (H+1) x (W+1) image shifted by half a pixel
-        rays = pixel_rays(camera._pixel_to_world(np.float64), np.asarray(C, np.float64), -0.5, -0.5, h + 1, w + 1)
+        rays = pixel_rays(camera._pixel_to_world(np.float64), np.ascontiguousarray(C, np.float64), -0.5, -0.5, h + 1, w + 1)
         hits = here.scene.cast_rays(o3d.core.Tensor(rays))
         t, tri, uv = hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), hits["primitive_uvs"].numpy()  # tri: not read where t is inf
     else:
@@ -143,7 +143,7 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     if carry:
         Rn, Cn = camera_next.world_to_cam()
         args = (nxt.vertices, np.ascontiguousarray(nxt.triangles, np.uint32), np.asarray(camera_next.K, np.float64) @ Rn,
-                np.asarray(Cn, np.float64))
+                np.ascontiguousarray(Cn, np.float64))
     else:
         args = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
     return mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
