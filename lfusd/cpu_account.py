@@ -44,9 +44,11 @@ def add(name: str, seconds: float) -> None:
 
 
 def startup() -> None:
-    """Charge this process's CPU time so far that no phase holds to "startup" (imports, a stage's
-    import into Blender, planning): a cost per process, not per view."""
-    _TOTALS["startup"] = _TOTALS.get("startup", 0.0) + time.process_time() - sum(_TOTALS.values())
+    """Charge all of this process's CPU time so far to "startup" (imports, a stage's import into
+    Blender, planning, loading or compiling the numba kernels, whatever phase ran them): a cost per
+    process, not per view. Call it once, where the per-view work begins."""
+    _TOTALS.clear()
+    _TOTALS["startup"] = time.process_time()
 
 
 def totals() -> dict[str, float]:
