@@ -3,9 +3,12 @@
 A point P seen at frame t is *visible* at frame t' (= t+1 or t-1) in a view when it projects
 inside that view's image at t' (u' in [-0.5, W-0.5], v' in [-0.5, H-0.5], in front of the camera)
 and the ray from the view's camera centre C' at t' towards P meets no surface before P: Open3D's
-``RaycastingScene`` casts it against every rendered triangle at t' (``geometry.npz``, written by
-the render worker from Blender's evaluated meshes) and the first hit lies at a ray parameter of at
-least ``1 - VISIBLE_EPS`` (the parameter of P itself is 1).
+``RaycastingScene`` tests it against every rendered triangle at t' (``geometry.npz``, written by
+the render worker from Blender's evaluated meshes) and finds no hit before ray parameter
+``1 - VISIBLE_EPS`` (the parameter of P itself is 1). That is Embree's any-hit query
+(``test_occlusions`` with tfar = 1 - VISIBLE_EPS), the same answer as "the first hit lies at or
+beyond 1 - VISIBLE_EPS" without finding the first hit (measured: the same mask on 1M rays, a
+sixth less CPU than ``cast_rays``).
 
 Tie rule: a surface within ``VISIBLE_EPS`` (1e-4) of the distance in front of P does not hide
 it. Float32 positions and triangles put P a few 1e-7 of the distance off its own surface, more on
