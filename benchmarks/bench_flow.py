@@ -8,7 +8,8 @@ it back (the inputs of one frame of one view), times deriving every motion key o
 three such frames in memory, and prints Mpixel/s of both and the ratio derive / read (goal <= 0.5);
 then the same derivation with exact occlusion (visibility rays cast with Open3D against the frames'
 triangles: the wall tessellated into ``--triangles`` triangles and the block's 12) and the ``mixed``
-mask (four sub-pixel rays per pixel), side by side, and the cost per view in core-seconds of each.
+mask (one ray per pixel corner, shared by the four pixels around it), side by side, and the cost
+per view in core-seconds of each.
 Wall time is the figure of merit; "cpu ms" is process CPU time summed over all threads (numba's
 parallel workers included, so it also counts their spin-waiting). NUMBA_NUM_THREADS=1 gives the
 single-core cost.
@@ -148,7 +149,7 @@ def main() -> int:
         t_exact = best_of(exact, a.repeat)
         c_exact = best_of(exact, a.repeat, time.process_time)
         print(f"{'derive + exact occlusion + mixed':<34}{t_exact * 1e3:9.1f} ms wall, {c_exact * 1e3:9.1f} ms cpu "
-              f"({2 * a.size * a.size} visibility rays, {4 * a.size * a.size} sub-pixel rays, {occ['next'].triangles.shape[0]} triangles per frame)")
+              f"({2 * a.size * a.size} visibility rays, {(a.size + 1) ** 2} corner rays, {occ['next'].triangles.shape[0]} triangles per frame)")
         print(f"core-seconds per view: image-space occlusion {c_derive:.3f}, exact occlusion and mixed {c_exact:.3f} "
               f"(ratio {c_exact / c_derive:.2f})")
     return 0

@@ -11,13 +11,16 @@ every ground-truth key, format version 2, samples as render-video's default). Pr
 views per second, seconds per frame, the worker's own split of each frame (beauty render, data
 render, scene evaluation), bytes per view and per pixel on disk, peak resident memory of the
 largest process and of the whole process tree (polled with psutil), and the hours and terabytes
-that 150 frames would take at the measured rate. ``lfusd verify`` then checks the output (its
+that 150 frames would take at the measured rate. Then the CPU account: core-seconds per 1024x1024
+view of every phase (lfusd.cpu_account, summed over the worker, the parent and the derivation
+processes), and the total outside Cycles' path tracing (the issue-28 budget: <= 1.0). ``lfusd verify`` then checks the output (its
 pixel count is printed) unless ``--no-verify``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
 import subprocess
@@ -27,7 +30,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_render_video import pair, timed  # noqa: E402  (one memory/CPU poller for the benchmarks)
+from bench_render_video import cpu_account, pair, timed  # noqa: E402  (one memory/CPU poller and CPU account for the benchmarks)
 from lfusd.layout import PASSES_EXR as PASSES  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,7 +100,9 @@ def main() -> None:
         cmd = [sys.executable, "-m", "lfusd", "render-video", str(layer), "-o", str(out), "--rig", "reference",
                "--frames", f"{args.first}-{last}", "--samples", str(args.samples), "--device", args.device,
                "--workers", str(args.workers), "--quiet"]
-        wall, largest, total, cpu = timed(cmd, "lfusd render-video", cwd=ROOT)
+        account = tmp / "cpu"
+        account.mkdir()
+        wall, largest, total, cpu = timed(cmd, "lfusd render-video", cwd=ROOT, env={**os.environ, "LFUSD_CPU_ACCOUNT": str(account)})
         files = [p for p in (out / "reference").rglob("*") if p.is_file()]
         size = sum(p.stat().st_size for p in files)
         rendered = views * args.frames
@@ -114,6 +119,7 @@ def main() -> None:
               + ", ".join(f"{k} {v / rendered / (w * h):.2f}" for k, v in sorted(by_name.items())) + ")")
         per_view = kept / rendered
         print(f"dataset (without the raw passes a whole video removes): {per_view / 1e6:.2f} MB per view, {per_view / (w * h):.2f} bytes per pixel")
+        print(cpu_account(account, rendered, w * h, cpu))
         print(f"peak RSS: largest process {largest / 1024:.2f} GiB, process tree {total / 1024:.2f} GiB")
         hours = wall / args.frames * VIDEO_FRAMES / 3600
         tb = per_view * views * VIDEO_FRAMES / 1e12

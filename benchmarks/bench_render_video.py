@@ -13,7 +13,9 @@ integrity records: that is lfusd's overhead.
 Prints, per sample count, from runs interleaved side by side (floor, lfusd, floor, lfusd, ...):
 wall seconds of each (best of --repeat), views per second, the ratio of the bests, the median
 of the per-pair ratios and the ratio of CPU seconds (the machine may be shared), and the peak
-resident memory of the largest process and of the whole process tree (polled with psutil). Then the peak memory of lfusd for two
+resident memory of the largest process and of the whole process tree (polled with psutil); then the
+CPU account of lfusd's last run per sample count (core-seconds per phase, scaled to a 1024x1024
+view, as bench_reference.py prints it). Then the peak memory of lfusd for two
 video lengths (flat in frames is the goal).
 """
 
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import subprocess
@@ -85,11 +88,73 @@ def make_stage(path: Path, frames: int, grid: tuple[int, int], resolution: tuple
     stage.Save()
 
 
-def timed(cmd: list[str], what: str, cwd=None) -> tuple[float, float, float, float]:
+# The phases of lfusd.cpu_account, in pipeline order, with the process that charges them; the two
+# "trace" phases are Cycles' path tracing, everything else is the CPU cost outside it.
+PHASES = [
+    ("parent", "startup parent", "imports, stage checks, planning (once per run)"),
+    ("lane", "startup lane", "imports, numba kernels, Open3D (once per derivation process)"),
+    ("worker", "startup worker", "Blender start-up, stage import, scene set-up (once per worker)"),
+    ("worker", "scene", "frame evaluation, motion AOV attributes"),
+    ("worker", "geometry", "triangles for exact occlusion (geometry.npz)"),
+    ("worker", "beauty sync", "Blender/Cycles scene sync of the beauty render call"),
+    ("worker", "beauty trace", "Cycles path tracing, beauty"),
+    ("worker", "beauty write", "writing rgb.exr"),
+    ("worker", "data sync", "Blender/Cycles scene sync of the data render call"),
+    ("worker", "data trace", "Cycles path tracing, data passes"),
+    ("worker", "data write", "raw-pass writing (passes.exr)"),
+    ("parent", "raw check", "decoding the worker's files before commit"),
+    ("*", "read", "reading raw passes and images (lanes)"),
+    ("*", "occluders", "loading geometry.npz, building the ray-casting scene"),
+    ("*", "derive", "motion kernel (numba)"),
+    ("*", "visibility", "exact occlusion rays"),
+    ("*", "mixed", "mixed-footprint rays"),
+    ("*", "encode", "encoding and writing gt.exr, motion.exr, rgb.png"),
+    ("*", "read-back", "reading back gt.exr, motion.exr"),
+    ("*", "hashing", "sha256 of files and pixels"),
+    ("*", "commit", "moving files, writing records"),
+]
+TRACE = ("beauty trace", "data trace")
+
+
+def cpu_account(folder: Path, views: int, pixels: int, tree_cpu: float) -> str:
+    """The per-view CPU account of one run from the records lfusd.cpu_account wrote in ``folder``:
+    core-seconds per 1024x1024 view (scaled by pixels) per phase, summed over all processes; what a
+    process spent outside any phase is its "other" (Python and module start-up, planning, waiting)."""
+    from lfusd.cpu_account import collect
+
+    records = collect(folder)
+    scale = 1024 * 1024 / pixels / views
+    phases: dict[str, float] = {}
+    other: dict[str, float] = {}
+    for r in records:
+        for k, v in r["phases"].items():
+            k = f"startup {r['role']}" if k == "startup" else k
+            phases[k] = phases.get(k, 0.0) + v
+        other[r["role"]] = other.get(r["role"], 0.0) + r["process"] - sum(r["phases"].values())
+    recorded = sum(r["process"] for r in records)
+    rows = [f"{'phase':<14}{'core-s/view':>12}  (per 1024x1024 view, {views} views; process CPU time)"]
+    known = {p for _, p, _ in PHASES}
+    for _, name, what in PHASES + [("*", k, "") for k in sorted(phases) if k not in known]:
+        if name in phases:
+            rows.append(f"{name:<14}{phases[name] * scale:12.3f}  {what}")
+    for role, v in sorted(other.items()):
+        rows.append(f"{'other ' + role:<14}{v * scale:12.3f}  outside any phase")
+    rows.append(f"{'unrecorded':<14}{(tree_cpu - recorded) * scale:12.3f}  process tree CPU not in any record (psutil - records)")
+    outside = tree_cpu - sum(phases.get(k, 0.0) for k in TRACE)
+    once = sum(v for k, v in phases.items() if k.startswith("startup"))
+    rows.append(f"total outside Cycles' path tracing: {outside * scale:.3f} core-s per 1024x1024 view "
+                f"(tree {tree_cpu * scale:.3f}, path tracing {sum(phases.get(k, 0.0) for k in TRACE) * scale:.3f})")
+    rows.append(f"  without the once-per-process start-up ({once * scale:.3f} here, amortised over a whole video): {(outside - once) * scale:.3f}")
+    rows.append(f"  of it lfusd's own work after the render calls (parent and derivation): "
+                f"{sum(v for k, v in phases.items() if k not in {p for role, p, _ in PHASES if role == 'worker'}) * scale:.3f}")
+    return "\n".join(rows)
+
+
+def timed(cmd: list[str], what: str, cwd=None, env=None) -> tuple[float, float, float, float]:
     """Run ``cmd``; (wall seconds, peak RSS of its largest process, peak RSS summed over its process
     tree, CPU seconds of the tree), memory in MiB, polled every 50 ms (CPU as last seen per process)."""
     t = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=cwd, env=env)
     root = psutil.Process(proc.pid)
     largest = total = 0
     cpu: dict[int, float] = {}
@@ -122,11 +187,17 @@ def run_floor(stage: Path, out: Path, samples: int, frames: int, resolution) -> 
     return timed([sys.executable, "-c", FLOOR, json.dumps(job)], "the bare Blender render")
 
 
-def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1) -> tuple[float, float, float, float]:
+def run_lfusd(stage: Path, out: Path, samples: int, frames: int, workers: int = 1, account: Path | None = None) -> tuple[float, float, float, float]:
+    """One render-video; with ``account``, its CPU account goes there (lfusd.cpu_account, emptied first)."""
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "lfusd", "render-video", str(stage), "-o", str(out), "--samples", str(samples),
            "--device", "cpu", "--quiet", "--frames", f"1-{frames}", "--workers", str(workers)]
-    return timed(cmd, "lfusd render-video", cwd=ROOT)
+    env = None
+    if account is not None:
+        shutil.rmtree(account, ignore_errors=True)
+        account.mkdir()
+        env = {**os.environ, "LFUSD_CPU_ACCOUNT": str(account)}
+    return timed(cmd, "lfusd render-video", cwd=ROOT, env=env)
 
 
 def pair(text: str) -> tuple[int, int]:
@@ -155,11 +226,12 @@ def main() -> None:
               f"{args.frames} frames ({views} views), CPU, lfusd --workers {args.workers}; best of {args.repeat}, interleaved")
         print(f"{'samples':>7} {'floor s':>8} {'lfusd s':>8} {'floor v/s':>9} {'lfusd v/s':>9} {'ratio':>6} {'median':>6}"
               f" {'CPU ratio':>9} {'floor MiB max/sum':>18} {'lfusd MiB max/sum':>18}")
+        account_of: dict[int, str] = {}
         for samples in (int(s) for s in args.samples.split(",")):
             floors, runs = [], []
             for _ in range(args.repeat):
                 floors.append(run_floor(stage, tmp / "floor", samples, args.frames, args.resolution))
-                runs.append(run_lfusd(stage, tmp / "lfusd", samples, args.frames, args.workers))
+                runs.append(run_lfusd(stage, tmp / "lfusd", samples, args.frames, args.workers, account=tmp / "cpu"))
             fb, lb = min(r[0] for r in floors), min(r[0] for r in runs)
             med = statistics.median(r[0] / f[0] for f, r in zip(floors, runs))
             cpu = min(r[3] for r in runs) / min(f[3] for f in floors)  # CPU seconds: what a loaded machine distorts least
@@ -167,6 +239,9 @@ def main() -> None:
             lm = f"{max(r[1] for r in runs):.0f}/{max(r[2] for r in runs):.0f}"
             print(f"{samples:7d} {fb:8.2f} {lb:8.2f} {views / fb:9.2f} {views / lb:9.2f} {lb / fb:6.3f} {med:6.3f} {cpu:9.3f} {fm:>18} {lm:>18}",
                   flush=True)
+            account_of[samples] = cpu_account(tmp / "cpu", views, args.resolution[0] * args.resolution[1], runs[-1][3])
+        for samples, text in account_of.items():
+            print(f"CPU account of the last lfusd run at {samples} samples:\n{text}")
         if args.memory_frames:
             lengths = [int(x) for x in args.memory_frames.split(",")]
             print(f"memory of lfusd render-video, {args.memory_grid[0]}x{args.memory_grid[1]} views, "

@@ -142,8 +142,8 @@ _TABLE = (
         step=1, accuracy=1e-3, accuracy_unit="frac", storage=Storage("mask", 2)),
     Key("occlusion_bwd", "bool", (), "mask", "the point is hidden or outside the image at t-1", _MOTION, MOTION,
         step=-1, accuracy=1e-3, accuracy_unit="frac", storage=Storage("mask", 3)),
-    Key("mixed", "bool", (), "mask", "the pixel's footprint holds more than one surface or motion: its 2x2 sub-pixel samples "
-        "(at +-1/4 px) see different instances, depths more than 1 % apart, or forward flows more than 0.5 px apart "
+    Key("mixed", "bool", (), "mask", "the pixel's footprint holds more than one surface or motion: the rays through its four corners "
+        "(at +-1/2 px) see different instances, depths more than 1 % apart, or forward flows more than 0.5 px apart "
         "(render-video; the edge and fine-structure mask of HCI and Spring)", _MOTION, MOTION, storage=Storage("mask", 4)),
 )
 

@@ -11,6 +11,14 @@ import sys
 PARENT_PID_ENV = "LFUSD_PARENT_PID"
 
 
+def quiet_thread_pools() -> None:
+    """In a process lfusd owns (a derivation lane or pool process): OpenMP threads (numba's parallel
+    kernels) sleep when idle instead of spinning, which burns CPU after every parallel loop
+    (measured: 0.19 -> 0.13 core-s per 1024x1024 view for the motion kernel). Call it before numba
+    starts its threads; a value the user set stays."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
 def die_with_parent(parent: int) -> None:
     """Have the kernel kill this process when its parent dies (Linux), so a killed lfusd leaves
     no strays; exit at once if ``parent`` already died before the request took effect."""

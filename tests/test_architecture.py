@@ -11,7 +11,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "lfusd"
 
-BASE = {"errors", "keys", "layout", "camera", "processes", "files"}
+BASE = {"errors", "keys", "layout", "camera", "processes", "files", "cpu_account"}
 # Which parts of lfusd each part may import (a part is a subpackage or a top-level module).
 ALLOWED = {
     "errors": set(),
@@ -20,6 +20,7 @@ ALLOWED = {
     "camera": {"errors"},
     "processes": set(),
     "files": set(),
+    "cpu_account": set(),
     "data": BASE | {"data"},
     "author": BASE | {"author"},
     "truth": BASE | {"data", "truth", "author"},  # verify traces motion on the stage itself

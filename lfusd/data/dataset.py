@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import passes, store
-from .. import layout
+from .. import cpu_account, layout
 from .folder import FrameMeta, Manifest, ObjectTable, read_frame_meta, read_manifest, read_objects
 from .integrity import complete_frames
 from ..camera import RigSpec, View
@@ -197,7 +197,11 @@ class Dataset:
         if self.version >= 2 and not path.is_file():
             raise LfusdError(f"the raw passes of {view_dir} were removed once its ground truth was written (rendered without "
                              "--keep-raw); they are needed here: render again with --keep-raw")
-        return _cached(self._raw_cache, view_dir, 4, lambda: passes.read_raw(path))
+        def read():
+            with cpu_account.phase("read"):
+                return passes.read_raw(path)
+
+        return _cached(self._raw_cache, view_dir, 4, read)
 
     def _static(self, view_dir: str) -> dict[str, np.ndarray]:
         """The stored static keys of a view: gt.exr (format version 2), else the raw passes (version 1, or

@@ -24,7 +24,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import layout
+import numpy as np
+
+from .. import cpu_account, layout
 from ..layout import frame_dir, view_key
 from .folder import atomic_write
 
@@ -46,7 +48,8 @@ def file_entry(path: str | Path) -> dict | None:
             memo = (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
             digest = _DIGESTS.get(memo)
             if digest is None:
-                digest = hashlib.file_digest(f, "sha256").hexdigest()
+                with cpu_account.phase("hashing"):
+                    digest = hashlib.file_digest(f, "sha256").hexdigest()
                 if len(_DIGESTS) > 100_000:
                     _DIGESTS.clear()
                 _DIGESTS[memo] = digest
@@ -66,7 +69,8 @@ def read_record(view_dir: str | Path) -> dict | None:
 
 def write_record(view_dir: str | Path, record: dict) -> None:
     """Write ``view.json`` under a temporary name and rename it into place."""
-    atomic_write(Path(view_dir) / layout.VIEW_RECORD, json.dumps(record, indent=1), prefix=".view.", suffix=".json", sync=True)
+    with cpu_account.phase("commit"):
+        atomic_write(Path(view_dir) / layout.VIEW_RECORD, json.dumps(record, indent=1), prefix=".view.", suffix=".json", sync=True)
 
 
 def record_render(view_dir: str | Path) -> dict:
@@ -220,10 +224,11 @@ def pixels_digest(arrays: dict) -> str:
     header: Blender stamps the date and render time into it, so a view rendered again has other
     bytes but, measured, the same pixels."""
     h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = arrays[name]
-        h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
-        h.update(a.tobytes())
+    with cpu_account.phase("hashing"):
+        for name in sorted(arrays):
+            a = arrays[name]
+            h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+            h.update(memoryview(np.ascontiguousarray(a)).cast("B"))  # the bytes of tobytes(), without a copy
     return h.hexdigest()
 
 

@@ -14,6 +14,7 @@ derived static keys of lfusd.keys are computed by the functions in :data:`DERIVE
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -39,6 +40,82 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
+_PIXEL_BYTES = {0: 4, 1: 2, 2: 4}  # OpenEXR pixel types: UINT, HALF, FLOAT
+
+
+def _exr_header(head: bytes, pos: int) -> tuple[dict[str, bytes], int]:
+    """The attributes of one EXR header starting at ``pos`` (name -> raw value), and where it ends."""
+    import struct
+
+    attrs = {}
+    while head[pos] != 0:
+        name_end = head.index(b"\0", pos)
+        type_end = head.index(b"\0", name_end + 1)
+        (n,) = struct.unpack_from("<i", head, type_end + 1)
+        attrs[head[pos:name_end].decode()] = head[type_end + 5 : type_end + 5 + n]
+        pos = type_end + 5 + n
+    return attrs, pos + 1
+
+
+def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]] | None:
+    """(channel names, (H, W)) of an uncompressed scanline EXR (single- or multi-part, as Blender
+    writes a multilayer file) whose every scanline is in the file, checked without decoding: the
+    line offset tables must put each line, of the size its part's channels give, one after the
+    other up to the file's last byte. None for any other EXR (decode it to check it); LfusdError
+    for an uncompressed file that is cut off or longer (OpenEXR's decoder only warns about a cut-off
+    uncompressed file). The Blender worker writes transient raw passes this way
+    (lfusd.render.request.raw_codec); this check reads the headers and the offset tables alone."""
+    import struct
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 20)
+            size = os.fstat(f.fileno()).st_size
+            flags = struct.unpack_from("<i", head, 4)[0] if len(head) >= 8 else 0
+            if head[:4] != b"\x76\x2f\x31\x01" or flags & 0xFF != 2 or flags & 0xA00:
+                return None  # not an EXR, tiled or deep: decode it
+            multi = bool(flags & 0x1000)
+            parts, pos = [], 8
+            while True:
+                attrs, pos = _exr_header(head, pos)
+                parts.append(attrs)
+                if not multi or head[pos] == 0:
+                    pos += multi  # the empty header that ends a multi-part file's list
+                    break
+            names, shapes, chunks = [], set(), []
+            for attrs in parts:
+                if attrs.get("compression") != b"\x00" or (multi and attrs.get("type") != b"scanlineimage"):
+                    return None
+                x0, y0, x1, y1 = struct.unpack("<4i", attrs["dataWindow"])
+                h, w = y1 - y0 + 1, x1 - x0 + 1
+                line, chl, i = 0, attrs["channels"], 0
+                while chl[i] != 0:
+                    end = chl.index(b"\0", i)
+                    ptype, _, xs, ys = struct.unpack_from("<iB3xii", chl, end + 1)
+                    if (xs, ys) != (1, 1) or ptype not in _PIXEL_BYTES:
+                        return None
+                    names.append(chl[i:end].decode())
+                    line += w * _PIXEL_BYTES[ptype]
+                    i = end + 17
+                shapes.add((h, w))
+                chunks.append((h, (12 if multi else 8) + line))  # uncompressed: one line per chunk
+            f.seek(pos)
+            tables = [np.frombuffer(f.read(8 * n), "<u8") for n, _ in chunks]
+    except (OSError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError):
+        return None  # unreadable or a header this parser does not know: decoding it decides
+    data = pos + 8 * sum(n for n, _ in chunks)
+    offsets = np.concatenate(tables) if tables else np.zeros(0, "<u8")
+    lengths = np.concatenate([np.full(n, k, np.uint64) for n, k in chunks]) if chunks else offsets
+    order = np.argsort(offsets, kind="stable")
+    start, length = offsets[order], lengths[order]
+    whole = offsets.size == sum(n for n, _ in chunks) and offsets.size > 0 and int(start[0]) == data
+    whole = whole and np.array_equal(start[1:], start[:-1] + length[:-1]) and int(start[-1] + length[-1]) == size
+    if not whole:
+        need = data + sum(n * k for n, k in chunks)
+        raise LfusdError(f"cannot read EXR {path} (it holds {size} bytes where its headers need {need}); re-render this view")
+    return names, shapes.pop() if len(shapes) == 1 else (0, 0)
+
+
 def _channel(channels: dict[str, np.ndarray], suffix: str, path) -> np.ndarray:
     for name, arr in channels.items():
         if name == suffix or name.endswith("." + suffix):
@@ -51,15 +128,16 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     depth, normal, position, instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see
     lfusd.truth.motion) and the motion AOVs where the file has them."""
     ch = read_exr(path)
-
+    # Each key is built once from the contract (lfusd.keys.RAW_PASSES) and masked in place (no
+    # np.where copies: a third of the time at 1024x1024).
     def read(p) -> np.ndarray:
-        a = np.stack([_channel(ch, c, path) for c in p.channel_names], axis=-1) if len(p.channels) > 1 else _channel(ch, p.channel_names[0], path)
-        return a if p.key == "instance" else a.astype(p.dtype)
+        if len(p.channels) > 1:
+            return np.stack([_channel(ch, c, path) for c in p.channel_names], axis=-1).astype(p.dtype, copy=False)
+        return np.array(_channel(ch, p.channel_names[0], path), p.dtype)
 
     depth = read(RAW_PASS["depth"])
-    surface = depth < BACKGROUND_DEPTH
-    depth = np.where(surface, depth, np.float32(np.inf))
-    nan = np.float32(np.nan)
+    background = ~(depth < BACKGROUND_DEPTH)
+    depth[background] = np.inf
     raw = {"depth": depth}
     for p in RAW_PASSES:
         if p.key == "depth" or p.neighbour:
@@ -67,30 +145,47 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
         if not p.required and not any(n.endswith("." + p.channel_names[0]) or n == p.channel_names[0] for n in ch):
             continue  # the vector pass: Dataset.raw_passes names its absence
         if p.key == "instance":  # Blender stores the pass index as a float
-            instance = np.rint(read(p)).astype(p.dtype)
-            instance[~surface] = 0
+            instance = np.rint(_channel(ch, p.channel_names[0], path)).astype(p.dtype)
+            instance[background] = 0
             raw[p.key] = instance
         elif p.key == "vector":
             raw[p.key] = read(p)
         else:
-            raw[p.key] = np.where(surface[..., None], read(p), nan)
+            raw[p.key] = a = read(p)
+            a[background] = np.nan
     for p in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
         arr = next((a for n, a in ch.items() if n.endswith("." + p.layer)), None)
         if arr is not None:
-            raw[p.key] = np.where(surface[..., None], arr[..., : len(p.channels)].astype(p.dtype), nan)
+            raw[p.key] = a = np.array(arr[..., : len(p.channels)], p.dtype)
+            a[background] = np.nan
     return raw
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Linear RGB (H,W,3) of the beauty render, as stored (half float for lfusd's renders)."""
+    ch = read_exr(path)
+    if "RGB" in ch:  # OpenEXR's Python API groups R, G, B into one (H,W,3) array
+        return ch["RGB"]
+    return np.stack([_channel(ch, c, path) for c in "RGB"], axis=-1)
 
 
 def read_rgb_linear(path: str | Path) -> np.ndarray:
     """Linear RGB float32 (H,W,3) of the beauty render."""
-    ch = read_exr(path)
-    if "RGB" in ch:  # OpenEXR's Python API groups R, G, B into one (H,W,3) array
-        return ch["RGB"].astype(np.float32)
-    return np.stack([_channel(ch, c, path) for c in "RGB"], axis=-1).astype(np.float32)
+    return read_rgb(path).astype(np.float32)
+
+
+_SRGB8_OF_HALF: list[np.ndarray] = []
 
 
 def linear_to_srgb8(rgb: np.ndarray) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB (IEC 61966-2-1 transfer function, clipped, rounded)."""
+    """Linear RGB -> 8-bit sRGB (IEC 61966-2-1 transfer function, clipped, rounded). Half-float input
+    is looked up in a table of this function's value for every half (the same numbers as converting it
+    to float32 first, in a tenth of the time)."""
+    if np.asarray(rgb).dtype == np.float16:
+        if not _SRGB8_OF_HALF:
+            with np.errstate(invalid="ignore"):  # the table holds the NaN halves too
+                _SRGB8_OF_HALF.append(linear_to_srgb8(np.arange(1 << 16, dtype=np.uint16).view(np.float16).astype(np.float32)))
+        return _SRGB8_OF_HALF[0][np.asarray(rgb).view(np.uint16)]
     x = np.clip(rgb, 0.0, 1.0)
     s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.rint(s * 255.0).astype(np.uint8)

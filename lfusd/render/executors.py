@@ -23,6 +23,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from .. import cpu_account
 from ..data import confined
 from ..data.formats import link_or_copy
 from ..data.passes import read_rgb_linear
@@ -52,20 +53,29 @@ def _check_rgb(src: Path, key: str, frame: int, unit: WorkUnit):
 def _check_passes(src: Path, key: str, frame: int, unit: WorkUnit) -> None:
     """Refuse a data-pass EXR unless every channel decodes (a cut-off file does not) with the unit's
     size and passes. Decoding only, without read_raw's conversions: a third of the time."""
-    from ..data.passes import read_exr
+    from ..data.passes import read_exr, uncompressed_channels
     from ..keys import MOTION_AOVS, RAW_PASS
 
     try:
-        channels = read_exr(src)
+        # uncompressed (transient raw passes): complete when its size is what its header needs, no
+        # decoding (the derivation decodes it once); compressed: every channel must decode
+        layout_ = uncompressed_channels(src)
+        if layout_ is not None:
+            names, shape = layout_
+        else:
+            channels = read_exr(src)
+            names = list(channels)
+            shapes = {a.shape[:2] for a in channels.values()}
+            shape = shapes.pop() if len(shapes) == 1 else (0, 0)
         # a pass every data render writes, the vector pass, and render-video's AOVs (lfusd.keys.RAW_PASSES)
         wanted = [RAW_PASS["depth"].channel_names[0], RAW_PASS["vector"].channel_names[0]] + ([p.layer for p in MOTION_AOVS] if unit.motion else [])
-        lacking = [p for p in wanted if not any(n == p or n.endswith("." + p) for n in channels)]
+        # OpenEXR's Python API groups an AOV's R, G, B, A into one array named after the AOV
+        lacking = [p for p in wanted if not any(n == p or n.endswith("." + p) or n.startswith(p + ".") or f".{p}." in n for n in names)]
         if lacking:
             raise LfusdError(f"it has no {', '.join(p.split('.')[0] for p in lacking)} pass")
     except LfusdError as e:
         raise _damaged(src, key, frame, e) from None
-    shapes = {a.shape[:2] for a in channels.values()}
-    _check_shape(src, shapes.pop() if len(shapes) == 1 else (0, 0), key, frame, unit)
+    _check_shape(src, shape, key, frame, unit)
 
 
 def _damaged(src: Path, key: str, frame: int, e: LfusdError) -> LfusdError:
@@ -102,9 +112,10 @@ def commit_view(out: Path, rig: str, frame: int, key: str, scratch: Path, unit: 
         if not src.is_file():
             raise LfusdError(f"Blender wrote no {src.name} for view {key} of frame {frame}; rerun to resume")
     if unit is not None:
-        if beauty:
-            _check_rgb(sources["rgb"], key, frame, unit)
-        _check_passes(sources["passes"], key, frame, unit)
+        with cpu_account.phase("raw check"):
+            if beauty:
+                _check_rgb(sources["rgb"], key, frame, unit)
+            _check_passes(sources["passes"], key, frame, unit)
     geometry = scratch / layout.GEOMETRY  # one per chunk of views (render-video): each view gets its own link
     if geometry.is_file():
         sources["geometry"] = scratch / f"geometry_{key}.npz"
@@ -209,12 +220,14 @@ def run_unit(unit: WorkUnit, out: Path, report=None, stopping: threading.Event |
                     log.debug("rig %s frame %d: %d views in %.2f s %s, scene evaluated at %d times so far", unit.rig, event["frame"],
                               len(event["views"]), event.get("seconds", 0.0), event.get("phases", {}), event.get("evaluations", 0))
                     for key in event["views"]:
-                        commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]), unit)
+                        with cpu_account.phase("commit"):
+                            commit_view(out, unit.rig, event["frame"], key, Path(event["scratch"]), unit)
                         if report is not None:
                             report.advance(1)
                         if committed is not None:
                             committed(unit.rig, event["frame"], key)
                     shutil.rmtree(event["scratch"], ignore_errors=True)
+                    cpu_account.flush("parent")
                 elif event["event"] == "warning":
                     log.warning("%s (rig %s, log %s)", event["message"], unit.rig, log_path)
                 elif event["event"] == "error":

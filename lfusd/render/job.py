@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdLux
 
-from .. import __version__
+from .. import __version__, cpu_account
 from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
@@ -334,6 +334,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
                     from .overlap import CommitReport
 
                     report = CommitReport(report, scheduler)
+                cpu_account.startup()  # imports, stage checks and planning: once per run
                 try:
                     device = run_units(units, req, report)
                 except BaseException:
@@ -346,6 +347,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
             manifest = _write_manifest(req, settings, written, rigs, frames, device, files, world).to_dict()
             if then is not None:
                 then(names)
+            cpu_account.flush("parent")
         except OSError as e:
             raise _io_error(req.out, e) from None
         finally:

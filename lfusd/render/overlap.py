@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent, own_process_group
+from ..processes import die_with_parent, own_process_group, quiet_thread_pools
 from . import request
 
 log = logging.getLogger(__name__)
@@ -42,12 +42,19 @@ _DATASETS: OrderedDict = OrderedDict()  # in a lane: (root, rig, view) -> Datase
 def _lane_init(parent: int) -> None:
     """Lane processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_thread_pools()
     die_with_parent(parent)
 
 
 def _warm() -> None:
-    """Import the derivation (and load numba's compiled kernels) while the first frame renders."""
+    """Import the derivation (and load numba's compiled kernels, and Open3D) while the first frame renders."""
+    import open3d  # noqa: F401  (a second of CPU: charged to start-up, not to the first view)
+
+    from .. import cpu_account
     from ..truth import derive, motion  # noqa: F401
+
+    motion.load_kernels()
+    cpu_account.startup()
 
 
 def _derive(root: str, rig: str, view: View, frames: list[int], cached_views: int) -> int:
@@ -60,7 +67,11 @@ def _derive(root: str, rig: str, view: View, frames: list[int], cached_views: in
     _DATASETS[key] = ds
     while len(_DATASETS) > cached_views:
         _DATASETS.popitem(last=False)
-    return sum(derive_if_stale(ds, f, view) for f in frames)
+    from .. import cpu_account
+
+    n = sum(derive_if_stale(ds, f, view) for f in frames)
+    cpu_account.flush("lane")
+    return n
 
 
 def cached_views(width: int, height: int, budget: int = RAW_CACHE_BYTES) -> int:

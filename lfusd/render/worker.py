@@ -30,6 +30,7 @@ import traceback
 import bpy
 import numpy as np
 
+from lfusd import cpu_account
 from lfusd.data.folder import atomic_write
 from lfusd.data.formats import link_or_copy
 from lfusd.keys import MOTION_AOVS, PASS_SWITCHES
@@ -675,9 +676,47 @@ class Lighting:
         self.scene.view_layers[0].material_override = None if on else self.material
 
 
-def _render(scene, filepath: str) -> None:
-    scene.render.filepath = filepath
-    bpy.ops.render.render(write_still=True)
+class CyclesClock:
+    """Splits the CPU time of each render call by what Cycles reports doing (its status lines, as
+    the render_stats handler receives them): scene sync (Blender's export and Cycles' scene and BVH
+    updates), path tracing ("Sample ..."), and writing the files once Cycles has finished. Charged
+    to lfusd.cpu_account as "<render> sync", "<render> trace" and "<render> write"."""
+
+    TRACE = ("Sample", "Rendered", "Path Tracing", "Denoising")
+    WRITE = ("Finished", "Time:")
+
+    def __init__(self):
+        self.render, self.state, self.mark = "", "sync", 0.0
+        bpy.app.handlers.render_stats.append(self._stats)
+
+    def _charge(self) -> None:
+        now = time.process_time()
+        cpu_account.add(f"{self.render} {self.state}", now - self.mark)
+        self.mark = now
+
+    def _stats(self, text, *_):
+        text = str(text)
+        state = "trace" if any(w in text for w in self.TRACE) else "write" if any(w in text for w in self.WRITE) else "sync"
+        if state != self.state:
+            self._charge()
+            self.state = state
+
+    def call(self, render: str, scene, filepath: str) -> None:
+        """One render call (all enabled views), its CPU time split by phase."""
+        self.render, self.state, self.mark = render, "sync", time.process_time()
+        scene.render.filepath = filepath
+        bpy.ops.render.render(write_still=True)
+        self.state = "write" if self.state != "sync" else self.state
+        self._charge()
+
+
+_CLOCK: CyclesClock | None = None
+
+
+def _render(scene, filepath: str, render: str) -> None:
+    global _CLOCK
+    _CLOCK = _CLOCK or CyclesClock()
+    _CLOCK.call(render, scene, filepath)
 
 
 def _use_views(scene, chunk: list[str]) -> None:
@@ -718,7 +757,7 @@ def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> No
     im.color_depth = "16"
     im.exr_codec = "ZIP"
     _shift_lenses(scene, False)
-    _render(scene, os.path.join(scratch, "rgb"))
+    _render(scene, os.path.join(scratch, "rgb"), "beauty")
 
 
 def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases: dict) -> None:
@@ -739,7 +778,7 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     im.color_depth = "32"
     im.exr_codec = job.raw_codec
     _shift_lenses(scene, True)
-    _render(scene, os.path.join(scratch, "passes"))
+    _render(scene, os.path.join(scratch, "passes"), "data")
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t
     phases["data_cpu"] = phases.get("data_cpu", 0.0) + time.process_time() - c
 
@@ -747,10 +786,11 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
 def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: MotionAttributes | None, lighting: Lighting) -> None:
     """Render one frame's views chunk by chunk, handing each chunk's files to the parent as it is done."""
     t = time.perf_counter()
-    if motion is not None:
-        motion.set_frame(frame)
-    else:
-        scene.frame_set(frame)
+    with cpu_account.phase("scene"):
+        if motion is not None:
+            motion.set_frame(frame)
+        else:
+            scene.frame_set(frame)
     phases = {"scene": time.perf_counter() - t}
     geometry = None
     if motion is not None:  # the frame's triangles, for exact occlusion: written once, linked into each chunk
@@ -758,7 +798,8 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
         os.makedirs(job.scratch, exist_ok=True)
         # beside the chunk folders, not in one: the parent removes a chunk's folder once it is committed
         geometry = os.path.join(job.scratch, f"geometry_f{frame:06d}.npz")
-        write_geometry(geometry, motion.meshes)
+        with cpu_account.phase("geometry"):
+            write_geometry(geometry, motion.meshes)
         phases["geometry"] = time.perf_counter() - tg
     for k, chunk in enumerate(view_chunks(suffixes, job.width, job.height, job.render_pixels)):
         scratch = os.path.join(job.scratch, f"f{frame:06d}_c{k:03d}")
@@ -768,6 +809,7 @@ def render_frame(scene, job: WorkUnit, frame: int, suffixes: list[str], motion: 
         _use_views(scene, chunk)
         render_chunk(scene, job, scratch, lighting, phases)
         print(f"lfusd: frame {frame} views {len(chunk)} seconds " + " ".join(f"{k} {v:.3f}" for k, v in phases.items()), file=sys.stderr, flush=True)
+        cpu_account.flush("worker")
         emit("frame", frame=frame, scratch=scratch, views=[s[1:] for s in chunk], seconds=time.perf_counter() - t,
              phases={k: round(v, 4) for k, v in phases.items()}, evaluations=motion.evaluations if motion is not None else 0)
     if geometry is not None:
@@ -804,6 +846,7 @@ def main() -> int:
         realize_instances(scene, job)
         device = select_device(scene, job.device)
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
+        cpu_account.startup()
         emit("ready", device=device, seconds=time.time() - t0)
         lighting = Lighting(scene, motion is not None)
         for frame in job.frames:

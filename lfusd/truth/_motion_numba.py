@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from typing import NamedTuple
 
 import numpy as np
 from numba import config, njit, prange
@@ -183,18 +184,77 @@ def inverse_depth_and_back(depth_o, vec_o, forward, bg):
     return inv, back
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, back_o, forward,
-              A_cur, C_cur, M_cur, M_o, R2_o, C_o, A_o, fb, bg, fb_abs, fb_rel, depth_rel, edge_rel,
-              flow, scene_flow, dchange, valid, occl):
-    """Fused per-pixel derivation of one direction (see lfusd.truth.motion's module docstring).
+class Here(NamedTuple):
+    """Frame t of the view: its raw passes (``position`` of shape (1, 1, 3) when absent)."""
 
-    Writes flow (H,W,2), and valid / occl masks; when forward also scene_flow and dchange.
-    Matrices: A_* maps (u, v, 1) * z to a world offset from the camera centre C_*; M_o = K R_o
-    (world offset -> homogeneous pixel) and R2_o its depth row, of the other frame's camera.
-    """
+    depth: np.ndarray  # (H,W) float32
+    vector: np.ndarray  # (H,W,4) float32, Blender's raw vector pass
+    position: np.ndarray  # (H,W,3) float32
+    instance: np.ndarray  # (H,W) int32
+
+
+class Other(NamedTuple):
+    """What the kernel reads of the other frame (t+1 or t-1) for frame t's pixels."""
+
+    position: np.ndarray  # (H,W,3) float32: frame t's AOV of the point's position there ((1,1,3) when absent)
+    instance: np.ndarray  # (H,W) int32 of the other frame
+    inv_depth: np.ndarray  # (H,W) float32 of the other frame (inverse_depth_and_back)
+    back: np.ndarray  # (H,W,2) float32: the other frame's flow pointing back to t
+
+
+class Cameras(NamedTuple):
+    """A_* maps (u, v, 1) * z to a world offset from the camera centre C_*; M_o = K R_o (world
+    offset -> homogeneous pixel) and R2_o its depth row, of the other frame's camera."""
+
+    A_cur: np.ndarray
+    C_cur: np.ndarray
+    M_cur: np.ndarray
+    M_o: np.ndarray
+    R2_o: np.ndarray
+    C_o: np.ndarray
+    A_o: np.ndarray
+
+
+class Settings(NamedTuple):
+    """Switches and thresholds of one direction (see lfusd.truth.motion)."""
+
+    has_pos: bool  # Here.position holds the position pass
+    has_opos: bool  # Other.position holds the AOV (the exact route)
+    forward: bool  # t+1 (else t-1)
+    image_occlusion: bool  # run the image-space occlusion test (not needed where exact occlusion replaces it)
+    fb: float  # f_px * baseline
+    bg: float  # background depth
+    fb_abs: float
+    fb_rel: float
+    depth_rel: float
+    edge_rel: float
+
+
+class Out(NamedTuple):
+    """The arrays one direction writes (scene_flow and dchange only when forward)."""
+
+    flow: np.ndarray
+    scene_flow: np.ndarray
+    dchange: np.ndarray
+    valid: np.ndarray
+    occl: np.ndarray
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def direction(here, other, cams, s, out):
+    """Fused per-pixel derivation of one direction (see lfusd.truth.motion's module docstring):
+    :class:`Here`, :class:`Other`, :class:`Cameras`, :class:`Settings`, :class:`Out`.
+
+    Writes flow (H,W,2), and valid / occl masks; when forward also scene_flow and dchange. With
+    ``image_occlusion`` off, exact-route pixels skip the image-space test (occl stays False: the
+    caller replaces it with ray-cast visibility)."""
+    depth, vec, pos, inst = here
+    opos, inst_o, inv_o, back_o = other
+    A_cur, C_cur, M_cur, M_o, R2_o, C_o, A_o = cams
+    has_pos, has_opos, forward, image_occlusion, fb, bg, fb_abs, fb_rel, depth_rel, edge_rel = s
+    flow, scene_flow, dchange, valid, occl = out
     h, w = depth.shape
-    inv3 = inv_o.reshape(h, w, 1)
+    inv3 = inv_o.reshape(inv_o.shape[0], inv_o.shape[1], 1)
     for i in prange(h):
         for j in range(w):
             z0 = depth[i, j]
@@ -235,9 +295,13 @@ def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, bac
             flow[i, j, 0] = fu
             flow[i, j, 1] = fv
             xj, yj = j + fu, i + fv
-            vis, vok, ip = _point(xj, yj, fu, fv, ze, ex, inst[i, j], inst_o, inv_o, inv3, back_o,
-                                  fb_abs, fb_rel, depth_rel, edge_rel)
-            occl[i, j] = not vis
+            if ex and not image_occlusion:
+                vis, vok, ip = False, False, 1.0 / ze  # occlusion comes from the caller's ray casts
+                occl[i, j] = False
+            else:
+                vis, vok, ip = _point(xj, yj, fu, fv, ze, ex, inst[i, j], inst_o, inv_o, inv3, back_o,
+                                      fb_abs, fb_rel, depth_rel, edge_rel)
+                occl[i, j] = not vis
             if not forward:
                 valid[i, j] = True
                 continue
@@ -267,10 +331,115 @@ def direction(depth, vec, pos, has_pos, inst, opos, has_opos, inst_o, inv_o, bac
 
 def kernels_cached() -> bool:
     """Whether numba's on-disk cache holds the kernels (else their first call compiles them, which
-    takes minutes): the cache index files of both entry points exist."""
+    takes minutes): the cache index files of every entry point exist."""
     from pathlib import Path
 
     try:
-        return all(Path(k._cache._cache_file._index_path).is_file() for k in (direction, inverse_depth_and_back))
+        return all(Path(k._cache._cache_file._index_path).is_file()
+                   for k in (direction, inverse_depth_and_back, segment_rays, pixel_rays, mixed_pixels))
     except AttributeError:  # another numba's internals: say nothing rather than guess
         return True
+
+
+# --- Exact occlusion and the mixed footprint (lfusd.truth.visibility): rays built and hits compared
+# here, one pass per pixel, instead of a dozen full-image NumPy temporaries.
+
+@njit(cache=True, error_model="numpy")
+def segment_rays(points, valid, M, C, R2, h, w):
+    """Rays (N, 6) float32 from the camera centre ``C`` to each point (N, 3) with ``valid`` that
+    projects inside the h x w image in front of the camera (M = K R, R2 = R's depth row, float64),
+    and that mask. A ray's parameter is 1 at its point."""
+    n = points.shape[0]
+    rays = np.empty((n, 6), np.float32)
+    inside = np.zeros(n, np.bool_)
+    for k in prange(n):
+        if not valid[k]:
+            continue
+        dx = np.float64(points[k, 0]) - C[0]
+        dy = np.float64(points[k, 1]) - C[1]
+        dz = np.float64(points[k, 2]) - C[2]
+        hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+        u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
+        v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
+        z = R2[0] * dx + R2[1] * dy + R2[2] * dz
+        if math.isfinite(u) and math.isfinite(v) and z > 0 and u >= -0.5 and u <= w - 0.5 and v >= -0.5 and v <= h - 0.5:
+            inside[k] = True
+            rays[k, 0], rays[k, 1], rays[k, 2] = C[0], C[1], C[2]
+            rays[k, 3], rays[k, 4], rays[k, 5] = dx, dy, dz
+    return rays, inside
+
+
+@njit(cache=True, error_model="numpy")
+def pixel_rays(A, C, du, dv, h, w):
+    """Rays (H*W, 6) float32 from the camera centre ``C`` through (u + du, v + dv) of every pixel,
+    directions A (u, v, 1) scaled to camera-frame z = 1 (a ray parameter is planar depth)."""
+    rays = np.empty((h * w, 6), np.float32)
+    for i in prange(h):
+        for j in range(w):
+            k = i * w + j
+            x, y = j + du, i + dv
+            rays[k, 0], rays[k, 1], rays[k, 2] = C[0], C[1], C[2]
+            rays[k, 3] = A[0, 0] * x + A[0, 1] * y + A[0, 2]
+            rays[k, 4] = A[1, 0] * x + A[1, 1] * y + A[1, 2]
+            rays[k, 5] = A[2, 0] * x + A[2, 1] * y + A[2, 2]
+    return rays
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _carried_flow(t, tri, uv, k, i, j, du, dv, vn, tn, M, C):
+    """Forward flow (u, v) of the hit of one sub-pixel ray carried to t+1 on its triangle (same
+    barycentric coordinates), projected with M = K R, C of the camera at t+1; NaN for a miss."""
+    if not math.isfinite(t[k]):
+        return math.nan, math.nan
+    f = tri[k]
+    a, b, c = tn[f, 0], tn[f, 1], tn[f, 2]
+    b1, b2 = np.float64(uv[k, 0]), np.float64(uv[k, 1])
+    px = vn[a, 0] + b1 * (vn[b, 0] - vn[a, 0]) + b2 * (vn[c, 0] - vn[a, 0]) - C[0]
+    py = vn[a, 1] + b1 * (vn[b, 1] - vn[a, 1]) + b2 * (vn[c, 1] - vn[a, 1]) - C[1]
+    pz = vn[a, 2] + b1 * (vn[b, 2] - vn[a, 2]) + b2 * (vn[c, 2] - vn[a, 2]) - C[2]
+    hz = M[2, 0] * px + M[2, 1] * py + M[2, 2] * pz
+    return (M[0, 0] * px + M[0, 1] * py + M[0, 2] * pz) / hz - (j + du), (M[1, 0] * px + M[1, 1] * py + M[1, 2] * pz) / hz - (i + dv)
+
+
+@njit(cache=True, error_model="numpy")
+def mixed_pixels(t, tri, uv, tri_instance, carry, vertices_next, triangles_next, M_next, C_next, h, w, depth_rel, flow_px):
+    """The mixed mask (H, W) from the hits of the rays through the pixel corners: t, tri, uv over the
+    (H+1) x (W+1) corner grid ((H+1)(W+1),), (.,), (., 2), as Open3D's cast_rays gives them (t inf
+    where missed); corner (i, j) lies at (u, v) = (j - 1/2, i - 1/2). A pixel's four corners differ
+    in instance (tri_instance per triangle; -1 for a miss), in depth by more than ``depth_rel``, or
+    (``carry``) in forward flow by more than ``flow_px``, each hit carried to t+1
+    (:func:`_carried_flow`). Each corner is carried once and serves its four pixels. One thread: the
+    derivation runs in processes of its own, and a loop this light costs more CPU in parallel."""
+    wc = w + 1
+    nc = t.shape[0]
+    ident = np.empty(nc, np.int64)
+    fu = np.full(nc, np.nan)
+    fv = np.full(nc, np.nan)
+    for k in range(nc):
+        hit = math.isfinite(t[k])
+        ident[k] = tri_instance[tri[k]] if hit else -1
+        if carry and hit:
+            fu[k], fv[k] = _carried_flow(t, tri, uv, k, k // wc, k % wc, -0.5, -0.5, vertices_next, triangles_next, M_next, C_next)
+    mixed = np.zeros((h, w), np.bool_)
+    limit = flow_px * flow_px
+    for i in range(h):
+        for j in range(w):
+            a = i * wc + j
+            corners = (a, a + 1, a + wc, a + wc + 1)
+            i0 = ident[a]
+            if ident[a + 1] != i0 or ident[a + wc] != i0 or ident[a + wc + 1] != i0:
+                mixed[i, j] = True
+                continue
+            lo = min(min(t[a], t[a + 1]), min(t[a + wc], t[a + wc + 1]))
+            hi = max(max(t[a], t[a + 1]), max(t[a + wc], t[a + wc + 1]))
+            if math.isfinite(lo) and hi - lo > depth_rel * lo:
+                mixed[i, j] = True
+                continue
+            if not carry or i0 == -1:
+                continue
+            for x in range(4):
+                for y in range(x + 1, 4):
+                    du, dv = fu[corners[x]] - fu[corners[y]], fv[corners[x]] - fv[corners[y]]
+                    if du * du + dv * dv > limit:  # False when either is NaN
+                        mixed[i, j] = True
+    return mixed

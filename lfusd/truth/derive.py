@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import cpu_account
 from ..data import integrity, store
-from ..processes import die_with_parent, own_process_group
+from ..processes import die_with_parent, own_process_group, quiet_thread_pools
 from ..data.folder import atomic_write, open_dataset
 from ..data.dataset import Dataset
 from ..camera import View
@@ -69,7 +70,8 @@ def occluders_of(ds: Dataset, frame: int, view: View):
     if not path.is_file():
         return None
     try:
-        return Occluders.load(path)
+        with cpu_account.phase("occluders"):
+            return Occluders.load(path)
     except (OSError, ValueError, KeyError) as e:
         raise LfusdError(f"{path} is unreadable ({e}); rerun the render command to repair it") from None
 
@@ -137,9 +139,12 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
     if integrity.present(rec, RGB_EXR):
         if "rgb" in keep and not integrity.present(rec, RGB_PNG):
             from ..data.formats import write_png
-            from ..data.passes import linear_to_srgb8, read_rgb_linear
+            from ..data.passes import linear_to_srgb8, read_rgb
 
-            write_png(d / RGB_PNG, linear_to_srgb8(read_rgb_linear(d / RGB_EXR)))
+            with cpu_account.phase("read"):
+                rgb = read_rgb(d / RGB_EXR)  # half: linear_to_srgb8 looks each value up
+            with cpu_account.phase("encode"):
+                write_png(d / RGB_PNG, linear_to_srgb8(rgb))
             add[RGB_PNG] = {}
         if "rgb_linear" not in keep:
             remove.append(RGB_EXR)
@@ -188,12 +193,14 @@ def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) ->
             checked += write_static(ds, f, view)
         if f in motion:
             checked += _write_motion(ds, f, view)[1]
+    cpu_account.flush("derive")
     return len(set(static) | set(motion)), checked
 
 
 def _pool_init(parent: int) -> None:
     """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_thread_pools()
     die_with_parent(parent)
 
 

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import cpu_account
 from ..camera import Camera, backproject, pixel_grid, project
 from ..data.passes import RawPasses  # noqa: F401  (the input of derive_motion, re-exported)
 from ..errors import LfusdError
@@ -288,12 +289,23 @@ def compile_kernels() -> bool:
     fresh clone's first render-video does not wait minutes); whether anything was compiled."""
     if _flow_numba.kernels_cached():
         return False
+    load_kernels()
+    return True
+
+
+def load_kernels() -> None:
+    """Load numba's motion kernels (from its cache, or compiling them) with a derivation of a 4x4 view."""
+    if _flow_numba is None:
+        return
     cam = Camera(np.array([[4.0, 0, 1.5], [0, 4.0, 1.5], [0, 0, 1]]), np.eye(4))
     depth = np.full((4, 4), 2.0, np.float32)
     pos = backproject(*pixel_grid(4, 4), depth, cam).astype(np.float32)
     raw = RawPasses(depth, np.zeros((4, 4, 4), np.float32), cam, pos, np.ones((4, 4), np.int32), pos, pos)
     derive_motion(raw, raw, raw, baseline=0.1, backend="numba")
-    return True
+    from .visibility import Occluders  # and the exact-occlusion and mixed kernels, on one triangle
+
+    tri = Occluders(np.array([[-9, -9, 3], [9, -9, 3], [0, 9, 3]], np.float32), np.array([[0, 1, 2]]), np.ones(1, np.int32))
+    derive_motion(raw, raw, raw, baseline=0.1, backend="numba", occluders={"next": tri, "prev": tri, "here": tri})
 
 
 def derive_motion(
@@ -328,35 +340,36 @@ def derive_motion(
     if nxt is None and prv is None:
         return out
     fb = float(cur.camera.K[0, 0]) * float(baseline) if baseline else 0.0
-    if backend == "numba":
-        _derive_numba(cur, nxt, prv, fb, out)
-    else:
-        _derive_numpy(cur, nxt, prv, fb, fg, out)
+    # directions whose occlusion is exact ray-cast visibility (the image-space test is then not needed)
+    exact = tuple(key for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position))
+                  if other is not None and opos is not None and (occluders or {}).get(key) is not None)
+    with cpu_account.phase("derive"):
+        if backend == "numba":
+            _derive_numba(cur, nxt, prv, fb, out, exact)
+        else:
+            _derive_numpy(cur, nxt, prv, fb, fg, out)
     for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position)):
-        if other is not None and opos is not None and (occluders or {}).get(key) is not None:
-            exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
+        if key in exact:
+            with cpu_account.phase("visibility"):
+                exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
     if (occluders or {}).get("here") is not None:
         from .visibility import mixed_footprint
 
-        out["mixed"] = mixed_footprint(cur.camera, h, w, occluders["here"], (occluders or {}).get("next"),
-                                       nxt.camera if nxt is not None else None)
+        with cpu_account.phase("mixed"):
+            out["mixed"] = mixed_footprint(cur.camera, h, w, occluders["here"], (occluders or {}).get("next"),
+                                           nxt.camera if nxt is not None else None)
     return out
 
 
 def exact_occlusion(cur: RawPasses, other: RawPasses, other_position: np.ndarray, occluders, out: dict, fwd: bool) -> None:
     """Replace ``occlusion_fwd`` (``fwd``) or ``occlusion_bwd`` with ray-cast visibility of each valid
     pixel's point at t+1 / t-1 against that frame's rendered triangles (lfusd.truth.visibility)."""
-    from .visibility import visibility
+    from .visibility import visible
 
     sfx = "fwd" if fwd else "bwd"
     known = out[f"valid_{sfx}"]
-    idx = np.flatnonzero(known)
-    pts = np.asarray(other_position, np.float64).reshape(-1, 3)[idx]
     h, w = cur.shape
-    visible, _ = visibility(pts, other.camera, h, w, occluders)
-    occ = np.zeros(h * w, bool)
-    occ[idx] = ~visible
-    out[f"occlusion_{sfx}"] = occ.reshape(h, w)
+    out[f"occlusion_{sfx}"] = (known.ravel() & ~visible(other_position, known, other.camera, h, w, occluders)).reshape(h, w)
 
 
 def _derive_numpy(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, fg: np.ndarray, out: dict) -> None:
@@ -388,30 +401,40 @@ def _derive_numpy(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, 
         out["occlusion_bwd"].ravel()[idx] = ~visible & known
 
 
-def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, out: dict) -> None:
-    """derive_motion's compiled path: one fused pass per direction, writing into ``out``."""
+def _derive_numba(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, out: dict,
+                  exact: tuple[str, ...] = ()) -> None:
+    """derive_motion's compiled path: one fused pass per direction, writing into ``out``. ``exact``:
+    the directions ("next", "prev") whose occlusion the caller replaces with ray-cast visibility,
+    so the kernel skips the image-space test there."""
+    k = _flow_numba
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+    none3 = np.zeros((1, 1, 3), np.float32)
     depth = f32(cur.depth)
     has_pos = cur.position is not None
-    pos = f32(cur.position) if has_pos else np.zeros((1, 1, 3), np.float32)
-    inst = np.ascontiguousarray(cur.instance if cur.instance is not None else foreground(depth), dtype=np.int32)
+    here = k.Here(depth, f32(cur.vector), f32(cur.position) if has_pos else none3,
+                  np.ascontiguousarray(cur.instance if cur.instance is not None else foreground(depth), dtype=np.int32))
     R, C = cur.camera.world_to_cam()
+    C = np.ascontiguousarray(C, np.float64)  # one array type whatever the pose came from: one compiled signature
     A_cur = R.T @ np.linalg.inv(np.asarray(cur.camera.K, np.float64))
     M_cur = np.asarray(cur.camera.K, np.float64) @ R
-    for other, opos, forward in ((nxt, cur.next_position, True), (prv, cur.prev_position, False)):
+    for other, opos, key in ((nxt, cur.next_position, "next"), (prv, cur.prev_position, "prev")):
         if other is None:
             continue
-        inv_o, back_o = _flow_numba.inverse_depth_and_back(f32(other.depth), f32(other.vector), forward, BACKGROUND_DEPTH)
-        inst_o = np.ascontiguousarray(other.instance if other.instance is not None else inv_o > 0, dtype=np.int32)
+        forward = key == "next"
+        image_occlusion = opos is None or key not in exact
+        if image_occlusion:
+            inv_o, back_o = k.inverse_depth_and_back(f32(other.depth), f32(other.vector), forward, BACKGROUND_DEPTH)
+            inst_o = np.ascontiguousarray(other.instance if other.instance is not None else inv_o > 0, dtype=np.int32)
+        else:  # the exact route at every pixel, occlusion from the caller's rays: the other frame's images are not read
+            inv_o, back_o, inst_o = np.zeros((1, 1), np.float32), np.zeros((1, 1, 2), np.float32), np.zeros((1, 1), np.int32)
         Ro, Co = other.camera.world_to_cam()
+        Co = np.ascontiguousarray(Co, np.float64)
         Ko = np.asarray(other.camera.K, np.float64)
-        has_opos = opos is not None
         sfx = "fwd" if forward else "bwd"
-        _flow_numba.direction(
-            depth, f32(cur.vector), pos, has_pos, inst,
-            f32(opos) if has_opos else np.zeros((1, 1, 3), np.float32), has_opos,
-            inst_o, inv_o, back_o, forward,
-            A_cur, C, M_cur, Ko @ Ro, Ro[2].copy(), Co, Ro.T @ np.linalg.inv(Ko), fb, BACKGROUND_DEPTH,
-            FB_ABS, FB_REL, DEPTH_REL, EDGE_REL,
-            out[f"flow_{sfx}"], out["scene_flow"], out["disparity_change"], out[f"valid_{sfx}"], out[f"occlusion_{sfx}"],
+        k.direction(
+            here,
+            k.Other(f32(opos) if opos is not None else none3, inst_o, inv_o, back_o),
+            k.Cameras(A_cur, C, M_cur, Ko @ Ro, Ro[2].copy(), Co, Ro.T @ np.linalg.inv(Ko)),
+            k.Settings(has_pos, opos is not None, forward, image_occlusion, fb, BACKGROUND_DEPTH, FB_ABS, FB_REL, DEPTH_REL, EDGE_REL),
+            k.Out(out[f"flow_{sfx}"], out["scene_flow"], out["disparity_change"], out[f"valid_{sfx}"], out[f"occlusion_{sfx}"]),
         )

@@ -74,11 +74,12 @@ def test_static_point_off_the_pixel_ray_has_zero_flow():
 
 @pytest.mark.parametrize("name", ["sliding", "spinning", "moving-rig"])
 def test_mixed_marks_footprints_with_more_than_one_surface_or_motion(name):
-    """``mixed`` against the closed-form oracle: four sub-pixel rays (+-1/4 px) cast at the boxes,
-    their instances, depths and forward flows (hits moved with their box to t+1) compared."""
+    """``mixed`` against the closed-form oracle: four rays through each pixel's corners (+-1/2 px)
+    cast at the boxes (each pixel's own four, not shared with its neighbours), their instances,
+    depths and forward flows (hits moved with their box to t+1) compared."""
     from test_motion import SCENES
 
-    from lfusd.truth.visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX, SUBSAMPLES
+    from lfusd.truth.visibility import CORNERS, MIXED_DEPTH_REL, MIXED_FLOW_PX
 
     scene = occluder_scene(**SCENES[name])
     m = scene.derive(2)
@@ -86,7 +87,7 @@ def test_mixed_marks_footprints_with_more_than_one_surface_or_motion(name):
     v, u = np.mgrid[0:H, 0:W].astype(float)
     c2w = scene.cams[2]
     inst, depth, flow = [], [], []
-    for du, dv in SUBSAMPLES:
+    for du, dv in CORNERS:
         pix = np.stack([u + du, v + dv, np.ones_like(u)], -1)
         d = pix @ np.linalg.inv(scene.K).T @ c2w[:3, :3].T
         s, which, local = scene.cast(np.broadcast_to(c2w[:3, 3], d.shape), d, 2)
