@@ -29,7 +29,7 @@ from ..data.passes import read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
 from ..layout import frame_dir
-from ..processes import PARENT_PID_ENV
+from ..processes import PARENT_PID_ENV, hold_stops
 from .plan import WorkUnit
 from .request import RenderRequest
 
@@ -430,12 +430,12 @@ def _own_sigterm(ray):
 def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[int] = frozenset()) -> None:
     """Cancel ``refs`` and, when this run started the Ray instance, shut it down and kill what is left
     of ``ray_processes`` (the children ray.init started) and their descendants. A Ctrl-C or SIGTERM
-    meanwhile is held and raised once that is done: raised inside it, it would leave Ray's processes
-    running; ignored, a Ctrl-C during the seconds of ray.shutdown after a finished render was lost
-    (the run went on to exit 0)."""
-    held: list[int] = []
-    handlers = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
-    try:
+    meanwhile is held and raised once that is done (:func:`lfusd.processes.hold_stops`), and so is
+    the Ctrl-C that lfusd.cli latched and raises again at every import: raised inside ray.shutdown
+    (which imports), it cut the shutdown short and left Ray's agents running, orphaned (measured);
+    ignored, a Ctrl-C during the seconds of ray.shutdown after a finished render was lost (the run
+    went on to exit 0)."""
+    with hold_stops(main):
         for r in refs:
             with contextlib.suppress(Exception):
                 ray.cancel(r, force=True)
@@ -444,15 +444,6 @@ def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[in
             with contextlib.suppress(Exception):
                 ray.shutdown()
             _kill_tree(ray_processes, tree)
-    finally:
-        for s, h in handlers.items():
-            signal.signal(s, h if h is not None else signal.SIG_DFL)
-        for s in dict.fromkeys(held):  # each held signal once, to the handler it was meant for
-            h = handlers[s]
-            if callable(h):
-                h(s, None)
-            elif h == signal.SIG_DFL:
-                signal.raise_signal(s)
 
 
 def _processes() -> dict[int, tuple[int, int]]:
