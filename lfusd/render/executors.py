@@ -340,7 +340,8 @@ def start_local_ray(workers: int) -> None:
     ray_constants.ENABLE_RAY_CLUSTER = False  # Ray already imported (by a library user) read the variable before
     try:
         with _quiet_auth_advice():
-            info = ray.init(num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+            # address "local": a new instance even where RAY_ADDRESS or a `ray start` of the user names a cluster
+            info = ray.init(address="local", num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
                             _node_ip_address="127.0.0.1", logging_level=logging.ERROR)
     finally:
         # only this instance: a later --ray-address, or a cluster node the caller starts, joins as usual
