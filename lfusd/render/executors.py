@@ -361,8 +361,9 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path.
 
     Whatever ends the run (success, failure, Ctrl-C or SIGTERM at any moment, during ``ray.init``
-    too), the tasks are cancelled and a local Ray instance this run started is shut down, with
-    further signals ignored until that is done: nothing of Ray's or Blender's outlives lfusd."""
+    too, where they are held until the local instance has started), the tasks are cancelled and a
+    local Ray instance this run started is shut down, with further signals held until that is done:
+    nothing of Ray's or Blender's outlives lfusd."""
     # Ray's C++ failure signal handler (absl) takes SIGTERM too, and ray.shutdown uninstalls it to the
     # default: a SIGTERM during shutdown killed lfusd outright (exit -15, measured). Read when Ray loads.
     os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
@@ -382,7 +383,13 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
                     with _quiet_auth_advice():
                         ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR)
                 else:
-                    start_local_ray(req.workers)
+                    # A Ctrl-C or SIGTERM while the local instance starts is held until ray.init
+                    # returns (seconds), then the whole instance is shut down: raised inside ray.init,
+                    # it cut the start short (processes its clean-up does not know of), or landed in
+                    # Python's at-fork hooks of Ray's process starts, which print it as a traceback
+                    # ("Exception ignored in: <function _releaseLock ...>", measured) and go on.
+                    with hold_stops(main):
+                        start_local_ray(req.workers)
         except LfusdError:
             raise
         except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...

@@ -138,3 +138,31 @@ def test_stops_held_during_a_clean_up_are_delivered_after_it():
         assert not processes.holding()
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_a_ctrl_c_while_the_local_ray_starts_is_held_until_it_has_started(monkeypatch):
+    """Raised inside ray.init, a Ctrl-C cut the start short or landed in Python's at-fork hooks of
+    Ray's process starts (printed as a traceback there, and lost); held, it stops the run once the
+    instance is up, and the clean-up shuts that instance down."""
+    import signal
+    from types import SimpleNamespace
+
+    import pytest
+    import ray
+
+    steps = []
+
+    def start(workers):
+        signal.raise_signal(signal.SIGINT)  # the Ctrl-C, in the middle of the start
+        steps.append("started")
+
+    monkeypatch.setattr(executors, "start_local_ray", start)
+    monkeypatch.setattr(ray, "shutdown", lambda: steps.append("shut down"))
+    req = SimpleNamespace(ray_address=None, workers=1, out="/nonexistent")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            executors.run_ray([], req, SimpleNamespace(advance=lambda n: None))
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert steps == ["started", "shut down"]
