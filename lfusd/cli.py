@@ -28,6 +28,7 @@ import traceback
 
 from . import __version__
 from .errors import LfusdError
+from .processes import holding
 
 EXIT_OK, EXIT_VIOLATIONS, EXIT_ERROR, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 EXIT_TERMINATED = 143  # 128 + SIGTERM
@@ -132,7 +133,7 @@ class _RaiseAtImport:
 
     @staticmethod
     def find_spec(name, path=None, target=None):
-        if _Interrupt.pending and not _Interrupt.defer:
+        if _Interrupt.pending and not _Interrupt.defer and not holding():  # not in a clean-up that must finish (Ray's shutdown)
             raise KeyboardInterrupt
         if name.split(".")[0] != "pxr":
             return None
@@ -175,7 +176,7 @@ class _Deferred:
         finally:
             cls.depth -= 1
             _Interrupt.defer = cls.depth > 0
-        if _Interrupt.pending and not _Interrupt.defer:
+        if _Interrupt.pending and not _Interrupt.defer and not holding():
             raise KeyboardInterrupt
 
 

@@ -10,6 +10,38 @@ import sys
 # The environment variable through which a Blender worker learns its parent's pid.
 PARENT_PID_ENV = "LFUSD_PARENT_PID"
 
+_holding = 0  # depth of hold_stops blocks running (in the main thread)
+
+
+def holding() -> bool:
+    """Whether a :func:`hold_stops` block runs: an interrupt must not be raised now. lfusd.cli's
+    import hook asks, as it raises a Ctrl-C it latched earlier at every later import."""
+    return _holding > 0
+
+
+@contextlib.contextmanager
+def hold_stops(main: bool = True):
+    """Hold Ctrl-C and SIGTERM during a clean-up that must run to its end, then deliver each held
+    signal once to the handler it was meant for. Raised inside it, an interrupt would cut the
+    clean-up short; ignored, it would be lost (the run would go on to exit 0). ``main``: the
+    calling thread is the main thread (only it may set handlers; elsewhere nothing is held)."""
+    global _holding
+    held: list[int] = []
+    handlers = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    _holding += 1
+    try:
+        yield
+    finally:
+        _holding -= 1
+        for s, h in handlers.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
+        for s in dict.fromkeys(held):  # each held signal once, to the handler it was meant for
+            h = handlers[s]
+            if callable(h):
+                h(s, None)
+            elif h == signal.SIG_DFL:
+                signal.raise_signal(s)
+
 
 def quiet_thread_pools() -> None:
     """In a process lfusd owns (a derivation lane or pool process): OpenMP threads (numba's parallel

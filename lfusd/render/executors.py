@@ -30,7 +30,7 @@ from ..data.passes import read_rgb_linear
 from ..errors import LfusdError
 from .. import layout
 from ..layout import frame_dir
-from ..processes import PARENT_PID_ENV
+from ..processes import PARENT_PID_ENV, hold_stops
 from .plan import WorkUnit
 from .request import RenderRequest
 
@@ -355,7 +355,8 @@ def start_local_ray(workers: int) -> None:
     ray_constants.ENABLE_RAY_CLUSTER = False  # Ray already imported (by a library user) read the variable before
     try:
         with _quiet_auth_advice():
-            info = ray.init(num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+            # address "local": a new instance even where RAY_ADDRESS or a `ray start` of the user names a cluster
+            info = ray.init(address="local", num_cpus=workers, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
                             _node_ip_address="127.0.0.1", logging_level=logging.ERROR)
     finally:
         # only this instance: a later --ray-address, or a cluster node the caller starts, joins as usual
@@ -375,8 +376,9 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
     """The same units as Ray tasks (retried on failure); outputs go to ``req.out``, a shared path.
 
     Whatever ends the run (success, failure, Ctrl-C or SIGTERM at any moment, during ``ray.init``
-    too), the tasks are cancelled and a local Ray instance this run started is shut down, with
-    further signals ignored until that is done: nothing of Ray's or Blender's outlives lfusd."""
+    too, where they are held until the local instance has started), the tasks are cancelled and a
+    local Ray instance this run started is shut down, with further signals held until that is done:
+    nothing of Ray's or Blender's outlives lfusd."""
     # Ray's C++ failure signal handler (absl) takes SIGTERM too, and ray.shutdown uninstalls it to the
     # default: a SIGTERM during shutdown killed lfusd outright (exit -15, measured). Read when Ray loads.
     os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
@@ -396,7 +398,13 @@ def run_ray(units: list[WorkUnit], req: RenderRequest, report) -> str:
                     with _quiet_auth_advice():
                         ray.init(address=req.ray_address, ignore_reinit_error=True, log_to_driver=False, logging_level=logging.ERROR)
                 else:
-                    start_local_ray(req.workers)
+                    # A Ctrl-C or SIGTERM while the local instance starts is held until ray.init
+                    # returns (seconds), then the whole instance is shut down: raised inside ray.init,
+                    # it cut the start short (processes its clean-up does not know of), or landed in
+                    # Python's at-fork hooks of Ray's process starts, which print it as a traceback
+                    # ("Exception ignored in: <function _releaseLock ...>", measured) and go on.
+                    with hold_stops(main):
+                        start_local_ray(req.workers)
         except LfusdError:
             raise
         except Exception as e:  # Ray raises ConnectionError, RuntimeError, ValueError, ...
@@ -445,12 +453,12 @@ def _own_sigterm(ray):
 def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[int] = frozenset()) -> None:
     """Cancel ``refs`` and, when this run started the Ray instance, shut it down and kill what is left
     of ``ray_processes`` (the children ray.init started) and their descendants. A Ctrl-C or SIGTERM
-    meanwhile is held and raised once that is done: raised inside it, it would leave Ray's processes
-    running; ignored, a Ctrl-C during the seconds of ray.shutdown after a finished render was lost
-    (the run went on to exit 0)."""
-    held: list[int] = []
-    handlers = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
-    try:
+    meanwhile is held and raised once that is done (:func:`lfusd.processes.hold_stops`), and so is
+    the Ctrl-C that lfusd.cli latched and raises again at every import: raised inside ray.shutdown
+    (which imports), it cut the shutdown short and left Ray's agents running, orphaned (measured);
+    ignored, a Ctrl-C during the seconds of ray.shutdown after a finished render was lost (the run
+    went on to exit 0)."""
+    with hold_stops(main):
         for r in refs:
             with contextlib.suppress(Exception):
                 ray.cancel(r, force=True)
@@ -459,15 +467,6 @@ def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[in
             with contextlib.suppress(Exception):
                 ray.shutdown()
             _kill_tree(ray_processes, tree)
-    finally:
-        for s, h in handlers.items():
-            signal.signal(s, h if h is not None else signal.SIG_DFL)
-        for s in dict.fromkeys(held):  # each held signal once, to the handler it was meant for
-            h = handlers[s]
-            if callable(h):
-                h(s, None)
-            elif h == signal.SIG_DFL:
-                signal.raise_signal(s)
 
 
 def _processes() -> dict[int, tuple[int, int]]:

@@ -83,3 +83,86 @@ def test_a_retried_ray_unit_renders_only_its_incomplete_frames(tmp_path, monkeyp
     assert rendered == [[2, 3]]
     lines = [json.loads(ln) for ln in (tmp_path / "logs" / "main-unit0007.ray.jsonl").read_text().splitlines()]
     assert [(a["node_id"], a["frames"]) for a in lines] == [("node-1", [2, 3]), ("node-1", [])]
+
+
+def test_ray_shutdown_runs_to_its_end_after_a_ctrl_c_latched_during_ray_init(tmp_path, monkeypatch):
+    """A Ctrl-C during ray.init is latched by the CLI, which raises it again at every later import
+    (lfusd.cli._RaiseAtImport). ray.shutdown imports: raised there, it cut the clean-up short, so
+    Ray's processes were never killed and its agents ran on, orphaned (issue 26). The clean-up must
+    run to its end, kill the processes ray.init started, and the latched Ctrl-C still stop the run."""
+    import subprocess
+    from types import SimpleNamespace
+
+    import pytest
+
+    from lfusd import cli
+
+    (tmp_path / "ray_shutdown_helper_mod.py").write_text("X = 1\n")  # a module ray.shutdown has not imported yet
+    monkeypatch.syspath_prepend(str(tmp_path))
+    steps = []
+
+    def shutdown():
+        steps.append("shutdown started")
+        __import__("ray_shutdown_helper_mod")
+        steps.append("shutdown finished")
+
+    fake_ray = SimpleNamespace(cancel=lambda ref, force: steps.append("cancelled"), shutdown=shutdown)
+    head = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # stands for a server ray.init started
+    monkeypatch.setattr(cli._Interrupt, "pending", True)  # the Ctrl-C that interrupted ray.init
+    monkeypatch.setattr(sys, "meta_path", [cli._RaiseAtImport, *sys.meta_path])
+    try:
+        executors._stop_ray(fake_ray, {"ref": None}, shutdown=True, main=True, ray_processes={head.pid})
+        assert head.wait(timeout=10) == -9  # killed by the clean-up, not left running
+    finally:
+        if head.poll() is None:
+            head.kill()
+    assert steps == ["cancelled", "shutdown started", "shutdown finished"]
+    with pytest.raises(KeyboardInterrupt):  # the latch holds after the clean-up: the run still stops
+        __import__("ray_shutdown_helper_mod_2")
+
+
+def test_stops_held_during_a_clean_up_are_delivered_after_it():
+    import signal
+
+    from lfusd import processes
+
+    got = []
+    previous = signal.signal(signal.SIGTERM, lambda s, f: got.append(s))
+    try:
+        with processes.hold_stops():
+            assert processes.holding()
+            signal.raise_signal(signal.SIGTERM)
+            signal.raise_signal(signal.SIGTERM)
+            assert got == []  # held, not lost
+        assert got == [signal.SIGTERM]  # once, to the handler it was meant for
+        assert not processes.holding()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_a_ctrl_c_while_the_local_ray_starts_is_held_until_it_has_started(monkeypatch):
+    """Raised inside ray.init, a Ctrl-C cut the start short or landed in Python's at-fork hooks of
+    Ray's process starts (printed as a traceback there, and lost); held, it stops the run once the
+    instance is up, and the clean-up shuts that instance down."""
+    import signal
+    from types import SimpleNamespace
+
+    import pytest
+    import ray
+
+    steps = []
+
+    def start(workers):
+        signal.raise_signal(signal.SIGINT)  # the Ctrl-C, in the middle of the start
+        steps.append("started")
+
+    monkeypatch.setattr(executors, "start_local_ray", start)
+    monkeypatch.setattr(ray, "shutdown", lambda: steps.append("shut down"))
+    req = SimpleNamespace(ray_address=None, workers=1, out="/nonexistent")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            executors.run_ray([], req, SimpleNamespace(advance=lambda n: None))
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert steps == ["started", "shut down"]
