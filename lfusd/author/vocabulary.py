@@ -34,6 +34,10 @@ RULE = "lfusd:rule:"  # lfusd:rule:<class>:<kind>, class rules on the default pr
 CONSTRAINT = "lfusd:constraint:"  # lfusd:constraint:<kind>, the rules of one object prim
 BOUNDS = "lfusd:bounds"  # double3[2] (min, max corner) on the default prim
 WHEEL_RADIUS = "lfusd:wheelRadius"  # double on a car's wheel* mesh
+# token on a DomeLight: "physical" asks the renderer for Blender's physical sky (lit by the stage's
+# DistantLight) in place of the dome's flat colour, which stays for renderers that do not know it
+SKY = "lfusd:sky"
+PHYSICAL_SKY = "physical"
 
 # -- customData of the default prim of a generated stage -------------------------------------
 TEMPLATE = "lfusd:template"

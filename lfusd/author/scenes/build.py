@@ -16,6 +16,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from ..labels import set_class_label
+from ..vocabulary import PHYSICAL_SKY, SKY
 from .textures import ensure_texture
 
 TEXTURE_DIR = "textures"
@@ -410,9 +411,9 @@ class Builder:
         record: dict = {"setup": setup}
         if setup == "sun":
             az, el = float(rng.uniform(0, 360)), float(rng.uniform(10, 75))
-            self.sun(az, el, float(rng.uniform(0.8, 1.6)))
+            self.sun(az, el, float(rng.uniform(0.8, 1.6)), color=sun_color(el))
             sky = float(rng.uniform(0.3, 0.7))
-            self.dome(sky)
+            self.dome(sky, physical=True)
             record.update(sun_azimuth=az, sun_elevation=el, sky=sky)
         elif setup == "overcast":
             sky = float(rng.uniform(0.9, 1.6))
@@ -434,15 +435,34 @@ class Builder:
             raise ValueError(f"unknown lighting setup {setup!r}")
         return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in record.items()}
 
-    def dome(self, intensity: float, color=(0.55, 0.65, 0.85)) -> UsdLux.DomeLight:
-        """A uniform-colour DomeLight (sky fill)."""
+    def dome(self, intensity: float, color=(0.55, 0.65, 0.85), physical: bool = False) -> UsdLux.DomeLight:
+        """A uniform-colour DomeLight (sky fill); ``physical``: marked for Blender's physical sky
+        (``lfusd:sky = "physical"``), which lfusd's renderer draws in its place, lit from the
+        stage's sun and as bright on average as this dome."""
         light = UsdLux.DomeLight.Define(self.stage, "/World/Lights/Sky")
+        if physical:
+            light.GetPrim().CreateAttribute(SKY, Sdf.ValueTypeNames.Token, custom=True).Set(PHYSICAL_SKY)
         light.CreateIntensityAttr(float(intensity))
         # normalize = true: intensity is the light's total output, independent of its size or
         # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
         light.CreateNormalizeAttr(True)
         light.CreateColorAttr(Gf.Vec3f(*color))
         return light
+
+
+# Vertical optical depths of a clear atmosphere at the sun lamp's red, green and blue (about 680,
+# 550 and 440 nm): Rayleigh scattering by air (0.043, 0.097, 0.236) plus a thin grey aerosol (0.05).
+OPTICAL_DEPTH = (0.093, 0.147, 0.286)
+
+
+def sun_color(elevation_deg: float) -> tuple[float, float, float]:
+    """The colour of direct sunlight at ``elevation_deg`` above the horizon, brightest channel 1:
+    transmittance exp(-depth * air mass) along the sun's path (Kasten and Young's air mass), so the
+    sun lamp warms towards the horizon as the physical sky beside it does."""
+    el = max(float(elevation_deg), 0.0)
+    air_mass = 1.0 / (math.sin(math.radians(el)) + 0.50572 * (el + 6.07995) ** -1.6364)
+    t = np.exp(-np.asarray(OPTICAL_DEPTH) * air_mass)
+    return tuple(float(round(v, 4)) for v in t / t.max())
 
 
 def _aim(light, position: np.ndarray, direction: np.ndarray) -> None:
