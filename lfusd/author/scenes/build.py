@@ -3,7 +3,8 @@
 All geometry is UsdGeom.Mesh (boxes, cylinders, tapered shapes) with a face-varying ``st``
 primvar, ``subdivisionScheme = none`` and exact extents, so Blender imports exactly the
 triangles that lfusd's own geometry (lfusd.author.geometry) sees. Materials are UsdPreviewSurface
-with a UsdUVTexture on diffuseColor reading a PNG by a path relative to the stage file.
+with UsdUVTextures reading PNGs by paths relative to the stage file: the colour on diffuseColor,
+and detail maps (textures.DETAIL_SUFFIXES) on roughness and normal.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from ..labels import set_class_label
 from ..vocabulary import PHYSICAL_SKY, SKY
-from .textures import ensure_texture
+from .textures import SPREAD, SPREAD_DEFAULT, ensure_texture
 
 TEXTURE_DIR = "textures"
 # Lighting setups a template draws from (Builder.lighting): a sun at a varied elevation and
@@ -278,7 +279,6 @@ class Builder:
         key = key.replace(".", "p")
         if key in self.materials:
             return self.materials[key]
-        ensure_texture(self.stage_path.parent / TEXTURE_DIR, texture)
         path = Sdf.Path("/World/Looks").AppendChild(key)
         mat = UsdShade.Material.Define(self.stage, path)
         shader = UsdShade.Shader.Define(self.stage, path.AppendChild("Surface"))
@@ -291,18 +291,38 @@ class Builder:
         reader = UsdShade.Shader.Define(self.stage, path.AppendChild("StReader"))
         reader.CreateIdAttr("UsdPrimvarReader_float2")
         reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-        tex = UsdShade.Shader.Define(self.stage, path.AppendChild("Diffuse"))
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{TEXTURE_DIR}/{texture}.png"))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        tex = self._texture(path.AppendChild("Diffuse"), texture, reader, "sRGB")
         shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+        # Surface detail (textures.DETAIL_SUFFIXES): roughness varying about the finish's value, and
+        # a tangent-space normal map (8-bit, raw: scale 2, bias -1 to [-1, 1], as UsdPreviewSurface asks).
+        half = SPREAD.get(texture, SPREAD_DEFAULT) / 2
+        scale = min(half, roughness, 1.0 - roughness) / half  # the range stays inside [0, 1]
+        rough = self._texture(path.AppendChild("Roughness"), f"{texture}_roughness", reader, "raw", "r",
+                              (scale,) * 3 + (1.0,), (roughness - 0.5 * scale,) * 3 + (0.0,))
+        shader.GetInput("roughness").ConnectToSource(rough.ConnectableAPI(), "r")
+        normal = self._texture(path.AppendChild("Normal"), f"{texture}_normal", reader, "raw", "rgb",
+                               (2.0, 2.0, 2.0, 1.0), (-1.0, -1.0, -1.0, 0.0))
+        shader.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(normal.ConnectableAPI(), "rgb")
         mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
         self.materials[key] = mat
         return mat
+
+    def _texture(self, path: Sdf.Path, name: str, reader: UsdShade.Shader, color_space: str, output: str = "rgb",
+                 scale=None, bias=None) -> UsdShade.Shader:
+        """A UsdUVTexture reading ``textures/<name>.png`` (written here) at the ``st`` of ``reader``."""
+        ensure_texture(self.stage_path.parent / TEXTURE_DIR, name)
+        tex = UsdShade.Shader.Define(self.stage, path)
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{TEXTURE_DIR}/{name}.png"))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+        if scale is not None:
+            tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*scale))
+            tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*bias))
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        tex.CreateOutput(output, Sdf.ValueTypeNames.Float if output == "r" else Sdf.ValueTypeNames.Float3)
+        return tex
 
     def obj(self, path: str, label: str | None, translate=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> UsdGeom.Xform:
         """An object Xform (class-labelled when ``label``) at ``translate``, turned ``yaw_deg`` about Z."""
