@@ -1,7 +1,7 @@
 """Render one frame of committed stages at 512x512 and build the README's contact sheet.
 
     python scripts/contact_sheet.py render STAGE... --out DIR [--frame N] [--samples S]
-    python scripts/contact_sheet.py sheet --before DIR --after DIR -o docs/images/contact_sheet.png
+    python scripts/contact_sheet.py sheet --before DIR --after DIR -o docs/looks_before_after.png
 
 ``render`` lays a one-view rig (``contact``: rig_00's centre view, 512x512) over each stage in a
 new layer beside it in DIR (the stage itself is not touched) and renders it with ``lfusd.render``;

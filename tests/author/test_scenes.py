@@ -17,7 +17,7 @@ from lfusd.author.geometry import triangulate
 from lfusd.author.labels import class_label, object_table
 from lfusd.author.scenes import TEMPLATES, generate
 from lfusd.author.scenes import objects as kit
-from lfusd.author.scenes.build import box, cylinder, prism
+from lfusd.author.scenes.build import box, crease_normals, cylinder, prism
 from lfusd.author.scenes.textures import DETAIL_SIZE, TEXTURES, normal_map, texture_pixels
 from lfusd.author.rigs import rigs
 
@@ -77,6 +77,22 @@ def test_textures_are_deterministic_png_files(tmp_path):
     assert np.all(raw[:, 0] == 0)
     assert np.array_equal(raw[:, 1:].reshape(256, 256, 3), texture_pixels("asphalt"))
 
+
+
+def test_crease_normals_keep_box_edges_sharp_and_cylinders_round():
+    d = box((1.0, 2.0, 3.0), (0.5, 0.0, 1.0))
+    n = crease_normals(d.points, d.counts, d.indices)
+    idx = np.asarray(d.indices)
+    for f in range(6):  # every corner of a face carries the face's own outward normal
+        corners = d.points[idx[4 * f:4 * f + 4]]
+        face_n = np.cross(corners[1] - corners[0], corners[3] - corners[0])
+        assert np.allclose(n[4 * f:4 * f + 4], face_n / np.linalg.norm(face_n), atol=1e-12)
+    c = cylinder(0.5, 0.0, 1.0, 16)
+    n, p = crease_normals(c.points, c.counts, c.indices), c.points[np.asarray(c.indices)]
+    side = np.abs(n[:, 2]) < 0.5
+    radial = p[side, :2] / np.linalg.norm(p[side, :2], axis=1, keepdims=True)  # the analytic surface normal
+    assert side.sum() == 16 * 4 and np.allclose(n[side, :2], radial, atol=1e-12) and np.allclose(n[side, 2], 0.0)
+    assert np.allclose(np.abs(n[~side, 2]), 1.0)  # flat caps
 
 
 def test_normal_map_is_the_analytic_normal_of_its_height_field():

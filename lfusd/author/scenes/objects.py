@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..human import HumanSpec, body_regions
-from .build import MeshData, blob, bowl, box, cylinder, extrude_y, loft, merge, moved, rod, slab
+from .build import MeshData, blob, bowl, box, chamfer, cylinder, extrude_y, loft, merge, moved, rod, slab
 
 PAINTS = ("paint_red", "paint_blue", "paint_white", "paint_yellow", "paint_dark", "paint_green", "paint_silver")
 
@@ -57,6 +57,7 @@ def _car_parts(rng: np.random.Generator):
     # Side profile (x, z), counter-clockwise seen from -y, convex: the lower body.
     profile = np.array([(-L / 2 + 0.10, 0.28), (L / 2 - 0.15, 0.28), (L / 2, 0.45), (L / 2 - 0.03, 0.70),
                         (L * hood, 0.92), (-L / 2 + 0.12, 0.95), (-L / 2, 0.78), (-L / 2 + 0.02, 0.40)])
+    profile = chamfer(chamfer(profile, 0.06), 0.02)  # bevelled corners, shaded round (build.crease_normals)
     centre = profile.mean(0)
 
     def section(y, inset):
@@ -197,7 +198,40 @@ def tree(rng: np.random.Generator) -> Parts:
         trunk.append(rod((0, 0, z0), tip, 0.055, 6, 0.025))
         rad = float(rng.uniform(0.6, 1.0))
         crowns.append(blob(tip + [0, 0, 0.2], (rad, rad * float(rng.uniform(0.8, 1.1)), rad * 0.8), rng))
-    return [("trunk", merge(*trunk), "bark"), ("crown", merge(*crowns), leaves)]
+    return [("trunk", merge(*trunk), "bark"), ("crown", merge(*crowns), leaves),
+            ("leaves", merge(*[leaf_cover(c, rng) for c in crowns]), leaves)]
+
+
+LEAF_LENGTH, LEAF_COUNT = 0.16, 48  # per foliage cluster
+
+
+def leaf_cover(crown: MeshData, rng: np.random.Generator, count: int = LEAF_COUNT, length: float = LEAF_LENGTH) -> MeshData:
+    """Leaves over a foliage cluster: thin closed diamonds (6 vertices, 8 triangles) rooted on
+    random faces of ``crown`` and leaning out of it at random angles, so its outline breaks up."""
+    pts, idx = np.asarray(crown.points, float), np.asarray(crown.indices)
+    starts = np.concatenate([[0], np.cumsum(crown.counts)[:-1]])
+    centres = np.array([pts[idx[s:s + c]].mean(0) for s, c in zip(starts, crown.counts)])
+    middle = pts.mean(0)
+    leaves = []
+    for f in rng.integers(len(centres), size=count):
+        out = centres[f] - middle
+        out /= np.linalg.norm(out)
+        d = out + rng.normal(0.0, 0.6, 3)  # the leaf's axis: outwards, scattered
+        d /= np.linalg.norm(d)
+        side = np.cross(d, rng.normal(0.0, 1.0, 3))
+        side /= np.linalg.norm(side)
+        up = np.cross(side, d)
+        root = centres[f] - 0.3 * length * out  # the stalk starts inside the cluster
+        rim = [root, root + d * length * 0.5 + side * length * 0.22, root + d * length, root + d * length * 0.5 - side * length * 0.22]
+        mid = root + d * length * 0.5
+        top, bottom = mid + up * 0.008, mid - up * 0.008
+        p = np.array(rim + [top, bottom])
+        tris = [(0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4), (1, 0, 5), (2, 1, 5), (3, 2, 5), (0, 3, 5)]
+        if np.dot(np.cross(p[1] - p[0], p[4] - p[0]), p[4] - mid) < 0:  # keep the winding outward
+            tris = [t[::-1] for t in tris]
+        flat = [i for t in tris for i in t]
+        leaves.append(MeshData(p, [3] * 8, flat, np.c_[p[flat] @ side, p[flat] @ d] * 2.0))
+    return merge(*leaves)
 
 
 def street_light(rng: np.random.Generator) -> tuple[Parts, float]:
