@@ -200,7 +200,7 @@ def tree(rng: np.random.Generator) -> Parts:
         crowns.append(blob(tip + [0, 0, 0.2], (rad, rad * float(rng.uniform(0.8, 1.1)), rad * 0.8), rng))
     # leaves from their own generator, seeded by the tree's drawn size: the scene's draws (layout,
     # lighting, choreography) stay what they were before trees had leaves
-    leaf_rng = np.random.default_rng([int(round(h * 1e6)), int(round(r0 * 1e6))])
+    leaf_rng = np.random.default_rng([round(h * 1e6), round(r0 * 1e6)])
     return [("trunk", merge(*trunk), "bark"), ("crown", merge(*crowns), leaves),
             ("leaves", merge(*[leaf_cover(c, leaf_rng) for c in crowns]), leaves)]
 
