@@ -38,6 +38,10 @@ WHEEL_RADIUS = "lfusd:wheelRadius"  # double on a car's wheel* mesh
 # content hash. Everything drawn below it (instances, point instances) is that one object.
 ASSET = "lfusd:asset"
 LICENCE = "lfusd:licence"  # an asset's licence in its layer's customLayerData (read beside "license", "licence", ...)
+# token on a DomeLight: "physical" asks the renderer for Blender's physical sky (lit by the stage's
+# DistantLight) in place of the dome's flat colour, which stays for renderers that do not know it
+SKY = "lfusd:sky"
+PHYSICAL_SKY = "physical"
 
 # -- customData of the default prim of a generated stage -------------------------------------
 TEMPLATE = "lfusd:template"

@@ -33,6 +33,7 @@ from .. import __version__, cpu_account
 from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
+from ..author.vocabulary import PHYSICAL_SKY, SKY
 from ..camera import RigSpec
 from ..data import confined
 from ..data.folder import FrameMeta, Manifest, ObjectRow, ObjectTable, atomic_write, existing_dataset, output_lock
@@ -237,6 +238,15 @@ def has_lights(stage: Usd.Stage) -> bool:
     return any(p.HasAPI(UsdLux.LightAPI) for p in Usd.PrimRange.Stage(stage, Usd.TraverseInstanceProxies()))
 
 
+def physical_sky(stage: Usd.Stage) -> bool:
+    """Whether a DomeLight of the stage asks for Blender's physical sky (``lfusd:sky = "physical"``)."""
+    for prim in stage.Traverse():
+        attr = prim.GetAttribute(SKY) if prim.IsA(UsdLux.DomeLight) else None
+        if attr and attr.Get() == PHYSICAL_SKY:
+            return True
+    return False
+
+
 def _add_light(req: RenderRequest, stage: Usd.Stage) -> bool:
     """Whether the workers add a neutral sky and sun; warns when the stage has no lights."""
     if has_lights(stage):
@@ -326,7 +336,7 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
                 units = plan_units(
                     req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
                     StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
-                               _add_light(req, stage), world),
+                               _add_light(req, stage), world, physical_sky(stage)),
                     raw_codec(req, sizes),
                 )
                 report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)

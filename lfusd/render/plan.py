@@ -126,6 +126,7 @@ class WorkUnit:
     render_pixels: int = 0  # at most this many pixels per render call (0: RENDER_PIXELS); see view_chunks
     raw_codec: str = "ZIP"  # Blender's codec for the data passes (lfusd.render.request.raw_codec)
     beauty: bool = True  # False: the data passes alone (a repair that needs no image: Plan.raw_only)
+    physical_sky: bool = False  # a DomeLight asks for Blender's physical sky (lfusd:sky = "physical")
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -176,6 +177,7 @@ class StageSetup:
     stage_range: list[int]  # frames over which the worker knows the stage (t+/-1 outside is unknown)
     add_light: bool
     world: dict  # the stage's WorldFrame.to_dict()
+    physical_sky: bool = False  # see WorkUnit.physical_sky
 
 
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],

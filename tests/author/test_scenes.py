@@ -17,8 +17,8 @@ from lfusd.author.geometry import triangulate
 from lfusd.author.labels import class_label, object_table
 from lfusd.author.scenes import TEMPLATES, generate
 from lfusd.author.scenes import objects as kit
-from lfusd.author.scenes.build import box, cylinder, prism
-from lfusd.author.scenes.textures import TEXTURES, texture_pixels
+from lfusd.author.scenes.build import box, crease_normals, cylinder, prism
+from lfusd.author.scenes.textures import DETAIL_SIZE, TEXTURES, normal_map, texture_pixels
 from lfusd.author.rigs import rigs
 
 SMALL = dict(frames=3, rigs=2, grid=(1, 1), resolution=(32, 32))
@@ -76,6 +76,51 @@ def test_textures_are_deterministic_png_files(tmp_path):
     raw = np.frombuffer(zlib.decompress(png[idat + 4: idat + 4 + size]), np.uint8).reshape(256, 1 + 256 * 3)
     assert np.all(raw[:, 0] == 0)
     assert np.array_equal(raw[:, 1:].reshape(256, 256, 3), texture_pixels("asphalt"))
+
+
+
+def test_crease_normals_keep_box_edges_sharp_and_cylinders_round():
+    d = box((1.0, 2.0, 3.0), (0.5, 0.0, 1.0))
+    n = crease_normals(d.points, d.counts, d.indices)
+    idx = np.asarray(d.indices)
+    for f in range(6):  # every corner of a face carries the face's own outward normal
+        corners = d.points[idx[4 * f:4 * f + 4]]
+        face_n = np.cross(corners[1] - corners[0], corners[3] - corners[0])
+        assert np.allclose(n[4 * f:4 * f + 4], face_n / np.linalg.norm(face_n), atol=1e-12)
+    c = cylinder(0.5, 0.0, 1.0, 16)
+    n, p = crease_normals(c.points, c.counts, c.indices), c.points[np.asarray(c.indices)]
+    side = np.abs(n[:, 2]) < 0.5
+    radial = p[side, :2] / np.linalg.norm(p[side, :2], axis=1, keepdims=True)  # the analytic surface normal
+    assert side.sum() == 16 * 4 and np.allclose(n[side, :2], radial, atol=1e-12) and np.allclose(n[side, 2], 0.0)
+    assert np.allclose(np.abs(n[~side, 2]), 1.0)  # flat caps
+
+
+def test_normal_map_is_the_analytic_normal_of_its_height_field():
+    # z = A sin(2 pi u / W) along the columns (u), and along v (up the image: row 0 is the top)
+    w, a = 64, 3.0
+    t = np.arange(w)
+    along_u = np.tile(a * np.sin(2 * np.pi * t / w), (w, 1))
+    n = normal_map(along_u)
+    # central differences of a sine: slope A (2 pi / W) cos(.) times sin(2 pi / W) / (2 pi / W)
+    slope = a * np.cos(2 * np.pi * t / w) * np.sin(2 * np.pi / w)
+    expect = np.stack([-slope, np.zeros(w), np.ones(w)], -1) / np.sqrt(1 + slope**2)[:, None]
+    assert np.allclose(n, expect[None], atol=1e-12)
+    # the same wave up the image (row r is at v = W - 1 - r): the y component is the u case's x, flipped rows
+    nv = normal_map(along_u.T[::-1])
+    assert np.allclose(nv[..., 1], expect[:, 0][::-1, None], atol=1e-12) and np.allclose(nv[..., 0], 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(TEXTURES))
+def test_every_texture_has_tileable_detail_maps(name):
+    rough, normal = texture_pixels(f"{name}_roughness"), texture_pixels(f"{name}_normal")
+    assert rough.shape == normal.shape == (DETAIL_SIZE, DETAIL_SIZE, 3) and rough.dtype == normal.dtype == np.uint8
+    assert np.array_equal(rough[..., 0], rough[..., 1]) and rough[..., 0].std() > 1  # grey, and varying
+    n = normal.astype(float) / 255 * 2 - 1
+    assert np.allclose(np.linalg.norm(n, axis=-1), 1.0, atol=0.02) and (n[..., 2] > 0.5).all()  # unit, facing out
+    # tileable: the wrap-around step is no larger than the steps inside
+    for img in (rough.astype(float), normal.astype(float)):
+        inside = np.abs(np.diff(img, axis=0)).max()
+        assert np.abs(img[0] - img[-1]).max() <= inside and np.abs(img[:, 0] - img[:, -1]).max() <= np.abs(np.diff(img, axis=1)).max()
 
 
 @pytest.mark.parametrize("template", TEMPLATES)

@@ -92,3 +92,12 @@ def test_a_duplicate_name_or_seed_key_is_refused(monkeypatch):
         with pytest.raises(LfusdError, match="non-negative integer"):
             template("plaza", seed_key=bad)(plaza)
     assert list(registry) == names == ["street", "river", "room", "mixed"]  # nothing half-registered
+
+
+def test_sun_colour_warms_towards_the_horizon():
+    from lfusd.author.scenes.build import sun_color
+
+    high, low = sun_color(75.0), sun_color(10.0)
+    assert max(high) == max(low) == 1.0
+    # blue is absorbed most along the longer path through air
+    assert low[2] < high[2] < 1.0 and low[1] < high[1] and low[2] < low[1] < low[0]

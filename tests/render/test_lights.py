@@ -93,3 +93,19 @@ def test_work_units_carry_add_light_and_settings_record_the_choice(tmp_path):
     assert [u.add_light for u in units] == [True]
     assert WorkUnit.from_json(json.loads(json.dumps(units[0].to_json()))).add_light is True
     assert job._settings(req, {}, [])["light"] == "none"
+
+
+def test_sunny_generated_scenes_ask_for_the_physical_sky_and_work_units_carry_it(tmp_path):
+    from pxr import Usd
+
+    from lfusd.author.vocabulary import LIGHTING
+
+    stages = Path(__file__).resolve().parents[2] / "stages"
+    for path in sorted(stages.glob("*_0*.usda")):
+        stage = Usd.Stage.Open(str(path))
+        sunny = stage.GetDefaultPrim().GetCustomDataByKey(LIGHTING)["setup"] == "sun"
+        assert job.physical_sky(stage) is sunny, path.name
+    plan = Plan(tmp_path, {"main": [(0, 0)]}, [1])
+    units = plan_units(request(), plan, {"main": {(0, 0): "/Rigs/main/cam_00_00"}}, {"main": (8, 8)},
+                       StageSetup({}, [], True, [1, 1], False, {}, True))
+    assert WorkUnit.from_json(json.loads(json.dumps(units[0].to_json()))).physical_sky is True

@@ -16,6 +16,7 @@ import pytest
 from pxr import UsdGeom, UsdLux
 
 from lfusd.author.scenes import TEMPLATES, generate
+from lfusd.author.scenes.textures import DETAIL_SIZE
 
 pytestmark = pytest.mark.render
 
@@ -71,7 +72,9 @@ def test_blender_imports_materials_textures_and_lights(tmp_path, template):
     assert got["meshes"] == n_meshes and got["untextured"] == []
     textures = sorted(str(p) for p in (tmp_path / "textures").iterdir())
     assert sorted(i[0] for i in got["images"]) == textures  # relative paths resolved beside the stage
-    assert all(has and size == [256, 256] for _, has, size in got["images"])
+    # colour textures at 256 x 256, detail maps (roughness, normal) at DETAIL_SIZE
+    assert all(has and size == ([DETAIL_SIZE] * 2 if Path(p).stem.endswith(("_normal", "_roughness")) else [256, 256])
+               for p, has, size in got["images"])
 
     expected = []
     for p in stage.Traverse():

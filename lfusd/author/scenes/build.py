@@ -3,7 +3,8 @@
 All geometry is UsdGeom.Mesh (boxes, cylinders, tapered shapes) with a face-varying ``st``
 primvar, ``subdivisionScheme = none`` and exact extents, so Blender imports exactly the
 triangles that lfusd's own geometry (lfusd.author.geometry) sees. Materials are UsdPreviewSurface
-with a UsdUVTexture on diffuseColor reading a PNG by a path relative to the stage file.
+with UsdUVTextures reading PNGs by paths relative to the stage file: the colour on diffuseColor,
+and detail maps (textures.DETAIL_SUFFIXES) on roughness and normal.
 """
 
 from __future__ import annotations
@@ -16,7 +17,9 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
 
 from ..labels import set_class_label
-from .textures import ensure_texture
+from ..stage import round_values
+from ..vocabulary import PHYSICAL_SKY, SKY
+from .textures import SPREAD, SPREAD_DEFAULT, ensure_texture
 
 TEXTURE_DIR = "textures"
 # Lighting setups a template draws from (Builder.lighting): a sun at a varied elevation and
@@ -248,6 +251,52 @@ def extrude_y(outline_xz, y0: float, y1: float, tile: float = 1.0) -> MeshData:
     return MeshData(np.c_[p[:, 0], -p[:, 2], p[:, 1]], d.counts, d.indices, d.uvs)
 
 
+CREASE_DEG = 50.0  # faces meeting at a sharper angle keep a crisp edge (boxes, 6-sided rods); gentler ones shade smooth
+
+
+def crease_normals(points, counts, indices, crease_deg: float = CREASE_DEG) -> np.ndarray:
+    """Face-varying unit normals (one per face-vertex): at each corner, the area-weighted mean of
+    the normals of the faces around its vertex that meet this corner's face within ``crease_deg``.
+    Cylinders, wheels and foliage shade round while box edges stay sharp (Blender would shade a
+    mesh without normals smooth everywhere, a box's faces included)."""
+    pts = np.asarray(points, float)
+    counts, indices = np.asarray(counts), np.asarray(indices)
+    face = np.repeat(np.arange(len(counts)), counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    nxt = np.arange(len(indices)) + 1
+    nxt[np.cumsum(counts) - 1] = starts  # each corner's successor within its face
+    # Newell's method: twice the area times the unit normal, for any planar or near-planar polygon
+    area_n = np.zeros((len(counts), 3))
+    np.add.at(area_n, face, np.cross(pts[indices], pts[indices[nxt]]))
+    unit = area_n / np.maximum(np.linalg.norm(area_n, axis=1, keepdims=True), 1e-300)
+    # pairs of corners sharing a vertex (each corner with itself included)
+    order = np.argsort(indices, kind="stable")
+    verts = indices[order]
+    bounds = np.flatnonzero(np.r_[True, verts[1:] != verts[:-1], True])
+    sizes = np.diff(bounds)
+    group = np.repeat(np.arange(len(sizes)), sizes)
+    rep = sizes[group]  # each sorted corner pairs with every corner of its group
+    a = np.repeat(order, rep)
+    k = np.arange(rep.sum()) - np.repeat(np.cumsum(rep) - rep, rep)
+    b = order[np.repeat(bounds[group], rep) + k]
+    keep = np.einsum("ij,ij->i", unit[face[a]], unit[face[b]]) >= np.cos(np.radians(crease_deg))
+    out = np.zeros((len(indices), 3))
+    np.add.at(out, a[keep], area_n[face[b[keep]]])
+    return out / np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-300)
+
+
+def chamfer(polygon, distance: float) -> np.ndarray:
+    """A convex polygon [(x, y), ...] with every corner cut ``distance`` back along both of its
+    edges (at most 0.4 of the shorter one): twice applied, a rounded bevel."""
+    p = np.asarray(polygon, float)
+    prev, nxt = np.roll(p, 1, 0), np.roll(p, -1, 0)
+    out = []
+    for a, b, c in zip(prev, p, nxt):
+        d = min(distance, 0.4 * np.linalg.norm(a - b), 0.4 * np.linalg.norm(c - b))
+        out += [b + (a - b) / np.linalg.norm(a - b) * d, b + (c - b) / np.linalg.norm(c - b) * d]
+    return np.array(out)
+
+
 def merge(*parts: MeshData) -> MeshData:
     """One mesh from several (disjoint) parts."""
     pts, counts, indices, uvs, off = [], [], [], [], 0
@@ -277,7 +326,6 @@ class Builder:
         key = key.replace(".", "p")
         if key in self.materials:
             return self.materials[key]
-        ensure_texture(self.stage_path.parent / TEXTURE_DIR, texture)
         path = Sdf.Path("/World/Looks").AppendChild(key)
         mat = UsdShade.Material.Define(self.stage, path)
         shader = UsdShade.Shader.Define(self.stage, path.AppendChild("Surface"))
@@ -290,18 +338,38 @@ class Builder:
         reader = UsdShade.Shader.Define(self.stage, path.AppendChild("StReader"))
         reader.CreateIdAttr("UsdPrimvarReader_float2")
         reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-        tex = UsdShade.Shader.Define(self.stage, path.AppendChild("Diffuse"))
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{TEXTURE_DIR}/{texture}.png"))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        tex = self._texture(path.AppendChild("Diffuse"), texture, reader, "sRGB")
         shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+        # Surface detail (textures.DETAIL_SUFFIXES): roughness varying about the finish's value, and
+        # a tangent-space normal map (8-bit, raw: scale 2, bias -1 to [-1, 1], as UsdPreviewSurface asks).
+        half = SPREAD.get(texture, SPREAD_DEFAULT) / 2
+        scale = min(half, roughness, 1.0 - roughness) / half  # the range stays inside [0, 1]
+        rough = self._texture(path.AppendChild("Roughness"), f"{texture}_roughness", reader, "raw", "r",
+                              (scale,) * 3 + (1.0,), (roughness - 0.5 * scale,) * 3 + (0.0,))
+        shader.GetInput("roughness").ConnectToSource(rough.ConnectableAPI(), "r")
+        normal = self._texture(path.AppendChild("Normal"), f"{texture}_normal", reader, "raw", "rgb",
+                               (2.0, 2.0, 2.0, 1.0), (-1.0, -1.0, -1.0, 0.0))
+        shader.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(normal.ConnectableAPI(), "rgb")
         mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
         self.materials[key] = mat
         return mat
+
+    def _texture(self, path: Sdf.Path, name: str, reader: UsdShade.Shader, color_space: str, output: str = "rgb",
+                 scale=None, bias=None) -> UsdShade.Shader:
+        """A UsdUVTexture reading ``textures/<name>.png`` (written here) at the ``st`` of ``reader``."""
+        ensure_texture(self.stage_path.parent / TEXTURE_DIR, name)
+        tex = UsdShade.Shader.Define(self.stage, path)
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./{TEXTURE_DIR}/{name}.png"))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+        if scale is not None:
+            tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*scale))
+            tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*bias))
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        tex.CreateOutput(output, Sdf.ValueTypeNames.Float if output == "r" else Sdf.ValueTypeNames.Float3)
+        return tex
 
     def obj(self, path: str, label: str | None, translate=(0.0, 0.0, 0.0), yaw_deg: float = 0.0) -> UsdGeom.Xform:
         """An object Xform (class-labelled when ``label``) at ``translate``, turned ``yaw_deg`` about Z."""
@@ -328,6 +396,9 @@ class Builder:
         m.CreateFaceVertexIndicesAttr([int(i) for i in data.indices])
         m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         m.CreateExtentAttr([Gf.Vec3f(*pts.min(0).tolist()), Gf.Vec3f(*pts.max(0).tolist())])
+        normals = round_values(crease_normals(pts, data.counts, data.indices), 4)  # 4 places: short files, 1e-4 rad
+        m.CreateNormalsAttr([Gf.Vec3f(*n) for n in normals.tolist()])
+        m.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
         st = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
         st.Set([Gf.Vec2f(*uv) for uv in np.asarray(data.uvs, float).tolist()])
         UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(self.material(texture, roughness, metallic, opacity))
@@ -410,9 +481,9 @@ class Builder:
         record: dict = {"setup": setup}
         if setup == "sun":
             az, el = float(rng.uniform(0, 360)), float(rng.uniform(10, 75))
-            self.sun(az, el, float(rng.uniform(0.8, 1.6)))
+            self.sun(az, el, float(rng.uniform(0.8, 1.6)), color=sun_color(el))
             sky = float(rng.uniform(0.3, 0.7))
-            self.dome(sky)
+            self.dome(sky, physical=True)
             record.update(sun_azimuth=az, sun_elevation=el, sky=sky)
         elif setup == "overcast":
             sky = float(rng.uniform(0.9, 1.6))
@@ -434,15 +505,34 @@ class Builder:
             raise ValueError(f"unknown lighting setup {setup!r}")
         return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in record.items()}
 
-    def dome(self, intensity: float, color=(0.55, 0.65, 0.85)) -> UsdLux.DomeLight:
-        """A uniform-colour DomeLight (sky fill)."""
+    def dome(self, intensity: float, color=(0.55, 0.65, 0.85), physical: bool = False) -> UsdLux.DomeLight:
+        """A uniform-colour DomeLight (sky fill); ``physical``: marked for Blender's physical sky
+        (``lfusd:sky = "physical"``), which lfusd's renderer draws in its place, lit from the
+        stage's sun and as bright on average as this dome."""
         light = UsdLux.DomeLight.Define(self.stage, "/World/Lights/Sky")
+        if physical:
+            light.GetPrim().CreateAttribute(SKY, Sdf.ValueTypeNames.Token, custom=True).Set(PHYSICAL_SKY)
         light.CreateIntensityAttr(float(intensity))
         # normalize = true: intensity is the light's total output, independent of its size or
         # angle (with USD's default, false, Blender imports a 0.53 degree sun as almost black).
         light.CreateNormalizeAttr(True)
         light.CreateColorAttr(Gf.Vec3f(*color))
         return light
+
+
+# Vertical optical depths of a clear atmosphere at the sun lamp's red, green and blue (about 680,
+# 550 and 440 nm): Rayleigh scattering by air (0.043, 0.097, 0.236) plus a thin grey aerosol (0.05).
+OPTICAL_DEPTH = (0.093, 0.147, 0.286)
+
+
+def sun_color(elevation_deg: float) -> tuple[float, float, float]:
+    """The colour of direct sunlight at ``elevation_deg`` above the horizon, brightest channel 1:
+    transmittance exp(-depth * air mass) along the sun's path (Kasten and Young's air mass), so the
+    sun lamp warms towards the horizon as the physical sky beside it does."""
+    el = max(float(elevation_deg), 0.0)
+    air_mass = 1.0 / (math.sin(math.radians(el)) + 0.50572 * (el + 6.07995) ** -1.6364)
+    t = np.exp(-np.asarray(OPTICAL_DEPTH) * air_mass)
+    return tuple(float(round(v, 4)) for v in t / t.max())
 
 
 def _aim(light, position: np.ndarray, direction: np.ndarray) -> None:

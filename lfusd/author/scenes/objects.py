@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..human import HumanSpec, body_regions
-from .build import MeshData, blob, bowl, box, cylinder, loft, merge, moved, rod, slab
+from .build import MeshData, blob, bowl, box, chamfer, cylinder, loft, merge, moved, rod, slab
 
 PAINTS = ("paint_red", "paint_blue", "paint_white", "paint_yellow", "paint_dark", "paint_green", "paint_silver")
 
@@ -57,6 +57,7 @@ def _car_parts(rng: np.random.Generator):
     # Side profile (x, z), counter-clockwise seen from -y, convex: the lower body.
     profile = np.array([(-L / 2 + 0.10, 0.28), (L / 2 - 0.15, 0.28), (L / 2, 0.45), (L / 2 - 0.03, 0.70),
                         (L * hood, 0.92), (-L / 2 + 0.12, 0.95), (-L / 2, 0.78), (-L / 2 + 0.02, 0.40)])
+    profile = chamfer(chamfer(profile, 0.06), 0.02)  # bevelled corners, shaded round (build.crease_normals)
     centre = profile.mean(0)
 
     def section(y, inset):

@@ -23,6 +23,10 @@ T = 0.15  # wall thickness
 # grown by its 0.6 m person radius): long and short side, metres; a free gap to the chairs lets them slide.
 WALK = (2.8, 2.1)
 WALK_GAP = 0.45
+# The room's lamps were set when Blender shaded every face smooth (walls lit at a slant); with
+# crease normals (build.crease_normals) walls face their lights squarely, 0.73 -> 0.87 mean luma
+# at these intensities: scaled back so a room is neither dark nor blown out.
+LIGHT_GAIN = 0.7
 
 
 @dataclass(frozen=True)
@@ -116,7 +120,7 @@ def room(scene: Scene) -> RoomSite:
     if pose:
         (x, y, z), _ = pose
         scene.add("/World/Lamp", "lamp", parts, (x, y, z), pose[1])
-        b.sphere_light("LampBulb", (x + 0.12, y, z + light_h), 0.05, float(rng.uniform(20, 60)))
+        b.sphere_light("LampBulb", (x + 0.12, y, z + light_h), 0.05, LIGHT_GAIN * float(rng.uniform(20, 60)))
     if rng.random() < 0.7:
         parts = scene.draw("person", kit.person)
         pose = scene.place(parts, inner, GAP, margin=0.25)
@@ -125,9 +129,9 @@ def room(scene: Scene) -> RoomSite:
 
     scene.placed = [p for p in scene.placed if p.path != "/World#walk"]
 
-    b.rect_light("Ceiling", (0.0, 0.0, H + 0.3), (0.0, 0.0, 0.0), 1.2, 0.6, float(rng.uniform(40, 100)))
-    b.disk_light("Downlight", (tx + 0.8, ty, H + 0.2), (tx + 0.8, ty, 0.0), 0.15, float(rng.uniform(30, 90)))
-    b.spot_light("Spot", (tx - 0.5, ty - 0.5, H + 0.2), (tx, ty, top_h), 0.05, float(rng.uniform(60, 150)),
+    b.rect_light("Ceiling", (0.0, 0.0, H + 0.3), (0.0, 0.0, 0.0), 1.2, 0.6, LIGHT_GAIN * float(rng.uniform(40, 100)))
+    b.disk_light("Downlight", (tx + 0.8, ty, H + 0.2), (tx + 0.8, ty, 0.0), 0.15, LIGHT_GAIN * float(rng.uniform(30, 90)))
+    b.spot_light("Spot", (tx - 0.5, ty - 0.5, H + 0.2), (tx, ty, top_h), 0.05, LIGHT_GAIN * float(rng.uniform(60, 150)),
                  float(rng.uniform(20, 35)))
     scene.lighting = b.lighting(rng, ("indoor", "indoor", "sun", "night"))
     # indoor scale: objects 1-4 m away, so a small baseline keeps disparities like the street's

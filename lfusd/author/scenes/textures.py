@@ -275,10 +275,73 @@ TEXTURES = {
 }
 
 
+# Surface detail maps beside each colour texture: ``<name>_normal.png`` (tangent-space normals,
+# OpenGL convention: +x along u, +y along v) and ``<name>_roughness.png`` (grey, variation about
+# the material's roughness). Both follow the colour's own structure (grout, planks, bark grooves
+# are recessed and rougher) plus fine noise. By name: relief (the height field's slope scale: 0
+# flat, 1: bricks' grout edges tilt about 30 degrees) and roughness spread (the map spans
+# the material's roughness +- half of it).
+DETAIL_SUFFIXES = ("normal", "roughness")
+RELIEF: dict[str, float] = {
+    "bricks": 1.0, "paving": 0.9, "floor_tiles": 0.6, "wood": 0.5, "bark": 1.0, "asphalt": 0.6, "concrete": 0.5,
+    "dirt": 0.8, "grass": 0.7, "plaster": 0.4, "tyre": 0.8, "books": 0.4, "leaves": 0.6, "leaves_light": 0.6,
+    "fabric": 0.5, "denim": 0.5, "water": 0.35, "skin": 0.12, "hair": 0.6, "wallpaper": 0.2,
+}
+RELIEF_DEFAULT = 0.15  # paints, metal, glass, chrome, ceramic: a faint orange peel
+SPREAD: dict[str, float] = {"glass": 0.1, "water": 0.1, "chrome": 0.3, "ceramic": 0.3}
+SPREAD_DEFAULT = 0.6
+
+
+def _seed(name: str) -> int:
+    return int.from_bytes(name.encode("utf-8")[:8].ljust(8, b"\0"), "little")
+
+
 def texture_pixels(name: str) -> np.ndarray:
-    """The (256, 256, 3) uint8 image of texture ``name``; seeded by the name's bytes, not hash()."""
-    seed = int.from_bytes(name.encode("utf-8")[:8].ljust(8, b"\0"), "little")
-    return _to8(TEXTURES[name](np.random.default_rng(seed)))
+    """The (256, 256, 3) uint8 image of texture ``name`` (a colour texture, or ``<colour>_normal``
+    and ``<colour>_roughness`` detail maps); seeded by the name's bytes, not hash()."""
+    base, _, kind = name.rpartition("_")
+    if kind in DETAIL_SUFFIXES and base in TEXTURES:
+        return _to8(_detail(base, kind))
+    return _to8(TEXTURES[name](np.random.default_rng(_seed(name))))
+
+
+def _blur(img: np.ndarray) -> np.ndarray:
+    """A wrapped 3x3 binomial blur (tileable in, tileable out)."""
+    k = (np.roll(img, 1, 0) + 2 * img + np.roll(img, -1, 0)) / 4
+    return (np.roll(k, 1, 1) + 2 * k + np.roll(k, -1, 1)) / 4
+
+
+def _height(base: str) -> np.ndarray:
+    """A tileable height field in [0, 1] for colour texture ``base``: its luminance (dark grout,
+    gaps and grooves low), softened, plus fine noise."""
+    rgb = TEXTURES[base](np.random.default_rng(_seed(base)))
+    lum = np.clip(rgb, 0, 1) @ np.array([0.2126, 0.7152, 0.0722])
+    fine = fbm(np.random.default_rng(_seed(base) ^ 0x5EED), base=32, octaves=3)
+    h = 0.75 * _blur(_blur(lum)) + 0.25 * fine
+    return (h - h.min()) / max(h.max() - h.min(), 1e-9)
+
+
+DETAIL_SIZE = SIZE // 2  # detail maps at half the colour's resolution: a quarter of the bytes
+
+
+def _detail(base: str, kind: str) -> np.ndarray:
+    h = _height(base)
+    h = (h[0::2, 0::2] + h[1::2, 0::2] + h[0::2, 1::2] + h[1::2, 1::2]) / 4  # DETAIL_SIZE, still tileable
+    if kind == "roughness":  # recesses collect dirt: rougher where low; 0.5 is the material's own
+        spread = SPREAD.get(base, SPREAD_DEFAULT)
+        r = 0.5 + spread * (0.5 - h)
+        return np.repeat(np.clip(r, 0, 1)[..., None], 3, axis=2)
+    # the surface z = relief * h * DETAIL_SIZE / 64, in texels
+    return normal_map(h * RELIEF.get(base, RELIEF_DEFAULT) * DETAIL_SIZE / 64) * 0.5 + 0.5
+
+
+def normal_map(height: np.ndarray) -> np.ndarray:
+    """Unit tangent-space normals (H, W, 3) of the tileable surface z = ``height`` (in texels; row
+    0 is the top of the image, where v is largest): x along u (columns), y along v (up the image)."""
+    dh_du = (np.roll(height, -1, 1) - np.roll(height, 1, 1)) / 2
+    dh_dv = -(np.roll(height, -1, 0) - np.roll(height, 1, 0)) / 2
+    n = np.stack([-dh_du, -dh_dv, np.ones_like(height)], axis=-1)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
 _VERIFIED: set[str] = set()
