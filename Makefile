@@ -16,12 +16,12 @@ demo: setup
 	@$(VENV)/bin/python -c "from lfusd.truth.coverage import report; print(*report('$(DEMO_OUT)'), sep='\n')"
 
 test: setup
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/python -m pytest -q -n auto --dist loadgroup
 
 # The inner loop: everything that needs neither Blender nor a long run (make test stays the full suite).
 # Deselecting `blender` arms tests/support/markers.py: a test that starts Blender anyway fails.
 test-fast: setup
-	$(VENV)/bin/python -m pytest -q -m "not blender and not slow"
+	$(VENV)/bin/python -m pytest -q -n auto --dist loadgroup -m "not blender and not slow"
 
 # ruff with the rule set of pyproject.toml; `make test` runs it too (tests/test_lint.py).
 lint: setup

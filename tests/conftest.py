@@ -13,6 +13,7 @@ from support.markers import (  # noqa: E402, F401
     pytest_runtest_setup,
     pytest_runtest_teardown,
     pytest_unconfigure,
+    pytest_xdist_auto_num_workers,
 )
 
 

@@ -80,6 +80,8 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.blender)
         if (item.get_closest_marker("blender") or item.get_closest_marker("slow")) and not item.get_closest_marker("timeout"):
             item.add_marker(pytest.mark.timeout(LONG_TIMEOUT))
+        if not item.get_closest_marker("xdist_group"):
+            item.add_marker(pytest.mark.xdist_group(xdist_group(item)))
 
 
 def _guarded(item):
@@ -110,3 +112,23 @@ def pytest_runtest_call(item):
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_teardown(item, nextitem):
     return (yield from _guarded(item))
+
+
+
+# Files whose tests start a Ray instance or cluster, run one after another on one xdist worker:
+# their Ctrl-C timings and process sweeps are measured on a machine not also starting another Ray.
+RAY_FILES = frozenset({"test_ray_shutdown.py", "test_ray_cluster.py", "test_ray_loopback.py", "test_executors.py",
+                       "test_faults.py", "test_render_video.py"})
+
+
+def xdist_group(item) -> str:
+    """The group whose tests one xdist worker runs in order (``--dist loadgroup``): the test's
+    file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES`."""
+    name = item.path.name
+    return "ray" if name in RAY_FILES else str(item.path)
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    """Workers for ``-n auto``: one per two cores, at least two, at most eight (a Blender render
+    uses every core it gets; more workers than that only make them wait for each other)."""
+    return max(2, min(8, (os.cpu_count() or 2) // 2))
