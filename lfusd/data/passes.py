@@ -116,11 +116,16 @@ def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]]
     return names, shapes.pop() if len(shapes) == 1 else (0, 0)
 
 
+def _find(channels: dict[str, np.ndarray], suffix: str) -> np.ndarray | None:
+    """The channel named ``suffix``, with or without its view layer's prefix; None if absent."""
+    return next((arr for name, arr in channels.items() if name == suffix or name.endswith("." + suffix)), None)
+
+
 def _channel(channels: dict[str, np.ndarray], suffix: str, path) -> np.ndarray:
-    for name, arr in channels.items():
-        if name == suffix or name.endswith("." + suffix):
-            return arr
-    raise LfusdError(f"{path} has no {suffix} channel; re-render this view")
+    arr = _find(channels, suffix)
+    if arr is None:
+        raise LfusdError(f"{path} has no {suffix} channel; re-render this view")
+    return arr
 
 
 def read_raw(path: str | Path) -> dict[str, np.ndarray]:
@@ -142,7 +147,7 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     for p in RAW_PASSES:
         if p.key == "depth" or p.neighbour:
             continue
-        if not p.required and not any(n.endswith("." + p.channel_names[0]) or n == p.channel_names[0] for n in ch):
+        if not p.required and _find(ch, p.channel_names[0]) is None:
             continue  # the vector pass: Dataset.raw_passes names its absence
         if p.key == "instance":  # Blender stores the pass index as a float
             instance = np.rint(_channel(ch, p.channel_names[0], path)).astype(p.dtype)
