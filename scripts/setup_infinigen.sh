@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Opt-in: set up .venv-infinigen/, Infinigen's own environment, for `lfusd assets bake --generator infinigen`.
+# Never run by `make test` or CI. About 3 minutes and 2.3 GB; a second run installs nothing new.
+# Infinigen 1.15.5 pins bpy 4.2.0 (lfusd's .venv has bpy 5.0), so it lives in its own CPython 3.11
+# environment that lfusd runs as a subprocess. Its declared scikit-image<0.20 has no wheel for 3.11
+# and compiles from source for half an hour: the dependencies are installed as wheels with
+# scikit-image 0.24 (which needs imageio >= 2.33, above Infinigen's imageio<2.32 pin; its asset factories
+# run with both), then infinigen itself
+# with --no-deps.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PY=${PYTHON:-python3.11}
+VENV=${LFUSD_INFINIGEN_VENV:-.venv-infinigen}
+command -v "$PY" >/dev/null || { echo "setup_infinigen: $PY not found; Infinigen needs CPython 3.11 (bpy 4.2 wheels)" >&2; exit 1; }
+[ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+stamp=$VENV/.lfusd-infinigen-installed
+if [ ! -f "$stamp" ]; then
+  echo "setup_infinigen: installing bpy 4.2.0, Infinigen's dependencies (as wheels) and infinigen 1.15.5 into $VENV"
+  "$VENV/bin/python" -m pip install -q --upgrade pip
+  "$VENV/bin/python" -m pip install -q --only-binary=:all: \
+    "bpy==4.2.0" "numpy<2" "scikit-image==0.24.0" coacd "gin_config>=0.5.0" imageio matplotlib \
+    networkx "opencv-python<4.9.0" pandas psutil "scikit-learn<1.4.0" scipy "shapely<=2.0.5" tqdm \
+    "trimesh<3.23.0" OpenEXR submitit geomdl python-fcl rtree
+  "$VENV/bin/python" -m pip install -q --no-deps "infinigen==1.15.5"
+  touch "$stamp"
+fi
+# Blender 4.2 looks for extensions online when an asset module asks for an add-on (rocks, snow,
+# landscape): keep this environment offline. lfusd's bake runner also switches online access off
+# before it imports Infinigen; this check proves the environment imports an asset module offline.
+"$VENV/bin/python" - <<'PY'
+import bpy
+bpy.context.preferences.system.use_online_access = False
+import infinigen.assets.objects.seating  # noqa: F401  (imports Infinigen's core as any factory does)
+print("setup_infinigen: infinigen", __import__("importlib.metadata").metadata.version("infinigen"),
+      "with bpy", bpy.app.version_string, "ready (offline)")
+PY
