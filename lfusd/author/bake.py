@@ -17,6 +17,8 @@ logged and counted in a :class:`CleanReport`:
   flat normal map's (0.5, 0.5, 1) becomes (0.21, 0.21, 1): normals tilted about 40 degrees.
 - ``normal_maps``: a normal map needs ``scale`` (2, 2, 2, 1) and ``bias`` (-1, -1, -1, 0) to
   map [0, 1] texels to [-1, 1] as UsdPreviewSurface specifies; they are added where missing.
+- ``types``: the normal input is written as ``float3``; UsdPreviewSurface's is ``normal3f``
+  (USD's validators refuse the asset otherwise).
 - ``glass``: glass is exported with ``opacity`` 0 (invisible); it becomes lfusd's glass
   (lfusd.author.scenes.build.FINISHES: opacity 0.3, roughness 0.05) with its ior (1.5 if none).
 - ``grounded``: the asset's lowest point is moved to 0 along its up axis (a translate on the
@@ -75,7 +77,7 @@ class CleanReport:
     """What :func:`clean_asset` fixed: per fix, how many times (see the module docstring)."""
 
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(
-        ("lights", "colour_spaces", "normal_maps", "glass", "grounded", "instanced"), 0))
+        ("lights", "colour_spaces", "normal_maps", "types", "glass", "grounded", "instanced"), 0))
     triangles: int = 0
     ground_shift: float = 0.0  # metres the asset moved up (negative: down)
     notes: list[str] = field(default_factory=list)
@@ -132,6 +134,19 @@ def _fix_materials(stage, report: CleanReport) -> None:
                 sh.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*NORMAL_BIAS))
                 report.fix("normal_maps", 1, "normal map %s: scale (2, 2, 2, 1) and bias (-1, -1, -1, 0) added", prim.GetPath())
         elif kind == "UsdPreviewSurface":
+            normal = sh.GetInput("normal")
+            if normal and normal.GetTypeName() != Sdf.ValueTypeNames.Normal3f:
+                # Blender writes float3; UsdPreviewSurface's normal is a normal3f (USD's validators insist)
+                sources = [s.source.GetPrim().GetPath().AppendProperty(UsdShade.Utils.GetFullName(s.sourceName, s.sourceType))
+                           for s in normal.GetConnectedSources()[0]]
+                value = normal.Get() if not sources else None
+                prim.RemoveProperty(normal.GetAttr().GetName())
+                fixed = sh.CreateInput("normal", Sdf.ValueTypeNames.Normal3f)
+                if sources:
+                    fixed.GetAttr().SetConnections(sources)
+                elif value is not None:
+                    fixed.Set(Gf.Vec3f(*value))
+                report.fix("types", 1, "%s.inputs:normal: float3 -> normal3f", prim.GetPath())
             opacity = sh.GetInput("opacity")
             if opacity and not opacity.HasConnectedSource() and opacity.Get() is not None and float(opacity.Get()) <= 0.0:
                 from .scenes.build import FINISHES
@@ -435,6 +450,9 @@ def bake(generator: str, factory: str, seed: int, catalogue: str | Path, out: st
         raise LfusdError(f"--class {cls!r} is not an object class lfusd knows; use one of {', '.join(OBJECTS)}")
     if seed < 0:
         raise LfusdError(f"--seed {seed} is negative; give a seed >= 0")
+    if max_triangles < 1 or texture_size < 16:
+        raise LfusdError(f"--max-triangles {max_triangles} / --texture-size {texture_size}: give at least 1 triangle "
+                         "and 16 pixels")
     exe = infinigen_python(python)
     cat = catalogue_path(catalogue, catalogue)
     if cat.suffix.lower() != ".json":
@@ -449,7 +467,7 @@ def bake(generator: str, factory: str, seed: int, catalogue: str | Path, out: st
     start = time.monotonic()
     asset_dir.mkdir(parents=True)
     try:
-        raw = asset_dir / ".infinigen"
+        raw = asset_dir.resolve() / ".infinigen"
         cmd = [str(exe), str(Path(__file__).with_name("infinigen_runner.py")), "--factory", factory, "--seed", str(seed),
                "--out", str(raw / name), "--texture-size", str(texture_size)]
         log.info("running Infinigen: %s", " ".join(cmd))

@@ -116,7 +116,8 @@ def _material(stage, name: str, textures: dict | None = None, **constants) -> No
             if input_name == "diffuseColor":
                 pbr.CreateInput(input_name, Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
             elif input_name == "normal":
-                pbr.CreateInput(input_name, Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+                # Blender 4.2 writes the normal input as float3 (UsdPreviewSurface says normal3f)
+                pbr.CreateInput(input_name, Sdf.ValueTypeNames.Float3).ConnectToSource(tex.ConnectableAPI(), "rgb")
             else:
                 pbr.CreateInput(input_name, Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "r")
     mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
