@@ -14,24 +14,22 @@ PY=${PYTHON:-python3.11}
 VENV=${LFUSD_INFINIGEN_VENV:-.venv-infinigen}
 command -v "$PY" >/dev/null || { echo "setup_infinigen: $PY not found; Infinigen needs CPython 3.11 (bpy 4.2 wheels)" >&2; exit 1; }
 [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
+# Infinigen's asset modules import pxr (its simulation exporter), so usd-core comes along.
+DEPS=("bpy==4.2.0" "numpy<2" "scikit-image==0.24.0" coacd "gin_config>=0.5.0" imageio matplotlib networkx
+  "opencv-python<4.9.0" pandas psutil "scikit-learn<1.4.0" scipy "shapely<=2.0.5" tqdm "trimesh<3.23.0" OpenEXR
+  submitit geomdl python-fcl rtree usd-core)
 stamp=$VENV/.lfusd-infinigen-installed
-if [ ! -f "$stamp" ]; then
+want="infinigen==1.15.5 ${DEPS[*]}"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "setup_infinigen: installing bpy 4.2.0, Infinigen's dependencies (as wheels) and infinigen 1.15.5 into $VENV"
   "$VENV/bin/python" -m pip install -q --upgrade pip
-  "$VENV/bin/python" -m pip install -q --only-binary=:all: \
-    "bpy==4.2.0" "numpy<2" "scikit-image==0.24.0" coacd "gin_config>=0.5.0" imageio matplotlib \
-    networkx "opencv-python<4.9.0" pandas psutil "scikit-learn<1.4.0" scipy "shapely<=2.0.5" tqdm \
-    "trimesh<3.23.0" OpenEXR submitit geomdl python-fcl rtree
+  "$VENV/bin/python" -m pip install -q --only-binary=:all: "${DEPS[@]}"
   "$VENV/bin/python" -m pip install -q --no-deps "infinigen==1.15.5"
-  touch "$stamp"
+  echo "$want" > "$stamp"
 fi
-# Blender 4.2 looks for extensions online when an asset module asks for an add-on (rocks, snow,
-# landscape): keep this environment offline. lfusd's bake runner also switches online access off
-# before it imports Infinigen; this check proves the environment imports an asset module offline.
-"$VENV/bin/python" - <<'PY'
-import bpy
-bpy.context.preferences.system.use_online_access = False
-import infinigen.assets.objects.seating  # noqa: F401  (imports Infinigen's core as any factory does)
-print("setup_infinigen: infinigen", __import__("importlib.metadata").metadata.version("infinigen"),
-      "with bpy", bpy.app.version_string, "ready (offline)")
-PY
+# Blender 4.2 downloads add-ons from extensions.blender.org when an asset module asks for one it
+# lacks (rocks, snow, landscapes), even when told not to. lfusd's runner switches online access off
+# and answers those requests locally before it imports Infinigen; its --check imports every asset
+# module that way, offline, and counts the factories.
+"$VENV/bin/python" lfusd/author/infinigen_runner.py --check | tail -1
+echo "setup_infinigen: ready; bake with: lfusd assets bake --generator infinigen FACTORY --seed N --catalogue FILE"

@@ -25,6 +25,10 @@ import time
 from pathlib import Path
 
 log = logging.getLogger("lfusd.infinigen_runner")
+# Run as a script, its folder (lfusd/author) comes first on the module path, where lfusd's modules
+# (geometry, labels, stage, ...) would shadow the names Infinigen's dependencies import.
+if sys.path and Path(sys.path[0] or ".").resolve() == Path(__file__).resolve().parent:
+    sys.path.pop(0)
 
 
 def _offline() -> None:
@@ -53,8 +57,9 @@ def _offline() -> None:
     init.require_blender_addon = require_blender_addon
 
 
-def _factory(name: str):
-    """The factory class ``name`` from Infinigen's asset modules (as its generate_individual_assets finds it)."""
+def _modules():
+    """Infinigen's asset modules (infinigen.assets.objects.*, as its generate_individual_assets
+    walks them), each imported; one that fails to import is skipped with a warning."""
     import gin
     import infinigen.assets.objects as objects
 
@@ -63,30 +68,36 @@ def _factory(name: str):
             continue
         with gin.unlock_config():
             try:
-                module = importlib.import_module(f"infinigen.assets.objects.{sub.name.split('.')[0]}")
+                yield importlib.import_module(f"infinigen.assets.objects.{sub.name.split('.')[0]}")
             except Exception as e:  # one broken module (a missing add-on) must not hide the others
                 log.warning("skipping infinigen.assets.objects.%s: %s", sub.name, e)
-                continue
-        if hasattr(module, name):
-            return getattr(module, name)
-    return None
+
+
+def _factory(name: str):
+    """The factory class ``name`` from Infinigen's asset modules, or None."""
+    return next((getattr(m, name) for m in _modules() if hasattr(m, name)), None)
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--factory", required=True)
-    p.add_argument("--seed", type=int, required=True)
-    p.add_argument("--out", required=True, type=Path)
+    p.add_argument("--factory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path)
     p.add_argument("--texture-size", type=int, default=1024)
-    p.add_argument("--check", action="store_true", help="only import Infinigen offline and exit")
+    p.add_argument("--check", action="store_true", help="only import every asset module offline, count the factories")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
     start = time.monotonic()
     _offline()
     if a.check:
         import bpy
-        print("LFUSD_BAKE " + json.dumps({"bpy": bpy.app.version_string}))
+
+        modules = list(_modules())
+        factories = {n for m in modules for n in dir(m) if n.endswith("Factory")}
+        print("LFUSD_BAKE " + json.dumps({"bpy": bpy.app.version_string, "modules": len(modules), "factories": len(factories)}))
         return 0
+    if not (a.factory and a.out):
+        p.error("--factory and --out are required")
     import bpy
     from infinigen.core import init
     from infinigen.core.util import blender as butil
