@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Opt-in: set up .venv-infinigen/, Infinigen's own environment, for `lfusd assets bake --generator infinigen`.
-# Never run by `make test` or CI. About 3 minutes and 2.3 GB; a second run installs nothing new.
+# Never run by `make test` or CI. A few minutes and about 2.5 GB; a second run installs nothing new.
 # Infinigen 1.15.5 pins bpy 4.2.0 (lfusd's .venv has bpy 5.0), so it lives in its own CPython 3.11
 # environment that lfusd runs as a subprocess. Its declared scikit-image<0.20 has no wheel for 3.11
 # and compiles from source for half an hour: the dependencies are installed as wheels with

@@ -410,7 +410,7 @@ def infinigen_python(python: str | Path | None = None) -> Path:
             return c
     where = str(candidates[0]) if given else ".venv-infinigen/bin/python"
     raise LfusdError(f"Infinigen's environment is missing ({where} not found); run {SETUP_SCRIPT} "
-                     f"(opt-in, about 3 minutes and 2.3 GB) or name its interpreter with --python or ${PYTHON_ENV}")
+                     f"(opt-in: a few minutes, about 2.5 GB) or name its interpreter with --python or ${PYTHON_ENV}")
 
 
 def factory_class(factory: str, cls: str | None) -> str:

@@ -44,7 +44,7 @@ def register(sub) -> None:
                                     "not decimated. Errors are one line (exit 2), and nothing is left behind.")
     b.add_argument("factory", metavar="FACTORY", help="the generator's factory class, e.g. ChairFactory, TableDiningFactory")
     b.add_argument("--generator", required=True, choices=("infinigen",), help="the generator that makes the asset")
-    b.add_argument("--seed", type=int, required=True, help="the factory's seed (the same seed makes the same asset)")
+    b.add_argument("--seed", type=int, required=True, help="the seed the factory makes its asset with")
     b.add_argument("--catalogue", required=True, metavar="FILE", help="the catalogue file (.json; made when missing)")
     b.add_argument("-o", "--out", metavar="DIR",
                    help="folder for the asset (it goes into DIR/FACTORY_SEED/; default: the catalogue's folder)")
