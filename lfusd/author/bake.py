@@ -95,33 +95,32 @@ class CleanReport:
 
 # -- the clean-up ---------------------------------------------------------------------------------
 
-def _surface_inputs(tex):
-    """The UsdPreviewSurface inputs a UsdUVTexture shader feeds: [(surface shader, input name)]."""
+def _texture_uses(stage) -> dict:
+    """For each UsdUVTexture shader (by path), the UsdPreviewSurface inputs it feeds directly."""
     from pxr import UsdShade
 
-    out = []
-    for prim in tex.GetPrim().GetParent().GetChildren():  # Blender writes a material's shaders side by side
+    uses: dict = {}
+    for prim in stage.Traverse():
         sh = UsdShade.Shader(prim)
         if not sh or sh.GetIdAttr().Get() != "UsdPreviewSurface":
             continue
         for inp in sh.GetInputs():
             for src in inp.GetConnectedSources()[0]:
-                if src.source.GetPrim() == tex.GetPrim():
-                    out.append((sh, inp.GetBaseName()))
-    return out
+                uses.setdefault(src.source.GetPath(), []).append(inp.GetBaseName())
+    return uses
 
 
 def _fix_materials(stage, report: CleanReport) -> None:
     from pxr import Gf, Sdf, UsdShade
 
+    uses = _texture_uses(stage)
     for prim in stage.Traverse():
         sh = UsdShade.Shader(prim)
         if not sh:
             continue
         kind = sh.GetIdAttr().Get()
         if kind == "UsdUVTexture":
-            feeds = _surface_inputs(sh)
-            names = [n for _, n in feeds]
+            names = uses.get(prim.GetPath(), [])
             cs = sh.GetInput("sourceColorSpace")
             space = (cs.Get() if cs else None) or "auto"
             if names and all(n not in COLOUR_INPUTS for n in names) and space != "raw":
@@ -197,8 +196,8 @@ def _spec_key(layer, path) -> tuple:
         if hasattr(prop, "targetPathList"):
             props.append((name, tuple(str(p) for p in prop.targetPathList.GetAddedOrExplicitItems())))
         else:
-            props.append((name, prop.typeName.type.typeName, _value_key(prop.default),
-                          tuple(sorted(prop.GetInfo("interpolation") if prop.HasInfo("interpolation") else ""))))
+            props.append((name, str(prop.typeName), _value_key(prop.default),
+                          str(prop.GetInfo("interpolation")) if prop.HasInfo("interpolation") else ""))
     children = tuple((c.name, _spec_key(layer, c.path)) for c in spec.nameChildren)
     return (spec.typeName, tuple(sorted(props, key=lambda p: p[0])), children)
 
@@ -247,12 +246,10 @@ def _instance_copies(stage, report: CleanReport) -> None:
                 if prop.name.startswith("xformOp"):
                     gspec.RemoveProperty(prop)
             # the mesh's materials come along inside the prototype (a reference cannot reach outside it)
-            for mat in sorted({t for p in _targets(layer, geom) for t in [p] if not t.HasPrefix(proto)}, key=str):
-                if layer.GetPrimAtPath(mat) is None:
-                    continue
-                local = proto.AppendChild("Looks").AppendChild(mat.name)
-                if layer.GetPrimAtPath(local) is None:
-                    _copy_with_paths(layer, mat, local)
+            outside = sorted({t for t in _targets(layer, geom) if not t.HasPrefix(proto)}, key=str)
+            for j, mat in enumerate(m for m in outside if layer.GetPrimAtPath(m) is not None):
+                local = proto.AppendChild("Looks").AppendChild(f"{mat.name}_{j}")
+                _copy_with_paths(layer, mat, local)
                 _retarget(layer, geom, mat, local)
         for path in paths:
             old = layer.GetPrimAtPath(path)
@@ -330,11 +327,12 @@ def _ground(stage, report: CleanReport) -> None:
 
 
 def clean_asset(src: str | Path, dst: str | Path, cls: str | None = None, licence: str | None = None,
-                max_triangles: int = MAX_TRIANGLES) -> CleanReport:
+                max_triangles: int = MAX_TRIANGLES, label: str | None = None) -> CleanReport:
     """Write ``dst``, the asset at ``src`` with what its Infinigen export gets wrong fixed (see the
     module docstring), labelled ``cls`` and with ``licence`` in its metadata when given; the
     textures it reads are copied beside ``dst`` at the same relative paths. LfusdError, with
-    nothing written, when it has more than ``max_triangles`` drawn triangles."""
+    nothing written, when it has more than ``max_triangles`` drawn triangles (``label`` names the
+    asset in messages, default ``src``)."""
     from pxr import Sdf, Usd, UsdSemantics
 
     from .stage import usd_warnings
@@ -347,9 +345,9 @@ def clean_asset(src: str | Path, dst: str | Path, cls: str | None = None, licenc
         source = Usd.Stage.Open(str(src))
     report = CleanReport(triangles=_drawn_triangles(source))
     if report.triangles > max_triangles:
-        raise LfusdError(f"asset {src} has {report.triangles} triangles, over the budget of {max_triangles} "
+        raise LfusdError(f"asset {label or src} has {report.triangles} triangles, over the budget of {max_triangles} "
                          "(lfusd refuses, it does not decimate); bake another seed or raise --max-triangles")
-    if dst.exists() and dst.resolve() != src.resolve():
+    if dst.exists():
         raise LfusdError(f"{dst} already exists; lfusd does not overwrite it: remove it or choose another output")
     dst.parent.mkdir(parents=True, exist_ok=True)
     layer = Sdf.Layer.CreateNew(str(dst))
@@ -472,16 +470,15 @@ def bake(generator: str, factory: str, seed: int, catalogue: str | Path, out: st
                "--out", str(raw / name), "--texture-size", str(texture_size)]
         log.info("running Infinigen: %s", " ".join(cmd))
         proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=asset_dir)
-        (asset_dir / ".infinigen.log").write_text(proc.stdout)
+        log.debug("Infinigen's output:\n%s", proc.stdout)
         lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("LFUSD_BAKE ")]
         if proc.returncode != 0 or not lines:
             last = next((ln for ln in reversed(proc.stdout.splitlines()) if ln.strip()), "no output")
             raise LfusdError(f"Infinigen failed on {factory} seed {seed} (exit {proc.returncode}): {last.strip()}")
         exported = Path(json.loads(lines[-1][len("LFUSD_BAKE "):])["usd"])
         report = clean_asset(exported, asset_dir / f"{name}.usdc", cls=cls, licence=LICENCE_INFINIGEN,
-                             max_triangles=max_triangles)
+                             max_triangles=max_triangles, label=f"{factory} seed {seed}")
         shutil.rmtree(raw)
-        (asset_dir / ".infinigen.log").unlink()
         path, added = add_assets(asset_dir / f"{name}.usdc", cat, cls, LICENCE_INFINIGEN)
     except BaseException:
         shutil.rmtree(asset_dir, ignore_errors=True)

@@ -217,3 +217,15 @@ def test_a_failing_generator_is_one_line_and_leaves_nothing(tmp_path, capsys):
     assert code == 2
     assert_one_line_error(code, err, "Infinigen failed on ChairFactory seed 0 (exit 1)", "factory blew up")
     assert os.listdir(lib) == []
+
+
+def test_bake_over_the_budget_is_refused_in_one_line_and_leaves_nothing(tmp_path, capsys):
+    python = _stand_in(tmp_path / "python")
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    code, _, err = run_cli(capsys, "assets", "bake", "--generator", "infinigen", "TableDiningFactory", "--seed", "3",
+                           "--catalogue", lib / "catalogue.json", "--python", python, "--max-triangles", "50")
+    assert code == 2
+    assert_one_line_error(code, err, f"TableDiningFactory seed 3 has {TRIANGLES} triangles, over the budget of 50",
+                          "--max-triangles")
+    assert os.listdir(lib) == []
