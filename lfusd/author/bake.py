@@ -301,29 +301,33 @@ def _drawn_triangles(stage) -> int:
 
 
 def _ground(stage, report: CleanReport) -> None:
-    from pxr import Gf, Usd, UsdGeom
+    """Move the asset's lowest drawn point to 0 along its up axis (its points, as the catalogue
+    measures them: authored extents can be looser than the geometry)."""
+    from pxr import Gf, UsdGeom
 
-    from .stage import meters_per_unit
+    from .geometry import StageGeometry
 
     root = stage.GetDefaultPrim()
     if not root or not root.IsA(UsdGeom.Xformable):
         raise LfusdError(f"asset {stage.GetRootLayer().identifier} has no transformable default prim to ground; "
                          "give an asset whose default prim is an Xform")
-    cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
-    box = cache.ComputeWorldBound(root).ComputeAlignedRange()
-    axis = 1 if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y else 2
-    low = box.GetMin()[axis]
-    if box.IsEmpty() or abs(low) <= 1e-7:
+    geometry = StageGeometry(stage)
+    t = stage.GetStartTimeCode() if stage.HasAuthoredTimeCodeRange() else 0.0
+    lows = [float(m.vertices[:, 2].min()) for m in (geometry.mesh(p, t) for p in geometry.parts) if len(m.vertices)]
+    if not lows or abs(min(lows)) <= 1e-7:
         return
+    low = min(lows)  # metres, in lfusd's world (Z up)
+    mpu = geometry.frame.meters_per_unit
+    axis = 1 if geometry.frame.up_axis == "Y" else 2
     shift = [0.0, 0.0, 0.0]
-    shift[axis] = -low
+    shift[axis] = -low / mpu  # scene units along the asset's up axis
     xf = UsdGeom.Xformable(root)
     order = xf.GetOrderedXformOps()
     op = xf.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble, "lfusdGround")
     op.Set(Gf.Vec3d(*shift))
     xf.SetXformOpOrder([op] + order, xf.GetResetXformStack())  # outermost: along the stage's own axes
-    report.ground_shift = float(-low * meters_per_unit(stage))
-    report.fix("grounded", 1, "lowest point was at %.4g m along %s: moved to 0", low * meters_per_unit(stage), "yz"[axis - 1])
+    report.ground_shift = -low
+    report.fix("grounded", 1, "lowest point was at %.4g m along %s: moved to 0", low, "yz"[axis - 1])
 
 
 def clean_asset(src: str | Path, dst: str | Path, cls: str | None = None, licence: str | None = None,

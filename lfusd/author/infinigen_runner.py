@@ -98,7 +98,6 @@ def main(argv=None) -> int:
         return 0
     if not (a.factory and a.out):
         p.error("--factory and --out are required")
-    import bpy
     from infinigen.core import init
     from infinigen.core.util import blender as butil
     from infinigen.core.util.math import FixedSeed
@@ -115,13 +114,9 @@ def main(argv=None) -> int:
         return 2
     with FixedSeed(a.seed):
         fac = factory(a.seed)
-        asset = fac.spawn_asset(a.seed)
-        fac.finalize_assets(asset)
-    # only the asset: the factory's placeholders and helpers are not exported
-    keep = {asset, *asset.children_recursive}
-    for o in list(bpy.data.objects):
-        if o not in keep:
-            bpy.data.objects.remove(o, do_unlink=True)
+        # Nothing else is removed: the factory's hidden collections (a bush's twigs and flowers) are
+        # what its geometry nodes instance, and the exporter writes only what renders.
+        fac.finalize_assets(fac.spawn_asset(a.seed))
     a.out.mkdir(parents=True, exist_ok=True)
     usd = export.export_curr_scene(a.out, format="usdc", image_res=a.texture_size)
     print("LFUSD_BAKE " + json.dumps({"usd": str(Path(usd).resolve()), "seconds": round(time.monotonic() - start, 1)}))

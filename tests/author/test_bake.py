@@ -229,3 +229,30 @@ def test_bake_over_the_budget_is_refused_in_one_line_and_leaves_nothing(tmp_path
     assert_one_line_error(code, err, f"TableDiningFactory seed 3 has {TRIANGLES} triangles, over the budget of 50",
                           "--max-triangles")
     assert os.listdir(lib) == []
+
+
+def test_a_y_up_centimetre_asset_is_grounded_along_its_own_up_axis(tmp_path):
+    """Grounding follows the asset's up axis and units: a Y-up centimetre box 50 cm up, under a
+    root turned 90 degrees about y, comes down 50 cm along y."""
+    from lfusd.author.catalogue import inspect_asset
+
+    path = tmp_path / "box.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    root = UsdGeom.Xform.Define(stage, "/Box")
+    root.AddRotateYOp().Set(90.0)
+    stage.SetDefaultPrim(root.GetPrim())
+    box = UsdGeom.Mesh.Define(stage, "/Box/Geo")
+    box.CreatePointsAttr([(x, y, z) for x in (-20, 20) for y in (50, 90) for z in (-10, 10)])
+    box.CreateFaceVertexCountsAttr([4] * 6)
+    box.CreateFaceVertexIndicesAttr([0, 1, 3, 2, 4, 6, 7, 5, 0, 4, 5, 1, 2, 3, 7, 6, 0, 2, 6, 4, 1, 5, 7, 3])
+    stage.GetRootLayer().Save()
+    report = clean_asset(path, tmp_path / "out" / "box.usda", cls="bench")
+    assert report.counts["grounded"] == 1 and report.ground_shift == pytest.approx(-0.5, abs=1e-9)
+    out = Usd.Stage.Open(str(tmp_path / "out" / "box.usda"))
+    op = UsdGeom.Xformable(out.GetDefaultPrim()).GetOrderedXformOps()[0]
+    assert op.GetOpName() == "xformOp:translate:lfusdGround" and tuple(op.Get()) == pytest.approx((0, -50, 0))
+    a = inspect_asset(tmp_path / "out" / "box.usda")
+    assert a.ground == pytest.approx(0.0, abs=1e-6) and a.cls == "bench"
+    assert np.subtract(a.bounds[1], a.bounds[0])[2] == pytest.approx(0.4, abs=1e-6)  # 40 cm tall, still
