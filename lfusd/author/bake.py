@@ -235,10 +235,9 @@ def _instance_copies(stage, report: CleanReport) -> None:
         first = paths[0]
         proto = Sdf.Path(PROTOTYPES).AppendChild(f"{first.name}_{k}")
         with Sdf.ChangeBlock():
-            Sdf.CreatePrimInLayer(layer, proto)
-            pspec = layer.GetPrimAtPath(proto)
-            pspec.specifier = Sdf.SpecifierClass
-            pspec.typeName = "Xform"
+            if layer.GetPrimAtPath(PROTOTYPES) is None:  # abstract, like everything in it: nothing here draws
+                Sdf.PrimSpec(layer, Sdf.Path(PROTOTYPES).name, Sdf.SpecifierClass, "Scope")
+            pspec = Sdf.PrimSpec(layer.GetPrimAtPath(PROTOTYPES), proto.name, Sdf.SpecifierClass, "Xform")
             geom = proto.AppendChild(first.name)
             _copy_with_paths(layer, first, geom)
             gspec = layer.GetPrimAtPath(geom)
@@ -247,6 +246,8 @@ def _instance_copies(stage, report: CleanReport) -> None:
                     gspec.RemoveProperty(prop)
             # the mesh's materials come along inside the prototype (a reference cannot reach outside it)
             outside = sorted({t for t in _targets(layer, geom) if not t.HasPrefix(proto)}, key=str)
+            if outside:
+                Sdf.PrimSpec(pspec, "Looks", Sdf.SpecifierDef, "Scope")
             for j, mat in enumerate(m for m in outside if layer.GetPrimAtPath(m) is not None):
                 local = proto.AppendChild("Looks").AppendChild(f"{mat.name}_{j}")
                 _copy_with_paths(layer, mat, local)

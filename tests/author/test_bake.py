@@ -111,6 +111,13 @@ def test_grounded_and_instanced_without_moving_a_point(cleaned):
     mat = UsdShade.MaterialBindingAPI(mesh).ComputeBoundMaterial()[0]
     colour = mat.ComputeSurfaceSource()[0].GetInput("diffuseColor").Get()
     assert np.allclose(colour, (0.1, 0.06, 0.03), atol=1e-6)
+    # the legs' wood, copied into their prototype, is a defined material reading the fixed textures
+    leg = next(c for c in Usd.PrimRange(legs[0], Usd.TraverseInstanceProxies()) if c.IsA(UsdGeom.Mesh))
+    wood = UsdShade.MaterialBindingAPI(leg).ComputeBoundMaterial()[0]
+    assert wood.GetPrim().IsDefined() and wood.GetPrim().IsInstanceProxy()
+    tex = _texture_feeding(after, str(wood.GetPath()), "normal")
+    assert tex.GetInput("sourceColorSpace").Get() == "raw" and tex.GetInput("file").Get().path == "./textures/top_NORMAL.png"
+    assert all(not p.IsDefined() or p.IsAbstract() for p in Usd.PrimRange.AllPrims(after.GetPrimAtPath("/lfusd_prototypes")))
 
 
 def test_cleaned_asset_passes_usd_validation(cleaned):
@@ -127,7 +134,8 @@ def test_cleaned_asset_is_accepted_by_assets_add_and_check(cleaned, tmp_path, ca
     code, out, err = run_cli(capsys, "assets", "add", clean, "--catalogue", cat)
     assert code == 0, err
     (a,) = load_catalogue(cat)
-    assert (a.cls, a.licence, a.triangles, a.textured_materials) == ("table", LICENCE_INFINIGEN, TRIANGLES, 1)
+    # textured: the top's wood, and its copy inside the legs' prototype
+    assert (a.cls, a.licence, a.triangles, a.textured_materials) == ("table", LICENCE_INFINIGEN, TRIANGLES, 2)
     assert a.ground == pytest.approx(0.0, abs=1e-6) and a.up_axis == "Z" and a.meters_per_unit == 1.0
     assert a.lights == ()
     size = np.subtract(a.bounds[1], a.bounds[0])
