@@ -135,7 +135,9 @@ def test_only_the_render_worker_imports_bpy_and_nothing_imports_the_commands():
                 seen_bpy.append(name)
             if mod.startswith("lfusd.commands") and part_of(name) not in ("commands", "cli"):
                 raise AssertionError(f"{name}:{line} imports {mod}: the CLI sits on top, nothing imports it")
-    assert seen_bpy == ["lfusd.render.worker"]
+            # the Infinigen runner is a script for Infinigen's own interpreter (its bpy 4.2), never imported
+            assert mod != "lfusd.author.infinigen_runner", f"{name}:{line} imports the Infinigen runner; run it as a script"
+    assert sorted(set(seen_bpy)) == ["lfusd.author.infinigen_runner", "lfusd.render.worker"]
 
 
 def test_reading_a_dataset_needs_neither_pxr_nor_bpy_nor_torch():
