@@ -57,7 +57,7 @@ PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
 PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
 PROP_REACH = 3.5  # m: props whose box lies this near a performer's loop centre may stand in front of a rig
 PROP_SHARE = 0.6  # share of candidates placed just behind a prop
-FOCUS_TRIES = 4  # candidates tried behind props / past static objects when the best shows no occlusion
+FOCUS_TRIES = 24  # candidates tried behind props / past static objects when the best shows no occlusion
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
 PERSON_HEIGHT = 2.1
 
