@@ -203,7 +203,7 @@ def sweep_size(asset) -> tuple[float, float]:
     return max(PERSON_RADIUS, max(sx, sy) / 2 + 0.1), max(PERSON_HEIGHT, sz + 0.2)
 
 
-def body(rng: np.random.Generator, asset) -> dict:
+def person_body(rng: np.random.Generator, asset) -> dict:
     """add_person's keyword for the body: the catalogue character ``asset``, else a procedural
     human of random height and build."""
     if asset is not None:
@@ -213,7 +213,8 @@ def body(rng: np.random.Generator, asset) -> dict:
 
 def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_len: float | None = None) -> bool:
     """A person walking/running straight from ``start`` along ``direction`` on a surface at height
-    ``z``, if the box it sweeps over the clip is free; True when added."""
+    ``z``, if the box it sweeps over the clip is free; True when added. The person is a catalogue
+    character when the scene's catalogues have walkable ones (:func:`character`)."""
     start, d = np.asarray(start, float), np.asarray(direction, float) / np.linalg.norm(direction)
     if max_len is not None and max_len < 1.5:
         return False
@@ -229,7 +230,7 @@ def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_le
         return False
     points = [start, start + d * max(length, 0.5)]
     try:
-        prim = add_person(ctx.stage, points, gait=gait, speed=speed, check=False, **body(ctx.rng, who))
+        prim = add_person(ctx.stage, points, gait=gait, speed=speed, check=False, **person_body(ctx.rng, who))
     except LfusdError:  # e.g. the path would leave its support: skip this person
         return False
     path = str(prim.GetPath())
@@ -356,8 +357,9 @@ def loop_beside(ctx: Ctx, rng: np.random.Generator, labels, region, length: floa
 
 
 def performer(ctx: Ctx, tries: int = 100) -> bool:
-    """A person walking a loop on a spot the template offers (``ctx.spot``) for the whole clip,
-    if its sweep is free; records it in ``ctx.performers``."""
+    """A person (a catalogue character when there are walkable ones: :func:`character`) walking a
+    loop on a spot the template offers (``ctx.spot``) for the whole clip, if its sweep is free;
+    records it in ``ctx.performers``."""
     rng = ctx.rng
     who = character(ctx, rng)
     radius, height = sweep_size(who)
@@ -375,7 +377,7 @@ def performer(ctx: Ctx, tries: int = 100) -> bool:
         if not ctx.occ.free(lo, hi):
             continue
         speed = float(rng.uniform(0.9, 1.4))
-        kw = body(rng, who)
+        kw = person_body(rng, who)
         points = loop_path(centre, heading, length, width, speed * ctx.duration + 3.0, bool(rng.random() < 0.5))
         try:
             prim = add_person(ctx.stage, points, gait="walk", speed=speed, check=False, **kw)
