@@ -114,6 +114,9 @@ class Ctx:
     performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
     statics: list | None = None  # (label, lo, hi) of static objects (see prop_near)
     characters: list | None = None  # the catalogues' person assets lfusd's gaits can drive (see character)
+    # catalogue assets for movers are drawn from this generator, not ``rng``: with or without catalogues
+    # a seed's placements, speeds and rigs are drawn alike
+    picks: np.random.Generator | None = None
 
     @property
     def duration(self) -> float:
@@ -136,7 +139,7 @@ def populate(scene: Scene, template: Template, site: Site, seed: int, rigs: int 
             stage.RemovePrim(o.prim_path)
             scene.placed = [p for p in scene.placed if p.path != o.prim_path]
     ctx = Ctx(scene, np.random.default_rng([int(seed), template.seed_key, 1]), Occupancy.of(stage), last - first + 1,
-              float(stage.GetTimeCodesPerSecond() or 24.0))
+              float(stage.GetTimeCodesPerSecond() or 24.0), picks=np.random.default_rng([int(seed), template.seed_key, 2]))
     replaced = template.animate(ctx, site)
     if ctx.spot is not None:
         for _ in range(max(1, math.ceil(rigs / RIGS_PER_SET))):
@@ -172,11 +175,10 @@ def settle(stage: Usd.Stage, dynamic: list[str], scene: Scene | None = None, rou
 
 
 # -- building blocks -------------------------------------------------------------------------------
-def character(ctx: Ctx, rng: np.random.Generator):
-    """A catalogue character for the next walking person, drawn uniformly from the scene's
+def character(ctx: Ctx):
+    """A catalogue character for the next walking person, drawn uniformly (``ctx.picks``) from the scene's
     catalogue assets of class ``person`` that lfusd's gaits can drive (UsdSkel bipeds: those
-    lfusd.author.people.read_character accepts), or None when there are none (a procedural body;
-    no draw is made, so stages without a catalogue keep their seed's draws)."""
+    lfusd.author.people.read_character accepts), or None when there are none (a procedural body)."""
     if ctx.characters is None:
         from ..people import read_character
 
@@ -188,7 +190,7 @@ def character(ctx: Ctx, rng: np.random.Generator):
                 log.info("catalogue person %s does not walk: %s", a.name, e)
                 continue
             ctx.characters.append(a)
-    return ctx.characters[int(rng.integers(len(ctx.characters)))] if ctx.characters else None
+    return ctx.characters[int(ctx.picks.integers(len(ctx.characters)))] if ctx.characters else None
 
 
 def sweep_size(asset) -> tuple[float, float]:
@@ -205,10 +207,9 @@ def sweep_size(asset) -> tuple[float, float]:
 
 def person_body(rng: np.random.Generator, asset) -> dict:
     """add_person's keyword for the body: the catalogue character ``asset``, else a procedural
-    human of random height and build."""
-    if asset is not None:
-        return {"character": str(asset.path())}
-    return {"spec": HumanSpec(float(rng.uniform(1.6, 1.9)), float(rng.uniform(0.2, 0.8)))}
+    human of random height and build (drawn either way: the seed's later draws stay alike)."""
+    spec = HumanSpec(float(rng.uniform(1.6, 1.9)), float(rng.uniform(0.2, 0.8)))
+    return {"spec": spec} if asset is None else {"character": str(asset.path())}
 
 
 def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_len: float | None = None) -> bool:
@@ -222,7 +223,7 @@ def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_le
     length = travel + 2.0 if max_len is None else min(travel + 2.0, max_len)
     reach = min(travel, length)
     a, b = start, start + d * reach
-    who = character(ctx, ctx.rng)
+    who = character(ctx)
     radius, height = sweep_size(who)
     lo = np.r_[np.minimum(a, b) - radius, z - 0.05]
     hi = np.r_[np.maximum(a, b) + radius, z + height]
@@ -252,9 +253,12 @@ def traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: i
                 ctx.occ.drop(scene, o.prim_path)
     if not ctx.occ.free(lane_lo, lane_hi):
         return
-    # catalogue cars drive as they are (their wheels, unknown to lfusd, do not turn); procedural ones roll theirs
-    specs = [(scene.draw("car", kit.car, rng=rng), [], None) if scene.assets.get("car") else kit.moving_car(rng)
-             for _ in range(cars)]
+    specs = [kit.moving_car(rng) for _ in range(cars)]
+    if scene.assets.get("car"):
+        # catalogue cars in their place, drawn from the catalogue's own generator (Ctx.picks): the seed's
+        # other draws (speeds, people, rigs) stay what they were. They drive
+        # as they are (their wheels, unknown to lfusd, do not turn); procedural ones roll theirs.
+        specs = [(scene.draw("car", kit.car, rng=ctx.picks), [], None) for _ in specs]
     lengths = [float(np.ptp(p[0][1].points[:, 0])) for p, _, _ in specs]
     gaps = [float(rng.uniform(4.0, 9.0)) for _ in specs]
     convoy = sum(lengths) + sum(gaps[1:])
@@ -361,7 +365,7 @@ def performer(ctx: Ctx, tries: int = 100) -> bool:
     loop on a spot the template offers (``ctx.spot``) for the whole clip, if its sweep is free;
     records it in ``ctx.performers``."""
     rng = ctx.rng
-    who = character(ctx, rng)
+    who = character(ctx)
     radius, height = sweep_size(who)
     for _ in range(tries):
         got = ctx.spot(rng)
