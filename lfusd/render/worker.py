@@ -308,12 +308,19 @@ def add_neutral_light(scene) -> None:
 # 5.0.1). The worker divides by it, so the sky is on average as bright as the flat dome it replaces
 # and, like a real one, darker when the sun is low.
 PHYSICAL_SKY_MEAN = 6.5
+# Below the horizon Blender's physical sky is black, which shows where a stage's ground ends. The
+# worker shows there the sky just above the horizon at the same azimuth (the haze that distant
+# ground fades into), darkening linearly with depression to GROUND_SHADE of it at GROUND_DIP (the
+# sine of the depression angle, about 11.5 degrees) and below.
+HORIZON_Z = 0.01  # sine of the elevation sampled for directions below the horizon (0.6 degrees)
+GROUND_SHADE, GROUND_DIP = 0.5, 0.2
 
 
 def use_physical_sky(scene) -> None:
     """Replace the flat colour of the world (the stage's DomeLight) with Blender's physical sky,
     its sun where the stage's brightest sun lamp (DistantLight) is and its disc off: the lamp
-    lights the scene, the sky around it glows. Only the beauty sees it (the data render has no world)."""
+    lights the scene, the sky around it glows; below the horizon, the horizon's haze, darkening
+    downwards (GROUND_SHADE). Only the beauty sees it (the data render has no world)."""
     suns = [o for o in scene.objects if o.type == "LIGHT" and o.data.type == "SUN" and not o.hide_render]
     world = scene.world
     out = None if world is None or world.node_tree is None else next(
@@ -327,14 +334,41 @@ def use_physical_sky(scene) -> None:
     sun = max(suns, key=lambda o: o.data.energy)
     to_sun = np.array(sun.matrix_world.to_3x3().col[2], np.float64)  # a sun lamp shines along its local -Z
     to_sun /= np.linalg.norm(to_sun)
-    sky = world.node_tree.nodes.new("ShaderNodeTexSky")
+    nodes, links = world.node_tree.nodes, world.node_tree.links
+    sky = nodes.new("ShaderNodeTexSky")
     sky.sky_type = "MULTIPLE_SCATTERING"
     sky.sun_disc = False
     sky.sun_elevation = float(np.arcsin(np.clip(to_sun[2], -1.0, 1.0)))
     # measured (bpy 5.0.1): sun_rotation r puts the sun at azimuth 90 degrees - r (from +x towards +y)
     sky.sun_rotation = float(np.pi / 2 - np.arctan2(to_sun[1], to_sun[0]))
     radiance = bg.inputs["Strength"].default_value * float(np.mean(bg.inputs["Color"].default_value[:3]))
-    world.node_tree.links.new(sky.outputs["Color"], bg.inputs["Color"])
+    # the view direction with its height clamped at HORIZON_Z (renormalised) feeds the sky ...
+    xyz = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(nodes.new("ShaderNodeTexCoord").outputs["Generated"], xyz.inputs[0])
+    up = nodes.new("ShaderNodeMath")
+    up.operation, up.inputs[1].default_value = "MAXIMUM", HORIZON_Z
+    links.new(xyz.outputs["Z"], up.inputs[0])
+    clamped = nodes.new("ShaderNodeCombineXYZ")
+    for axis in "XY":
+        links.new(xyz.outputs[axis], clamped.inputs[axis])
+    links.new(up.outputs[0], clamped.inputs["Z"])
+    unit = nodes.new("ShaderNodeVectorMath")
+    unit.operation = "NORMALIZE"
+    links.new(clamped.outputs[0], unit.inputs[0])
+    links.new(unit.outputs["Vector"], sky.inputs["Vector"])
+    # ... and below the horizon its colour is scaled by max(GROUND_SHADE, 1 - (1 - GROUND_SHADE) * depression / GROUND_DIP)
+    fall = nodes.new("ShaderNodeMath")
+    fall.operation, fall.use_clamp = "MULTIPLY_ADD", True
+    fall.inputs[1].default_value, fall.inputs[2].default_value = (1.0 - GROUND_SHADE) / GROUND_DIP, 1.0
+    links.new(xyz.outputs["Z"], fall.inputs[0])
+    shade = nodes.new("ShaderNodeMath")
+    shade.operation, shade.inputs[1].default_value = "MAXIMUM", GROUND_SHADE
+    links.new(fall.outputs[0], shade.inputs[0])
+    dim = nodes.new("ShaderNodeVectorMath")
+    dim.operation = "SCALE"
+    links.new(sky.outputs["Color"], dim.inputs[0])
+    links.new(shade.outputs[0], dim.inputs["Scale"])
+    links.new(dim.outputs["Vector"], bg.inputs["Color"])
     bg.inputs["Strength"].default_value = radiance / PHYSICAL_SKY_MEAN
 
 

@@ -278,8 +278,8 @@ def test_recipe_names_catalogues_relative_to_itself(library, tmp_path):
 
 @pytest.mark.slow
 def test_dynamic_street_keeps_catalogue_assets_and_its_rules(library, tmp_path, capsys):
-    """A dynamic street drawn from the catalogue: people walk and cars drive around the parked
-    catalogue cars and the trees (whose point-instanced leaves have no prim of their own), and
+    """A dynamic street drawn from the catalogue: people walk and catalogue cars drive around the
+    parked catalogue cars and the trees (whose point-instanced leaves have no prim of their own), and
     `lfusd check` passes at every frame."""
     from lfusd.author.scenes import generate
 
@@ -288,6 +288,59 @@ def test_dynamic_street_keeps_catalogue_assets_and_its_rules(library, tmp_path, 
                      catalogues=[cat])
     placed, _ = _asset_objects(stage)
     assert {o.label for o in placed} == {"car", "tree"}
+    code, out, err = run_cli(capsys, "check", tmp_path / "d.usda", "--no-coverage")
+    assert code == 0 and "all constraints hold" in out, out + err
+
+
+@pytest.fixture(scope="module")
+def movers_library(tmp_path_factory):
+    """Two catalogues: the car (.usdc, Y-up centimetres, instanced wheels) and a glTF-converted
+    character (Y-up centimetres, numbered joints, a rotation above its SkelRoot, textured) as a person."""
+    from support.characters import gltf_numbered
+
+    from lfusd.author.catalogue import add_assets
+
+    folder = tmp_path_factory.mktemp("movers")
+    write_car(folder / "cars")
+    gltf_numbered(folder / "people" / "man.usda")
+    return add_assets(folder / "cars")[0], add_assets(folder / "people", cls="person")[0]
+
+
+def _world_at(stage, path, frame):
+    from pxr import Usd, UsdGeom
+
+    return np.array(UsdGeom.Xformable(stage.GetPrimAtPath(path)).ComputeLocalToWorldTransform(Usd.TimeCode(frame)))
+
+
+def test_dynamic_street_drives_catalogue_cars_and_walks_catalogue_characters(movers_library, tmp_path, capsys):
+    """--dynamic with catalogues: every car that drives is the catalogue's car (one object, straight
+    along the road at a constant speed), every person who walks is the catalogue's character (the
+    person prim references its file), none procedural; their soles stay on the pavement (its top
+    0.15 m) within 1 cm at every frame and `lfusd check` passes (rules at every frame)."""
+    from lfusd.author.geometry import StageGeometry
+    from lfusd.author.labels import object_table
+    from lfusd.author.scenes import generate
+    from lfusd.author.vocabulary import ASSET
+
+    frames = 6
+    stage = generate("street", tmp_path / "d.usda", 2, frames=frames, rigs=1, grid=(2, 2), resolution=(32, 32),
+                     dynamic=True, catalogues=list(movers_library))
+    objs = object_table(stage)[0]
+    moving = [o for o in objs if o.label == "car" and not np.allclose(_world_at(stage, o.prim_path, 1), _world_at(stage, o.prim_path, frames))]
+    assert moving and all(stage.GetPrimAtPath(o.prim_path).HasAttribute(ASSET) for o in moving)
+    for o in moving:  # along x only, the same step every frame
+        xs = np.array([_world_at(stage, o.prim_path, f)[3, :3] for f in range(1, frames + 1)])
+        steps = np.diff(xs, axis=0)
+        assert np.allclose(steps[:, 1:], 0.0, atol=1e-9) and np.allclose(steps[:, 0], steps[0, 0], atol=1e-6)
+        assert abs(steps[0, 0]) > 0.1, o.prim_path  # 4-9 m/s at 24 frames per second
+    people = [o for o in objs if o.label == "person"]
+    assert people
+    geo = StageGeometry(stage)
+    for o in people:
+        refs = stage.GetPrimAtPath(o.prim_path).GetMetadata("references").GetAddedOrExplicitItems()
+        assert [r.assetPath.rsplit("/", 1)[-1] for r in refs] == ["man.usda"], o.prim_path
+        soles = [min(geo.mesh(p, f).vertices[:, 2].min() for p in geo.parts_of(o.prim_path)) for f in range(1, frames + 1)]
+        assert np.allclose(soles, 0.15, atol=0.01), (o.prim_path, soles)
     code, out, err = run_cli(capsys, "check", tmp_path / "d.usda", "--no-coverage")
     assert code == 0 and "all constraints hold" in out, out + err
 

@@ -70,3 +70,30 @@ def test_catalogue_assets_in_a_generated_street_render_and_verify(tmp_path, caps
                 r, g, b = ds.read(1, view, "rgb")[mask][..., :3].astype(float).mean(axis=0)
                 # the body's texture is red (180, 30, 30; stripes darker): lit and shaded, far redder than green or blue
                 assert r > 1.5 * max(g, b), (view, r, g, b)
+
+
+def test_a_dynamic_street_from_catalogues_walks_their_character_and_verifies(tmp_path, capsys):
+    """--dynamic with catalogues of a car and a glTF-converted character (Y-up centimetres, numbered
+    joints, a rotation above its SkelRoot, textured): the rig the choreography places watches a
+    performer who is the catalogue's character; a tiny render-video (2x2 views, 48x48, 3 frames)
+    passes `lfusd verify` on every motion key, and the character is one object in every view."""
+    from support.characters import gltf_numbered
+    from support.wild import render_and_verify
+
+    from lfusd.author.catalogue import add_assets
+    from lfusd.author.labels import object_table
+    from lfusd.author.scenes import generate
+
+    write_car(tmp_path / "cars")
+    gltf_numbered(tmp_path / "people" / "man.usda")
+    cats = [add_assets(tmp_path / "cars")[0], add_assets(tmp_path / "people", cls="person")[0]]
+    path = tmp_path / "street.usda"
+    stage = generate("street", path, 2, frames=3, rigs=1, grid=(2, 2), resolution=(48, 48), dynamic=True, catalogues=cats)
+    people = [o.prim_path for o in object_table(stage)[0] if o.label == "person"]
+    assert people and all(r.assetPath.endswith("man.usda") for p in people
+                          for r in stage.GetPrimAtPath(p).GetMetadata("references").GetAddedOrExplicitItems())
+    ds, _ = render_and_verify(path, tmp_path / "out", "--frames", "1-3")
+    ids = {i for i, o in ds.objects.items() if o.prim_path in people}
+    for view in ds.views:
+        seen = np.isin(ds.read(2, view, "instance"), list(ids))
+        assert seen.sum() >= 40, (view, seen.sum())  # the performer fills a good part of the view

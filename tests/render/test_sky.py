@@ -1,11 +1,12 @@
 """Blender's physical sky: a DomeLight marked ``lfusd:sky = "physical"`` renders as a sky lit from
 the stage's sun lamp, as bright on average as the flat dome, and changes no ground truth.
 
-Marked ``render``: four 24x24 views at 4 samples, twice (about 20 s on 2 CPU cores).
+Marked ``render``: five 24x24 views at 4 samples, twice (about 20 s on 2 CPU cores).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import subprocess
 import sys
@@ -24,10 +25,12 @@ from lfusd.camera import RigSpec
 from lfusd.render.job import physical_sky
 
 pytestmark = pytest.mark.render
+log = logging.getLogger(__name__)
 
 SUN_AZIMUTH, SUN_ELEVATION = 30.0, 20.0
 LOOKS = (30.0, 120.0, 210.0, 300.0)  # rig azimuths; the first faces the sun
 DOME, DOME_COLOR = 0.5, (0.55, 0.65, 0.85)
+DOWN = 10.0  # degrees the "down" rig looks below the horizon
 
 
 def _stage(path: Path, physical: bool) -> None:
@@ -43,6 +46,11 @@ def _stage(path: Path, physical: bool) -> None:
         # 15 degrees up: the lower rows see the ground, the rest the sky around the horizon
         add_rig(stage, RigSpec(name=f"az{int(az):03d}", rows=1, cols=1, width=24, height=24, at=(0.0, 0.0, 1.5),
                                look_at=(math.cos(a), math.sin(a), 1.5 + math.tan(math.radians(15)))))
+    # 30 m up, 10 degrees down, away from the sun: the ground's edge (20 m out) lies 56 degrees down,
+    # below the view (24.8 degrees either side of its axis): sky above and below the horizon, no ground
+    a = math.radians(SUN_AZIMUTH + 180.0)
+    add_rig(stage, RigSpec(name="down", rows=1, cols=1, width=24, height=24, at=(0.0, 0.0, 30.0),
+                           look_at=(math.cos(a), math.sin(a), 30.0 - math.tan(math.radians(DOWN)))))
     stage.Save()
 
 
@@ -52,8 +60,8 @@ def _render(stage: Path, out: Path) -> dict[float, tuple[np.ndarray, np.ndarray,
                           capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parents[2])
     assert proc.returncode == 0, proc.stderr[-3000:]
     got = {}
-    for az in LOOKS:
-        d = Dataset(out, rig=f"az{int(az):03d}")
+    for az in LOOKS + ("down",):
+        d = Dataset(out, rig=az if az == "down" else f"az{int(az):03d}")
         got[az] = tuple(d.read(1, (0, 0), k) for k in ("rgb_linear", "depth", "instance"))
     return got
 
@@ -74,6 +82,7 @@ def test_physical_sky_glows_around_the_sun_is_blue_overhead_and_leaves_ground_tr
     assert not physical_sky(Usd.Stage.Open(str(tmp_path / "flat.usda")))
     phys = _render(tmp_path / "physical.usda", tmp_path / "p")
     flat = _render(tmp_path / "flat.usda", tmp_path / "f")
+    down, flat_down = phys.pop("down"), flat.pop("down")
     sky = {az: _inner(np.isinf(depth)) for az, (_, depth, _) in phys.items()}
     assert all(s.mean() > 0.3 and (~s).any() for s in sky.values())  # both sky and ground in every view
 
@@ -96,3 +105,18 @@ def test_physical_sky_glows_around_the_sun_is_blue_overhead_and_leaves_ground_tr
     assert (top[:, 2] > 1.2 * top[:, 0]).all()
     assert (top[:, 2] / top[:, 0]).mean() > (low[:, 2] / low[:, 0]).mean()
 
+    # Below the horizon the physical sky is not black (it shows the horizon's haze, darker lower
+    # down), so a stage's ground may end before the horizon: the "down" view sees only sky, the
+    # rows above the horizon and the rows below it (elevation of each row's centre, column 11.5).
+    rgb, depth, instance = down
+    assert np.isinf(depth).all() and np.array_equal(depth, flat_down[1]) and np.array_equal(instance, flat_down[2])
+    f_px = 39.0 / 36.0 * 24
+    elevation = -DOWN + np.degrees(np.arctan((11.5 - np.arange(24)) / f_px))
+    lum = rgb.mean(axis=2)
+    above, below = lum[(elevation > 1.0) & (elevation < 8.0)], lum[elevation < -1.0]
+    assert above.size and below.size
+    log.info("physical sky: above the horizon %.3f, below %.3f-%.3f", above.mean(), below.min(), below.max())
+    assert below.min() > 0.3 * above.mean()  # not black: at least GROUND_SHADE (0.5) of the horizon, less noise
+    assert below.mean() < above.mean()  # darker than the sky above the horizon
+    bottom, top = lum[elevation < -20.0].mean(), lum[(elevation < -1.0) & (elevation > -5.0)].mean()
+    assert bottom < top  # and darker lower down

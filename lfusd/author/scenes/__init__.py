@@ -96,17 +96,18 @@ class Scene:
         self.counters[base] = n + 1
         return f"/World/{base}_{n:02d}"
 
-    def draw(self, cls: str, make: Callable, *args):
+    def draw(self, cls: str, make: Callable, *args, rng: np.random.Generator | None = None):
         """An object of class ``cls``: a catalogue asset of that class when the scene has any
-        (drawn uniformly, one draw of the generator), else ``make(rng, *args)``, the procedural
-        generator's result. An asset comes as parts ``[("asset", its box, AssetPart)]``, which
+        (drawn uniformly, one draw of the generator ``rng``, by default the scene's), else
+        ``make(rng, *args)``, the procedural generator's result. An asset comes as parts ``[("asset", its box, AssetPart)]``, which
         :meth:`place` and :meth:`add` take like any kit's parts (:func:`is_asset`)."""
+        rng = self.rng if rng is None else rng
         pool = self.assets.get(cls)
         if not pool:
-            return make(self.rng, *args)
+            return make(rng, *args)
         from ..catalogue import placed_size
 
-        asset = pool[int(self.rng.integers(len(pool)))]
+        asset = pool[int(rng.integers(len(pool)))]
         sx, sy, sz = placed_size(asset)
         return [("asset", box((sx, sy, sz), (0.0, 0.0, sz / 2)), AssetPart(asset))]
 

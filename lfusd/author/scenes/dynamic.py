@@ -29,6 +29,7 @@ both.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -49,6 +50,8 @@ from ..vocabulary import SURFACES
 from . import GAP, Placed, Scene, Site, Template
 from . import objects as kit
 
+log = logging.getLogger(__name__)
+
 RIGS_PER_SET = 3  # rigs that watch one performer
 # Distances from a rig to the centre of its performer's loop, beyond the rig's half size, tried in turn.
 RIG_RINGS = ((1.0, 1.6), (1.6, 2.6), (2.6, 3.6))
@@ -57,7 +60,7 @@ PLAN_WIDTH = 32  # pixels across when measuring a candidate rig
 PLAN_MARGIN = 0.04  # a candidate must beat the goal by this much at the sampled frames
 PROP_REACH = 3.5  # m: props whose box lies this near a performer's loop centre may stand in front of a rig
 PROP_SHARE = 0.6  # share of candidates placed just behind a prop
-FOCUS_TRIES = 4  # candidates tried behind props / past static objects when the best shows no occlusion
+FOCUS_TRIES = 24  # candidates tried behind props / past static objects when the best shows no occlusion
 PERSON_RADIUS = 0.6  # half width of the box a walking person sweeps (arm swing, turning)
 PERSON_HEIGHT = 2.1
 
@@ -110,6 +113,10 @@ class Ctx:
     spot: Callable | None = None
     performers: list[tuple[np.ndarray, float, str]] = field(default_factory=list)  # (centre xyz, heading, prim) per set
     statics: list | None = None  # (label, lo, hi) of static objects (see prop_near)
+    characters: list | None = None  # the catalogues' person assets lfusd's gaits can drive (see character)
+    # catalogue assets for movers are drawn from this generator, not ``rng``: with or without catalogues
+    # a seed's placements, speeds and rigs are drawn alike
+    picks: np.random.Generator | None = None
 
     @property
     def duration(self) -> float:
@@ -132,7 +139,7 @@ def populate(scene: Scene, template: Template, site: Site, seed: int, rigs: int 
             stage.RemovePrim(o.prim_path)
             scene.placed = [p for p in scene.placed if p.path != o.prim_path]
     ctx = Ctx(scene, np.random.default_rng([int(seed), template.seed_key, 1]), Occupancy.of(stage), last - first + 1,
-              float(stage.GetTimeCodesPerSecond() or 24.0))
+              float(stage.GetTimeCodesPerSecond() or 24.0), picks=np.random.default_rng([int(seed), template.seed_key, 2]))
     replaced = template.animate(ctx, site)
     if ctx.spot is not None:
         for _ in range(max(1, math.ceil(rigs / RIGS_PER_SET))):
@@ -168,9 +175,47 @@ def settle(stage: Usd.Stage, dynamic: list[str], scene: Scene | None = None, rou
 
 
 # -- building blocks -------------------------------------------------------------------------------
+def character(ctx: Ctx):
+    """A catalogue character for the next walking person, drawn uniformly (``ctx.picks``) from the scene's
+    catalogue assets of class ``person`` that lfusd's gaits can drive (UsdSkel bipeds: those
+    lfusd.author.people.read_character accepts), or None when there are none (a procedural body)."""
+    if ctx.characters is None:
+        from ..people import read_character
+
+        ctx.characters = []
+        for a in ctx.scene.assets.get("person", ()):
+            try:
+                read_character(a.path())
+            except LfusdError as e:  # a statue or a non-biped stays a static catalogue person
+                log.info("catalogue person %s does not walk: %s", a.name, e)
+                continue
+            ctx.characters.append(a)
+    return ctx.characters[int(ctx.picks.integers(len(ctx.characters)))] if ctx.characters else None
+
+
+def sweep_size(asset) -> tuple[float, float]:
+    """(half width, height) of the box a walking person sweeps: PERSON_RADIUS and PERSON_HEIGHT,
+    or more for a catalogue character that is wider (half its bind-pose footprint's longer side
+    plus 0.1 m: a T-pose's arms) or taller (plus 0.2 m)."""
+    if asset is None:
+        return PERSON_RADIUS, PERSON_HEIGHT
+    from ..catalogue import placed_size
+
+    sx, sy, sz = placed_size(asset)
+    return max(PERSON_RADIUS, max(sx, sy) / 2 + 0.1), max(PERSON_HEIGHT, sz + 0.2)
+
+
+def person_body(rng: np.random.Generator, asset) -> dict:
+    """add_person's keyword for the body: the catalogue character ``asset``, else a procedural
+    human of random height and build (drawn either way: the seed's later draws stay alike)."""
+    spec = HumanSpec(float(rng.uniform(1.6, 1.9)), float(rng.uniform(0.2, 0.8)))
+    return {"spec": spec} if asset is None else {"character": str(asset.path())}
+
+
 def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_len: float | None = None) -> bool:
     """A person walking/running straight from ``start`` along ``direction`` on a surface at height
-    ``z``, if the box it sweeps over the clip is free; True when added."""
+    ``z``, if the box it sweeps over the clip is free; True when added. The person is a catalogue
+    character when the scene's catalogues have walkable ones (:func:`character`)."""
     start, d = np.asarray(start, float), np.asarray(direction, float) / np.linalg.norm(direction)
     if max_len is not None and max_len < 1.5:
         return False
@@ -178,14 +223,15 @@ def walker(ctx: Ctx, start, direction, z: float, gait: str, speed: float, max_le
     length = travel + 2.0 if max_len is None else min(travel + 2.0, max_len)
     reach = min(travel, length)
     a, b = start, start + d * reach
-    lo = np.r_[np.minimum(a, b) - PERSON_RADIUS, z - 0.05]
-    hi = np.r_[np.maximum(a, b) + PERSON_RADIUS, z + PERSON_HEIGHT]
+    who = character(ctx)
+    radius, height = sweep_size(who)
+    lo = np.r_[np.minimum(a, b) - radius, z - 0.05]
+    hi = np.r_[np.maximum(a, b) + radius, z + height]
     if not ctx.occ.free(lo, hi):
         return False
-    spec = HumanSpec(float(ctx.rng.uniform(1.6, 1.9)), float(ctx.rng.uniform(0.2, 0.8)))
     points = [start, start + d * max(length, 0.5)]
     try:
-        prim = add_person(ctx.stage, points, gait=gait, speed=speed, spec=spec, check=False)
+        prim = add_person(ctx.stage, points, gait=gait, speed=speed, check=False, **person_body(ctx.rng, who))
     except LfusdError:  # e.g. the path would leave its support: skip this person
         return False
     path = str(prim.GetPath())
@@ -208,6 +254,11 @@ def traffic(ctx: Ctx, lane_y: float, heading: int, x0: float, x1: float, cars: i
     if not ctx.occ.free(lane_lo, lane_hi):
         return
     specs = [kit.moving_car(rng) for _ in range(cars)]
+    if scene.assets.get("car"):
+        # catalogue cars in their place, drawn from the catalogue's own generator (Ctx.picks): the seed's
+        # other draws (speeds, people, rigs) stay what they were. They drive
+        # as they are (their wheels, unknown to lfusd, do not turn); procedural ones roll theirs.
+        specs = [(scene.draw("car", kit.car, rng=ctx.picks), [], None) for _ in specs]
     lengths = [float(np.ptp(p[0][1].points[:, 0])) for p, _, _ in specs]
     gaps = [float(rng.uniform(4.0, 9.0)) for _ in specs]
     convoy = sum(lengths) + sum(gaps[1:])
@@ -310,9 +361,12 @@ def loop_beside(ctx: Ctx, rng: np.random.Generator, labels, region, length: floa
 
 
 def performer(ctx: Ctx, tries: int = 100) -> bool:
-    """A person walking a loop on a spot the template offers (``ctx.spot``) for the whole clip,
-    if its sweep is free; records it in ``ctx.performers``."""
+    """A person (a catalogue character when there are walkable ones: :func:`character`) walking a
+    loop on a spot the template offers (``ctx.spot``) for the whole clip, if its sweep is free;
+    records it in ``ctx.performers``."""
     rng = ctx.rng
+    who = character(ctx)
+    radius, height = sweep_size(who)
     for _ in range(tries):
         got = ctx.spot(rng)
         if got is None:
@@ -322,15 +376,15 @@ def performer(ctx: Ctx, tries: int = 100) -> bool:
         h = math.radians(heading)
         ext = np.abs([length / 2 * math.cos(h)]) + np.abs([width / 2 * math.sin(h)])
         ey = abs(length / 2 * math.sin(h)) + abs(width / 2 * math.cos(h))
-        lo = np.r_[centre - [ext[0], ey] - PERSON_RADIUS, z - 0.05]
-        hi = np.r_[centre + [ext[0], ey] + PERSON_RADIUS, z + PERSON_HEIGHT]
+        lo = np.r_[centre - [ext[0], ey] - radius, z - 0.05]
+        hi = np.r_[centre + [ext[0], ey] + radius, z + height]
         if not ctx.occ.free(lo, hi):
             continue
         speed = float(rng.uniform(0.9, 1.4))
-        spec = HumanSpec(float(rng.uniform(1.6, 1.9)), float(rng.uniform(0.2, 0.8)))
+        kw = person_body(rng, who)
         points = loop_path(centre, heading, length, width, speed * ctx.duration + 3.0, bool(rng.random() < 0.5))
         try:
-            prim = add_person(ctx.stage, points, gait="walk", speed=speed, spec=spec, check=False)
+            prim = add_person(ctx.stage, points, gait="walk", speed=speed, check=False, **kw)
         except LfusdError:
             continue
         path = str(prim.GetPath())

@@ -198,7 +198,44 @@ def tree(rng: np.random.Generator) -> Parts:
         trunk.append(rod((0, 0, z0), tip, 0.055, 6, 0.025))
         rad = float(rng.uniform(0.6, 1.0))
         crowns.append(blob(tip + [0, 0, 0.2], (rad, rad * float(rng.uniform(0.8, 1.1)), rad * 0.8), rng))
-    return [("trunk", merge(*trunk), "bark"), ("crown", merge(*crowns), leaves)]
+    # leaves from their own generator, seeded by the tree's drawn size: the scene's draws (layout,
+    # lighting, choreography) stay what they were before trees had leaves
+    leaf_rng = np.random.default_rng([round(h * 1e6), round(r0 * 1e6)])
+    # the other shade of green than the clusters under them: single leaves stand out of the mass
+    return [("trunk", merge(*trunk), "bark"), ("crown", merge(*crowns), leaves),
+            ("leaves", merge(*[leaf_cover(c, leaf_rng) for c in crowns]), "leaves_light" if leaves == "leaves" else "leaves")]
+
+
+LEAF_LENGTH, LEAF_COUNT = 0.22, 80  # per foliage cluster
+
+
+def leaf_cover(crown: MeshData, rng: np.random.Generator, count: int = LEAF_COUNT, length: float = LEAF_LENGTH) -> MeshData:
+    """Leaves over a foliage cluster: thin closed diamonds (6 vertices, 8 triangles) rooted on
+    random faces of ``crown`` and leaning out of it at random angles, so its outline breaks up."""
+    pts, idx = np.asarray(crown.points, float), np.asarray(crown.indices)
+    starts = np.concatenate([[0], np.cumsum(crown.counts)[:-1]])
+    centres = np.array([pts[idx[s:s + c]].mean(0) for s, c in zip(starts, crown.counts)])
+    middle = pts.mean(0)
+    leaves = []
+    for f in rng.integers(len(centres), size=count):
+        out = centres[f] - middle
+        out /= np.linalg.norm(out)
+        d = out + rng.normal(0.0, 0.6, 3)  # the leaf's axis: outwards, scattered
+        d /= np.linalg.norm(d)
+        side = np.cross(d, rng.normal(0.0, 1.0, 3))
+        side /= np.linalg.norm(side)
+        up = np.cross(side, d)
+        root = centres[f] - 0.2 * length * out  # the stalk starts inside the cluster
+        rim = [root, root + d * length * 0.5 + side * length * 0.22, root + d * length, root + d * length * 0.5 - side * length * 0.22]
+        mid = root + d * length * 0.5
+        top, bottom = mid + up * 0.008, mid - up * 0.008
+        p = np.round(np.array(rim + [top, bottom]), 4)  # 0.1 mm: shorter files (the leaves are what is written)
+        tris = [(0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4), (1, 0, 5), (2, 1, 5), (3, 2, 5), (0, 3, 5)]
+        if np.dot(np.cross(p[1] - p[0], p[4] - p[0]), p[4] - mid) < 0:  # keep the winding outward
+            tris = [t[::-1] for t in tris]
+        flat = [i for t in tris for i in t]
+        leaves.append(MeshData(p, [3] * 8, flat, np.round(np.c_[p[flat] @ side, p[flat] @ d] * 2.0, 3)))
+    return merge(*leaves)
 
 
 def street_light(rng: np.random.Generator) -> tuple[Parts, float]:
