@@ -14,12 +14,14 @@ of the one skinned mesh. Joints depend on stature alone, so every gait fits ever
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
 from ..errors import LfusdError
+from .body import _R4, Cage
 from .labels import set_class_label
 from .stage import round_values
 
@@ -192,8 +194,8 @@ def _profile_tube(mb, part, start, end, ref, sections, n, power=2.0):
     mb.tube(part, rings)
 
 
-def body_mesh(spec: HumanSpec, segments: int = 16):
-    """(points (N,3), faceVertexCounts, faceVertexIndices, part name per point) of the body."""
+def _segmented_body(spec: HumanSpec, segments: int = 16):
+    """(points (N,3), faceVertexCounts, faceVertexIndices, part name per point) of a body of closed tubes (static people)."""
     H = spec.height
     w = 0.8 + 0.5 * spec.build  # girth factor
     look = appearance(spec)
@@ -285,72 +287,13 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
 
 
-def _edges(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pairs = []
-    for k in range(int(counts.max())):
-        sel = k < counts
-        a = indices[starts[sel] + k]
-        b = indices[starts[sel] + (k + 1) % counts[sel]]
-        pairs.append(np.stack([a, b], axis=1))
-    pairs = np.concatenate(pairs)
-    return np.unique(np.sort(pairs, axis=1), axis=0)
+def skin_weights(spec: HumanSpec, influences: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Skin weights of :func:`body_mesh`'s points: the cage's weights (inverse distance to the bones
+    each part may follow), subdivided with the points, so they vary as smoothly as the surface.
 
-
-HIP_ZONE = (0.41, 0.56)  # heights (fractions of stature) where torso and thighs share one weight field
-
-
-def skin_weights(spec: HumanSpec, points: np.ndarray, parts: list[str], counts: np.ndarray | None = None,
-                 indices: np.ndarray | None = None, influences: int = 4, smoothing: int = 4):
-    """Smooth weights: inverse fourth power of the distance to each allowed bone, then
-    ``smoothing`` rounds of averaging over mesh edges (when the faces are given), top ``influences``.
-
-    Returns (joint indices (N, k) int, weights (N, k) float summing to 1).
+    Returns (joint indices (N, k) int, weights (N, k) float summing to 1), the ``influences`` largest.
     """
-    P = rest_positions(spec)
-    n = len(points)
-    dist = np.full((n, len(JOINT_NAMES)), np.inf)
-    parts_arr = np.array(parts)
-    for part, allowed in _PART_JOINTS.items():
-        sel = parts_arr == part
-        if not sel.any():
-            continue
-        for name in allowed:
-            j = JOINT_NAMES.index(name)
-            dist[sel, j] = _segment_distance(points[sel], P[name], P[_BONE_END[name]])
-    floor = 0.01 * spec.height  # avoids infinite weights for points on a bone
-    raw = np.where(np.isfinite(dist), 1.0 / np.maximum(dist, floor) ** 4, 0.0)
-    raw /= raw.sum(axis=1, keepdims=True)
-    if counts is not None and indices is not None and smoothing:
-        # Averaging over edges (parts are separate shells, so weights never leak between parts).
-        e = _edges(np.asarray(counts), np.asarray(indices))
-        deg = np.bincount(e.ravel(), minlength=n).astype(float)
-        for _ in range(smoothing):
-            acc = raw.copy()
-            np.add.at(acc, e[:, 0], raw[e[:, 1]])
-            np.add.at(acc, e[:, 1], raw[e[:, 0]])
-            raw = acc / (1.0 + deg)[:, None]
-    # Hips: the torso's bottom and the thighs' tops overlap (the legs start inside the torso). Both
-    # take one weight field of position throughout HIP_ZONE (pelvis, spine and hip bones, soft and
-    # unsmoothed), ramped out above it on the torso and below it on the legs, so where the two
-    # surfaces meet they deform alike and never pass through each other (a thigh through the
-    # pelvis is two surfaces moving differently in one place: ground truth there is a tie).
-    hips = np.isin(parts_arr, ["torso", "l_leg", "r_leg"])
-    if hips.any():
-        H = spec.height
-        field = np.zeros((int(hips.sum()), len(JOINT_NAMES)))
-        for name in ("pelvis", "spine", "l_hip", "r_hip"):
-            d = _segment_distance(points[hips], P[name], P[_BONE_END[name]])
-            field[:, JOINT_NAMES.index(name)] = 1.0 / np.maximum(d, 0.06 * H) ** 2  # soft: the legs' top caps straddle bones
-        field /= field.sum(axis=1, keepdims=True)
-        z = points[hips, 2] / H
-        lo, hi = HIP_ZONE
-        ramp = np.where(parts_arr[hips] == "torso", np.clip((hi + 0.14 - z) / 0.14, 0, 1), np.clip((z - (lo - 0.16)) / 0.16, 0, 1))
-        raw[hips] = (1 - ramp[:, None]) * raw[hips] + ramp[:, None] * field
-    # Feet are two rigid pieces hinged at the ball (gait rolls them about it): blended weights
-    # in front of the hinge would turn down into the ground at push-off.
-    feet = np.char.endswith(parts_arr, "_foot")
-    raw[feet] = np.eye(raw.shape[1])[np.argmax(raw[feet], axis=1)]
+    raw = _body(spec)[4]
     # Rank rounded weights: weights equal in exact arithmetic differ in their last bit from CPU to
     # CPU, and the stable sort then breaks such ties by joint index, the same on every machine.
     raw = round_values(raw)
@@ -367,6 +310,7 @@ TOPS = [(0.70, 0.08, 0.06), (0.08, 0.20, 0.62), (0.85, 0.85, 0.82), (0.85, 0.65,
 BOTTOMS = [(0.12, 0.20, 0.38), (0.08, 0.08, 0.09), (0.55, 0.48, 0.35), (0.35, 0.35, 0.37), (0.30, 0.20, 0.12), (0.15, 0.30, 0.55)]
 SHOES = [(0.05, 0.05, 0.05), (0.85, 0.85, 0.85), (0.30, 0.18, 0.10), (0.20, 0.20, 0.25)]
 REGIONS = ("skin", "hair", "top", "bottom", "shoes")
+SHOE_TOP = 0.055  # fraction of stature: shoes cover the feet and ankles up to here
 
 
 def appearance(spec: HumanSpec) -> dict:
@@ -383,6 +327,183 @@ def appearance(spec: HumanSpec) -> dict:
         "sleeves": float(rng.choice([1.0, 1.0, 0.45, 0.12])), "legs": float(rng.choice([1.0, 1.0, 1.0, 0.45])),
     }
 
+
+# -- the smooth body ---------------------------------------------------------------------------------
+# Torso, neck and head: rings of 8 cage points (z, corner half-width, front, back; fractions of
+# stature, before girth), the four points of each of the front and back rows at x = +-a and +-a/3.
+_TORSO = [
+    (0.465, 0.100, 0.050, 0.052), (0.50, 0.104, 0.058, 0.070), (0.55, 0.100, 0.058, 0.062),
+    (0.60, 0.084, 0.055, 0.052), (0.65, 0.086, 0.058, 0.050), (0.70, 0.096, 0.064, 0.055),
+    (0.745, 0.100, 0.066, 0.058), (0.80, 0.100, 0.055, 0.055), (0.83, 0.082, 0.035, 0.045),
+]
+_ARMPIT = 6  # the arms grow out of the sides between torso rings 6 and 7
+_NECK = [(0.855, 0.033, 0.033, 0.035), (0.877, 0.030, 0.030, 0.030)]
+_HEAD = [(0.895, 0.042, 0.062, 0.040), (0.93, 0.052, 0.070, 0.062), (0.965, 0.052, 0.062, 0.064), (0.995, 0.036, 0.040, 0.046)]
+# Legs: rings of 4 around the bone line (z, half-width across, front, back; round radii).
+_LEG = [(0.43, 0.050, 0.050, 0.055), (0.38, 0.046, 0.048, 0.048), (0.33, 0.040, 0.040, 0.040), (0.29, 0.034, 0.036, 0.034),
+        (0.25, 0.034, 0.032, 0.038), (0.20, 0.034, 0.030, 0.042), (0.13, 0.026, 0.025, 0.028), (0.075, 0.022, 0.022, 0.024)]
+ARM_GAP = 0.008  # fraction of stature kept between the hanging arms and the torso
+THIGH_GAP = 0.005  # fraction of stature kept between the thighs, so legs swinging past each other never touch
+
+
+def _ring8(z, a, f, b, yc, m=None):
+    m = a / 3.0 if m is None else m
+    return [(a, yc - b, z), (a, yc + f, z), (m, yc + f, z), (-m, yc + f, z), (-a, yc + f, z), (-a, yc - b, z), (-m, yc - b, z), (m, yc - b, z)]
+
+
+def body_cage(spec: HumanSpec) -> Cage:
+    """The control cage of the body (character frame, metres), part names per point and quad."""
+    H = spec.height
+    w = 0.8 + 0.5 * spec.build  # girth factor
+    arm_w = min(w, 1.1)  # arms thicken less: they hang close to the torso
+    look = appearance(spec)
+    P = {k: v / H for k, v in rest_positions(spec).items()}  # the cage is laid out in fractions of stature
+    cage = Cage()
+    rings = []
+    for k, (z, a, f, b) in enumerate(_TORSO):
+        g = look["hips"] if z < 0.56 else look["waist"] if z < 0.68 else look["chest"]
+        belly = look["belly"] if 0.58 < z < 0.68 else 1.0
+        m = 0.012 if k == 0 else None  # the crotch between the legs' openings
+        a = a * w * g
+        if 0.5 <= z <= _TORSO[_ARMPIT + 1][0]:  # no wider than the hanging arms allow (a heavy body grows deeper instead)
+            arm = P["r_shoulder"][0] + (P["r_shoulder"][2] - min(z, _TORSO[_ARMPIT][0])) * np.tan(np.radians(ARM_OUT_DEG))
+            a = min(a, (arm - 0.033 * _R4 * arm_w - ARM_GAP) / 0.89)  # 0.89: the subdivided side lies 0.89 a out
+        rings.append(cage.ring(_ring8(z, a, f * w * g * belly, b * w * g, -0.005, m), "torso"))
+    for z, a, f, b in _NECK:
+        rings.append(cage.ring(_ring8(z, a * min(w, 1.1), f * min(w, 1.1), b * min(w, 1.1), -0.008), "neck"))
+    for z, a, f, b in _HEAD:
+        rings.append(cage.ring(_ring8(z, a, f, b, 0.0), "head"))
+    for k in range(len(rings) - 1):
+        cage.loft(rings[k], rings[k + 1], cage.point_part[rings[k + 1][0]], skip=(0, 4) if k == _ARMPIT else ())
+    top, bottom = rings[-1], rings[0]
+    for q in ([0, 1, 2, 7], [7, 2, 3, 6], [6, 3, 4, 5]):
+        cage.quad([top[i] for i in q], "head")
+    cage.quad([bottom[i] for i in (7, 2, 3, 6)], "torso")  # the crotch
+    X, Y, Z = np.eye(3)
+    arm_out = np.radians(ARM_OUT_DEG)
+    for side, s, leg_loop, arm_side in (("r", 1.0, (0, 1, 2, 7), 0), ("l", -1.0, (6, 3, 4, 5), 4)):
+        # Leg and foot, out of the torso's bottom; u points out, v forward (then up along the foot).
+        out = s * X
+        knee, ankle = P[f"{side}_knee"], P[f"{side}_ankle"]
+        frames = []
+        for z, rx, f, b in _LEG:
+            t = (z - knee[2]) / (0.53 - knee[2]) if z > knee[2] else (z - ankle[2]) / (knee[2] - ankle[2]) - 1.0
+            y = knee[1] * (1 - abs(t))
+            x = s * (abs(knee[0]) + 0.004 * max(t, 0.0))
+            rx = min(rx * w, abs(x) - THIGH_GAP / 2)  # heavy thighs grow forward and back, not into each other
+            frames.append((f"{side}_leg", (x, y + (f - b) * w / 2, z), out, Y, (rx * _R4, rx * _R4), ((f + b) * w / 2 * _R4,) * 2))
+        ax = s * abs(ankle[0])
+        diag = (Y + Z) / np.sqrt(2.0)
+        frames += [
+            (f"{side}_foot", (ax, 0.0, 0.045), out, Y, (0.024, 0.024), (0.030, 0.026)),
+            (f"{side}_foot", (ax, 0.005, 0.02), out, diag, (0.028, 0.028), (0.055, 0.030)),
+            (f"{side}_foot", (ax + s * 0.001, 0.05, 0.022), out, Z, (0.030, 0.032), (0.032, 0.026)),
+            (f"{side}_foot", (ax + s * 0.003, 0.095, 0.015), out, Z, (0.030, 0.034), (0.025, 0.018)),
+            (f"{side}_foot", (ax + s * 0.005, 0.122, 0.010), out, Z, (0.020, 0.022), (0.016, 0.010)),
+        ]
+        cage.branch([bottom[i] for i in leg_loop], (out, Y), frames, cap=f"{side}_foot")
+        # Arm and hand, out of the chest's side; u points out and up (across the arm), v forward.
+        sh, el, wr = (P[f"{side}_{j}"] for j in ("shoulder", "elbow", "wrist"))
+        d = np.array([s * np.sin(arm_out), 0.0, -np.cos(arm_out)])
+        o = np.array([s * np.cos(arm_out), 0.0, np.sin(arm_out)])
+        r = lambda a, b: ((a * arm_w * _R4, a * arm_w * _R4), (b * arm_w * _R4, b * arm_w * _R4))  # noqa: E731
+        a_ring, b_ring = rings[_ARMPIT], rings[_ARMPIT + 1]
+        loop = [a_ring[arm_side], a_ring[arm_side + 1], b_ring[arm_side + 1], b_ring[arm_side]]
+        # The deltoid: a ring from just out of and below the armpit (the opening's lower edge, so
+        # the arm's inner side runs down from it, without a fold) up to the top of the shoulder.
+        pit = np.array([cage.points[loop[0]][0] + s * 0.015, sh[1], _TORSO[_ARMPIT][0] - 0.008])
+        top = np.array([sh[0] + s * 0.03, sh[1], sh[2] + 0.006])
+        tilt, reach = (top - pit) / np.linalg.norm(top - pit), np.linalg.norm(top - pit) / 2
+        frames = [
+            (f"{side}_arm", (pit + top) / 2, tilt, Y, (reach, reach), (0.042 * arm_w, 0.042 * arm_w)),
+            (f"{side}_arm", sh + 0.5 * (el - sh), o, Y, *r(0.031, 0.033)),
+            (f"{side}_arm", sh + 0.85 * (el - sh), o, Y, *r(0.026, 0.027)),
+            (f"{side}_arm", el, o, Y, *r(0.025, 0.025)),
+            (f"{side}_arm", el + 0.3 * (wr - el), o, Y, *r(0.027, 0.025)),
+            (f"{side}_arm", wr, o, Y, (0.016 * _R4,) * 2, (0.022 * _R4,) * 2),
+            (f"{side}_hand", wr + 0.045 * d, o, Y, (0.012 * _R4,) * 2, (0.030 * _R4,) * 2),
+            (f"{side}_hand", wr + 0.075 * d, o, Y, (0.010 * _R4,) * 2, (0.028 * _R4,) * 2),
+            (f"{side}_hand", wr + 0.102 * d, o, Y, (0.006 * _R4,) * 2, (0.016 * _R4,) * 2),
+        ]
+        cage.branch(loop, (tilt, Y), frames, cap=f"{side}_hand")
+    cage.points = [p * H for p in cage.points]
+    return cage
+
+
+def _cage_weights(spec: HumanSpec, cage: Cage) -> np.ndarray:
+    """Weights (cage points, joints) from the inverse fourth power of the distance to each bone
+    the point's part may follow; the feet are rigid (heel to ball on the ankle, toes on the toe
+    joint: gait rolls them about the ball, blended weights in front of it would turn into the ground)."""
+    P = rest_positions(spec)
+    pts = np.array(cage.points)
+    part = np.array(cage.point_part)
+    dist = np.full((len(pts), len(JOINT_NAMES)), np.inf)
+    for name, allowed in _PART_JOINTS.items():
+        sel = part == name
+        for j in allowed:
+            end = P[_BONE_END[j]]
+            if name == "torso" and j.endswith("_shoulder"):  # the torso follows the shoulder, not the arm hanging beside it
+                end = P[j] + 0.15 * (end - P[j])
+            dist[sel, JOINT_NAMES.index(j)] = _segment_distance(pts[sel], P[j], end)
+    raw = np.where(np.isfinite(dist), 1.0 / np.maximum(dist, 0.01 * spec.height) ** 4, 0.0)
+    for side in "lr":
+        foot = part == f"{side}_foot"
+        toe = pts[:, 1] >= P[f"{side}_toe"][1]
+        raw[foot] = 0.0
+        raw[foot & ~toe, JOINT_NAMES.index(f"{side}_ankle")] = 1.0
+        raw[foot & toe, JOINT_NAMES.index(f"{side}_toe")] = 1.0
+    return raw / raw.sum(axis=1, keepdims=True)
+
+
+SUBDIVISIONS = 2  # Catmull-Clark steps from the cage: 16 quads per cage quad
+RIGID_FOOT = 0.035  # fraction of stature: the foot below this (below the ankle joint) is rigid
+
+
+@functools.lru_cache(maxsize=64)
+def _body(spec: HumanSpec):
+    cage = body_cage(spec)
+    pts, quads, face_part, weights = cage.subdivide(_cage_weights(spec, cage), SUBDIVISIONS)
+    P = rest_positions(spec)
+    for side in "lr":  # subdivision blends the feet again: below the ankle they are rigid, hinged at the ball
+        on = np.zeros(len(pts), bool)
+        on[quads[face_part == f"{side}_foot"].ravel()] = True
+        on &= pts[:, 2] < RIGID_FOOT * spec.height
+        toe = pts[:, 1] >= P[f"{side}_toe"][1]
+        weights[on] = 0.0
+        weights[on & ~toe, JOINT_NAMES.index(f"{side}_ankle")] = 1.0
+        weights[on & toe, JOINT_NAMES.index(f"{side}_toe")] = 1.0
+    # Flat soles: the cage's soles reach below the ground, the subdivided surface is cut at z = 0.
+    pts[:, 2] = np.maximum(pts[:, 2], 0.0)
+    first = np.unique(quads.ravel(), return_index=True)[1] // 4
+    return round_values(pts), quads, face_part[first], face_part, weights
+
+
+def body_mesh(spec: HumanSpec):
+    """(points (N,3), faceVertexCounts, faceVertexIndices, part name per point) of the body: one
+    closed, smooth quad mesh (the cage subdivided :data:`SUBDIVISIONS` times)."""
+    pts, quads, parts, _, _ = _body(spec)
+    return pts.copy(), np.full(len(quads), 4), quads.ravel().copy(), list(parts)
+
+
+
+def foot_shape(spec: HumanSpec) -> tuple[float, float, float, float]:
+    """(heel, ball, tip, ankle height) of the body's feet, metres: how far the back of the heel, the
+    ball (toe joint) and the toe tip lie forward of the ankle, and the ankle above the sole; measured
+    on the authored points skinned mostly to an ankle and its toe joint, as a character's are
+    (lfusd.author.people), so the procedural human walks exactly as a character made of it."""
+    P = rest_positions(spec)
+    pts = body_mesh(spec)[0].astype(np.float32).astype(np.float64)
+    ji, jw = skin_weights(spec)
+    jw = jw.astype(np.float32).astype(np.float64)
+    shapes = []
+    for side in "lr":
+        own = np.isin(ji, [JOINT_NAMES.index(f"{side}_ankle"), JOINT_NAMES.index(f"{side}_toe")])
+        sel = (jw * own).sum(axis=1) >= 0.5
+        a = P[f"{side}_ankle"]
+        fwd = pts[sel, 1] - a[1]
+        shapes.append((fwd.min(), P[f"{side}_toe"][1] - a[1], fwd.max(), a[2] - pts[sel, 2].min()))
+    heel, ball, tip, height = np.array(shapes).T
+    return float(heel.min()), float(ball.mean()), float(tip.max()), float(height.mean())
 
 def face_regions(spec: HumanSpec, points: np.ndarray, counts, indices, parts: list[str]) -> np.ndarray:
     """The clothing region (an index into :data:`REGIONS`) of every face of ``body_mesh``."""
@@ -407,6 +528,7 @@ def face_regions(spec: HumanSpec, points: np.ndarray, counts, indices, parts: li
         hip, ankle = P[f"{side}_hip"][2], P[f"{side}_ankle"][2]
         down = (hip - centre[leg, 2]) / (hip - ankle)
         region[leg] = np.where(down < look["legs"], REGIONS.index("bottom"), 0)
+        region[leg & (centre[:, 2] < SHOE_TOP * H)] = REGIONS.index("shoes")
     return region
 
 
@@ -414,7 +536,7 @@ def body_regions(spec: HumanSpec, whole_parts: bool = False, segments: int = 16)
     """The body split by clothing region: {region: (points, counts, indices)}, each re-indexed.
     ``whole_parts``: every body part goes wholly to one region (arms to the top, legs to the
     bottom), so each region is a union of closed tubes (for static, unskinned people)."""
-    points, counts, indices, parts = body_mesh(spec, segments)
+    points, counts, indices, parts = _segmented_body(spec, segments) if whole_parts else body_mesh(spec)
     if whole_parts:
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         part = np.array(parts)[indices[starts]]
@@ -476,7 +598,7 @@ def define_human(stage: Usd.Stage, path: str | Sdf.Path, spec: HumanSpec = Human
     look = appearance(spec)
     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*look["skin"])]))
     _dress(stage, path, mesh, spec, look, points, counts, indices, parts)
-    ji, jw = skin_weights(spec, points, parts, counts, indices)
+    ji, jw = skin_weights(spec)
     binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
     binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
     binding.CreateJointIndicesPrimvar(False, ji.shape[1]).Set(Vt.IntArray.FromNumpy(ji.ravel().astype(np.int32)))
