@@ -569,8 +569,76 @@ def rest_transforms(spec: HumanSpec) -> tuple[list[Gf.Matrix4d], list[Gf.Matrix4
     return bind, rest
 
 
+HAIR_NAME = "Hair"
+HAIR_GAP = 0.001  # metres between the skin and the hair layer's inner side
+
+
+def _vertex_normals(points: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """Unit area-weighted normals of a closed, outward quad mesh (cross product of the diagonals)."""
+    p = points[quads]
+    face = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
+    n = np.zeros_like(points)
+    for k in range(4):
+        np.add.at(n, quads[:, k], face)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def hair_mesh(spec: HumanSpec):
+    """The hair: a closed shell over the scalp (and the nape, for long hair), its inner side
+    :data:`HAIR_GAP` and its outer side 3 mm (at the hairline) to a few centimetres (on the crown)
+    off the skin along the skin's normals, skinned with the weights of the skin beneath it, so it
+    moves with the head and never enters it. (points, counts, indices, joint indices, weights), or
+    None for a bald look."""
+    look = appearance(spec)
+    if look["hair"] is None:
+        return None
+    H = spec.height
+    pts, quads, _, face_part, _ = _body(spec)
+    ji, jw = skin_weights(spec)
+    rel = pts[quads].mean(axis=1) - [0.0, 0.0, 0.935 * H]
+    across = np.hypot(rel[:, 0], rel[:, 1])
+    elev = np.degrees(np.arctan2(rel[:, 2], across))
+    front = rel[:, 1] / np.maximum(across, 1e-9)  # 1 facing forward, -1 at the back
+    back = -(15.0 + 45.0 * look["hair_length"])
+    line = np.where(front > 0, -5.0 + 40.0 * front, -5.0 + (5.0 + back) * -front)  # the hairline's elevation, degrees
+    faces = quads[np.isin(face_part, ["head", "neck"]) & (elev > line)]
+    used, local = np.unique(faces, return_inverse=True)
+    local = local.reshape(-1, 4)
+    n = _vertex_normals(pts, quads)[used]
+    vrel = pts[used] - [0.0, 0.0, 0.935 * H]
+    v_elev = np.degrees(np.arctan2(vrel[:, 2], np.hypot(vrel[:, 0], vrel[:, 1])))
+    volume = (0.004 + 0.008 * look["hair_length"]) * H
+    thick = 0.003 + volume * np.clip((v_elev + 10.0) / 70.0, 0.0, 1.0) ** 2  # thin at the hairline, full on the crown
+    k = len(used)
+    points = np.concatenate([pts[used] + n * thick[:, None], pts[used] + n * HAIR_GAP])
+    edges = np.concatenate([local[:, [j, (j + 1) % 4]] for j in range(4)])
+    key = np.sort(edges, axis=1)
+    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    rim = edges[count[inv.ravel()] == 1]  # the hairline: edges of one scalp face
+    shell = np.concatenate([local, local[:, ::-1] + k, np.c_[rim[:, 1], rim[:, 0], rim[:, 0] + k, rim[:, 1] + k]])
+    return (round_values(points), np.full(len(shell), 4), shell.ravel(), np.concatenate([ji[used]] * 2), np.concatenate([jw[used]] * 2))
+
+
+def _skinned_mesh(stage: Usd.Stage, path: Sdf.Path, skel: UsdSkel.Skeleton, points, counts, indices, ji, jw) -> UsdGeom.Mesh:
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(indices.astype(np.int32)))
+    # No subdivision: Blender would add a Subdivision modifier and change the vertex set.
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateJointIndicesPrimvar(False, ji.shape[1]).Set(Vt.IntArray.FromNumpy(ji.ravel().astype(np.int32)))
+    binding.CreateJointWeightsPrimvar(False, jw.shape[1]).Set(Vt.FloatArray.FromNumpy(jw.ravel().astype(np.float32)))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    return mesh
+
+
 def define_human(stage: Usd.Stage, path: str | Sdf.Path, spec: HumanSpec = HumanSpec(), label: str = "person") -> UsdSkel.Root:
-    """Author a skinned human at ``path``: SkelRoot (labelled) / Skeleton, Body mesh.
+    """Author a skinned human at ``path``: SkelRoot (labelled) / Skeleton, Body mesh (clothes are
+    materials on its face subsets) and, unless the look is bald, a Hair mesh skinned like the scalp.
 
     The skeleton is not yet animated; lfusd.author.gait writes a UsdSkel Animation and binds it.
     """
@@ -587,23 +655,15 @@ def define_human(stage: Usd.Stage, path: str | Sdf.Path, spec: HumanSpec = Human
     skel.GetPurposeAttr().Set(UsdGeom.Tokens.guide)  # not drawn; the body is
 
     points, counts, indices, parts = body_mesh(spec)
-    mesh = UsdGeom.Mesh.Define(stage, path.AppendChild(MESH_NAME))
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(indices.astype(np.int32)))
-    # No subdivision: Blender would add a Subdivision modifier and change the vertex set.
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    mesh.CreateExtentAttr(Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))]))
+    mesh = _skinned_mesh(stage, path.AppendChild(MESH_NAME), skel, points, counts, indices, *skin_weights(spec))
     look = appearance(spec)
     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*look["skin"])]))
     _dress(stage, path, mesh, spec, look, points, counts, indices, parts)
-    ji, jw = skin_weights(spec)
-    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
-    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
-    binding.CreateJointIndicesPrimvar(False, ji.shape[1]).Set(Vt.IntArray.FromNumpy(ji.ravel().astype(np.int32)))
-    binding.CreateJointWeightsPrimvar(False, jw.shape[1]).Set(Vt.FloatArray.FromNumpy(jw.ravel().astype(np.float32)))
-    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    hair = hair_mesh(spec)
+    if hair is not None:
+        layer = _skinned_mesh(stage, path.AppendChild(HAIR_NAME), skel, *hair)
+        layer.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*look["hair"])]))
+        UsdShade.MaterialBindingAPI.Apply(layer.GetPrim()).Bind(_material(stage, path, "hair", look))
     return root
 
 
@@ -619,13 +679,18 @@ def _dress(stage: Usd.Stage, path: Sdf.Path, mesh: UsdGeom.Mesh, spec: HumanSpec
         faces = np.nonzero(region == k)[0]
         if not len(faces):
             continue
-        mat_path = path.AppendChild("Looks").AppendChild(name)
-        mat = UsdShade.Material.Define(stage, mat_path)
-        shader = UsdShade.Shader.Define(stage, mat_path.AppendChild("Surface"))
-        shader.CreateIdAttr("UsdPreviewSurface")
-        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*look[name]))
-        shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(_ROUGHNESS[name])
-        mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
         subset = binding.CreateMaterialBindSubset(name, Vt.IntArray.FromNumpy(faces.astype(np.int32)), UsdGeom.Tokens.face)
-        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(mat)
+        UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(_material(stage, path, name, look))
     binding.SetMaterialBindSubsetsFamilyType(UsdGeom.Tokens.partition)
+
+
+def _material(stage: Usd.Stage, path: Sdf.Path, name: str, look: dict) -> UsdShade.Material:
+    """The UsdPreviewSurface of region ``name`` at ``<path>/Looks/<name>``."""
+    mat_path = path.AppendChild("Looks").AppendChild(name)
+    mat = UsdShade.Material.Define(stage, mat_path)
+    shader = UsdShade.Shader.Define(stage, mat_path.AppendChild("Surface"))
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*look[name]))
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(_ROUGHNESS[name])
+    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return mat

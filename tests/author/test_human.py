@@ -217,3 +217,56 @@ def test_skinned_body_never_passes_through_itself(gait):
             v = geo.mesh(body, float(f)).vertices
             assert _crossings(v, quads) == 0, f"frame {f}: the skin passes through itself"
             assert v[:, 2].min() > -0.01, f"frame {f}: a sole sinks {-v[:, 2].min():.3f} m into the ground"
+
+
+@pytest.mark.parametrize("gait", ["walk", "run"])
+def test_hair_stays_on_the_head_and_clothes_are_the_skin(gait):
+    """Hair is a closed skinned layer over the scalp: at every frame of a walk and a run its inner
+    side is outside the skin and no edge of it passes through the skin, and it stays within its
+    thickness (a few centimetres) of the skin. Clothes are face subsets of the skin itself, so they
+    cannot leave it or enter it."""
+    import open3d as o3d
+
+    from lfusd.author.geometry import StageGeometry, triangulate
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.people import add_person
+
+    spec = HumanSpec(1.7, 0.6, look=1)  # long hair
+    stage = new_stage(None, 1, 36)
+    ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    ground.CreatePointsAttr([(-10, -10, 0), (10, -10, 0), (10, 10, 0), (-10, 10, 0)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    set_class_label(ground.GetPrim(), "ground")
+    person = add_person(stage, [(-4.0, 0.0), (4.0, 0.0)], gait=gait, spec=spec, check=False)
+    body = UsdGeom.Mesh(stage.GetPrimAtPath(f"{person.GetPath()}/Body"))
+    hair = UsdGeom.Mesh(stage.GetPrimAtPath(f"{person.GetPath()}/Hair"))
+    assert hair and UsdSkel.BindingAPI(hair.GetPrim()).GetSkeletonRel().GetTargets()
+    assert hair.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
+    # closed and outward, as verify's ray casts need
+    h_counts, h_idx = np.array(hair.GetFaceVertexCountsAttr().Get()), np.array(hair.GetFaceVertexIndicesAttr().Get())
+    assert np.all(h_counts == 4)
+    quads = h_idx.reshape(-1, 4)
+    directed = np.concatenate([quads[:, [k, (k + 1) % 4]] for k in range(4)])
+    assert len(np.unique(directed, axis=0)) == len(directed)
+    assert {tuple(e) for e in directed.tolist()} == {(b, a) for a, b in directed.tolist()}
+    p = np.array(hair.GetPointsAttr().Get(), float)[quads]
+    assert sum(np.dot(q[0], np.cross(q[k], q[k + 1])) for q in p for k in (1, 2)) > 0  # outward
+    b_tris = triangulate(np.array(body.GetFaceVertexCountsAttr().Get()), np.array(body.GetFaceVertexIndicesAttr().Get()))
+    n_hair = len(hair.GetPointsAttr().Get())
+    inner = np.arange(n_hair) >= n_hair // 2
+    geo = StageGeometry(stage)
+    edges = np.unique(np.sort(directed, axis=1), axis=0)
+    for f in range(1, 37):
+        skin = geo.mesh(body.GetPrim(), float(f)).vertices
+        v = geo.mesh(hair.GetPrim(), float(f)).vertices
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(skin.astype(np.float32), b_tris.astype(np.uint32))
+        pts = o3d.core.Tensor(v.astype(np.float32))
+        assert scene.compute_occupancy(pts).numpy().sum() == 0, f"frame {f}: hair inside the head"
+        dist = scene.compute_distance(pts).numpy()
+        assert dist[inner].min() > 0.0003 and dist.max() < 0.05, f"frame {f}: hair {dist.min():.4f}-{dist.max():.4f} m off the skin"
+        a, d = v[edges[:, 0]], v[edges[:, 1]] - v[edges[:, 0]]
+        length = np.linalg.norm(d, axis=1)
+        t = scene.cast_rays(o3d.core.Tensor(np.hstack([a, d / length[:, None]]).astype(np.float32)))["t_hit"].numpy()
+        assert np.all(t > length), f"frame {f}: a hair edge passes through the skin"
