@@ -1,4 +1,4 @@
-"""A procedural human as UsdSkel: a skinned body mesh on a 19-joint skeleton, labelled ``person``.
+"""A procedural human as UsdSkel: a smooth skinned body on a 19-joint skeleton, labelled ``person``.
 
 The character frame is Z up, facing +Y, metres, with the origin on the ground between the feet
 (so the character's right is +X). Joint rest orientations are the identity: every joint's
@@ -8,8 +8,10 @@ rest transform is a pure translation, which keeps animation maths simple and any
 Proportions follow standard anthropometric fractions of stature (Drillis & Contini); ``build``
 in [0, 1] widens the body (0 slim, 0.5 average, 1 heavy). ``look`` seeds the rest of a person's
 appearance: hip, waist and chest girth, hair, skin tone and clothes (a top with long, short or no
-sleeves, trousers or shorts, shoes), authored as UsdPreviewSurface materials bound to face subsets
-of the one skinned mesh. Joints depend on stature alone, so every gait fits every look.
+sleeves, trousers or shorts, shoes). The skin is one closed surface, a control cage subdivided here
+(lfusd.author.body); clothes are UsdPreviewSurface materials bound to face subsets of it, and the
+hair is a closed layer over the scalp skinned like the skin beneath it. Joints depend on stature
+alone, so every gait fits every look.
 """
 
 from __future__ import annotations
@@ -133,146 +135,11 @@ _BONE_END = {
 }
 
 
-def _ring(center, axis, ref, a, b, n, power=2.0):
-    """n points of a superellipse (half-axes a along ref, b along axis x ref) around ``center``."""
-    axis = axis / np.linalg.norm(axis)
-    u = ref - axis * np.dot(ref, axis)
-    u /= np.linalg.norm(u)
-    v = np.cross(axis, u)
-    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-    c, s = np.cos(t), np.sin(t)
-    # Superellipse: |x/a|^p + |y/b|^p = 1 (p = 2 is an ellipse, larger is boxier).
-    x = a * np.sign(c) * np.abs(c) ** (2.0 / power)
-    y = b * np.sign(s) * np.abs(s) ** (2.0 / power)
-    return center + np.outer(x, u) + np.outer(y, v)
-
-
-class _MeshBuilder:
-    def __init__(self):
-        self.points: list[np.ndarray] = []
-        self.parts: list[str] = []
-        self.counts: list[int] = []
-        self.indices: list[int] = []
-        self.n = 0
-
-    def tube(self, part: str, rings: list[np.ndarray], caps=(True, True)):
-        """Loft closed rings (each (k,3), same k) into a tube, closed by fan caps."""
-        k = len(rings[0])
-        base = self.n
-        for r in rings:
-            self.points.append(r)
-        self.parts += [part] * (k * len(rings))
-        self.n += k * len(rings)
-        for i in range(len(rings) - 1):
-            for j in range(k):
-                a, b = base + i * k + j, base + i * k + (j + 1) % k
-                c, d = b + k, a + k
-                self.counts.append(4)
-                self.indices += [a, b, c, d]  # outward for counter-clockwise rings along the axis
-        for end, cap in zip((0, len(rings) - 1), caps):
-            if not cap:
-                continue
-            centre = rings[end].mean(axis=0)
-            ci = self.n
-            self.points.append(centre[None])
-            self.parts.append(part)
-            self.n += 1
-            r0 = base + end * k
-            for j in range(k):
-                a, b = r0 + j, r0 + (j + 1) % k
-                self.counts.append(3)
-                self.indices += [ci, b, a] if end == 0 else [ci, a, b]
-
-    def arrays(self):
-        return np.concatenate(self.points), np.array(self.counts), np.array(self.indices), self.parts
-
-
-def _profile_tube(mb, part, start, end, ref, sections, n, power=2.0):
-    """A tube from ``start`` to ``end``; sections = [(t, a, b), ...] with t in [0, 1] along it."""
-    axis = end - start
-    rings = [_ring(start + t * axis, axis, ref, a, b, n, power) for t, a, b in sections]
-    mb.tube(part, rings)
-
-
-def _segmented_body(spec: HumanSpec, segments: int = 16):
-    """(points (N,3), faceVertexCounts, faceVertexIndices, part name per point) of a body of closed tubes (static people)."""
-    H = spec.height
-    w = 0.8 + 0.5 * spec.build  # girth factor
-    look = appearance(spec)
-    P = rest_positions(spec)
-    mb = _MeshBuilder()
-    X, Y, Z = np.eye(3)
-    # Torso: crotch to the base of the neck, elliptical sections (half-width along X, half-depth along Y).
-    torso = [
-        (0.47, 0.075, 0.050), (0.50, 0.095, 0.060), (0.54, 0.100, 0.062), (0.58, 0.092, 0.058),
-        (0.62, 0.082, 0.054), (0.66, 0.084, 0.056), (0.70, 0.092, 0.062), (0.74, 0.098, 0.064),
-        (0.78, 0.104, 0.060), (0.81, 0.098, 0.050), (0.83, 0.060, 0.040), (0.845, 0.035, 0.032),
-    ]
-    # The look's girth factors: hips (up to 0.58 H), waist (0.6-0.68 H, deeper with a belly), chest.
-    girth = [look["hips"]] * 4 + [look["waist"]] * 2 + [look["chest"]] * 4 + [1.0, 1.0]
-    belly = [1.0] * 4 + [look["belly"]] * 2 + [1.0] * 6
-    rings = [_ring(np.array([0.0, -0.005 * H, z * H]), Z, X, a * H * w * g, b * H * w * g * e, segments, 2.4)
-             for (z, a, b), g, e in zip(torso, girth, belly)]
-    mb.tube("torso", rings)
-    # Neck and head.
-    _profile_tube(mb, "neck", P["neck"] - [0, 0, 0.02 * H], P["head"] + [0, 0, 0.02 * H], Y,
-                  [(0.0, 0.032 * H, 0.034 * H), (1.0, 0.03 * H, 0.032 * H)], segments)
-    hc = np.array([0.0, 0.008 * H, H - 0.985 * 0.065 * H])  # crown at the stature
-    head_rings = []
-    for lat in np.radians(np.linspace(-80, 80, 9)):
-        head_rings.append(_ring(hc + [0, 0, 0.065 * H * np.sin(lat)], Z, X, 0.05 * H * np.cos(lat),
-                                0.06 * H * np.cos(lat), segments))
-    mb.tube("head", head_rings)
-    # Hair: a cap over the crown and the back of the head, 2-9 mm proud of it, its top at the stature.
-    if look["hair"] is not None:
-        length = look["hair_length"]
-        hair_rings = []
-        for lat in np.radians(np.linspace(-20 - 50 * length, 78, 7)):
-            c = hc + [0, -0.006 * H, 0.068 * H * np.sin(lat)]
-            hair_rings.append(_ring(c, Z, X, 0.055 * H * np.cos(lat), 0.062 * H * np.cos(lat), segments))
-        mb.tube("hair", hair_rings)
-    for side in "lr":
-        s = -1.0 if side == "l" else 1.0
-        # Leg: from above the hip joint (inside the torso) to just above the ankle.
-        top = P[f"{side}_hip"] + [s * 0.006 * H, 0, 0.03 * H]
-        bottom = P[f"{side}_ankle"] + [0, 0, 0.005 * H]
-        kt = (top[2] - P[f"{side}_knee"][2]) / (top[2] - bottom[2])
-        _profile_tube(mb, f"{side}_leg", top, bottom, Y, [
-            (0.0, 0.058 * H * w, 0.058 * H * w), (0.12, 0.056 * H * w, 0.056 * H * w),
-            (0.3, 0.048 * H * w, 0.048 * H * w), (kt - 0.06, 0.036 * H * w, 0.036 * H * w),
-            (kt, 0.033 * H * w, 0.035 * H * w), (kt + 0.08, 0.036 * H * w, 0.038 * H * w),
-            (kt + 0.2, 0.036 * H * w, 0.040 * H * w), (kt + 0.4, 0.026 * H * w, 0.028 * H * w),
-            (1.0, 0.02 * H, 0.022 * H),
-        ], segments)
-        # Foot: a flat-soled box-like tube from heel to toe tip, sole at z = 0.
-        heel = np.array([P[f"{side}_ankle"][0], -0.03 * H, 0.0])
-        tip = P[f"{side}_toe_tip"] * [1, 1, 0]
-        sections = [(0.0, 0.018, 0.02), (0.12, 0.024, 0.03), (0.4, 0.027, 0.026), (0.7, 0.03, 0.016), (1.0, 0.022, 0.01)]
-        rings = []
-        for t, a, hgt in sections:
-            c = heel + t * (tip - heel) + [0, 0, hgt * H]
-            rings.append(_ring(c, Y, X, a * H, hgt * H, segments, 4.0))
-        mb.tube(f"{side}_foot", rings)
-        # Arm: shoulder to wrist, then a flattened hand.
-        sh, el, wr, ht = (P[f"{side}_{k}"] for k in ("shoulder", "elbow", "wrist", "hand_tip"))
-        ta = np.linalg.norm(el - sh) / np.linalg.norm(wr - sh)
-        start = sh + [0, 0, 0.02 * H]
-        _profile_tube(mb, f"{side}_arm", start, wr, Y, [
-            (0.0, 0.03 * H * w, 0.03 * H * w), (0.15, 0.032 * H * w, 0.032 * H * w),
-            (ta - 0.05, 0.025 * H * w, 0.025 * H * w), (ta + 0.05, 0.024 * H * w, 0.024 * H * w),
-            (ta + 0.25, 0.025 * H * w, 0.023 * H * w), (1.0, 0.018 * H, 0.015 * H),
-        ], segments)
-        _profile_tube(mb, f"{side}_hand", wr, ht, Y, [
-            (0.0, 0.013 * H, 0.02 * H), (0.4, 0.012 * H, 0.027 * H), (1.0, 0.007 * H, 0.015 * H)], segments)
-    return mb.arrays()
-
-
 # Which joints may influence each part (keeps, e.g., hands from following the hips).
 _PART_JOINTS = {
     "torso": ["pelvis", "spine", "chest", "neck", "l_shoulder", "r_shoulder", "l_hip", "r_hip"],
     "neck": ["chest", "neck", "head"],
     "head": ["neck", "head"],
-    "hair": ["head"],
 }
 for _s in "lr":
     _PART_JOINTS[f"{_s}_leg"] = ["pelvis", f"{_s}_hip", f"{_s}_knee", f"{_s}_ankle"]
@@ -287,13 +154,13 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.linalg.norm(p - (a + t[:, None] * ab), axis=1)
 
 
-def skin_weights(spec: HumanSpec, influences: int = 4) -> tuple[np.ndarray, np.ndarray]:
+def skin_weights(spec: HumanSpec, influences: int = 4, levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Skin weights of :func:`body_mesh`'s points: the cage's weights (inverse distance to the bones
     each part may follow), subdivided with the points, so they vary as smoothly as the surface.
 
     Returns (joint indices (N, k) int, weights (N, k) float summing to 1), the ``influences`` largest.
     """
-    raw = _body(spec)[4]
+    raw = _body(spec, levels)[4]
     # Rank rounded weights: weights equal in exact arithmetic differ in their last bit from CPU to
     # CPU, and the stable sort then breaks such ties by joint index, the same on every machine.
     raw = round_values(raw)
@@ -456,13 +323,14 @@ def _cage_weights(spec: HumanSpec, cage: Cage) -> np.ndarray:
 
 
 SUBDIVISIONS = 2  # Catmull-Clark steps from the cage: 16 quads per cage quad
+STATIC_SUBDIVISIONS = 1  # static people, small in generated scenes and written with per-corner normals and uvs: 4
 RIGID_FOOT = 0.035  # fraction of stature: the foot below this (below the ankle joint) is rigid
 
 
 @functools.lru_cache(maxsize=64)
-def _body(spec: HumanSpec):
+def _body(spec: HumanSpec, levels: int | None = None):
     cage = body_cage(spec)
-    pts, quads, face_part, weights = cage.subdivide(_cage_weights(spec, cage), SUBDIVISIONS)
+    pts, quads, face_part, weights = cage.subdivide(_cage_weights(spec, cage), SUBDIVISIONS if levels is None else levels)
     P = rest_positions(spec)
     for side in "lr":  # subdivision blends the feet again: below the ankle they are rigid, hinged at the ball
         on = np.zeros(len(pts), bool)
@@ -532,29 +400,52 @@ def face_regions(spec: HumanSpec, points: np.ndarray, counts, indices, parts: li
     return region
 
 
-def body_regions(spec: HumanSpec, whole_parts: bool = False, segments: int = 16) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The body split by clothing region: {region: (points, counts, indices)}, each re-indexed.
-    ``whole_parts``: every body part goes wholly to one region (arms to the top, legs to the
-    bottom), so each region is a union of closed tubes (for static, unskinned people)."""
-    points, counts, indices, parts = _segmented_body(spec, segments) if whole_parts else body_mesh(spec)
-    if whole_parts:
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        part = np.array(parts)[indices[starts]]
-        by_part = {"hair": "hair", "torso": "top", "l_arm": "top", "r_arm": "top", "l_leg": "bottom", "r_leg": "bottom",
-                   "l_foot": "shoes", "r_foot": "shoes"}
-        region = np.array([REGIONS.index(by_part.get(p, "skin")) for p in part])
-    else:
-        region = face_regions(spec, points, counts, indices, parts)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+def body_regions(spec: HumanSpec) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """A static (unskinned) person as closed meshes, {region: (points, counts, indices)}: the
+    skin subdivided :data:`STATIC_SUBDIVISIONS` times, cut into its clothing regions (the scalp
+    raised by the hair's thickness), each piece closed by fans across its rims inside the body."""
+    pts, quads, parts, _, _ = _body(spec, STATIC_SUBDIVISIONS)
+    region = face_regions(spec, pts, np.full(len(quads), 4), quads.ravel(), list(parts))
+    hair = _scalp(spec, STATIC_SUBDIVISIONS)
+    if hair is not None:
+        sel, thick = hair
+        region[sel] = REGIONS.index("hair")
+        pts = pts.copy()
+        on = np.zeros(len(pts), bool)
+        on[quads[sel].ravel()] = True
+        on[quads[~sel].ravel()] = False  # the hairline stays on the skin: the pieces meet
+        pts[on] += _vertex_normals(pts, quads)[on] * thick[on, None]
     out = {}
     for k, name in enumerate(REGIONS):
-        faces = np.nonzero(region == k)[0]
-        if not len(faces):
-            continue
-        idx = np.concatenate([indices[starts[f]:starts[f] + counts[f]] for f in faces])
-        used, local = np.unique(idx, return_inverse=True)
-        out[name] = (points[used], counts[faces], local)
+        if np.any(region == k):
+            out[name] = _closed_piece(pts, quads, region == k)
     return out
+
+
+def _closed_piece(pts: np.ndarray, quads: np.ndarray, faces: np.ndarray):
+    """The ``faces`` (a mask) of a closed, outward quad mesh as a closed mesh of their own: each
+    loop of the piece's rim is closed by a fan of triangles to the loop's centre."""
+    used, local = np.unique(quads[faces], return_inverse=True)
+    local = local.reshape(-1, 4)
+    edges = np.concatenate([local[:, [j, (j + 1) % 4]] for j in range(4)])
+    _, inv, count = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True, return_counts=True)
+    rim = edges[count[inv.ravel()] == 1]  # edges of one face of the piece
+    points = list(pts[used])
+    counts, indices = [4] * len(local), list(local.ravel())
+    if len(rim):
+        import scipy.sparse as sp
+        from scipy.sparse.csgraph import connected_components
+
+        graph = sp.coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(len(used), len(used)))
+        _, loop = connected_components(graph, directed=False)
+        for label in np.unique(loop[rim[:, 0]]):
+            mine = rim[loop[rim[:, 0]] == label]
+            centre = len(points)
+            points.append(pts[used][np.unique(mine)].mean(axis=0))
+            for a, b in mine:  # the cap runs each rim edge the other way round
+                counts.append(3)
+                indices += [int(b), int(a), centre]
+    return round_values(np.array(points)), np.array(counts), np.array(indices)
 
 
 def _translation(p) -> Gf.Matrix4d:
@@ -583,40 +474,58 @@ def _vertex_normals(points: np.ndarray, quads: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def hair_mesh(spec: HumanSpec):
-    """The hair: a closed shell over the scalp (and the nape, for long hair), its inner side
-    :data:`HAIR_GAP` and its outer side 3 mm (at the hairline) to a few centimetres (on the crown)
-    off the skin along the skin's normals, skinned with the weights of the skin beneath it, so it
-    moves with the head and never enters it. (points, counts, indices, joint indices, weights), or
-    None for a bald look."""
+def _scalp(spec: HumanSpec, levels: int | None = None):
+    """(mask of the skin's faces under the hair, the hair's thickness at each skin point), or None
+    for a bald look: the scalp down to a hairline over the forehead, above the ears and, for long
+    hair, down the nape; 3 mm thick at the hairline to a few centimetres on the crown."""
     look = appearance(spec)
     if look["hair"] is None:
         return None
     H = spec.height
-    pts, quads, _, face_part, _ = _body(spec)
-    ji, jw = skin_weights(spec)
+    pts, quads, _, face_part, _ = _body(spec, levels)
     rel = pts[quads].mean(axis=1) - [0.0, 0.0, 0.935 * H]
     across = np.hypot(rel[:, 0], rel[:, 1])
     elev = np.degrees(np.arctan2(rel[:, 2], across))
     front = rel[:, 1] / np.maximum(across, 1e-9)  # 1 facing forward, -1 at the back
     back = -(15.0 + 45.0 * look["hair_length"])
     line = np.where(front > 0, -5.0 + 40.0 * front, -5.0 + (5.0 + back) * -front)  # the hairline's elevation, degrees
-    faces = quads[np.isin(face_part, ["head", "neck"]) & (elev > line)]
-    used, local = np.unique(faces, return_inverse=True)
-    local = local.reshape(-1, 4)
-    n = _vertex_normals(pts, quads)[used]
-    vrel = pts[used] - [0.0, 0.0, 0.935 * H]
+    sel = np.isin(face_part, ["head", "neck"]) & (elev > line)
+    vrel = pts - [0.0, 0.0, 0.935 * H]
     v_elev = np.degrees(np.arctan2(vrel[:, 2], np.hypot(vrel[:, 0], vrel[:, 1])))
     volume = (0.004 + 0.008 * look["hair_length"]) * H
-    thick = 0.003 + volume * np.clip((v_elev + 10.0) / 70.0, 0.0, 1.0) ** 2  # thin at the hairline, full on the crown
+    return sel, 0.003 + volume * np.clip((v_elev + 10.0) / 70.0, 0.0, 1.0) ** 2  # thin at the hairline, full on the crown
+
+
+def hair_mesh(spec: HumanSpec, levels: int | None = None):
+    """The hair: a closed shell over the scalp (and the nape, for long hair), its inner side
+    :data:`HAIR_GAP` and its outer side 3 mm (at the hairline) to a few centimetres (on the crown)
+    off the skin along the skin's normals, skinned with the weights of the skin beneath it, so it
+    moves with the head and never enters it. (points, counts, indices, joint indices, weights), or
+    None for a bald look."""
+    scalp = _scalp(spec, levels)
+    if scalp is None:
+        return None
+    sel, thick = scalp
+    pts, quads, _, _, _ = _body(spec, levels)
+    ji, jw = skin_weights(spec, levels=levels)
+    points, shell, used = _shell(pts, quads, _vertex_normals(pts, quads), sel, HAIR_GAP, thick)
+    return points, np.full(len(shell), 4), shell.ravel(), ji[used], jw[used]
+
+
+def _shell(pts: np.ndarray, quads: np.ndarray, normals: np.ndarray, faces: np.ndarray, inner: float, outer: np.ndarray):
+    """A closed layer over the ``faces`` (a mask) of a closed, outward quad mesh: its points moved
+    ``inner`` and ``outer`` (per point) along ``normals``, joined along the patch's rim. Returns
+    (points, quads, index of the mesh point under each layer point)."""
+    used, local = np.unique(quads[faces], return_inverse=True)
+    local = local.reshape(-1, 4)
     k = len(used)
-    points = np.concatenate([pts[used] + n * thick[:, None], pts[used] + n * HAIR_GAP])
+    n = normals[used]
+    points = np.concatenate([pts[used] + n * outer[used, None], pts[used] + n * inner])
     edges = np.concatenate([local[:, [j, (j + 1) % 4]] for j in range(4)])
-    key = np.sort(edges, axis=1)
-    _, inv, count = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    rim = edges[count[inv.ravel()] == 1]  # the hairline: edges of one scalp face
+    _, inv, count = np.unique(np.sort(edges, axis=1), axis=0, return_inverse=True, return_counts=True)
+    rim = edges[count[inv.ravel()] == 1]  # edges of one face of the patch
     shell = np.concatenate([local, local[:, ::-1] + k, np.c_[rim[:, 1], rim[:, 0], rim[:, 0] + k, rim[:, 1] + k]])
-    return (round_values(points), np.full(len(shell), 4), shell.ravel(), np.concatenate([ji[used]] * 2), np.concatenate([jw[used]] * 2))
+    return round_values(points), shell, np.concatenate([used, used])
 
 
 def _skinned_mesh(stage: Usd.Stage, path: Sdf.Path, skel: UsdSkel.Skeleton, points, counts, indices, ji, jw) -> UsdGeom.Mesh:
