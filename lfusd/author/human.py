@@ -433,11 +433,15 @@ def _closed_piece(pts: np.ndarray, quads: np.ndarray, faces: np.ndarray):
     points = list(pts[used])
     counts, indices = [4] * len(local), list(local.ravel())
     if len(rim):
-        import scipy.sparse as sp
-        from scipy.sparse.csgraph import connected_components
-
-        graph = sp.coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(len(used), len(used)))
-        _, loop = connected_components(graph, directed=False)
+        loop = np.arange(len(used))  # union-find over the rim's edges: one label per loop
+        for a, b in rim.tolist():
+            while loop[a] != a:
+                a = loop[a]
+            while loop[b] != b:
+                b = loop[b]
+            loop[max(a, b)] = min(a, b)
+        for v in range(len(loop)):
+            loop[v] = loop[loop[v]]  # parents have smaller indices: one pass resolves every root
         for label in np.unique(loop[rim[:, 0]]):
             mine = rim[loop[rim[:, 0]] == label]
             centre = len(points)

@@ -145,7 +145,6 @@ def _crossings(v: np.ndarray, quads: np.ndarray) -> int:
     two quads away (a fold within two quads is a crease, not one part passing through another).
     Open3D lists every triangle each edge's ray meets before the edge's far end."""
     import open3d as o3d
-    import scipy.sparse as sp
 
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     e = np.unique(np.sort(np.concatenate([quads[:, [k, (k + 1) % 4]] for k in range(4)]), axis=1), axis=0)
@@ -171,16 +170,15 @@ def _crossings(v: np.ndarray, quads: np.ndarray) -> int:
     tt = f * np.einsum("ij,ij->i", e2, qv)
     ok &= (bu > 0) & (bv > 0) & (bu + bv < 1) & (tt > 1e-9) & (tt < 1 - 1e-9)
     ray, tri = ray[ok], tri[ok]
-    if not len(ray):
-        return 0
-    n = len(v)
-    rows, cols = np.repeat(quads, 4, axis=1).ravel(), np.tile(quads, 4).ravel()
-    one = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
-    near_mat = (one @ one).tocsr()  # vertices within two quads of each other
-    near = np.zeros(len(ray), bool)
-    for k in range(3):
-        for end in (0, 1):
-            near |= np.asarray(near_mat[e[ray, end], tris[tri, k]]).ravel() > 0
+    one_ring: dict[int, set[int]] = {}
+    for q in quads.tolist():
+        for v in q:
+            one_ring.setdefault(v, set()).update(q)
+
+    def two_rings(v: int) -> set[int]:
+        return set().union(*(one_ring[u] for u in one_ring[v]))
+
+    near = np.array([bool(set(tris[k].tolist()) & (two_rings(e[r, 0]) | two_rings(e[r, 1]))) for r, k in zip(ray, tri)], bool)
     return int(np.count_nonzero(~near))
 
 
