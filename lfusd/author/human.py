@@ -329,6 +329,8 @@ RIGID_FOOT = 0.035  # fraction of stature: the foot below this (below the ankle 
 
 @functools.lru_cache(maxsize=64)
 def _body(spec: HumanSpec, levels: int | None = None):
+    """(points, quads, part per point, part per quad, weights (points, joints)) of the skin
+    subdivided ``levels`` (default :data:`SUBDIVISIONS`) times, read-only."""
     cage = body_cage(spec)
     pts, quads, face_part, weights = cage.subdivide(_cage_weights(spec, cage), SUBDIVISIONS if levels is None else levels)
     P = rest_positions(spec)
@@ -343,7 +345,10 @@ def _body(spec: HumanSpec, levels: int | None = None):
     # Flat soles: the cage's soles reach below the ground, the subdivided surface is cut at z = 0.
     pts[:, 2] = np.maximum(pts[:, 2], 0.0)
     first = np.unique(quads.ravel(), return_index=True)[1] // 4
-    return round_values(pts), quads, face_part[first], face_part, weights
+    out = (round_values(pts), quads, face_part[first], face_part, weights)
+    for a in out:
+        a.setflags(write=False)  # cached: shared by every caller
+    return out
 
 
 def body_mesh(spec: HumanSpec):
