@@ -212,9 +212,7 @@ def human_rig(spec: _human.HumanSpec = _human.HumanSpec()) -> CharacterRig:
     bind, _ = _human.rest_transforms(spec)
     bind = np.array([np.array(m).T for m in bind])
     joints = _human.joint_paths()
-    P = _human.rest_positions(spec)
-    foot = (-0.03 * spec.height, float(P["l_toe"][1]), float(P["l_toe_tip"][1]), float(P["l_ankle"][2]))  # body_mesh's foot
-    return CharacterRig(joints, _human.parent_indices(), bind, recognise_roles(joints), foot_shape=foot)
+    return CharacterRig(joints, _human.parent_indices(), bind, recognise_roles(joints), foot_shape=_human.foot_shape(spec))
 
 
 def check_joint_paths(skel: UsdSkel.Skeleton) -> None:

@@ -297,6 +297,7 @@ def _rotated_frames_character(path, seed=0, mesh_name="Body"):
         layer = stage.GetRootLayer()
         assert Sdf.CopySpec(layer, "/Character/Body", layer, f"/Character/{mesh_name}")
         stage.RemovePrim("/Character/Body")
+        stage.RemovePrim("/Character/Hair")  # leaves one mesh named Hair on the probed stage: Person_00's
     stage.Save()
 
 
@@ -329,14 +330,14 @@ def test_blender_skinning_equals_pxr_skinning(tmp_path):
     add_person(stage, [(-3.0, -5.0), (2.0, -5.0)], gait="walk", speed=1.2, character=turned, check=False)
     stage.Save()
     out = tmp_path / "blender.npz"
-    r = subprocess.run([PY, str(ROOT / "tests" / "support" / "blender_skin_probe.py"), str(path), "Body,Skin,Turned", "1", "30",
+    r = subprocess.run([PY, str(ROOT / "tests" / "support" / "blender_skin_probe.py"), str(path), "Body,Hair,Skin,Turned", "1", "30",
                         str(out)], capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
-    for name in ("Body", "Skin", "Turned"):
+    for name in ("Body", "Hair", "Skin", "Turned"):
         assert f"{name} modifiers: ['ARMATURE']" in r.stdout
     blender = np.load(out)
     geo = StageGeometry(stage)
-    for name, prim_path in (("Body", "/World/People/Person_00/Body"), ("Skin", "/World/People/Person_01/Skin"),
+    for name, prim_path in (("Body", "/World/People/Person_00/Body"), ("Hair", "/World/People/Person_00/Hair"), ("Skin", "/World/People/Person_01/Skin"),
                             ("Turned", "/World/People/Person_02/Turned")):
         prim = stage.GetPrimAtPath(prim_path)
         ref = np.array([geo.mesh(prim, f).vertices for f in range(1, 31)])

@@ -117,3 +117,31 @@ def test_gltf_shaped_character_walks_and_runs_with_its_soles_on_the_ground(tmp_p
 
     capsys.readouterr()
     assert main(["check", str(path)]) == 0, capsys.readouterr().out
+
+
+def test_anonymous_joint_names_still_swing_the_arms(tmp_path):
+    """Arms are found by the skeleton's shape, not its names: a character whose joints are called
+    joint_0, joint_1, ... (no side or limb words at all), Y-up centimetres under a rotateX -90,
+    walks on the Y-up centimetre set with its hands swinging in opposition, forward and back along
+    its path (measured on the skinned hand vertices, relative to the hips)."""
+    from lfusd.author.people import add_person
+    from support.characters import scaled, write_character
+
+    char = tmp_path / "anon" / "man.usda"
+    char.parent.mkdir()
+    write_character(char, "cesium", up="Y", meters_per_unit=0.01, content=scaled(100.0, 180.0), above=[("rotateX", -90.0)],
+                    textured=True, seed=5)
+    path = tmp_path / "set.usda"
+    yup_cm_set(path)
+    stage = Usd.Stage.Open(str(path))
+    route = [to_stage([x, -1.0, 0.0], "Y", 1.0) for x in (-2.5, 2.5)]
+    add_person(stage, [(a[0], a[2]) for a in route], gait="walk", character=char, check=False)
+    body = stage.GetPrimAtPath(f"{PERSON}/Character/Body")
+    geo = StageGeometry(stage)
+    verts = np.array([geo.mesh(body, float(f)).vertices for f in range(24, 61)])  # at speed
+    keys = np.array(box_mesh()[3])
+    hips = verts[:, keys == "pelvis"].mean(axis=1)
+    ahead = [(verts[:, keys == f"{s}_wrist"].mean(axis=1) - hips)[:, 0] for s in "lr"]  # the path runs along world +x
+    for a in ahead:
+        assert np.ptp(a) > 0.15, f"a hand swings only {np.ptp(a):.3f} m"
+    assert np.corrcoef(*ahead)[0, 1] < -0.8  # left forward while right back

@@ -163,14 +163,13 @@ _BOTTOMS = ("denim", "paint_dark", "paint_silver", "denim")
 
 
 def person(rng: np.random.Generator) -> Parts:
-    """A standing person (the procedural human's body in its rest pose, facing +x), in clothes:
-    one closed part per garment."""
+    """A standing person (the procedural human's body in its rest pose, facing +x): its skin and,
+    over it, a closed layer per garment and the hair."""
     spec = HumanSpec(float(rng.uniform(1.55, 1.95)), float(rng.uniform(0.1, 0.9)), look=int(rng.integers(1 << 30)))
     textures = {"skin": "skin", "hair": "hair", "top": _TOPS[int(rng.integers(len(_TOPS)))],
                 "bottom": _BOTTOMS[int(rng.integers(len(_BOTTOMS)))], "shoes": "paint_dark"}
     out = []
-    # 12 segments (a multiple of 4): the rings reach the soles at z = 0
-    for garment, (pts, counts, indices) in body_regions(spec, whole_parts=True, segments=12).items():
+    for garment, (pts, counts, indices) in body_regions(spec).items():
         p = np.c_[pts[:, 1], -pts[:, 0], pts[:, 2]]  # the human faces +y; turn it to face +x
         uvs = np.c_[p[:, 0] + p[:, 1], p[:, 2]][np.asarray(indices)] * 4.0  # ~25 cm texture repeats
         out.append((garment, MeshData(p, list(counts), list(indices), uvs), textures[garment]))
