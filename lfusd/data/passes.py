@@ -125,8 +125,8 @@ def _uncompressed_parts(path: str | Path) -> list[_Part] | None:
 
 
 def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]] | None:
-    """(channel names, (H, W)) of an uncompressed scanline EXR (single- or multi-part, as Blender
-    writes a multilayer file) whose every scanline is in the file, checked without decoding: the
+    """(channel names, (H, W)) of an uncompressed scanline EXR (single-part, as the render worker has Blender write
+    its multilayer files, or multi-part) whose every scanline is in the file, checked without decoding: the
     line offset tables must put each line, of the size its part's channels give, one after the
     other up to the file's last byte. None for any other EXR (decode it to check it); LfusdError
     for an uncompressed file that is cut off or longer (OpenEXR's decoder only warns about a cut-off
