@@ -146,7 +146,7 @@ _GROUPS = ("RGBA", "RGB")  # the colour groups OpenEXR's Python API returns as o
 def read_uncompressed(path: str | Path, layers=None) -> dict[str, np.ndarray] | None:
     """Every channel of an uncompressed scanline EXR as :func:`read_exr` returns it (colour groups
     as one array), or only those of the parts holding a channel of ``layers`` (pass names such as
-    ``Depth``: Blender's Combined is never read); None for any other EXR (decode it with
+    ``Depth``: in a file of a part per pass, Blender's Combined is not read); None for any other EXR (decode it with
     :func:`read_exr`); LfusdError for a file cut off or longer (:func:`uncompressed_channels`).
 
     The arrays are read-only views into one read of each part's lines: no decoding, no copy per
@@ -229,7 +229,7 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     """The data passes of one view (:data:`lfusd.keys.RAW_PASSES`), converted to the conventions:
     depth, normal, position, instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see
     lfusd.truth.motion) and the motion AOVs where the file has them."""
-    # transient raw passes are uncompressed: read as views of their lines, Combined skipped
+    # transient raw passes are uncompressed: read as views of their lines (lfusd.render.request.raw_codec)
     ch = read_uncompressed(path, _RAW_LAYERS)
     if ch is None:
         ch = read_exr(path)
