@@ -49,7 +49,8 @@ def quantize(name: str, array: np.ndarray) -> np.ndarray:
         if a.dtype != np.float32:
             return (np.round(a.astype(np.float64) * scale) / scale).astype(np.float32)
         # float32 throughout gives the same numbers (a power-of-two scale is exact, and so is the
-        # rounding) in a third of the time; only |a| beyond 2^(127-bits) overflows, and it is kept
+        # rounding) in less than half the time (measured at 1024x1024: 6.0 -> 2.6 ms for flow, 8.7 -> 3.9
+        # for scene flow); only |a| beyond 2^(127-bits) overflows, and it is kept
         # as it is (a multiple of 2^-bits already)
         s32 = np.float32(scale)
         with np.errstate(over="ignore", invalid="ignore"):
