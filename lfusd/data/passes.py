@@ -15,7 +15,7 @@ derived static keys of lfusd.keys are computed by the functions in :data:`DERIVE
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -57,14 +57,22 @@ def _exr_header(head: bytes, pos: int) -> tuple[dict[str, bytes], int]:
     return attrs, pos + 1
 
 
-def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]] | None:
-    """(channel names, (H, W)) of an uncompressed scanline EXR (single- or multi-part, as Blender
-    writes a multilayer file) whose every scanline is in the file, checked without decoding: the
-    line offset tables must put each line, of the size its part's channels give, one after the
-    other up to the file's last byte. None for any other EXR (decode it to check it); LfusdError
-    for an uncompressed file that is cut off or longer (OpenEXR's decoder only warns about a cut-off
-    uncompressed file). The Blender worker writes transient raw passes this way
-    (lfusd.render.request.raw_codec); this check reads the headers and the offset tables alone."""
+@dataclass(frozen=True)
+class _Part:
+    """One part of an uncompressed scanline EXR: its channels (name, OpenEXR pixel type) in file
+    order, size, the bytes of a line chunk's header and pixels, and its line offset table."""
+
+    channels: tuple[tuple[str, int], ...]
+    shape: tuple[int, int]
+    y0: int
+    head: int
+    line: int
+    offsets: np.ndarray
+
+
+def _uncompressed_parts(path: str | Path) -> list[_Part] | None:
+    """The parts of an uncompressed scanline EXR whose every line is in the file (see
+    :func:`uncompressed_channels`); None for any other EXR; LfusdError for one cut off or longer."""
     import struct
 
     try:
@@ -75,45 +83,131 @@ def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]]
             if head[:4] != b"\x76\x2f\x31\x01" or flags & 0xFF != 2 or flags & 0xA00:
                 return None  # not an EXR, tiled or deep: decode it
             multi = bool(flags & 0x1000)
-            parts, pos = [], 8
+            headers, pos = [], 8
             while True:
                 attrs, pos = _exr_header(head, pos)
-                parts.append(attrs)
+                headers.append(attrs)
                 if not multi or head[pos] == 0:
                     pos += multi  # the empty header that ends a multi-part file's list
                     break
-            names, shapes, chunks = [], set(), []
-            for attrs in parts:
+            parts = []
+            for attrs in headers:
                 if attrs.get("compression") != b"\x00" or (multi and attrs.get("type") != b"scanlineimage"):
                     return None
                 x0, y0, x1, y1 = struct.unpack("<4i", attrs["dataWindow"])
                 h, w = y1 - y0 + 1, x1 - x0 + 1
-                line, chl, i = 0, attrs["channels"], 0
+                line, chl, i, channels = 0, attrs["channels"], 0, []
                 while chl[i] != 0:
                     end = chl.index(b"\0", i)
                     ptype, _, xs, ys = struct.unpack_from("<iB3xii", chl, end + 1)
                     if (xs, ys) != (1, 1) or ptype not in _PIXEL_BYTES:
                         return None
-                    names.append(chl[i:end].decode())
+                    channels.append((chl[i:end].decode(), ptype))
                     line += w * _PIXEL_BYTES[ptype]
                     i = end + 17
-                shapes.add((h, w))
-                chunks.append((h, (12 if multi else 8) + line))  # uncompressed: one line per chunk
+                parts.append(_Part(tuple(channels), (h, w), y0, 12 if multi else 8, line, np.zeros(0, "<u8")))
             f.seek(pos)
-            tables = [np.frombuffer(f.read(8 * n), "<u8") for n, _ in chunks]
+            # uncompressed: one line per chunk
+            parts = [replace(p, offsets=np.frombuffer(f.read(8 * p.shape[0]), "<u8")) for p in parts]
     except (OSError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError):
         return None  # unreadable or a header this parser does not know: decoding it decides
-    data = pos + 8 * sum(n for n, _ in chunks)
-    offsets = np.concatenate(tables) if tables else np.zeros(0, "<u8")
-    lengths = np.concatenate([np.full(n, k, np.uint64) for n, k in chunks]) if chunks else offsets
+    data = pos + 8 * sum(p.shape[0] for p in parts)
+    offsets = np.concatenate([p.offsets for p in parts]) if parts else np.zeros(0, "<u8")
+    lengths = np.concatenate([np.full(p.shape[0], p.head + p.line, np.uint64) for p in parts]) if parts else offsets
     order = np.argsort(offsets, kind="stable")
     start, length = offsets[order], lengths[order]
-    whole = offsets.size == sum(n for n, _ in chunks) and offsets.size > 0 and int(start[0]) == data
+    whole = offsets.size == sum(p.shape[0] for p in parts) and offsets.size > 0 and int(start[0]) == data
     whole = whole and np.array_equal(start[1:], start[:-1] + length[:-1]) and int(start[-1] + length[-1]) == size
     if not whole:
-        need = data + sum(n * k for n, k in chunks)
+        need = data + sum(p.shape[0] * (p.head + p.line) for p in parts)
         raise LfusdError(f"cannot read EXR {path} (it holds {size} bytes where its headers need {need}); re-render this view")
-    return names, shapes.pop() if len(shapes) == 1 else (0, 0)
+    return parts
+
+
+def uncompressed_channels(path: str | Path) -> tuple[list[str], tuple[int, int]] | None:
+    """(channel names, (H, W)) of an uncompressed scanline EXR (single-part, as the render worker has Blender write
+    its multilayer files, or multi-part) whose every scanline is in the file, checked without decoding: the
+    line offset tables must put each line, of the size its part's channels give, one after the
+    other up to the file's last byte. None for any other EXR (decode it to check it); LfusdError
+    for an uncompressed file that is cut off or longer (OpenEXR's decoder only warns about a cut-off
+    uncompressed file). The Blender worker writes transient raw passes this way
+    (lfusd.render.request.raw_codec); this check reads the headers and the offset tables alone."""
+    parts = _uncompressed_parts(path)
+    if parts is None:
+        return None
+    shapes = {p.shape for p in parts}
+    return [name for p in parts for name, _ in p.channels], shapes.pop() if len(shapes) == 1 else (0, 0)
+
+
+_DTYPES = {0: "<u4", 1: "<f2", 2: "<f4"}  # OpenEXR pixel types: UINT, HALF, FLOAT
+_GROUPS = ("RGBA", "RGB")  # the colour groups OpenEXR's Python API returns as one (H, W, n) array
+
+
+def read_uncompressed(path: str | Path, layers=None) -> dict[str, np.ndarray] | None:
+    """Every channel of an uncompressed scanline EXR as :func:`read_exr` returns it (colour groups
+    as one array), or only those of the parts holding a channel of ``layers`` (pass names such as
+    ``Depth``: in a file of a part per pass, Blender's Combined is not read); None for any other EXR (decode it with
+    :func:`read_exr`); LfusdError for a file cut off or longer (:func:`uncompressed_channels`).
+
+    The arrays are read-only views into one read of each part's lines: no decoding, no copy per
+    channel. Each line's chunk header must name its line and size, else the file is left to
+    OpenEXR's decoder."""
+    parts = _uncompressed_parts(path)
+    if parts is None:
+        return None
+    out: dict[str, np.ndarray] = {}
+    with open(path, "rb") as f:
+        for p in parts:
+            if layers is not None and not any(_layer(name) in layers for name, _ in p.channels):
+                continue
+            (h, w), chunk = p.shape, p.head + p.line
+            start = int(p.offsets[0])
+            if not np.array_equal(p.offsets, start + chunk * np.arange(h, dtype=np.uint64)):
+                return None  # lines not in order in the file
+            buf = np.empty(h * chunk, np.uint8)
+            f.seek(start)
+            if f.readinto(memoryview(buf)) != buf.size:
+                raise LfusdError(f"cannot read EXR {path} (it was cut off while being read); re-render this view")
+            buf.flags.writeable = False
+            rows = buf.reshape(h, chunk)
+            fields = rows[:, : p.head].view("<i4")  # a line chunk's header: (part number,) y, pixel bytes
+            if not (np.array_equal(fields[:, -2], p.y0 + np.arange(h)) and (fields[:, -1] == p.line).all()):
+                return None
+            at, pos = {}, p.head
+            for name, ptype in p.channels:
+                at[name] = (pos, ptype)
+                out[name] = rows[:, pos : pos + w * _PIXEL_BYTES[ptype]].view(_DTYPES[ptype])
+                pos += w * _PIXEL_BYTES[ptype]
+            _group_colours(out, at, rows, w)
+    return out
+
+
+def _layer(channel: str) -> str:
+    """The pass of a multilayer EXR channel: ``Depth`` of ``ViewLayer.Depth.Z``, ``next_position`` of ``ViewLayer.next_position.R``."""
+    parts = channel.split(".")
+    return parts[-2] if len(parts) > 1 else parts[0]
+
+
+def _group_colours(out: dict[str, np.ndarray], at: dict[str, tuple[int, int]], rows: np.ndarray, w: int) -> None:
+    """Replace the R, G, B(, A) channels of one prefix in ``out`` by one (H, W, n) view, as OpenEXR's
+    Python API groups them. The file holds a part's channels in name order (A, B, G, R), one after
+    the other in each line: the group is those bytes seen as (H, n, W), its channel axis reversed."""
+    prefixes: dict[str, set[str]] = {}
+    for name in at:
+        prefix, _, comp = name.rpartition(".")
+        prefixes.setdefault(prefix, set()).add(comp)
+    for prefix, comps in prefixes.items():
+        group = next((g for g in _GROUPS if comps == set(g)), None)
+        if group is None or not prefix:
+            continue
+        names = [f"{prefix}.{c}" for c in sorted(group)]
+        (pos, ptype), size = at[names[0]], _PIXEL_BYTES[at[names[0]][1]]
+        if any(at[n] != (pos + k * w * size, ptype) for k, n in enumerate(names)):
+            continue  # not side by side: left as single channels (read_raw then falls back to decoding)
+        block = rows[:, pos : pos + len(names) * w * size].view(_DTYPES[ptype]).reshape(rows.shape[0], len(names), w)
+        out[prefix] = block[:, ::-1, :].transpose(0, 2, 1)  # R, G, B(, A): name order reversed
+        for n in names:
+            del out[n]
 
 
 def _find(channels: dict[str, np.ndarray], suffix: str) -> np.ndarray | None:
@@ -128,17 +222,23 @@ def _channel(channels: dict[str, np.ndarray], suffix: str, path) -> np.ndarray:
     return arr
 
 
+_RAW_LAYERS = frozenset(p.layer for p in RAW_PASSES)
+
+
 def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     """The data passes of one view (:data:`lfusd.keys.RAW_PASSES`), converted to the conventions:
     depth, normal, position, instance, and ``vector`` (Blender's raw (H,W,4) vector pass, see
     lfusd.truth.motion) and the motion AOVs where the file has them."""
-    ch = read_exr(path)
+    # transient raw passes are uncompressed: read as views of their lines (lfusd.render.request.raw_codec)
+    ch = read_uncompressed(path, _RAW_LAYERS)
+    if ch is None:
+        ch = read_exr(path)
     # Each key is built once from the contract (lfusd.keys.RAW_PASSES) and masked in place (no
     # np.where copies: a third of the time at 1024x1024).
     def read(p) -> np.ndarray:
         if len(p.channels) > 1:
             return np.stack([_channel(ch, c, path) for c in p.channel_names], axis=-1).astype(p.dtype, copy=False)
-        return np.array(_channel(ch, p.channel_names[0], path), p.dtype)
+        return np.array(_channel(ch, p.channel_names[0], path), p.dtype, order="C")
 
     depth = read(RAW_PASS["depth"])
     background = ~(depth < BACKGROUND_DEPTH)
@@ -161,7 +261,7 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     for p in MOTION_AOVS:  # present when rendered by render-video; (H,W,4) RGBA groups
         arr = next((a for n, a in ch.items() if n.endswith("." + p.layer)), None)
         if arr is not None:
-            raw[p.key] = a = np.array(arr[..., : len(p.channels)], p.dtype)
+            raw[p.key] = a = np.array(arr[..., : len(p.channels)], p.dtype, order="C")
             a[background] = np.nan
     return raw
 

@@ -26,7 +26,7 @@ from pathlib import Path
 from .. import cpu_account
 from ..data import confined
 from ..data.formats import link_or_copy
-from ..data.passes import read_rgb_linear
+from ..data.passes import read_rgb
 from ..errors import LfusdError
 from .. import layout
 from ..layout import frame_dir
@@ -41,9 +41,9 @@ WORKER = [sys.executable, "-X", "faulthandler", "-m", "lfusd.render.worker"]
 
 
 def _check_rgb(src: Path, key: str, frame: int, unit: WorkUnit):
-    """The beauty of one view as linear RGB, refused unless it reads back whole at the unit's size."""
+    """The beauty of one view as stored (half float), refused unless it reads back whole at the unit's size."""
     try:
-        rgb = read_rgb_linear(src)
+        rgb = read_rgb(src)  # decoded, not converted: the check needs its channels and size
     except LfusdError as e:
         raise _damaged(src, key, frame, e) from None
     _check_shape(src, rgb.shape[:2], key, frame, unit)

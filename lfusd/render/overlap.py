@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent, own_process_group, quiet_thread_pools
+from ..processes import die_with_parent, own_process_group, quiet_thread_pools, reuse_freed_memory
 from . import request
 
 log = logging.getLogger(__name__)
@@ -43,6 +43,7 @@ def _lane_init(parent: int) -> None:
     """Lane processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     quiet_thread_pools()
+    reuse_freed_memory()
     die_with_parent(parent)
 
 

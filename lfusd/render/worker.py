@@ -847,6 +847,9 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     im.media_type = "MULTI_LAYER_IMAGE"
     im.color_depth = "32"
     im.exr_codec = job.raw_codec
+    # one part holding every pass, not a part per pass: half Blender's CPU time writing them
+    # (measured on the default scene at 1024x1024, uncompressed: 0.14-0.16 -> 0.05-0.06 core-s per view)
+    im.use_exr_interleave = True
     _shift_lenses(scene, True)
     _render(scene, os.path.join(scratch, "passes"), "data")
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t

@@ -30,7 +30,7 @@ import numpy as np
 
 from .. import cpu_account
 from ..data import integrity, store
-from ..processes import die_with_parent, own_process_group, quiet_thread_pools
+from ..processes import die_with_parent, own_process_group, quiet_thread_pools, reuse_freed_memory
 from ..data.folder import atomic_write, open_dataset
 from ..data.dataset import Dataset
 from ..camera import View
@@ -201,6 +201,7 @@ def _pool_init(parent: int) -> None:
     """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     quiet_thread_pools()
+    reuse_freed_memory()
     die_with_parent(parent)
 
 

@@ -80,3 +80,22 @@ def test_the_contract_covers_the_raw_keys_and_the_worker_spells_no_pass_of_its_o
             assert p.switch not in attrs | strings, p
         else:  # an AOV: its name and its mesh attribute
             assert p.layer not in strings and f"lfusd_{p.neighbour}" not in strings, p
+
+
+def test_uncompressed_raw_passes_read_as_decoding_reads_them(tmp_path, monkeypatch):
+    """Transient raw passes are uncompressed (lfusd.render.request.raw_codec) and read as views of
+    their lines: the same arrays, bit for bit, C-ordered and writable, as through OpenEXR's decoder."""
+    values = _exr(tmp_path / "zip.exr")
+    ch = passes.read_exr(tmp_path / "zip.exr")
+    ch["ViewLayer.Combined"] = np.ones((6, 8, 4), np.float32)  # Blender writes it; the reader skips it
+    OpenEXR.File({"compression": OpenEXR.NO_COMPRESSION, "type": OpenEXR.scanlineimage}, ch).write(str(tmp_path / "passes.exr"))
+    assert passes.read_uncompressed(tmp_path / "passes.exr") is not None
+    fast = passes.read_raw(tmp_path / "passes.exr")
+    monkeypatch.setattr(passes, "read_uncompressed", lambda *a, **k: None)
+    decoded = passes.read_raw(tmp_path / "passes.exr")
+    assert list(fast) == list(decoded) == [p.key for p in keys.RAW_PASSES]
+    for key, a in decoded.items():
+        assert fast[key].dtype == a.dtype and fast[key].shape == a.shape and fast[key].tobytes() == a.tobytes(), key
+        assert fast[key].flags.c_contiguous and fast[key].flags.writeable, key
+    surface = values["depth"][..., 0] < keys.BACKGROUND_DEPTH
+    np.testing.assert_array_equal(fast["next_position"][surface], values["next_position"][surface])

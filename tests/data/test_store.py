@@ -258,3 +258,24 @@ def test_removed_raw_passes_keep_their_digest_for_the_neighbours_inputs(tmp_path
     assert integrity.motion_inputs({"cur": d / layout.PASSES_EXR})["cur"] == "p" * 64  # pixels, not the file's header
     (d / layout.GT_FILE).write_bytes(b"cut")
     assert integrity.render_problems(d) == [f"{layout.GT_FILE} has 3 bytes, the record {integrity.read_record(d)['files'][layout.GT_FILE]['size']}"]
+
+
+@pytest.mark.parametrize("name", ["flow_fwd", "scene_flow"])
+def test_fixed_point_rounding_in_float32_is_the_float64_definition(name):
+    """quantize rounds float32 input in float32: bit for bit the definition (round(a * 2^bits) / 2^bits
+    in float64), on ties, signed zeros, values beyond 2^(23-bits) (nothing to round), near float32's
+    largest (where a * 2^bits overflows float32), inf and NaN."""
+    bits = keys.KEYS[name].storage.bits
+    rng = np.random.default_rng(7)
+    step = 2.0**-bits
+    edge = [0.0, -0.0, step / 2, -step / 2, 1.5 * step, -2.5 * step, 2.0 ** (23 - bits), 2.0 ** (23 - bits) - step / 2,
+            2.0 ** (24 - bits) + 1, 3.0e38, -3.4e38, np.inf, -np.inf, np.nan, 1e-30, -1e-40]
+    a = np.concatenate([np.array(edge, np.float32),
+                        (rng.standard_normal(200_000) * 10.0 ** rng.integers(-9, 12, 200_000)).astype(np.float32),
+                        (rng.integers(-10**6, 10**6, 50_000) * step + step / 2).astype(np.float32)])  # ties
+    want = (np.round(a.astype(np.float64) * 2.0**bits) / 2.0**bits).astype(np.float32)
+    got = store.quantize(name, a)
+    assert got.dtype == np.float32
+    same = (got.view(np.uint32) == want.view(np.uint32)) | (np.isnan(got) & np.isnan(want))
+    assert same.all(), a[~same][:5]
+    assert (np.signbit(got) == np.signbit(want)).all()
