@@ -59,7 +59,7 @@ def test_ctrl_c_in_the_first_two_seconds_of_render_video(tmp_path):
     write_box_stage(stage, [RigSpec(name="main", rows=1, cols=2, width=24, height=24, at=(0, -5, 1), look_at=(0, 0, 0.5))])
     bad = []
     for i, at in enumerate(_moments(29)):
-        code, lines = _interrupt(["render-video", stage, "-o", tmp_path / f"out{i}", "--frames", "1-8", "--samples", "1",
+        code, lines = _interrupt(["render-video", stage, "-o", tmp_path / f"out{i}", "--frames", "1-40", "--samples", "1",
                                   "--device", "cpu", "--quiet"], at)
         if code != 130 or lines != [INTERRUPTED]:
             bad.append(f"at {at:.2f} s: exit {code}, {lines[-3:]}")
@@ -68,10 +68,10 @@ def test_ctrl_c_in_the_first_two_seconds_of_render_video(tmp_path):
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
-    """A dataset whose verification takes several seconds (3 views at 128x128, 12 frames of motion)."""
+    """A dataset whose verification takes several seconds (3 views at 128x128, 24 frames of motion)."""
     root = tmp_path_factory.mktemp("video")
     write_box_stage(root / "scene.usda", [RigSpec(name="main", rows=1, cols=3, width=128, height=128, at=(0, -5, 1), look_at=(0, 0, 0.5))])
-    subprocess.run([sys.executable, "-m", "lfusd", "render-video", root / "scene.usda", "-o", root / "out", "--frames", "1-12",
+    subprocess.run([sys.executable, "-m", "lfusd", "render-video", root / "scene.usda", "-o", root / "out", "--frames", "1-24",
                     "--samples", "1", "--device", "cpu", "--quiet"], env=ENV, check=True, capture_output=True)
     return root / "out"
 

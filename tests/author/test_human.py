@@ -191,23 +191,29 @@ def test_body_surface_does_not_pass_through_itself_at_rest(spec):
     assert _crossings(pts, idx.reshape(-1, 4)) == 0
 
 
+def _walking_on_ground(spec, gait):
+    """A 36-frame stage with a 20 m ground and one person of ``spec`` walking 8 m along x with ``gait``."""
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.people import add_person
+
+    stage = new_stage(None, 1, 36)
+    ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
+    ground.CreatePointsAttr([(-10, -10, 0), (10, -10, 0), (10, 10, 0), (-10, 10, 0)])
+    ground.CreateFaceVertexCountsAttr([4])
+    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    set_class_label(ground.GetPrim(), "ground")
+    return stage, add_person(stage, [(-4.0, 0.0), (4.0, 0.0)], gait=gait, spec=spec, check=False)
+
+
 @pytest.mark.parametrize("gait", ["walk", "run"])
 def test_skinned_body_never_passes_through_itself(gait):
     """Walking and running, on pxr-skinned world vertices at every frame of a cycle and a half: no
     edge of the skin passes through the skin elsewhere (knees, hips and shoulders bend without
     one part entering another) and the soles stay on or above the ground, within 1 cm."""
     from lfusd.author.geometry import StageGeometry
-    from lfusd.author.labels import set_class_label
-    from lfusd.author.people import add_person
 
     for spec in (HumanSpec(1.9, 1.0, look=2), HumanSpec(1.55, 0.0, look=3)):
-        stage = new_stage(None, 1, 36)
-        ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
-        ground.CreatePointsAttr([(-10, -10, 0), (10, -10, 0), (10, 10, 0), (-10, 10, 0)])
-        ground.CreateFaceVertexCountsAttr([4])
-        ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-        set_class_label(ground.GetPrim(), "ground")
-        person = add_person(stage, [(-4.0, 0.0), (4.0, 0.0)], gait=gait, spec=spec, check=False)
+        stage, person = _walking_on_ground(spec, gait)
         quads = body_mesh(spec)[2].reshape(-1, 4)
         geo = StageGeometry(stage)
         body = stage.GetPrimAtPath(f"{person.GetPath()}/Body")
@@ -226,17 +232,9 @@ def test_hair_stays_on_the_head_and_clothes_are_the_skin(gait):
     import open3d as o3d
 
     from lfusd.author.geometry import StageGeometry, triangulate
-    from lfusd.author.labels import set_class_label
-    from lfusd.author.people import add_person
 
     spec = HumanSpec(1.7, 0.6, look=1)  # long hair
-    stage = new_stage(None, 1, 36)
-    ground = UsdGeom.Mesh.Define(stage, "/World/Ground")
-    ground.CreatePointsAttr([(-10, -10, 0), (10, -10, 0), (10, 10, 0), (-10, 10, 0)])
-    ground.CreateFaceVertexCountsAttr([4])
-    ground.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    set_class_label(ground.GetPrim(), "ground")
-    person = add_person(stage, [(-4.0, 0.0), (4.0, 0.0)], gait=gait, spec=spec, check=False)
+    stage, person = _walking_on_ground(spec, gait)
     body = UsdGeom.Mesh(stage.GetPrimAtPath(f"{person.GetPath()}/Body"))
     hair = UsdGeom.Mesh(stage.GetPrimAtPath(f"{person.GetPath()}/Hair"))
     assert hair and UsdSkel.BindingAPI(hair.GetPrim()).GetSkeletonRel().GetTargets()
