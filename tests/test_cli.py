@@ -238,3 +238,29 @@ def test_facade_names_resolve_to_library_callables(name):
     assert callable(obj) and obj.__module__.startswith("lfusd.") and name in lfusd.__all__
     with pytest.raises(AttributeError):
         lfusd.not_a_step
+
+
+def test_a_stuck_exit_function_does_not_keep_a_stopped_program_alive():
+    """A stopped program (exit 130) runs Python's exit functions, then exits: one that never returns
+    (as once at the end of a stopped Ray run) delays it by lfusd.cli.EXIT_FUNCTIONS_SECONDS at most,
+    and the exit code and the one line stay."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    script = (
+        "import atexit, sys, time\n"
+        "from lfusd import cli\n"
+        "cli.EXIT_FUNCTIONS_SECONDS = 1.0\n"
+        "atexit.register(time.sleep, 3600)\n"
+        "cli._main = lambda argv: cli._interrupted()\n"
+        "sys.exit(cli.main())\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    t = time.monotonic()
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(root)})
+    assert time.monotonic() - t < 60
+    assert p.returncode == 130
+    assert p.stderr.strip().splitlines() == ["lfusd: interrupted; rerun the same command to resume"]
