@@ -74,6 +74,15 @@ def reuse_freed_memory() -> None:
         pass  # not glibc
 
 
+def derivation_process_init(parent: int) -> None:
+    """Initializer of lfusd's derivation processes (render lanes, the derive pool): the parent alone
+    answers Ctrl-C, thread pools sleep when idle, freed memory is reused, and they die with it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    quiet_thread_pools()
+    reuse_freed_memory()
+    die_with_parent(parent)
+
+
 def die_with_parent(parent: int) -> None:
     """Have the kernel kill this process when its parent dies (Linux), so a killed lfusd leaves
     no strays; exit at once if ``parent`` already died before the request took effect."""

@@ -23,7 +23,7 @@ from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
-from ..processes import die_with_parent, own_process_group, quiet_thread_pools, reuse_freed_memory
+from ..processes import derivation_process_init, own_process_group
 from . import request
 
 log = logging.getLogger(__name__)
@@ -37,14 +37,6 @@ RAW_PER_VIEW = 4  # a Dataset keeps its 4 most recent raw passes (t-1, t, t+1 an
 
 View = tuple[int, int]
 _DATASETS: OrderedDict = OrderedDict()  # in a lane: (root, rig, view) -> Dataset, most recent last
-
-
-def _lane_init(parent: int) -> None:
-    """Lane processes: the parent alone answers Ctrl-C, and they die with it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    quiet_thread_pools()
-    reuse_freed_memory()
-    die_with_parent(parent)
 
 
 def _warm() -> None:
@@ -123,7 +115,7 @@ class MotionScheduler:
                     handler = signal.signal(signal.SIGINT, signal.SIG_IGN)
                 try:
                     for _ in range(max(1, lanes)):
-                        self.lanes.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_lane_init,
+                        self.lanes.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=derivation_process_init,
                                                               initargs=(os.getpid(),)))
                         self.lanes[-1].submit(_warm)  # starts the process now, beside the workers' start-up
                 finally:

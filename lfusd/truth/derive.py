@@ -30,7 +30,7 @@ import numpy as np
 
 from .. import cpu_account
 from ..data import integrity, store
-from ..processes import die_with_parent, own_process_group, quiet_thread_pools, reuse_freed_memory
+from ..processes import derivation_process_init, own_process_group
 from ..data.folder import atomic_write, open_dataset
 from ..data.dataset import Dataset
 from ..camera import View
@@ -195,14 +195,6 @@ def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) ->
             checked += _write_motion(ds, f, view)[1]
     cpu_account.flush("derive")
     return len(set(static) | set(motion)), checked
-
-
-def _pool_init(parent: int) -> None:
-    """Derivation pool processes: the parent alone answers Ctrl-C, and they die with it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    quiet_thread_pools()
-    reuse_freed_memory()
-    die_with_parent(parent)
 
 
 def raw_needed(ds: Dataset, frame: int, view: View) -> str | None:
@@ -380,7 +372,7 @@ def _run(todo: list, workers: int, progress, written: set) -> int:
             handler = signal.signal(signal.SIGINT, signal.SIG_IGN) if main and not apart else None
             try:
                 pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                           initializer=_pool_init, initargs=(os.getpid(),))
+                                           initializer=derivation_process_init, initargs=(os.getpid(),))
                 futures = [pool.submit(_derive_run, item) for item in todo]
             finally:
                 if main and not apart:
