@@ -19,6 +19,7 @@ from pathlib import Path
 ENV = "LFUSD_CPU_ACCOUNT"
 
 _TOTALS: dict[str, float] = {}
+_COUNTS: dict[str, int] = {}  # blocks per phase (visibility: one per direction of a view's motion)
 _STACK: list[list] = []  # [name, start, seconds of nested phases]
 
 
@@ -32,6 +33,7 @@ def phase(name: str):
         name, start, nested = _STACK.pop()
         spent = time.process_time() - start
         _TOTALS[name] = _TOTALS.get(name, 0.0) + spent - nested
+        _COUNTS[name] = _COUNTS.get(name, 0) + 1
         if _STACK:
             _STACK[-1][2] += spent
 
@@ -48,6 +50,7 @@ def startup() -> None:
     Blender, planning, loading or compiling the numba kernels, whatever phase ran them): a cost per
     process, not per view. Call it once, where the per-view work begins."""
     _TOTALS.clear()
+    _COUNTS.clear()
     _TOTALS["startup"] = time.process_time()
 
 
@@ -61,7 +64,7 @@ def flush(role: str) -> None:
     folder = os.environ.get(ENV)
     if not folder:
         return
-    record = {"pid": os.getpid(), "role": role, "process": time.process_time(), "phases": _TOTALS}
+    record = {"pid": os.getpid(), "role": role, "process": time.process_time(), "phases": _TOTALS, "counts": _COUNTS}
     path = Path(folder) / f"cpu-{os.getpid()}.json"
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(record))

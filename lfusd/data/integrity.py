@@ -3,17 +3,20 @@
 Each view folder holds ``view.json`` (:data:`lfusd.layout.VIEW_RECORD`)::
 
     {"version": 2, "files": {"rgb.exr": {"size": N, "sha256": HEX}, "gt.exr": {..., "checked": PIXELS},
-                             "passes.exr": {"size": N, "sha256": HEX, "removed": true},
+                             "passes.exr": {"size": N, "header": HEX, "pixels": HEX, "removed": true},
                              "motion.exr": {..., "checked": PIXELS, "inputs": {"prev": HEX|null, "cur": HEX, "next": HEX|null}}}}
 
 The renderer's files (rgb.exr, passes.exr) are recorded last inside the view's temporary folder,
 before the atomic rename; the derivation adds gt.exr and motion.exr (atomically) with the pixels
 it compared when it read them back, and the motion entry with the digests of the raw passes it
 was derived from, so motion derived before a neighbouring frame existed, or from passes since
-re-rendered, is known to be stale. Raw passes removed after derivation keep their entry, marked
+re-rendered, is known to be stale. Raw passes are recorded by the digests of their header and of
+their chunks (:func:`file_entry`, XXH3): the chunks' digest names their pixels, one hash for both. Raw passes removed after derivation keep their entry, marked
 ``removed``, so the digests of their neighbours' inputs stay checkable. Version 1 records (format
-version 1: rgb.png, rgb.exr, passes.exr, motion.npz) are read as they were written. sha256 because it is the fastest stdlib hash on CPUs with SHA
-extensions (measured 1.7 GB/s here, blake2b 1.2 GB/s). No pxr, bpy or torch.
+version 1: rgb.png, rgb.exr, passes.exr, motion.npz) and raw passes recorded by the file's sha256
+and a digest of the decoded pixels (before format 2's chunk digests) are read as they were
+written. sha256 for the files a dataset keeps (anyone can check them with sha256sum) because it is the
+fastest stdlib hash on CPUs with SHA extensions (measured 1.7 GB/s here, blake2b 1.2 GB/s). No pxr, bpy or torch.
 """
 
 from __future__ import annotations
@@ -40,22 +43,55 @@ MOTION_FILES = (layout.MOTION_FILE, layout.MOTION_FILE_V1)  # checked against th
 _DIGESTS: dict[tuple, str] = {}
 
 
-def file_entry(path: str | Path) -> dict | None:
-    """``{"size", "sha256"}`` of a file, or None when it is missing or unreadable."""
+def file_entry(path: str | Path, split: bool | None = None) -> dict | None:
+    """``{"size", "sha256"}`` of a file, or None when it is missing or unreadable.
+
+    ``split`` (default: for raw passes, ``passes.exr``): ``{"size", "header", "pixels"}`` instead,
+    digests (:data:`RAW_DIGEST`) of the EXR's headers and offset tables and of its chunks
+    (:func:`lfusd.data.passes.chunks_start`), each byte hashed once: a view rendered again has another
+    header (Blender stamps the date and render time into it) but, measured, the same pixels, so its
+    neighbours' motion, derived from those pixels, stays current. A file whose chunks cannot be
+    located gets ``sha256`` alone."""
+    p = Path(path)
+    if split is None:
+        split = p.name == layout.PASSES_EXR
     try:
-        with open(path, "rb") as f:
+        with open(p, "rb") as f:
             st = os.fstat(f.fileno())
-            memo = (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
-            digest = _DIGESTS.get(memo)
-            if digest is None:
+            memo = (str(p), split, st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+            digests = _DIGESTS.get(memo)
+            if digests is None:
+                start = None
+                if split:
+                    from .passes import chunks_start
+
+                    start = chunks_start(p)
                 with cpu_account.phase("hashing"):
-                    digest = hashlib.file_digest(f, "sha256").hexdigest()
+                    digests = _raw_digests(f, start) if start is not None else {"sha256": hashlib.file_digest(f, "sha256").hexdigest()}
                 if len(_DIGESTS) > 100_000:
                     _DIGESTS.clear()
-                _DIGESTS[memo] = digest
+                _DIGESTS[memo] = digests
     except OSError:
         return None
-    return {"size": st.st_size, "sha256": digest}
+    return {"size": st.st_size, **digests}
+
+
+# The raw passes' digest: XXH3 (128 bits), hashed in place in the page cache (mmap). They are
+# transient, never published, and their digests only tell accidental damage and another render apart,
+# which 128 bits of XXH3 do; at about 7 GB/s against sha256's 1.1-1.7 it takes 0.014 instead of
+# 0.07 core-s per 1024x1024 view (benchmarks/bench_reference.py). Digests name their algorithm.
+RAW_DIGEST = "xxh3_128"
+
+
+def _raw_digests(f, start: int) -> dict:
+    """``{"header", "pixels"}``: the digests of an open file's bytes before and from ``start``."""
+    import mmap
+
+    import xxhash
+
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as m, memoryview(m) as view:
+        return {"header": f"{RAW_DIGEST}:{xxhash.xxh3_128(view[:start]).hexdigest()}",
+                "pixels": f"{RAW_DIGEST}:{xxhash.xxh3_128(view[start:]).hexdigest()}"}
 
 
 def read_record(view_dir: str | Path) -> dict | None:
@@ -141,10 +177,11 @@ def _mismatch(d: Path, name: str, want: dict | None, deep: bool) -> str | None:
     if size != want.get("size"):
         return f"{name} has {size} bytes, the record {want.get('size')}"
     if deep:
-        got = file_entry(p)
+        # a record holds the whole file's sha256, or (raw passes) those of its header and its chunks
+        got = file_entry(p, split="sha256" not in want)
         if got is None:
             return f"{name} is unreadable"
-        if got["sha256"] != want.get("sha256"):
+        if any(got.get(k) != want.get(k) for k in ("sha256", "header", "pixels") if k in got):
             return f"{name} differs from its recorded checksum"
     return None
 
@@ -235,8 +272,8 @@ def pixels_digest(arrays: dict) -> str:
 def motion_inputs(passes_of: dict[str, Path | None]) -> dict[str, str | None]:
     """Digests of the raw passes a derivation reads: {"prev", "cur", "next"} -> digest or None (no such frame).
 
-    The pixels digest the record holds (format version 2, :func:`pixels_digest`), else the file's
-    sha256; raw passes removed after derivation count by the digest their record keeps."""
+    The pixels digest the record holds (the chunks' digest of :func:`file_entry`, or in records made
+    before it :func:`pixels_digest`), else the file's; raw passes removed after derivation count by the digest their record keeps."""
     out = {}
     for k in ("prev", "cur", "next"):
         p = passes_of.get(k)
@@ -248,8 +285,8 @@ def motion_inputs(passes_of: dict[str, Path | None]) -> dict[str, str | None]:
             elif kept.get("removed"):
                 digest = kept.get("sha256")
             else:
-                entry = file_entry(p)
-                digest = entry["sha256"] if entry else None
+                entry = file_entry(p) or {}
+                digest = entry.get("pixels") or entry.get("sha256")
         out[k] = digest
     return out
 

@@ -346,13 +346,15 @@ def kernels_cached() -> bool:
 
 @njit(cache=True, error_model="numpy")
 def segment_rays(points, valid, M, C, R2, h, w):
-    """Rays (N, 6) float32 from the camera centre ``C`` to each point (N, 3) with ``valid`` that
+    """Rays (m, 6) float32 from the camera centre ``C`` to each point (N, 3) with ``valid`` that
     projects inside the h x w image in front of the camera (M = K R, R2 = R's depth row, float64),
-    and that mask. A ray's parameter is 1 at its point."""
+    one after the other, and the index of each ray's point (m,): the rays Embree needs, in one pass,
+    without a mask and a compacting copy. A ray's parameter is 1 at its point."""
     n = points.shape[0]
     rays = np.empty((n, 6), np.float32)
-    inside = np.zeros(n, np.bool_)
-    for k in prange(n):
+    index = np.empty(n, np.int64)
+    m = 0
+    for k in range(n):
         if not valid[k]:
             continue
         dx = np.float64(points[k, 0]) - C[0]
@@ -363,10 +365,11 @@ def segment_rays(points, valid, M, C, R2, h, w):
         v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
         z = R2[0] * dx + R2[1] * dy + R2[2] * dz
         if math.isfinite(u) and math.isfinite(v) and z > 0 and u >= -0.5 and u <= w - 0.5 and v >= -0.5 and v <= h - 0.5:
-            inside[k] = True
-            rays[k, 0], rays[k, 1], rays[k, 2] = C[0], C[1], C[2]
-            rays[k, 3], rays[k, 4], rays[k, 5] = dx, dy, dz
-    return rays, inside
+            rays[m, 0], rays[m, 1], rays[m, 2] = C[0], C[1], C[2]
+            rays[m, 3], rays[m, 4], rays[m, 5] = dx, dy, dz
+            index[m] = k
+            m += 1
+    return rays[:m], index[:m]
 
 
 @njit(cache=True, error_model="numpy")

@@ -127,7 +127,8 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
     rec = integrity.read_record(d)
     add, remove, annotate, checked = {}, [], {}, 0
     if integrity.present(rec, PASSES_EXR) and "pixels" not in rec["files"][PASSES_EXR]:
-        # the neighbours' motion records name these passes by their pixels (a re-render keeps them)
+        # recorded before chunk digests (integrity.file_entry): the neighbours' motion records name
+        # these passes by their pixels (a re-render keeps them)
         annotate[PASSES_EXR] = {"pixels": integrity.pixels_digest(ds._raw(str(d)))}
     gt_keys = [k for k in keep if KEYS[k].file == GT_FILE and KEYS[k].stage in (RAW, STATIC)]
     if gt_keys and not integrity.present(rec, GT_FILE):

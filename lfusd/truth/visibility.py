@@ -99,15 +99,16 @@ def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: in
 
     R, C = camera.world_to_cam()
     M = np.asarray(camera.K, np.float64) @ R
-    rays, inside = segment_rays(np.ascontiguousarray(points, np.float32).reshape(-1, 3), np.ascontiguousarray(valid).ravel(),
-                                M, np.ascontiguousarray(C, np.float64), np.ascontiguousarray(R[2], np.float64), h, w)
-    out = inside.copy()
-    if inside.any() and len(occluders.triangles):
-        # the rays of the points inside, in a compact copy handed to Open3D without another
-        # (np.compress: a third of fancy indexing's time)
-        hidden = occluders.scene.test_occlusions(o3d.core.Tensor.from_numpy(np.compress(inside, rays, axis=0)),
-                                                 tnear=0.0, tfar=1.0 - eps).numpy()
-        out[inside] = hidden == 0
+    points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
+    rays, index = segment_rays(points, np.ascontiguousarray(valid).ravel(), M, np.ascontiguousarray(C, np.float64),
+                               np.ascontiguousarray(R[2], np.float64), h, w)
+    out = np.zeros(len(points), bool)
+    if len(index) and len(occluders.triangles):
+        # the rays of the points inside only, handed to Open3D without a copy
+        hidden = occluders.scene.test_occlusions(o3d.core.Tensor.from_numpy(rays), tnear=0.0, tfar=1.0 - eps).numpy()
+        out[index] = hidden == 0
+    else:
+        out[index] = True
     return out
 
 
