@@ -110,7 +110,7 @@ PHASES = [
     ("*", "mixed", "mixed-footprint rays"),
     ("*", "encode", "encoding and writing gt.exr, motion.exr, rgb.png"),
     ("*", "read-back", "reading back gt.exr, motion.exr"),
-    ("*", "hashing", "sha256 of files and pixels"),
+    ("*", "hashing", "digests of files: sha256, XXH3 for the raw passes"),
     ("*", "commit", "moving files, writing records"),
 ]
 TRACE = ("beauty trace", "data trace")

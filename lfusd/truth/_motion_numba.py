@@ -330,12 +330,11 @@ def direction(here, other, cams, s, out):
 
 
 def kernels_cached() -> bool:
-    """Whether numba's on-disk cache holds the kernels (else their first call compiles them, which
-    takes minutes): the cache index files of every entry point exist."""
-    from pathlib import Path
-
+    """Whether numba's on-disk cache holds the kernels of this source (else their first call
+    compiles them, which takes minutes): every entry point's cache index exists and was written
+    for the source as it is now (numba reads an index of an edited source as empty)."""
     try:
-        return all(Path(k._cache._cache_file._index_path).is_file()
+        return all(bool(k._cache._cache_file._load_index())
                    for k in (direction, inverse_depth_and_back, segment_rays, pixel_rays, mixed_pixels))
     except AttributeError:  # another numba's internals: say nothing rather than guess
         return True
