@@ -70,42 +70,55 @@ class _Part:
     offsets: np.ndarray
 
 
+def _exr_headers(path: str | Path) -> tuple[list[dict[str, bytes]], int, int, int] | None:
+    """An EXR's headers (one per part: attribute name -> raw value), where they end, its version
+    flags and the file's size; None for a file that is not an EXR. Raises what a damaged header
+    raises (the callers catch it)."""
+    import struct
+
+    with open(path, "rb") as f:
+        head = f.read(1 << 20)
+        size = os.fstat(f.fileno()).st_size
+    flags = struct.unpack_from("<i", head, 4)[0] if len(head) >= 8 else 0
+    if head[:4] != b"\x76\x2f\x31\x01" or flags & 0xFF != 2:
+        return None
+    multi = bool(flags & 0x1000)
+    headers, pos = [], 8
+    while True:
+        attrs, pos = _exr_header(head, pos)
+        headers.append(attrs)
+        if not multi or head[pos] == 0:
+            return headers, pos + multi, flags, size  # + the empty header that ends a multi-part file's list
+
+
 def _uncompressed_parts(path: str | Path) -> list[_Part] | None:
     """The parts of an uncompressed scanline EXR whose every line is in the file (see
     :func:`uncompressed_channels`); None for any other EXR; LfusdError for one cut off or longer."""
     import struct
 
     try:
-        with open(path, "rb") as f:
-            head = f.read(1 << 20)
-            size = os.fstat(f.fileno()).st_size
-            flags = struct.unpack_from("<i", head, 4)[0] if len(head) >= 8 else 0
-            if head[:4] != b"\x76\x2f\x31\x01" or flags & 0xFF != 2 or flags & 0xA00:
-                return None  # not an EXR, tiled or deep: decode it
-            multi = bool(flags & 0x1000)
-            headers, pos = [], 8
-            while True:
-                attrs, pos = _exr_header(head, pos)
-                headers.append(attrs)
-                if not multi or head[pos] == 0:
-                    pos += multi  # the empty header that ends a multi-part file's list
-                    break
-            parts = []
-            for attrs in headers:
-                if attrs.get("compression") != b"\x00" or (multi and attrs.get("type") != b"scanlineimage"):
+        found = _exr_headers(path)
+        if found is None or found[2] & 0xA00:
+            return None  # not an EXR, tiled or deep: decode it
+        headers, pos, flags, size = found
+        multi = bool(flags & 0x1000)
+        parts = []
+        for attrs in headers:
+            if attrs.get("compression") != b"\x00" or (multi and attrs.get("type") != b"scanlineimage"):
+                return None
+            x0, y0, x1, y1 = struct.unpack("<4i", attrs["dataWindow"])
+            h, w = y1 - y0 + 1, x1 - x0 + 1
+            line, chl, i, channels = 0, attrs["channels"], 0, []
+            while chl[i] != 0:
+                end = chl.index(b"\0", i)
+                ptype, _, xs, ys = struct.unpack_from("<iB3xii", chl, end + 1)
+                if (xs, ys) != (1, 1) or ptype not in _PIXEL_BYTES:
                     return None
-                x0, y0, x1, y1 = struct.unpack("<4i", attrs["dataWindow"])
-                h, w = y1 - y0 + 1, x1 - x0 + 1
-                line, chl, i, channels = 0, attrs["channels"], 0, []
-                while chl[i] != 0:
-                    end = chl.index(b"\0", i)
-                    ptype, _, xs, ys = struct.unpack_from("<iB3xii", chl, end + 1)
-                    if (xs, ys) != (1, 1) or ptype not in _PIXEL_BYTES:
-                        return None
-                    channels.append((chl[i:end].decode(), ptype))
-                    line += w * _PIXEL_BYTES[ptype]
-                    i = end + 17
-                parts.append(_Part(tuple(channels), (h, w), y0, 12 if multi else 8, line, np.zeros(0, "<u8")))
+                channels.append((chl[i:end].decode(), ptype))
+                line += w * _PIXEL_BYTES[ptype]
+                i = end + 17
+            parts.append(_Part(tuple(channels), (h, w), y0, 12 if multi else 8, line, np.zeros(0, "<u8")))
+        with open(path, "rb") as f:
             f.seek(pos)
             # uncompressed: one line per chunk
             parts = [replace(p, offsets=np.frombuffer(f.read(8 * p.shape[0]), "<u8")) for p in parts]
@@ -138,26 +151,19 @@ def chunks_start(path: str | Path) -> int | None:
     import struct
 
     try:
-        with open(path, "rb") as f:
-            head = f.read(1 << 20)
-            size = os.fstat(f.fileno()).st_size
-        flags = struct.unpack_from("<i", head, 4)[0] if len(head) >= 8 else 0
-        if head[:4] != b"\x76\x2f\x31\x01" or flags & 0xFF != 2 or flags & 0x800:
+        found = _exr_headers(path)
+        if found is None or found[2] & 0x800:
             return None  # not an EXR, or deep data
-        multi, chunks, pos = bool(flags & 0x1000), 0, 8
-        while True:
-            attrs, pos = _exr_header(head, pos)
+        headers, pos, flags, size = found
+        chunks = 0
+        for attrs in headers:
             if "chunkCount" in attrs:  # required in every part of a multi-part file
                 chunks += struct.unpack("<i", attrs["chunkCount"])[0]
             elif flags & 0x200 or attrs.get("compression", b"\xff")[0] not in _LINES_PER_CHUNK:
                 return None  # tiled, or an unknown compression
             else:
                 _, y0, _, y1 = struct.unpack("<4i", attrs["dataWindow"])
-                lines = _LINES_PER_CHUNK[attrs["compression"][0]]
-                chunks += -(-(y1 - y0 + 1) // lines)
-            if not multi or head[pos] == 0:
-                pos += multi  # the empty header that ends a multi-part file's list
-                break
+                chunks += -(-(y1 - y0 + 1) // _LINES_PER_CHUNK[attrs["compression"][0]])
     except (OSError, ValueError, KeyError, IndexError, struct.error, UnicodeDecodeError):
         return None
     start = pos + 8 * chunks
