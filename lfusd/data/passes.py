@@ -208,7 +208,10 @@ def read_uncompressed(path: str | Path, layers=None) -> dict[str, np.ndarray] | 
         size = os.fstat(f.fileno()).st_size
         # mapped, not read: the page cache's own pages, without a copy (a third of the read's CPU);
         # the arrays keep the mapping alive, and the file stays readable through it if it is removed
-        m = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else None
+        try:
+            m = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else None
+        except (OSError, ValueError):
+            return None  # a file system that cannot map files: OpenEXR's decoder reads it
         for p in parts:
             if layers is not None and not any(_layer(name) in layers for name, _ in p.channels):
                 continue

@@ -114,3 +114,24 @@ def test_records_made_with_the_files_sha256_are_checked_as_before(tmp_path):
     data = p.read_bytes()
     p.write_bytes(data[:-1] + bytes([data[-1] ^ 0x01]))
     assert integrity.render_problems(tmp_path) == [f"{layout.PASSES_EXR} differs from its recorded checksum"]
+
+
+def test_without_mmap_the_digests_and_the_passes_are_the_same(tmp_path, monkeypatch):
+    """A file system that cannot map files (some network and FUSE mounts): the digests are read in
+    pieces and the raw passes decoded by OpenEXR, with the same results."""
+    import mmap
+
+    p = tmp_path / layout.PASSES_EXR
+    _write(p, _channels())
+    mapped, arrays = integrity.file_entry(p, split=True), passes.read_uncompressed(p)
+    integrity._DIGESTS.clear()
+
+    def refuse(*a, **k):
+        raise OSError("mmap not supported")
+
+    monkeypatch.setattr(mmap, "mmap", refuse)
+    assert integrity.file_entry(p, split=True) == mapped
+    assert passes.read_uncompressed(p) is None
+    decoded = passes.read_exr(p)
+    for name, a in arrays.items():
+        assert decoded[name].tobytes() == a.tobytes(), name
