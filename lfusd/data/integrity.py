@@ -40,7 +40,7 @@ MOTION_FILES = (layout.MOTION_FILE, layout.MOTION_FILE_V1)  # checked against th
 
 # In-process memo of digests by (path, size, mtime, ctime, inode): one run hashes each file once
 # however often it checks it; a new process (the next run, `verify --integrity`) hashes again.
-_DIGESTS: dict[tuple, str] = {}
+_DIGESTS: dict[tuple, dict[str, str]] = {}
 
 
 def file_entry(path: str | Path, split: bool | None = None) -> dict | None:

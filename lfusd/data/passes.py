@@ -195,7 +195,7 @@ def read_uncompressed(path: str | Path, layers=None) -> dict[str, np.ndarray] | 
     ``Depth``: in a file of a part per pass, Blender's Combined is not read); None for any other EXR (decode it with
     :func:`read_exr`); LfusdError for a file cut off or longer (:func:`uncompressed_channels`).
 
-    The arrays are read-only views into one read of each part's lines: no decoding, no copy per
+    The arrays are read-only views into each part's lines, mapped from the file: no decoding, no copy per
     channel. Each line's chunk header must name its line and size, else the file is left to
     OpenEXR's decoder."""
     parts = _uncompressed_parts(path)
