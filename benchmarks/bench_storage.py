@@ -41,7 +41,7 @@ from lfusd.data import passes, store  # noqa: E402
 from lfusd.data.formats import write_png  # noqa: E402
 
 STAGE = ROOT / "stages" / "street_dynamic_00.usda"
-CODECS = {"zip": OpenEXR.ZIP_COMPRESSION, "zips": OpenEXR.ZIPS_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION,
+CODECS = {"zip": OpenEXR.ZIP_COMPRESSION, "pxr24": OpenEXR.PXR24_COMPRESSION, "zips": OpenEXR.ZIPS_COMPRESSION, "piz": OpenEXR.PIZ_COMPRESSION,
           "zstd": OpenEXR.ZSTD_COMPRESSION, "htj2k": OpenEXR.HTJ2K256_COMPRESSION}
 
 
@@ -59,16 +59,23 @@ def centre_stage(folder: Path, size: int) -> Path:
     return path
 
 
-def exr_bytes(channels: dict, codec: str = "zip") -> tuple[int, float, float]:
-    """(bytes, write ms, read ms) of channels in one EXR."""
+def exr_bytes(channels: dict, codec: str = "zip") -> tuple[int, float, float, bool]:
+    """(bytes, write ms, read ms, whether every channel read back bit for bit) of channels in one EXR."""
     with tempfile.TemporaryDirectory() as tmp:
         p = os.path.join(tmp, "x.exr")
         t = time.perf_counter()
         OpenEXR.File({"compression": CODECS[codec], "type": OpenEXR.scanlineimage}, dict(channels)).write(p)
         tw = time.perf_counter() - t
         t = time.perf_counter()
-        OpenEXR.File(p).channels()
-        return os.path.getsize(p), 1e3 * tw, 1e3 * (time.perf_counter() - t)
+        back = {k: c.pixels for k, c in OpenEXR.File(p).channels().items()}
+        tr = time.perf_counter() - t
+        exact = all(np.array_equal(np.asarray(back[k]).view(np.uint8), np.asarray(a).view(np.uint8)) for k, a in channels.items())
+        return os.path.getsize(p), 1e3 * tw, 1e3 * tr, exact
+
+
+def stored_bytes(channels: dict) -> int:
+    """Bytes of channels in one EXR with the codec lfusd.data.store would choose for them."""
+    return exr_bytes(channels, "pxr24" if store.compression_for(channels) == OpenEXR.PXR24_COMPRESSION else "zip")[0]
 
 
 def h5_bytes(channels: dict) -> int:
@@ -134,9 +141,9 @@ def main() -> int:
         elif key.storage.encoding == "image":
             size = f"{v2_files[layout.RGB_EXR] / n:.3f}"
         elif key.storage.encoding == "mask":
-            size = f"{exr_bytes(store.encode({m: truth[m] for m in masks}))[0] / n / len(masks):.3f} (1/{len(masks)} of `masks`)"
+            size = f"{stored_bytes(store.encode({m: truth[m] for m in masks})) / n / len(masks):.3f} (1/{len(masks)} of `masks`)"
         else:
-            size = f"{exr_bytes(store.encode({k: truth[k]}))[0] / n:.3f}"
+            size = f"{stored_bytes(store.encode({k: truth[k]})) / n:.3f}"
         print(f"| `{k}` | {key.storage.describe(key.unit)} | {size} |")
     total2 = sum(v2_files.values()) / n
     print("\n| files | v1 B/px | v2 B/px |")
@@ -191,8 +198,8 @@ def main() -> int:
         cells = []
         for c in CODECS:
             try:
-                b, tw, tr = exr_bytes(ch, c)
-                cells.append(f"{b / n:.3f} ({tw:.0f}/{tr:.0f})")
+                b, tw, tr, exact = exr_bytes(ch, c)
+                cells.append(f"{b / n:.3f} ({tw:.0f}/{tr:.0f})" + ("" if exact else " lossy"))
             except Exception:  # a codec this OpenEXR cannot write for these pixel types
                 cells.append("n/a")
         h5 = h5_bytes({k.replace('.', '_'): a for k, a in ch.items()}) / n if name != "rgb.exr (half RGB)" else h5_bytes({"RGB": rgb_ch["RGB"]}) / n

@@ -445,3 +445,145 @@ def mixed_pixels(t, tri, uv, tri_instance, carry, vertices_next, triangles_next,
                     if du * du + dv * dv > limit:  # False when either is NaN
                         mixed[i, j] = True
     return mixed
+
+
+@njit(cache=True, error_model="numpy")
+def depth_map(vertices, triangles, M, C, R2, h, w, margin_px, depth_rel):
+    """(h, w) float32: per pixel, the least camera depth (times 1 - ``depth_rel``) of the triangles
+    whose projection's bounding rectangle, grown by ``margin_px``, covers the pixel; inf where none
+    does (a conservative z-buffer of the nearest surface). A triangle wholly behind the camera
+    covers nothing; one that reaches behind it covers every pixel at depth 0. M = K R, C the
+    centre, R2 R's depth row (float64)."""
+    zmap = np.full((h, w), np.inf, np.float32)
+    for f in range(triangles.shape[0]):
+        umin, vmin, umax, vmax, zmin = np.inf, np.inf, -np.inf, -np.inf, np.inf
+        behind = 0
+        for c in range(3):
+            q = triangles[f, c]
+            x = np.float64(vertices[q, 0]) - C[0]
+            y = np.float64(vertices[q, 1]) - C[1]
+            z = np.float64(vertices[q, 2]) - C[2]
+            hz = M[2, 0] * x + M[2, 1] * y + M[2, 2] * z
+            zc = R2[0] * x + R2[1] * y + R2[2] * z
+            if not (hz > 0 and zc > 0):
+                behind += 1
+                continue
+            u = (M[0, 0] * x + M[0, 1] * y + M[0, 2] * z) / hz
+            v = (M[1, 0] * x + M[1, 1] * y + M[1, 2] * z) / hz
+            umin, umax, vmin, vmax = min(umin, u), max(umax, u), min(vmin, v), max(vmax, v)
+            zmin = min(zmin, zc)
+        if behind == 3:
+            continue
+        if behind > 0 or not (math.isfinite(umin) and math.isfinite(umax) and math.isfinite(vmin) and math.isfinite(vmax)):
+            umin, vmin, umax, vmax, zmin = -np.inf, -np.inf, np.inf, np.inf, 0.0
+        # np.floor keeps a float: math.floor's int of an infinite bound is undefined
+        j0 = max(0.0, np.floor(umin - margin_px))
+        j1 = min(w - 1.0, np.ceil(umax + margin_px))
+        i0 = max(0.0, np.floor(vmin - margin_px))
+        i1 = min(h - 1.0, np.ceil(vmax + margin_px))
+        if j0 > j1 or i0 > i1:
+            continue
+        zz = np.float32(zmin * (1.0 - depth_rel))
+        for i in range(int(i0), int(i1) + 1):
+            for j in range(int(j0), int(j1) + 1):
+                if zz < zmap[i, j]:
+                    zmap[i, j] = zz
+    return zmap
+
+
+@njit(cache=True, error_model="numpy")
+def segment_parts(points, bits, valid, M, C, R2, h, w, ends, filled, held, zmap, static, remember):
+    """:func:`segment_rays` for a scene in two parts (lfusd.truth.visibility.Parts), in one pass.
+
+    For each valid point (N, 3) float32 that projects inside the h x w image in front of the
+    camera: its index (m,), and whether the static part hides it where a memo holds the answer
+    (``ends``: uint32 bits of the end point each pixel's answer ``held`` was cast for, where
+    ``filled``; ``bits`` are ``points`` as uint32), else False: hidden (m,). Then the rays the
+    parts still need: to the static part (``static``) those not known, to the dynamic part those
+    whose end lies at or beyond the least depth ``zmap`` (:func:`depth_map`; (0, 0) for no dynamic
+    part) has at their pixel; each as rays (k, 6) float32 and their positions in ``index`` (k,).
+    With ``remember`` the memo's slots of the static rays take their end points (and
+    :func:`remember_answers` their answers, once cast)."""
+    n = points.shape[0]
+    index = np.empty(n, np.int64)
+    hidden = np.zeros(n, np.bool_)
+    s_rays = np.empty((n, 6), np.float32)
+    s_pos = np.empty(n, np.int64)
+    d_rays = np.empty((n, 6), np.float32)
+    d_pos = np.empty(n, np.int64)
+    dynamic = zmap.shape[0] > 0
+    m = 0
+    ns = 0
+    nd = 0
+    for k in range(n):
+        if not valid[k]:
+            continue
+        dx = np.float64(points[k, 0]) - C[0]
+        dy = np.float64(points[k, 1]) - C[1]
+        dz = np.float64(points[k, 2]) - C[2]
+        hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+        u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
+        v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
+        z = R2[0] * dx + R2[1] * dy + R2[2] * dz
+        if not (math.isfinite(u) and math.isfinite(v) and z > 0 and u >= -0.5 and u <= w - 0.5 and v >= -0.5 and v <= h - 0.5):
+            continue
+        index[m] = k
+        if static:
+            if filled[k] and bits[k, 0] == ends[k, 0] and bits[k, 1] == ends[k, 1] and bits[k, 2] == ends[k, 2]:
+                hidden[m] = held[k]
+            else:
+                if remember:  # the memo's slot now holds this end point; its answer comes after the cast
+                    ends[k, 0], ends[k, 1], ends[k, 2] = bits[k, 0], bits[k, 1], bits[k, 2]
+                    filled[k] = True
+                s_rays[ns, 0], s_rays[ns, 1], s_rays[ns, 2] = C[0], C[1], C[2]
+                s_rays[ns, 3], s_rays[ns, 4], s_rays[ns, 5] = dx, dy, dz
+                s_pos[ns] = m
+                ns += 1
+        if dynamic:
+            i = int(min(max(np.floor(v + 0.5), 0.0), h - 1.0))
+            j = int(min(max(np.floor(u + 0.5), 0.0), w - 1.0))
+            if z >= zmap[i, j]:
+                d_rays[nd, 0], d_rays[nd, 1], d_rays[nd, 2] = C[0], C[1], C[2]
+                d_rays[nd, 3], d_rays[nd, 4], d_rays[nd, 5] = dx, dy, dz
+                d_pos[nd] = m
+                nd += 1
+        m += 1
+    return index[:m], hidden[:m], s_rays[:ns], s_pos[:ns], d_rays[:nd], d_pos[:nd]
+
+
+@njit(cache=True, error_model="numpy")
+def remember_answers(index, s_pos, fresh, hidden, held):
+    """The static part's answers ``fresh`` for the rays at ``s_pos`` (of :func:`segment_parts`):
+    into ``hidden`` (per ray) and the memo's ``held`` (per pixel)."""
+    for r in range(s_pos.shape[0]):
+        hidden[s_pos[r]] = fresh[r]
+        held[index[s_pos[r]]] = fresh[r]
+
+
+@njit(cache=True, error_model="numpy")
+def remember_visible(index, hidden, bits, ends, filled, held):
+    """Fill a memo from a cast against the whole scene: a segment nothing hides is hidden by no
+    static triangle either, so its pixel's slot takes its end point and the answer False; a hidden
+    one's slot stays empty (which part hid it is not known)."""
+    for r in range(index.shape[0]):
+        if not hidden[r]:
+            k = index[r]
+            ends[k, 0], ends[k, 1], ends[k, 2] = bits[k, 0], bits[k, 1], bits[k, 2]
+            filled[k] = True
+            held[k] = False
+
+
+@njit(cache=True, error_model="numpy")
+def corner_rays(A, C, corners, w):
+    """The rays of :func:`pixel_rays` (du = dv = -1/2, a grid ``w`` wide) for the listed corners
+    only (k = i * w + j), bit for bit the same."""
+    m = corners.shape[0]
+    rays = np.empty((m, 6), np.float32)
+    for r in range(m):
+        i, j = divmod(corners[r], w)
+        x, y = j + -0.5, i + -0.5
+        rays[r, 0], rays[r, 1], rays[r, 2] = C[0], C[1], C[2]
+        rays[r, 3] = A[0, 0] * x + A[0, 1] * y + A[0, 2]
+        rays[r, 4] = A[1, 0] * x + A[1, 1] * y + A[1, 2]
+        rays[r, 5] = A[2, 0] * x + A[2, 1] * y + A[2, 2]
+    return rays

@@ -48,6 +48,7 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
     """All motion keys of one view at one frame, from its raw passes and its neighbours'."""
     from ..errors import LfusdError
     from .motion import derive_motion
+    from .visibility import memo_for
 
     frames = set(ds.record.frames)
     try:
@@ -56,7 +57,9 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
         occluders = {key: occluders_of(ds, g, view) for key, g, other in (("next", frame + 1, nxt), ("prev", frame - 1, prv))
                      if other is not None}
         occluders["here"] = occluders_of(ds, frame, view)
-        return derive_motion(ds.raw_passes(frame, view), nxt, prv, baseline=ds.baseline, occluders=occluders)
+        cur = ds.raw_passes(frame, view)
+        memo = memo_for((str(ds.root), ds.rig_name, tuple(view)), *cur.depth.shape) if occluders["here"] is not None else None
+        return derive_motion(cur, nxt, prv, baseline=ds.baseline, occluders=occluders, memo=memo)
     except LfusdError as e:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
 

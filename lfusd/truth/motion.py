@@ -304,8 +304,17 @@ def load_kernels() -> None:
     derive_motion(raw, raw, raw, baseline=0.1, backend="numba")
     from .visibility import Occluders  # and the exact-occlusion and mixed kernels, on one triangle
 
-    tri = Occluders(np.array([[-9, -9, 3], [9, -9, 3], [0, 9, 3]], np.float32), np.array([[0, 1, 2]]), np.ones(1, np.int32))
-    derive_motion(raw, raw, raw, baseline=0.1, backend="numba", occluders={"next": tri, "prev": tri, "here": tri})
+    from .visibility import StaticMemo
+
+    # one triangle in place and one moving: both parts of exact occlusion and mixed, and the memo
+    tris = np.array([[0, 1, 2], [3, 4, 5]])
+    here = np.array([[-9, -9, 3], [9, -9, 3], [0, 9, 3], [-1, -1, 2], [1, -1, 2], [0, 1, 2]], np.float32)
+    moved = here.copy()
+    moved[3:, 2] += 0.25
+    frames = [Occluders(v, tris, np.array([1, 2], np.int32)) for v in (moved, here, moved)]
+    memo = StaticMemo(0)
+    for _ in range(2):
+        derive_motion(raw, raw, raw, baseline=0.1, backend="numba", occluders=dict(zip(("prev", "here", "next"), frames)), memo=memo)
 
 
 def derive_motion(
@@ -315,6 +324,7 @@ def derive_motion(
     baseline: float | None = None,
     backend: str | None = None,
     occluders: dict | None = None,
+    memo=None,
 ) -> dict[str, np.ndarray]:
     """All motion keys of CONVENTIONS.md for one view at frame t (see the module docstring).
 
@@ -324,7 +334,9 @@ def derive_motion(
     ``backend``: 'numba' (compiled, the default) or 'numpy' (reference).
     ``occluders``: {"next": Occluders, "prev": Occluders, "here": Occluders}, the triangles of t+1 /
     t-1 / t as rendered (lfusd.truth.visibility): occlusion is then exact ray-cast visibility, not
-    the image-space test, and ``mixed`` (2x2 sub-pixel rays) is computed from "here".
+    the image-space test, and ``mixed`` (one ray per pixel corner) is computed from "here".
+    ``memo``: the view's lfusd.truth.visibility.StaticMemo, which keeps the answers of the triangles
+    that stay in place from frame to frame (same results, fewer rays).
     """
     backend = backend or BACKEND
     if backend not in ("numba", "numpy"):
@@ -348,20 +360,38 @@ def derive_motion(
             _derive_numba(cur, nxt, prv, fb, out, exact)
         else:
             _derive_numpy(cur, nxt, prv, fb, fg, out)
+    here = (occluders or {}).get("here")
+    with cpu_account.phase("occluders"):
+        # without a memo to keep the static part's answers, the whole scene in one cast is cheaper
+        parts = _parts(occluders or {}) if memo is not None else {}
     for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position)):
         if key in exact:
             with cpu_account.phase("visibility"):
-                exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next")
-    if (occluders or {}).get("here") is not None:
+                exact_occlusion(cur, other, opos, occluders[key], out, fwd=key == "next", parts=parts.get(key), memo=memo)
+    if here is not None:
         from .visibility import mixed_footprint
 
         with cpu_account.phase("mixed"):
-            out["mixed"] = mixed_footprint(cur.camera, h, w, occluders["here"], (occluders or {}).get("next"),
-                                           nxt.camera if nxt is not None else None)
+            out["mixed"] = mixed_footprint(cur.camera, h, w, here, occluders.get("next"), nxt.camera if nxt is not None else None,
+                                           parts=parts.get("here"), memo=memo)
     return out
 
 
-def exact_occlusion(cur: RawPasses, other: RawPasses, other_position: np.ndarray, occluders, out: dict, fwd: bool) -> None:
+def _parts(occluders: dict) -> dict:
+    """Each frame's triangles split into what stays in place and what moves (lfusd.truth.visibility.Parts):
+    t+1's and t-1's by t's, t's by t+1's (else t-1's)."""
+    here = occluders.get("here")
+    if here is None:
+        return {}
+    parts = {key: occluders[key].parts(here) for key in ("next", "prev") if occluders.get(key) is not None}
+    ref = occluders.get("next") or occluders.get("prev")
+    if ref is not None:
+        parts["here"] = here.parts(ref)
+    return parts
+
+
+def exact_occlusion(cur: RawPasses, other: RawPasses, other_position: np.ndarray, occluders, out: dict, fwd: bool,
+                    parts=None, memo=None) -> None:
     """Replace ``occlusion_fwd`` (``fwd``) or ``occlusion_bwd`` with ray-cast visibility of each valid
     pixel's point at t+1 / t-1 against that frame's rendered triangles (lfusd.truth.visibility)."""
     from .visibility import visible
@@ -369,7 +399,8 @@ def exact_occlusion(cur: RawPasses, other: RawPasses, other_position: np.ndarray
     sfx = "fwd" if fwd else "bwd"
     known = out[f"valid_{sfx}"]
     h, w = cur.shape
-    out[f"occlusion_{sfx}"] = (known.ravel() & ~visible(other_position, known, other.camera, h, w, occluders)).reshape(h, w)
+    seen = visible(other_position, known, other.camera, h, w, occluders, parts=parts, memo=memo)
+    out[f"occlusion_{sfx}"] = (known.ravel() & ~seen).reshape(h, w)
 
 
 def _derive_numpy(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, fb: float, fg: np.ndarray, out: dict) -> None:

@@ -15,11 +15,23 @@ it. Float32 positions and triangles put P a few 1e-7 of the distance off its own
 surfaces seen at a grazing angle, and the verifier's independent geometry differs from Blender's by
 as much: within that band the two surfaces cannot be told apart, and both verify and the
 derivation call the point visible. docs/CONVENTIONS.md ("Occlusion") states the definition.
+
+The cast is split without changing an answer (:class:`Parts`, :class:`StaticMemo`). A segment
+meets the frame's triangles when it meets those that stand still from t to t' (static) or the
+others (dynamic). A static segment's answer against static triangles cannot change while the camera
+and those triangles stay put, so a derivation process keeps it per view and casts only the
+segments it has not seen bit for bit (the wall behind a walking person: about 80 % of the rays
+of the default scene). The dynamic triangles are cast only for segments that reach, at or beyond
+their depth, the screen rectangle of one of them (a conservative z-buffer of rectangles grown by
+a pixel). ``mixed`` splits its corner rays the same way: the nearer of the static first hit (kept)
+and the dynamic one. tests/truth/test_static_parts.py holds every pixel to the whole scene's cast.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
@@ -29,20 +41,28 @@ from ..camera import Camera
 VISIBLE_EPS = 1e-4
 
 _CACHE: dict[tuple, "Occluders"] = {}
+_NEW = itertools.count()  # keys of Occluders built in memory (not read from a file)
+
+
+def _scene(vertices: np.ndarray, triangles: np.ndarray):
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    if len(triangles):
+        scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(np.ascontiguousarray(triangles, np.uint32)))
+    return scene
 
 
 class Occluders:
     """A frame's triangles (world space) in an Open3D ray-casting scene."""
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, instance: np.ndarray | None = None):
-        import open3d as o3d
-
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, instance: np.ndarray | None = None, key=None):
         self.vertices = np.ascontiguousarray(vertices, np.float32)
         self.triangles = np.ascontiguousarray(triangles, np.uint32)
         self.instance = instance
-        self.scene = o3d.t.geometry.RaycastingScene()
-        if len(self.triangles):
-            self.scene.add_triangles(o3d.core.Tensor(self.vertices), o3d.core.Tensor(self.triangles))
+        self.key = key if key is not None else ("memory", next(_NEW))
+        self._scene = None
+        self._parts: OrderedDict = OrderedDict()
 
     @classmethod
     def load(cls, path: str | Path) -> "Occluders":
@@ -52,11 +72,18 @@ class Occluders:
         key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
         if key not in _CACHE:
             with np.load(path) as z:
-                occ = cls(z["vertices"], z["triangles"], z["instance"] if "instance" in z else None)
+                occ = cls(z["vertices"], z["triangles"], z["instance"] if "instance" in z else None, key=key)
             if len(_CACHE) >= 4:  # frames t-1, t, t+1 of one view, and one more
                 _CACHE.pop(next(iter(_CACHE)))
             _CACHE[key] = occ
         return _CACHE[key]
+
+    @property
+    def scene(self):
+        """Every triangle in one Open3D ``RaycastingScene`` (built on first use)."""
+        if self._scene is None:
+            self._scene = _scene(self.vertices, self.triangles)
+        return self._scene
 
     @property
     def corners(self) -> np.ndarray:
@@ -64,6 +91,14 @@ class Occluders:
         if getattr(self, "_corners", None) is None:
             self._corners = self.vertices[self.triangles.astype(np.int64)]
         return self._corners
+
+    def parts(self, other: "Occluders") -> "Parts":
+        """These triangles split by ``other`` (a neighbouring frame's): see :class:`Parts`."""
+        if other.key not in self._parts:
+            if len(self._parts) >= 2:
+                self._parts.popitem(last=False)
+            self._parts[other.key] = Parts(self, other)
+        return self._parts[other.key]
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit, triangle index (-1 where none), barycentric (u, v) of the hit) per ray."""
@@ -86,29 +121,171 @@ class Occluders:
         return self.scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))["t_hit"].numpy()
 
 
+_STATIC: OrderedDict = OrderedDict()  # digest of static triangles -> their scene, shared by a process's views and frames
+
+
+class Parts:
+    """A frame's triangles split in two by a neighbouring frame's (same triangles in the same order):
+    *static*, whose three vertices are the same there bit for bit, and *dynamic*, the rest (all of
+    them when the two frames' triangles differ). A ray meets the frame's triangles when it meets a
+    part, so the parts give the answers of the whole: the static part's scene and answers can be
+    kept from frame to frame (:class:`StaticMemo`; ``digest`` names the static triangles and their
+    coordinates), and the dynamic part is small, and cast only where its triangles lie on screen."""
+
+    def __init__(self, occ: Occluders, other: Occluders):
+        import xxhash
+
+        tri = occ.triangles
+        if (len(tri) and tri.shape == other.triangles.shape and occ.vertices.shape == other.vertices.shape
+                and np.array_equal(tri, other.triangles)):
+            same = (occ.vertices.view(np.uint32) == other.vertices.view(np.uint32)).all(axis=1)
+            static = same[tri].all(axis=1)
+        else:
+            static = np.zeros(len(tri), bool)
+        self.static_ids = np.flatnonzero(static).astype(np.uint32)
+        self.dynamic_ids = np.flatnonzero(~static).astype(np.uint32)
+        h = xxhash.xxh3_128()
+        h.update(self.static_ids.tobytes())
+        h.update(np.ascontiguousarray(occ.corners[static]).tobytes())
+        self.digest = h.hexdigest()
+        self.static = None
+        if len(self.static_ids):
+            if self.digest not in _STATIC:
+                if len(_STATIC) >= 2:
+                    _STATIC.popitem(last=False)
+                _STATIC[self.digest] = _scene(occ.vertices, tri[static])
+            self.static = _STATIC[self.digest]
+            _STATIC.move_to_end(self.digest)
+        self.vertices, self.dynamic_triangles = occ.vertices, np.ascontiguousarray(tri[~static])
+        self.dynamic = _scene(occ.vertices, self.dynamic_triangles) if len(self.dynamic_ids) else None
+
+
+class StaticMemo:
+    """One view's answers from the static triangles (:class:`Parts`), kept between frames: a ray
+    that is the same bit for bit as before (same camera centre and end point; the same static
+    triangles, by digest) has the same answer, so only new rays are cast. Exact by construction:
+    what it returns is what the cast would return."""
+
+    def __init__(self, nbytes: int):
+        self.nbytes = nbytes  # what it may hold (its share of MEMO_BYTES)
+        self.segments: dict | None = None  # visibility: key, end points (uint32 bits), filled, hidden per pixel
+        self.corners: dict | None = None  # mixed: key, t, triangle and barycentric (u, v) per pixel corner
+
+
+def _memo_bytes() -> int:
+    try:
+        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        memory = 16 << 30
+    return min(2 << 30, memory // 16)
+
+
+# per process, for the views of one dataset (a lane's views, or a derivation task's): 2 GiB, or a
+# 16th of the machine's memory where that is less (a 9x9 rig at 1024x1024 needs 2.3 GB for all views)
+MEMO_BYTES = _memo_bytes()
+MEMO_BYTES_PER_PIXEL = 12 + 1 + 1 + 4 + 4 + 8  # end point, filled, hidden; corner t, triangle, (u, v)
+_MEMOS: OrderedDict = OrderedDict()
+
+
+def memo_for(key: tuple, h: int, w: int) -> StaticMemo | None:
+    """The :class:`StaticMemo` of one view (``key``: dataset, rig, view), or None when the process's
+    :data:`MEMO_BYTES` are spoken for. A rig's views come in turn, frame after frame: a memo that
+    dropped the least recently used would never be found again, so those held stay held, and only
+    another dataset's are dropped for room."""
+    if key in _MEMOS:
+        return _MEMOS[key]
+    need = MEMO_BYTES_PER_PIXEL * (h + 1) * (w + 1)
+    if sum(m.nbytes for m in _MEMOS.values()) + need > MEMO_BYTES:
+        for other in [k for k in _MEMOS if k[:-1] != key[:-1]]:
+            del _MEMOS[other]
+        if sum(m.nbytes for m in _MEMOS.values()) + need > MEMO_BYTES:
+            return None
+    _MEMOS[key] = StaticMemo(need)
+    return _MEMOS[key]
+
+
+# the dynamic triangles' screen rectangles are grown by this much, and their depths lowered: far
+# beyond float32 rounding of the rays, the vertices and Embree's hits, so no ray that meets one is culled
+MARGIN_PX = 1.0
+DEPTH_REL = 1e-3
+
+
+def _occluded(scene, rays: np.ndarray, eps: float) -> np.ndarray:
+    import open3d as o3d
+
+    if not len(rays):
+        return np.zeros(0, bool)
+    return scene.test_occlusions(o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays)), tnear=0.0, tfar=1.0 - eps).numpy() != 0
+
+
+def _depth_map(parts: Parts, camera: Camera, h: int, w: int) -> np.ndarray:
+    """The dynamic part's conservative least depth per pixel in ``camera`` (lfusd.truth._motion_numba.depth_map)."""
+    from ._motion_numba import depth_map
+
+    R, C = camera.world_to_cam()
+    return depth_map(parts.vertices, parts.dynamic_triangles, np.asarray(camera.K, np.float64) @ R,
+                     np.ascontiguousarray(C, np.float64), np.ascontiguousarray(R[2], np.float64), h, w, MARGIN_PX, DEPTH_REL)
+
+
+def _visible_parts(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: int, whole: Occluders, parts: Parts,
+                   eps: float, memo: StaticMemo | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`visible`'s rays by part: (index of the points inside, whether a part hides each)."""
+    from ._motion_numba import remember_answers, remember_visible, segment_parts, segment_rays
+
+    R, C = camera.world_to_cam()
+    n = len(points)
+    key = (parts.digest, np.asarray(C, np.float64).tobytes(), float(eps), n)
+    if memo is None:
+        seg = None
+        ends, filled, held = np.zeros((1, 3), np.uint32), np.zeros(n, bool), np.zeros(n, bool)
+    elif memo.segments is None or memo.segments["key"] != key:
+        # nothing to reuse: one cast against the whole scene (cheaper than two parts), whose
+        # unhidden segments fill the memo
+        memo.segments = {"key": key, "ends": np.zeros((n, 3), np.uint32), "filled": np.zeros(n, bool), "hidden": np.zeros(n, bool)}
+        seg = memo.segments
+        rays, index = segment_rays(points, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
+                                   np.ascontiguousarray(R[2], np.float64), h, w)
+        hidden = _occluded(whole.scene, rays, eps)
+        remember_visible(index, hidden, points.view(np.uint32), seg["ends"], seg["filled"], seg["hidden"])
+        return index, hidden
+    else:
+        seg = memo.segments
+        ends, filled, held = seg["ends"], seg["filled"], seg["hidden"]
+    zmap = _depth_map(parts, camera, h, w) if parts.dynamic is not None else np.zeros((0, 0), np.float32)
+    bits = points.view(np.uint32)
+    index, hidden, s_rays, s_pos, d_rays, d_pos = segment_parts(
+        points, bits, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
+        np.ascontiguousarray(R[2], np.float64), h, w, ends, filled, held, zmap, parts.static is not None, seg is not None)
+    if len(s_pos):
+        remember_answers(index, s_pos, _occluded(parts.static, s_rays, eps), hidden, held)
+    if len(d_pos):
+        hidden[d_pos] |= _occluded(parts.dynamic, d_rays, eps)
+    return index, hidden
+
+
 def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: int, occluders: Occluders,
-            eps: float = VISIBLE_EPS) -> np.ndarray:
+            eps: float = VISIBLE_EPS, parts: Parts | None = None, memo: StaticMemo | None = None) -> np.ndarray:
     """Whether each world point (N,3) with ``valid`` (N,) is visible in ``camera`` at the occluders'
     frame (see the module docstring): it projects inside the image, in front of the camera, and no
     surface lies on the segment from the camera centre before ray parameter ``1 - eps`` (Embree's
     any-hit query, Open3D's ``test_occlusions``: the first hit is not needed, only whether one is
-    that near)."""
-    import open3d as o3d
-
+    that near). With ``parts`` (the occluders split by a neighbouring frame) the segment is tested
+    against each part, the static one's answers kept in ``memo`` between frames, the dynamic one's
+    only for the segments its triangles' screen rectangles reach: the same answers as the whole scene's."""
     from ._motion_numba import segment_rays
 
-    R, C = camera.world_to_cam()
-    M = np.asarray(camera.K, np.float64) @ R
     points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
-    rays, index = segment_rays(points, np.ascontiguousarray(valid).ravel(), M, np.ascontiguousarray(C, np.float64),
-                               np.ascontiguousarray(R[2], np.float64), h, w)
+    valid = np.ascontiguousarray(valid).ravel()
     out = np.zeros(len(points), bool)
-    if len(index) and len(occluders.triangles):
-        # the rays of the points inside only, handed to Open3D without a copy
-        hidden = occluders.scene.test_occlusions(o3d.core.Tensor.from_numpy(rays), tnear=0.0, tfar=1.0 - eps).numpy()
-        out[index] = hidden == 0
-    else:
-        out[index] = True
+    if parts is not None and len(occluders.triangles):
+        index, hidden = _visible_parts(points, valid, camera, h, w, occluders, parts, eps, memo)
+        out[index] = ~hidden
+        return out
+    R, C = camera.world_to_cam()
+    rays, index = segment_rays(points, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
+                               np.ascontiguousarray(R[2], np.float64), h, w)
+    # the rays of the points inside only
+    out[index] = ~_occluded(occluders.scene, rays, eps) if len(occluders.triangles) else True
     return out
 
 
@@ -118,7 +295,8 @@ CORNERS = ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5))  # a pixel's corn
 
 
 def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occluders | None = None,
-                    camera_next: Camera | None = None) -> np.ndarray:
+                    camera_next: Camera | None = None, parts: Parts | None = None,
+                    memo: StaticMemo | None = None) -> np.ndarray:
     """(H, W) bool: the pixel's footprint holds more than one surface or motion (key ``mixed``).
 
     A ray through each pixel corner (u +- 1/2, v +- 1/2) is cast against the frame's rendered
@@ -128,18 +306,16 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     the same order: same count) each hit is carried to t+1 on its triangle (same barycentric
     coordinates) and projected with ``camera_next``, and forward flows more than ``MIXED_FLOW_PX``
     apart differ too. The corners are the footprint's extreme points: a straight edge that crosses
-    the footprint separates two of them, wherever it crosses."""
-    import open3d as o3d
-
-    from ._motion_numba import mixed_pixels, pixel_rays
+    the footprint separates two of them, wherever it crosses. With ``parts`` (``here`` split by a
+    neighbouring frame) each corner's first hit is the nearer of the static part's (kept in ``memo``
+    between frames) and the dynamic part's (cast only where a dynamic triangle may lie before it)."""
+    from ._motion_numba import mixed_pixels
 
     _, C = camera.world_to_cam()
     n = (h + 1) * (w + 1)
     if len(here.triangles):
-        # the corner grid is the pixel grid of an (H+1) x (W+1) image shifted by half a pixel
-        rays = pixel_rays(camera._pixel_to_world(np.float64), np.ascontiguousarray(C, np.float64), -0.5, -0.5, h + 1, w + 1)
-        hits = here.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
-        t, tri, uv = hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), hits["primitive_uvs"].numpy()  # tri: not read where t is inf
+        t, tri, uv = _corner_hits(here, camera, camera._pixel_to_world(np.float64), np.ascontiguousarray(C, np.float64), h, w,
+                                  parts, memo)
     else:
         t, tri, uv = np.full(n, np.inf, np.float32), np.zeros(n, np.uint32), np.zeros((n, 2), np.float32)
     inst = np.ascontiguousarray(here.instance if here.instance is not None else np.zeros(len(here.triangles)), np.int32)
@@ -151,6 +327,55 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     else:
         args = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
     return mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
+
+
+def _cast(scene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Open3D's closest hits: t (inf where none), primitive index (not to be read where t is inf), (u, v)."""
+    import open3d as o3d
+
+    hits = scene.cast_rays(o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays)))
+    return hits["t_hit"].numpy(), hits["primitive_ids"].numpy(), hits["primitive_uvs"].numpy()
+
+
+def _corner_hits(here: Occluders, camera: Camera, A: np.ndarray, C: np.ndarray, h: int, w: int, parts: Parts | None,
+                 memo: StaticMemo | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first hit of the ray through each pixel corner among ``here``'s triangles: t, triangle
+    index (uint32), (u, v). The corner grid is the pixel grid of an (H+1) x (W+1) image shifted by
+    half a pixel."""
+    from ._motion_numba import corner_rays, pixel_rays
+
+    if parts is None:
+        return _cast(here.scene, pixel_rays(A, C, -0.5, -0.5, h + 1, w + 1))
+    key = (parts.digest, A.tobytes(), C.tobytes(), h, w)
+    held = memo.corners if memo is not None else None
+    if held is not None and held["key"] == key:
+        t, tri, uv = held["t"].copy(), held["tri"].copy(), held["uv"].copy()
+    else:
+        n = (h + 1) * (w + 1)
+        if parts.static is not None:
+            t, prim, uv = _cast(parts.static, pixel_rays(A, C, -0.5, -0.5, h + 1, w + 1))
+            tri = np.where(np.isfinite(t), parts.static_ids[np.minimum(prim, max(len(parts.static_ids) - 1, 0))], 0).astype(np.uint32)
+        else:
+            t, tri, uv = np.full(n, np.inf, np.float32), np.zeros(n, np.uint32), np.zeros((n, 2), np.float32)
+        if memo is not None:
+            memo.corners = {"key": key, "t": t.copy(), "tri": tri.copy(), "uv": uv.copy()}
+    if parts.dynamic is not None:
+        # a corner ray's parameter is planar depth: the dynamic part matters only where it lies nearer
+        near = np.flatnonzero(_depth_map(parts, _corner_camera(camera), h + 1, w + 1).ravel() < t)
+        if len(near):
+            td, prim, uvd = _cast(parts.dynamic, corner_rays(A, C, near, w + 1))
+            nearer = td < t[near]  # a tie keeps the static hit
+            k = near[nearer]
+            t[k], tri[k], uv[k] = td[nearer], parts.dynamic_ids[prim[nearer]], uvd[nearer]
+    return t, tri, uv
+
+
+def _corner_camera(camera: Camera) -> Camera:
+    """The camera whose pixel centres are ``camera``'s pixel corners (the corner grid as an image)."""
+    K = np.array(camera.K, np.float64)
+    K[0, 2] += 0.5
+    K[1, 2] += 0.5
+    return Camera(K, camera.cam_to_world)
 
 
 # ---- stereo visibility of planar parallel rigs, from disparity alone (the KITTI export's noc masks) ----

@@ -105,6 +105,30 @@ def test_every_stored_key_round_trips_within_its_storage_error(tmp_path):
                 np.testing.assert_array_equal(got, want, err_msg=key)
 
 
+@pytest.mark.parametrize("far", [False, True], ids=["flow-below-256px", "flow-of-300.3px"])
+def test_motion_files_are_pxr24_only_where_it_keeps_every_bit(tmp_path, far):
+    """PXR24 keeps a float's top 24 bits: fixed-point flow below 2^16 steps fits them, a flow of
+    300.3 px (17 significant bits) and a full-precision depth do not, and those files are ZIP.
+    Either way every channel reads back bit for bit."""
+    truth, *_ = analytic_view()
+    motion = {k: truth[k] for k in ("flow_fwd", "scene_flow", "disparity_change", "valid_fwd", "occlusion_fwd")}
+    if far:
+        motion["flow_fwd"] = motion["flow_fwd"].copy()
+        motion["flow_fwd"][0, 0, 0] = 300.3
+    path, _ = store.write_checked(tmp_path / "motion.exr", motion)
+    want = OpenEXR.ZIP_COMPRESSION if far else OpenEXR.PXR24_COMPRESSION
+    assert OpenEXR.File(str(path)).header()["compression"] == want
+    back = store.read(path)
+    for key, a in store.encode(motion).items():
+        got = store.encode({k: back[k] for k in motion})[key]
+        assert np.array_equal(got.view(np.uint8), a.view(np.uint8)), key
+    if far:
+        assert back["flow_fwd"][0, 0, 0] == np.float32(round(300.3 * 256) / 256)
+    static = {k: truth[k] for k in ("depth", "normal", "instance")}
+    gt, _ = store.write_checked(tmp_path / "gt.exr", static)
+    assert OpenEXR.File(str(gt)).header()["compression"] == OpenEXR.ZIP_COMPRESSION  # depth uses all 32 bits
+
+
 def test_a_file_that_reads_back_different_fails_the_check(tmp_path):
     truth, *_ = analytic_view()
     arrays = {"flow_fwd": truth["flow_fwd"], "valid_fwd": truth["valid_fwd"]}

@@ -154,14 +154,16 @@ class Scene:
 
         return Occluders(*self.triangles(frame))
 
-    def derive(self, frame, exact=True, backend=None):
-        """lfusd.truth.motion.derive_motion of ``frame`` from this scene's raw passes, with exact occlusion."""
+    def derive(self, frame, exact=True, backend=None, memo=None):
+        """lfusd.truth.motion.derive_motion of ``frame`` from this scene's raw passes, with exact
+        occlusion (``memo``: a lfusd.truth.visibility.StaticMemo kept from frame to frame, as a
+        derivation process keeps one per view)."""
         from lfusd.truth.motion import derive_motion
 
         nxt = self.raw(frame + 1, exact) if frame + 1 in self.cams else None
         prv = self.raw(frame - 1, exact) if frame - 1 in self.cams else None
         occ = {k: self.occluders(g) for k, g in (("next", frame + 1), ("prev", frame - 1), ("here", frame)) if g in self.cams}
-        return derive_motion(self.raw(frame, exact), nxt, prv, baseline=self.baseline, backend=backend, occluders=occ)
+        return derive_motion(self.raw(frame, exact), nxt, prv, baseline=self.baseline, backend=backend, occluders=occ, memo=memo)
 
     def visible_at(self, frame, step):
         """Oracle: is the point seen at each pixel at ``frame`` in the image and unoccluded at frame+step?"""
