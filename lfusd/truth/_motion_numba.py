@@ -343,6 +343,21 @@ def kernels_cached() -> bool:
 # --- Exact occlusion and the mixed footprint (lfusd.truth.visibility): rays built and hits compared
 # here, one pass per pixel, instead of a dozen full-image NumPy temporaries.
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _segment_end(points, k, M, C, R2, h, w):
+    """Point k seen from C: (inside the h x w image and in front, its offset from C (float64),
+    its pixel position u, v and camera depth z). M = K R, R2 = R's depth row."""
+    dx = np.float64(points[k, 0]) - C[0]
+    dy = np.float64(points[k, 1]) - C[1]
+    dz = np.float64(points[k, 2]) - C[2]
+    hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+    u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
+    v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
+    z = R2[0] * dx + R2[1] * dy + R2[2] * dz
+    inside = math.isfinite(u) and math.isfinite(v) and z > 0 and u >= -0.5 and u <= w - 0.5 and v >= -0.5 and v <= h - 0.5
+    return inside, dx, dy, dz, u, v, z
+
+
 @njit(cache=True, error_model="numpy")
 def segment_rays(points, valid, M, C, R2, h, w):
     """Rays (m, 6) float32 from the camera centre ``C`` to each point (N, 3) with ``valid`` that
@@ -356,14 +371,8 @@ def segment_rays(points, valid, M, C, R2, h, w):
     for k in range(n):
         if not valid[k]:
             continue
-        dx = np.float64(points[k, 0]) - C[0]
-        dy = np.float64(points[k, 1]) - C[1]
-        dz = np.float64(points[k, 2]) - C[2]
-        hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
-        u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
-        v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
-        z = R2[0] * dx + R2[1] * dy + R2[2] * dz
-        if math.isfinite(u) and math.isfinite(v) and z > 0 and u >= -0.5 and u <= w - 0.5 and v >= -0.5 and v <= h - 0.5:
+        inside, dx, dy, dz, u, v, z = _segment_end(points, k, M, C, R2, h, w)
+        if inside:
             rays[m, 0], rays[m, 1], rays[m, 2] = C[0], C[1], C[2]
             rays[m, 3], rays[m, 4], rays[m, 5] = dx, dy, dz
             index[m] = k
@@ -518,14 +527,8 @@ def segment_parts(points, bits, valid, M, C, R2, h, w, ends, filled, held, zmap,
     for k in range(n):
         if not valid[k]:
             continue
-        dx = np.float64(points[k, 0]) - C[0]
-        dy = np.float64(points[k, 1]) - C[1]
-        dz = np.float64(points[k, 2]) - C[2]
-        hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
-        u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
-        v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
-        z = R2[0] * dx + R2[1] * dy + R2[2] * dz
-        if not (math.isfinite(u) and math.isfinite(v) and z > 0 and u >= -0.5 and u <= w - 0.5 and v >= -0.5 and v <= h - 0.5):
+        inside, dx, dy, dz, u, v, z = _segment_end(points, k, M, C, R2, h, w)
+        if not inside:
             continue
         index[m] = k
         if static:
