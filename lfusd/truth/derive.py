@@ -189,14 +189,21 @@ def derive_if_stale(ds: Dataset, frame: int, view: View) -> bool:
 
 
 def _derive_run(args: tuple[str, str, tuple[int, int], list[int], list[int]]) -> tuple[int, int]:
+    from .visibility import forget_memos
+
     root, rig, view, static, motion = args
     ds = open_dataset(root, rig)
     checked = 0
-    for f in sorted(set(static) | set(motion)):
-        if f in static:
-            checked += write_static(ds, f, view)
-        if f in motion:
-            checked += _write_motion(ds, f, view)[1]
+    try:
+        for f in sorted(set(static) | set(motion)):
+            if f in static:
+                checked += write_static(ds, f, view)
+            if f in motion:
+                checked += _write_motion(ds, f, view)[1]
+    finally:
+        # the next task of this process is another view's run, or this view's far away: one memo
+        # at a time per process, not one per view in every process of the pool
+        forget_memos()
     cpu_account.flush("derive")
     return len(set(static) | set(motion)), checked
 

@@ -204,6 +204,11 @@ def memo_for(key: tuple, h: int, w: int) -> StaticMemo | None:
     return _MEMOS[key]
 
 
+def forget_memos() -> None:
+    """Drop every view's :class:`StaticMemo` (a derivation task that will not see its view again)."""
+    _MEMOS.clear()
+
+
 # the dynamic triangles' screen rectangles are grown by this much, and their depths lowered: far
 # beyond float32 rounding of the rays, the vertices and Embree's hits, so no ray that meets one is culled
 MARGIN_PX = 1.0
