@@ -262,7 +262,13 @@ def _visible_parts(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int
         points, bits, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
         np.ascontiguousarray(R[2], np.float64), h, w, ends, filled, held, zmap, parts.static is not None, seg is not None)
     if len(s_pos):
-        remember_answers(index, s_pos, _occluded(parts.static, s_rays, eps), hidden, held)
+        try:
+            fresh = _occluded(parts.static, s_rays, eps)
+        except BaseException:
+            if memo is not None:  # its slots took these end points already: their answers never came
+                memo.segments = None
+            raise
+        remember_answers(index, s_pos, fresh, hidden, held)
     if len(d_pos):
         hidden[d_pos] |= _occluded(parts.dynamic, d_rays, eps)
     return index, hidden

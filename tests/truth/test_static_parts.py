@@ -133,3 +133,26 @@ def test_memos_are_held_within_the_budget_and_another_datasets_make_room(monkeyp
     assert visibility.memo_for(("a", "rig", (0, 1)), 10, 10) is held[1]
     assert visibility.memo_for(("b", "rig", (0, 0)), 10, 10) is not None  # another dataset's make room
     assert ("a", "rig", (0, 0)) not in visibility._MEMOS
+
+
+def test_a_cast_that_fails_leaves_no_half_filled_memo(monkeypatch):
+    """The memo's slots take a segment's end point before its answer is cast: if the cast fails,
+    the memo is dropped, and the next derivation gives the whole scene's answers again."""
+    scene = street()
+    memo = StaticMemo(0)
+    scene.derive(1, memo=memo)
+    cast = visibility._occluded
+
+    def failing(scene_, rays, eps):
+        if any(scene_ is s for s in visibility._STATIC.values()):
+            raise RuntimeError("Embree ran out of memory")
+        return cast(scene_, rays, eps)
+
+    monkeypatch.setattr(visibility, "_occluded", failing)
+    with pytest.raises(RuntimeError):
+        scene.derive(2, memo=memo)
+    assert memo.segments is None
+    monkeypatch.setattr(visibility, "_occluded", cast)
+    whole, split = scene.derive(2), scene.derive(2, memo=memo)
+    for key in MOTION_KEYS:
+        assert np.array_equal(whole[key], split[key]), key
