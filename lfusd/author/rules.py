@@ -40,7 +40,6 @@ one object wholly inside another. Each (object, rule) is reported once, at its f
 
 from __future__ import annotations
 
-import contextlib
 import json
 import tomllib
 from collections.abc import Callable
@@ -51,6 +50,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdSkel
 
 from ..errors import LfusdError
+from ..processes import native_stderr_silenced
 from .geometry import StageGeometry
 from .labels import Part, object_prim, object_table
 from .stage import frame_range
@@ -709,22 +709,6 @@ SKIP_VALIDATORS = {
 }
 
 
-@contextlib.contextmanager
-def _quiet_fd2():
-    import os
-    import sys
-
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 def usd_validation(stage: Usd.Stage) -> list[str]:
     """Error lines from pxr.UsdValidation's registered validators (usdchecker's engine)."""
     from pxr import UsdValidation
@@ -733,7 +717,7 @@ def usd_validation(stage: Usd.Stage) -> list[str]:
     validators = [v for v in registry.GetOrLoadAllValidators() if v.GetMetadata().name not in SKIP_VALIDATORS]
     # USD also prints each problem as a multi-line TF warning on fd 2; the errors come back as
     # objects, so keep stderr to one line per problem by muting it while validating.
-    with _quiet_fd2():
+    with native_stderr_silenced():
         errors = UsdValidation.ValidationContext(validators).Validate(stage)
     out = []
     for e in errors:

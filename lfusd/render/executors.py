@@ -30,7 +30,7 @@ from ..data.passes import read_rgb
 from ..errors import LfusdError
 from .. import layout
 from ..layout import frame_dir
-from ..processes import PARENT_PID_ENV, hold_stops
+from ..processes import PARENT_PID_ENV, hold_stops, native_stderr_silenced
 from .plan import WorkUnit
 from .request import RenderRequest
 
@@ -468,31 +468,9 @@ def _stop_ray(ray, refs: dict, shutdown: bool, main: bool, ray_processes: set[in
                 ray.cancel(r, force=True)
         if shutdown:
             tree = _tree(ray_processes)  # before shutdown: its processes are still below their parents
-            with contextlib.suppress(Exception), _native_stderr_silenced():
+            with contextlib.suppress(Exception), native_stderr_silenced():
                 ray.shutdown()
             _kill_tree(ray_processes, tree)
-
-
-@contextlib.contextmanager
-def _native_stderr_silenced():
-    """File descriptor 2 on /dev/null for a while. Ray's C++ core worker in this process writes its
-    ERROR lines there: after a Ctrl-C one wrote "task_manager.cc: Failed to push error to driver"
-    before lfusd's one-line report (seen once, in 13 random stops under load), most likely while Ray
-    shut down and its interrupted tasks' errors could no longer reach the driver. Python's own
-    sys.stderr writes to the same descriptor, so nothing of lfusd's is written inside."""
-    sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:
-        yield
-        return
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 2)
-        yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
 
 
 def _processes() -> dict[int, tuple[int, int]]:
