@@ -501,7 +501,7 @@ def depth_map(vertices, triangles, M, C, R2, h, w, margin_px, depth_rel):
 
 
 @njit(cache=True, error_model="numpy")
-def segment_parts(points, bits, valid, M, C, R2, h, w, ends, filled, held, zmap, static, remember):
+def segment_parts(points, bits, valid, M, C, R2, h, w, ends, filled, held, zmap, static):
     """:func:`segment_rays` for a scene in two parts (lfusd.truth.visibility.Parts), in one pass.
 
     For each valid point (N, 3) float32 that projects inside the h x w image in front of the
@@ -511,8 +511,8 @@ def segment_parts(points, bits, valid, M, C, R2, h, w, ends, filled, held, zmap,
     parts still need: to the static part (``static``) those not known, to the dynamic part those
     whose end lies at or beyond the least depth ``zmap`` (:func:`depth_map`; (0, 0) for no dynamic
     part) has at their pixel; each as rays (k, 6) float32 and their positions in ``index`` (k,).
-    With ``remember`` the memo's slots of the static rays take their end points (and
-    :func:`remember_answers` their answers, once cast)."""
+    The memo's slots of the static rays take their end points (and :func:`remember_answers` their
+    answers, once cast)."""
     n = points.shape[0]
     index = np.empty(n, np.int64)
     hidden = np.zeros(n, np.bool_)
@@ -535,9 +535,9 @@ def segment_parts(points, bits, valid, M, C, R2, h, w, ends, filled, held, zmap,
             if filled[k] and bits[k, 0] == ends[k, 0] and bits[k, 1] == ends[k, 1] and bits[k, 2] == ends[k, 2]:
                 hidden[m] = held[k]
             else:
-                if remember:  # the memo's slot now holds this end point; its answer comes after the cast
-                    ends[k, 0], ends[k, 1], ends[k, 2] = bits[k, 0], bits[k, 1], bits[k, 2]
-                    filled[k] = True
+                # the memo's slot now holds this end point; its answer comes after the cast
+                ends[k, 0], ends[k, 1], ends[k, 2] = bits[k, 0], bits[k, 1], bits[k, 2]
+                filled[k] = True
                 s_rays[ns, 0], s_rays[ns, 1], s_rays[ns, 2] = C[0], C[1], C[2]
                 s_rays[ns, 3], s_rays[ns, 4], s_rays[ns, 5] = dx, dy, dz
                 s_pos[ns] = m

@@ -232,43 +232,26 @@ def _depth_map(parts: Parts, camera: Camera, h: int, w: int) -> np.ndarray:
                      np.ascontiguousarray(C, np.float64), np.ascontiguousarray(R[2], np.float64), h, w, MARGIN_PX, DEPTH_REL)
 
 
-def _visible_parts(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: int, whole: Occluders, parts: Parts,
-                   eps: float, memo: StaticMemo | None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`visible`'s rays by part: (index of the points inside, whether a part hides each)."""
-    from ._motion_numba import remember_answers, remember_visible, segment_parts, segment_rays
+def _visible_parts(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: int, parts: Parts, eps: float,
+                   memo: StaticMemo) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`visible`'s rays by part, with a memo that holds answers for these segments' camera and
+    static triangles: (index of the points inside, whether a part hides each)."""
+    from ._motion_numba import remember_answers, segment_parts
 
     R, C = camera.world_to_cam()
-    n = len(points)
-    key = (parts.digest, np.asarray(C, np.float64).tobytes(), float(eps), n)
-    if memo is None:
-        seg = None
-        ends, filled, held = np.zeros((1, 3), np.uint32), np.zeros(n, bool), np.zeros(n, bool)
-    elif memo.segments is None or memo.segments["key"] != key:
-        # nothing to reuse: one cast against the whole scene (cheaper than two parts), whose
-        # unhidden segments fill the memo
-        memo.segments = {"key": key, "ends": np.zeros((n, 3), np.uint32), "filled": np.zeros(n, bool), "hidden": np.zeros(n, bool)}
-        seg = memo.segments
-        rays, index = segment_rays(points, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
-                                   np.ascontiguousarray(R[2], np.float64), h, w)
-        hidden = _occluded(whole.scene, rays, eps)
-        remember_visible(index, hidden, points.view(np.uint32), seg["ends"], seg["filled"], seg["hidden"])
-        return index, hidden
-    else:
-        seg = memo.segments
-        ends, filled, held = seg["ends"], seg["filled"], seg["hidden"]
+    seg = memo.segments
     zmap = _depth_map(parts, camera, h, w) if parts.dynamic is not None else np.zeros((0, 0), np.float32)
     bits = points.view(np.uint32)
     index, hidden, s_rays, s_pos, d_rays, d_pos = segment_parts(
         points, bits, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
-        np.ascontiguousarray(R[2], np.float64), h, w, ends, filled, held, zmap, parts.static is not None, seg is not None)
+        np.ascontiguousarray(R[2], np.float64), h, w, seg["ends"], seg["filled"], seg["hidden"], zmap, parts.static is not None)
     if len(s_pos):
         try:
             fresh = _occluded(parts.static, s_rays, eps)
         except BaseException:
-            if memo is not None:  # its slots took these end points already: their answers never came
-                memo.segments = None
+            memo.segments = None  # its slots took these end points already: their answers never came
             raise
-        remember_answers(index, s_pos, fresh, hidden, held)
+        remember_answers(index, s_pos, fresh, hidden, seg["hidden"])
     if len(d_pos):
         hidden[d_pos] |= _occluded(parts.dynamic, d_rays, eps)
     return index, hidden
@@ -280,23 +263,33 @@ def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: in
     frame (see the module docstring): it projects inside the image, in front of the camera, and no
     surface lies on the segment from the camera centre before ray parameter ``1 - eps`` (Embree's
     any-hit query, Open3D's ``test_occlusions``: the first hit is not needed, only whether one is
-    that near). With ``parts`` (the occluders split by a neighbouring frame) the segment is tested
-    against each part, the static one's answers kept in ``memo`` between frames, the dynamic one's
-    only for the segments its triangles' screen rectangles reach: the same answers as the whole scene's."""
-    from ._motion_numba import segment_rays
+    that near). With ``parts`` (the occluders split by a neighbouring frame) and a ``memo``, the
+    segment is tested against each part, the static one's answers kept in the memo between frames,
+    the dynamic one's only for the segments its triangles' screen rectangles reach: the same answers
+    as the whole scene's. A memo with nothing for this camera and these static triangles is filled
+    from one cast against the whole scene."""
+    from ._motion_numba import remember_visible, segment_rays
 
     points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
     valid = np.ascontiguousarray(valid).ravel()
     out = np.zeros(len(points), bool)
-    if parts is not None and len(occluders.triangles):
-        index, hidden = _visible_parts(points, valid, camera, h, w, occluders, parts, eps, memo)
-        out[index] = ~hidden
-        return out
     R, C = camera.world_to_cam()
+    split = parts is not None and memo is not None and len(occluders.triangles) > 0
+    if split:
+        key = (parts.digest, np.asarray(C, np.float64).tobytes(), float(eps), len(points))
+        if memo.segments is not None and memo.segments["key"] == key:
+            index, hidden = _visible_parts(points, valid, camera, h, w, parts, eps, memo)
+            out[index] = ~hidden
+            return out
     rays, index = segment_rays(points, valid, np.asarray(camera.K, np.float64) @ R, np.ascontiguousarray(C, np.float64),
                                np.ascontiguousarray(R[2], np.float64), h, w)
     # the rays of the points inside only
-    out[index] = ~_occluded(occluders.scene, rays, eps) if len(occluders.triangles) else True
+    hidden = _occluded(occluders.scene, rays, eps) if len(occluders.triangles) else np.zeros(len(index), bool)
+    if split:  # nothing to reuse: the whole scene's unhidden segments fill the memo (one cast is cheaper than two parts)
+        n = len(points)
+        memo.segments = {"key": key, "ends": np.zeros((n, 3), np.uint32), "filled": np.zeros(n, bool), "hidden": np.zeros(n, bool)}
+        remember_visible(index, hidden, points.view(np.uint32), memo.segments["ends"], memo.segments["filled"], memo.segments["hidden"])
+    out[index] = ~hidden
     return out
 
 

@@ -82,7 +82,7 @@ def _random_triangles(rng, m, near_camera):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_culling_by_screen_rectangles_never_drops_a_ray_that_meets_a_moving_triangle(seed):
+def test_culling_by_screen_rectangles_never_drops_a_ray_that_meets_a_moving_triangle(seed, monkeypatch):
     """Every triangle moves (all dynamic, nothing kept): segments to random points and the corner
     rays of ``mixed`` give what one cast against all triangles gives, with triangles that reach
     behind the camera, lie wholly behind it, or cover a tenth of a pixel."""
@@ -105,7 +105,13 @@ def test_culling_by_screen_rectangles_never_drops_a_ray_that_meets_a_moving_tria
     points = np.concatenate([on, anywhere]).astype(np.float32)
     valid = np.ones(len(points), bool)
     whole = visible(points, valid, cam, h, w, here)
-    split = visible(points, valid, cam, h, w, here, parts=parts, memo=StaticMemo(0))
+    memo = StaticMemo(0)
+    assert np.array_equal(whole, visible(points, valid, cam, h, w, here, parts=parts, memo=memo))  # fills the memo
+    calls = []
+    by_parts = visibility._visible_parts
+    monkeypatch.setattr(visibility, "_visible_parts", lambda *a: calls.append(1) or by_parts(*a))
+    split = visible(points, valid, cam, h, w, here, parts=parts, memo=memo)  # the memo holds this camera: by parts
+    assert calls, "the second cast must go by parts, culled by the screen rectangles"
     assert (~whole).sum() > 100 and whole.sum() > 100
     assert np.array_equal(whole, split)
     a = mixed_footprint(cam, h, w, here)
