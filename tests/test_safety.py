@@ -432,6 +432,38 @@ def test_a_killed_stage_generation_leaves_no_stage_and_the_rerun_makes_it(tmp_pa
     assert sorted(x.name for x in stage.parent.glob(".*")) == [".room.notmine.tmp.usda"]
 
 
+def test_a_rerun_removes_exactly_the_temporaries_of_dead_generations_of_that_stage(tmp_path):
+    """USD saves lfusd's temporary through one of its own (``<temporary without suffix>.<6 random>``,
+    renamed over it when whole): a generation killed inside that save leaves USD's file, which
+    names the dead process and lfusd's random part, so it is provably lfusd's. Files that only
+    look alike stay: another pid's (alive), another stage's, a user's name, a link."""
+    import subprocess
+    import sys
+
+    from lfusd.author.scenes import generate
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    alive = os.getpid()
+    folder = tmp_path / "stages"
+    folder.mkdir()
+    ours = [f".room.{dead.pid}-y9mk0khd.tmp.usda", f".room.{dead.pid}-y9mk0khd.tmp.fDK981"]
+    kept = [f".room.{alive}-y9mk0khd.tmp.usda", f".room.{alive}-y9mk0khd.tmp.fDK981",  # a generation still running
+            f".hall.{dead.pid}-y9mk0khd.tmp.fDK981",  # another stage's
+            ".room.notmine.tmp.fDK981", f".room.{dead.pid}-y9mk0khd.tmp.fDK98", f".room.{dead.pid}-y9mk0khd.tmp.fDK981x",
+            f"room.{dead.pid}-y9mk0khd.tmp.fDK981"]
+    for name in ours + kept:
+        (folder / name).write_text("x")
+    (folder / "target").write_text("a user's file")
+    (folder / f".room.{dead.pid}-abcdefgh.tmp.Qw3rTy").symlink_to(folder / "target")
+    kept.append(f".room.{dead.pid}-abcdefgh.tmp.Qw3rTy")
+    generate("room", folder / "room.usda", 0, frames=1, rigs=1, grid=(1, 1), resolution=(16, 16))
+    names = {x.name for x in folder.iterdir()}
+    assert not names & set(ours)
+    assert set(kept) <= names
+    assert (folder / "target").read_text() == "a user's file"
+
+
 def test_an_absurd_frame_range_is_refused_before_any_list_is_made(capsys, tmp_path, project, fake_render):
     code, _, err = run_cli(capsys, "render-video", project / "scene.usda", "-o", tmp_path / "out", "--frames", "1-100000000",
                            "--device", "cpu", "--quiet")

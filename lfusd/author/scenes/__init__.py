@@ -326,9 +326,10 @@ def generate(template: str, path: str | Path, seed: int, frames: int = 150, rigs
 
 
 def _remove_stale_temporaries(path: Path) -> None:
-    """Remove the temporaries a killed generation of ``path`` left (``.<stem>.<pid>-<hex>.tmp<suffix>``
-    beside it, of a process no longer running); nothing else."""
-    pattern = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[a-z0-9_]{{8}}\.tmp{re.escape(path.suffix)}")
+    """Remove the temporaries a killed generation of ``path`` left beside it, of a process no longer
+    running: ``.<stem>.<pid>-<8 random>.tmp<suffix>``, and the file USD saves that one through
+    (``.<stem>.<pid>-<8 random>.tmp.<6 random>``, renamed over it when whole); nothing else."""
+    pattern = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[a-z0-9_]{{8}}\.tmp(?:{re.escape(path.suffix)}|\.[A-Za-z0-9]{{6}})")
     for p in path.parent.iterdir():
         m = pattern.fullmatch(p.name)
         if m and not p.is_symlink() and p.is_file():
