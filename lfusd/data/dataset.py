@@ -164,18 +164,24 @@ class Dataset:
         return raw[key].copy()
 
     def raw_passes(self, frame: int, view: View):
-        """The view's raw passes with its camera (the input of lfusd.truth.motion.derive_motion)."""
+        """The view's raw passes with its camera (the input of lfusd.truth.motion.derive_motion), decoded
+        on first use of an image (lfusd.data.passes.LazyRawPasses); a missing file is an error now."""
         from ..camera import Camera
-        from .passes import RawPasses
+        from .passes import LazyRawPasses, RawPasses
 
-        raw = self._raw(str(self.view_dir(frame, view)))
-        if "vector" not in raw:
-            raise LfusdError(f"{self.view_dir(frame, view) / layout.PASSES_EXR} has no vector pass; re-render with 'lfusd render-video'")
-        return RawPasses(
-            depth=raw["depth"], vector=raw["vector"], camera=Camera(self.intrinsics(view), self.cam_to_world(frame, view)),
-            position=raw["position"], instance=raw["instance"],
-            next_position=raw.get("next_position"), prev_position=raw.get("prev_position"),
-        )
+        d = str(self.view_dir(frame, view))
+        self._raw_file(d)
+        camera = Camera(self.intrinsics(view), self.cam_to_world(frame, view))
+
+        def load() -> RawPasses:
+            raw = self._raw(d)
+            if "vector" not in raw:
+                raise LfusdError(f"{Path(d) / layout.PASSES_EXR} has no vector pass; re-render with 'lfusd render-video'")
+            return RawPasses(depth=raw["depth"], vector=raw["vector"], camera=camera, position=raw["position"],
+                             instance=raw["instance"], next_position=raw.get("next_position"), prev_position=raw.get("prev_position"))
+
+        width, height = self.resolution
+        return LazyRawPasses(camera, (height, width), load)
 
     # -- internals ----------------------------------------------------------------------
     def _check_view(self, view: View) -> None:
@@ -192,11 +198,17 @@ class Dataset:
 
         return _cached(self._meta_cache, frame, 64, load)
 
-    def _raw(self, view_dir: str) -> dict[str, np.ndarray]:
+    def _raw_file(self, view_dir: str) -> Path:
+        """The view's passes.exr; an error naming the fix where a render removed it."""
         path = Path(view_dir) / layout.PASSES_EXR
         if self.version >= 2 and not path.is_file():
             raise LfusdError(f"the raw passes of {view_dir} were removed once its ground truth was written (rendered without "
                              "--keep-raw); they are needed here: render again with --keep-raw")
+        return path
+
+    def _raw(self, view_dir: str) -> dict[str, np.ndarray]:
+        path = self._raw_file(view_dir)
+
         def read():
             with cpu_account.phase("read"):
                 return passes.read_raw(path)

@@ -416,3 +416,35 @@ class RawPasses:
     @property
     def shape(self) -> tuple[int, int]:
         return tuple(self.depth.shape[:2])
+
+
+class LazyRawPasses:
+    """:class:`RawPasses` whose images are decoded on first use (``load`` returns the RawPasses).
+
+    The camera and the shape are known without decoding: a neighbouring frame whose occlusion is
+    ray-cast against its triangles needs nothing else (lfusd.truth.motion.derive_motion), so each
+    raw pass of a video is decoded once, for its own frame, not three times."""
+
+    def __init__(self, camera: Camera, shape: tuple[int, int], load: Callable[[], RawPasses]):
+        self.camera, self._shape, self._load, self._passes = camera, (int(shape[0]), int(shape[1])), load, None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self._shape
+
+    @property
+    def decoded(self) -> bool:
+        """Whether the images have been decoded."""
+        return self._passes is not None
+
+    def _images(self) -> RawPasses:
+        if self._passes is None:
+            self._passes = self._load()
+        return self._passes
+
+    depth = property(lambda self: self._images().depth)
+    vector = property(lambda self: self._images().vector)
+    position = property(lambda self: self._images().position)
+    instance = property(lambda self: self._images().instance)
+    next_position = property(lambda self: self._images().next_position)
+    prev_position = property(lambda self: self._images().prev_position)

@@ -7,9 +7,12 @@ of them the dataset has), in derivation processes ("lanes") that run beside the 
 could not be derived early (a neighbour from an earlier run, a unit on Ray) is derived at the end
 by lfusd.truth.derive.derive_dataset, as before.
 
-A view always goes to the same lane, which keeps a Dataset per recent view: the raw passes of
-t-1 and t stay decoded for frame t+1, so each raw pass is decoded once, within a memory budget
-(:data:`RAW_CACHE_BYTES` per lane); beyond it a view's passes are decoded again, never held.
+A view always goes to the same lane, which keeps a Dataset per recent view. With exact occlusion
+(geometry.npz beside the passes) the motion of t decodes t's raw passes alone: t-1's and t+1's
+only lend their cameras (lfusd.data.passes.LazyRawPasses). The image-space route of older
+datasets reads the neighbours' images too: the raw passes of t-1 and t then stay decoded for
+frame t+1 within a memory budget (:data:`RAW_CACHE_BYTES` per lane); beyond it a view's passes
+are decoded again, never held.
 """
 
 from __future__ import annotations

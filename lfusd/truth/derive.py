@@ -40,7 +40,7 @@ from ..layout import GEOMETRY, GT_FILE, MOTION_FILE, MOTION_FILE_V1, PASSES_EXR,
 
 log = logging.getLogger(__name__)
 
-RUN = 8  # frames of one view per task: the task's Dataset reads each raw pass once, bar the two at its ends
+RUN = 8  # frames of one view per task: its Dataset decodes each raw pass once (the image-space route also the two at its ends)
 REACH = 2  # a frame still to come within this many frames keeps a view's raw passes (see the module docstring)
 
 
@@ -129,7 +129,7 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
     keep = stored(_wanted(ds))
     rec = integrity.read_record(d)
     add, remove, annotate, checked = {}, [], {}, 0
-    if integrity.present(rec, PASSES_EXR) and "pixels" not in rec["files"][PASSES_EXR]:
+    if _pixels_unrecorded(rec):
         # recorded before chunk digests (integrity.file_entry): the neighbours' motion records name
         # these passes by their pixels (a re-render keeps them)
         annotate[PASSES_EXR] = {"pixels": integrity.pixels_digest(ds._raw(str(d)))}
@@ -159,10 +159,16 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
     return checked
 
 
+def _pixels_unrecorded(rec: dict) -> bool:
+    """Whether a view's record names its raw passes without the digest of their pixels (recorded
+    before lfusd.data.integrity.file_entry gave one): write_static adds it."""
+    return integrity.present(rec, PASSES_EXR) and "pixels" not in rec["files"][PASSES_EXR]
+
+
 def _static_missing(ds: Dataset, frame: int, view: View) -> bool:
     rec = integrity.read_record(ds.view_dir(frame, view))
     keep = stored(_wanted(ds))
-    if integrity.present(rec, PASSES_EXR) and "pixels" not in rec["files"][PASSES_EXR]:
+    if _pixels_unrecorded(rec):
         return True
     gt = any(KEYS[k].file == GT_FILE for k in keep) and not integrity.present(rec, GT_FILE)
     image = integrity.present(rec, RGB_EXR) and ("rgb_linear" not in keep or ("rgb" in keep and not integrity.present(rec, RGB_PNG)))
@@ -172,12 +178,15 @@ def _static_missing(ds: Dataset, frame: int, view: View) -> bool:
 def derive_if_stale(ds: Dataset, frame: int, view: View) -> bool:
     """Write one view's ground truth (gt.exr) and motion unless current (as :func:`derive_dataset`
     decides); whether it wrote. The overlapped render calls it per view as soon as t-1, t and t+1
-    are in place; its neighbours' raw-pass digests are recorded first, so that the motion's record
-    names them as :func:`derive_dataset` would (else it would be derived again at the end)."""
+    are in place. A neighbour's record without the digest of its raw passes' pixels gets it first
+    (with its static keys), so that the motion's record names them as :func:`derive_dataset` would
+    (else it would be derived again at the end); a neighbour's static keys are otherwise left to
+    its own call, which decodes its passes once for both."""
     wrote = False
     if ds.version >= 2:
         for g in (frame - 1, frame + 1, frame):
-            if (frame_dir(ds.root, ds.rig_name, g) / view_key(view) / PASSES_EXR).is_file() and _static_missing(ds, g, view):
+            passes = frame_dir(ds.root, ds.rig_name, g) / view_key(view) / PASSES_EXR
+            if passes.is_file() and (_static_missing(ds, g, view) if g == frame else _pixels_unrecorded(integrity.read_record(passes.parent))):
                 write_static(ds, g, view)
                 wrote = wrote or g == frame
     if wants_motion(ds):

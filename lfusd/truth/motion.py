@@ -342,19 +342,23 @@ def derive_motion(
     if backend not in ("numba", "numpy"):
         raise LfusdError(f"flow backend {backend!r} is not available; use 'numba' or 'numpy'")
     hw = _check(cur, "frame t")
-    if nxt is not None:
-        _check(nxt, "frame t+1", hw)
-    if prv is not None:
-        _check(prv, "frame t-1", hw)
+    # directions whose occlusion is exact ray-cast visibility (the image-space test is then not needed)
+    exact = tuple(key for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position))
+                  if other is not None and opos is not None and (occluders or {}).get(key) is not None)
+    for key, other, what in (("next", nxt, "frame t+1"), ("prev", prv, "frame t-1")):
+        if other is None:
+            continue
+        if backend == "numba" and key in exact:  # only its camera is used: its images stay undecoded (LazyRawPasses)
+            if tuple(other.shape) != hw:
+                raise LfusdError(f"{what}: the view is {other.shape[1]}x{other.shape[0]} but frame t is {hw[1]}x{hw[0]} (re-render it)")
+        else:
+            _check(other, what, hw)
     h, w = hw
     fg = foreground(cur.depth)
     out = {k: np.zeros(KEYS[k].full_shape(h, w), KEYS[k].dtype) for k in MOTION_KEYS}
     if nxt is None and prv is None:
         return out
     fb = float(cur.camera.K[0, 0]) * float(baseline) if baseline else 0.0
-    # directions whose occlusion is exact ray-cast visibility (the image-space test is then not needed)
-    exact = tuple(key for key, other, opos in (("next", nxt, cur.next_position), ("prev", prv, cur.prev_position))
-                  if other is not None and opos is not None and (occluders or {}).get(key) is not None)
     with cpu_account.phase("derive"):
         if backend == "numba":
             _derive_numba(cur, nxt, prv, fb, out, exact)

@@ -181,6 +181,70 @@ def test_poses_and_cameras_equal_the_authored_transforms(video):
             np.testing.assert_allclose(ds.cam_to_world(f, view), analytic_cam(view, f), atol=1e-6)
 
 
+def test_a_views_motion_decodes_only_its_own_raw_passes(video, tmp_path, monkeypatch):
+    """Exact occlusion reads a neighbouring frame's camera, not its images: the motion of frame t,
+    derived in a fresh process state (a derivation lane whose cache no longer holds the view),
+    decodes t's passes.exr alone, not t-1's and t+1's too, and writes the motion keys the render
+    wrote."""
+    import shutil
+
+    from lfusd.data import passes
+    from lfusd.keys import MOTION, names
+    from lfusd.truth.derive import write_motion
+
+    _, reference = video
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    decoded = []
+    read_raw = passes.read_raw
+    monkeypatch.setattr(passes, "read_raw", lambda path: decoded.append(str(path)) or read_raw(path))
+    b = Dataset(reference)
+    for f in range(1, FRAMES + 1):
+        for v in ((0, 0), (1, 2)):
+            decoded.clear()
+            write_motion(Dataset(out), f, v)
+            assert decoded == [str(Dataset(out).view_dir(f, v) / "passes.exr")], (f, v)
+            a = Dataset(out)
+            for key in names(MOTION):
+                x, y = a.read(f, v, key), b.read(f, v, key)
+                assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), (f, v, key)
+
+
+def test_a_lane_decodes_each_raw_pass_once_for_static_keys_and_motion(video, tmp_path, monkeypatch):
+    """As render-video's derivation lanes call it (a view's frames in turn, the lane's cache no longer
+    holding the view): derive_if_stale of frame t writes t's gt.exr and motion from one decoding of
+    t's passes.exr, and decodes no neighbour's; what it writes equals what the render wrote."""
+    import shutil
+
+    from lfusd.data import integrity, passes
+    from lfusd.keys import MOTION, names
+    from lfusd.truth.derive import derive_if_stale
+
+    _, reference = video
+    out = tmp_path / "out"
+    shutil.copytree(reference, out)
+    v = (2, 1)
+    for f in range(1, FRAMES + 1):  # as committed, before any derivation: no gt.exr, no motion
+        d = Dataset(out).view_dir(f, v)
+        integrity.record_files(d, remove=("gt.exr", "motion.exr"))
+        (d / "gt.exr").unlink()
+        (d / "motion.exr").unlink()
+    decoded = []
+    read_raw = passes.read_raw
+    monkeypatch.setattr(passes, "read_raw", lambda path: decoded.append(str(path)) or read_raw(path))
+    b = Dataset(reference)
+    for f in range(1, FRAMES + 1):
+        decoded.clear()
+        assert derive_if_stale(Dataset(out), f, v)
+        assert decoded == [str(Dataset(out).view_dir(f, v) / "passes.exr")], f
+    a = Dataset(out)
+    for f in range(1, FRAMES + 1):
+        assert not integrity.render_problems(a.view_dir(f, v))
+        for key in names(MOTION) + ("depth", "instance", "normal"):
+            x, y = a.read(f, v, key), b.read(f, v, key)
+            assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), (f, key)
+
+
 def test_killed_worker_resumes_to_the_same_dataset(video, tmp_path, monkeypatch, capsys):
     stage, reference = video
     out = tmp_path / "out"

@@ -162,3 +162,43 @@ def test_a_cast_that_fails_leaves_no_half_filled_memo(monkeypatch):
     whole, split = scene.derive(2), scene.derive(2, memo=memo)
     for key in MOTION_KEYS:
         assert np.array_equal(whole[key], split[key]), key
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+@pytest.mark.parametrize("aovs", [True, False], ids=["position-aovs", "no-aovs"])
+def test_a_neighbours_images_are_decoded_only_where_its_occlusion_is_not_ray_cast(backend, aovs):
+    """Ray-cast occlusion uses a neighbouring frame's camera, not its images (so a video's raw
+    passes are decoded once each): derived lazily, every key equals the eagerly decoded
+    derivation, and the neighbours' images are decoded exactly where another route reads them."""
+    from lfusd.data.passes import LazyRawPasses
+    from lfusd.truth.motion import derive_motion
+
+    scene, f = street(), 3
+    decoded = []
+
+    def lazy(g):
+        raw = scene.raw(g, aovs)
+        return LazyRawPasses(raw.camera, raw.shape, lambda: decoded.append(g) or raw)
+
+    occ = {k: scene.occluders(g) for k, g in (("next", f + 1), ("prev", f - 1), ("here", f))}
+    args = dict(baseline=scene.baseline, backend=backend, occluders=occ)
+    eager = derive_motion(scene.raw(f, aovs), scene.raw(f + 1, aovs), scene.raw(f - 1, aovs), **args)
+    got = derive_motion(scene.raw(f, aovs), lazy(f + 1), lazy(f - 1), **args)
+    for key in MOTION_KEYS:
+        assert np.array_equal(eager[key], got[key]), key
+    assert sorted(decoded) == ([] if aovs and backend == "numba" else [f - 1, f + 1])
+    if aovs and backend == "numba":
+        assert got["occlusion_fwd"].any() and got["occlusion_bwd"].any()  # the rays had something to find
+
+
+def test_a_neighbour_of_another_size_is_refused_without_decoding_it():
+    from lfusd.data.passes import LazyRawPasses
+    from lfusd.errors import LfusdError
+    from lfusd.truth.motion import derive_motion
+
+    scene, f = street(), 3
+    raw = scene.raw(f + 1)
+    small = LazyRawPasses(raw.camera, (raw.shape[0], raw.shape[1] - 1), lambda: pytest.fail("decoded"))
+    occ = {k: scene.occluders(g) for k, g in (("next", f + 1), ("here", f))}
+    with pytest.raises(LfusdError, match=r"frame t\+1: the view is 95x96 but frame t is 96x96"):
+        derive_motion(scene.raw(f), small, None, baseline=scene.baseline, occluders=occ)
