@@ -519,7 +519,7 @@ def test_the_memory_check_honours_a_container_limit(tmp_path, capsys, project):
     monkeypatch = pytest.MonkeyPatch()
     monkeypatch.setattr(request, "cgroup_memory_limit", lambda *a, **k: 256 << 20)
     try:
-        assert request._memory() == 256 << 20
+        assert request.memory_available() == 256 << 20
         code, _, err = run_cli(capsys, "render-video", project / "scene.usda", "-o", tmp_path / "out", "--resolution", "2048x2048",
                                "--device", "cpu", "--quiet")
     finally:

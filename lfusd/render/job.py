@@ -436,8 +436,9 @@ def render_video(req: RenderRequest) -> VideoResult:
     """Render a frame range (default: the stage's) with the motion AOVs and derive the motion keys
     of exactly the rigs and frames rendered (the folder may hold others): each view's frame as soon
     as it and its neighbours are committed, in ``req.workers`` derivation processes beside the
-    renderer (lfusd.render.overlap); what is left (neighbours from earlier runs, Ray units) at the end."""
-    from .overlap import MotionScheduler
+    renderer (lfusd.render.overlap.derivation_lanes of them); what is left (neighbours from earlier
+    runs, Ray units) at the end."""
+    from .overlap import MotionScheduler, derivation_lanes
 
     stage = open_stage(req.stage)
     if not req.frames:
@@ -452,7 +453,8 @@ def render_video(req: RenderRequest) -> VideoResult:
     def overlap(plan: Plan, rigs: list[StageRig], dataset_frames: list[int]) -> MotionScheduler:
         todo = {(rig, f, tuple(v)) for (rig, f), views in plan.todo.items() for v in views}
         views_of = {r.spec.name: (list(r.spec.views), (r.spec.width, r.spec.height)) for r in rigs}
-        state["scheduler"] = MotionScheduler(req.out, views_of, list(req.frames), dataset_frames, todo, lanes=req.workers)
+        state["lanes"] = derivation_lanes(req.workers, req.device, max((len(v) for v, _ in views_of.values()), default=1))
+        state["scheduler"] = MotionScheduler(req.out, views_of, list(req.frames), dataset_frames, todo, lanes=state["lanes"])
         return state["scheduler"]
 
     def finish(names: list[str]) -> None:
@@ -460,7 +462,7 @@ def render_video(req: RenderRequest) -> VideoResult:
 
         written, left = state["scheduler"].finish()
         for rig, frames in sorted(left.items()):
-            written += derive_dataset(req.out, [rig], frames, workers=req.workers, lock=False)  # _render holds the lock
+            written += derive_dataset(req.out, [rig], frames, workers=state["lanes"], lock=False)  # _render holds the lock
         drop_raw_near(req.out, names, req.frames)  # the views derived early kept their raw passes
         state["derived"] = written
 

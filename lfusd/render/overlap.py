@@ -38,6 +38,36 @@ RAW_BYTES_PER_PIXEL = request.RAW_BYTES_PER_PIXEL[True]
 RAW_CACHE_BYTES = 1 << 30  # per lane: at 512x512 about 14 views' windows, at 1024x1024 3
 RAW_PER_VIEW = 4  # a Dataset keeps its 4 most recent raw passes (t-1, t, t+1 and the one before)
 
+# A lane's memory at 1024x1024, rounded up: the static memo of its views (lfusd.truth.visibility,
+# 30 bytes per pixel a view), RAW_CACHE_BYTES at most, and one view's derivation (about 0.5 GB).
+LANE_BYTES = 2 << 30
+
+
+def derivation_lanes(workers: int, device: str, views: int, cores: int | None = None, memory: int | None = None) -> int:
+    """How many derivation processes render-video runs beside ``workers`` Blender workers.
+
+    On the CPU the renderer has the cores: one lane per worker. On a GPU (``device`` cuda or optix,
+    or auto where the machine has an NVIDIA device) a lane keeps up with about 1.5 views per second
+    at 1024x1024 (0.6 core-s each), slower than the GPU renders, so lanes take the cores the
+    workers leave (less one, for the parent's commits), at most one per view of a frame (a view
+    stays on one lane) and one per :data:`LANE_BYTES` of half the memory; never fewer than the workers."""
+    if device == "cpu" or (device == "auto" and not nvidia_device()):
+        return max(1, workers)
+    if cores is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if memory is None:
+        from .request import memory_available
+
+        memory = memory_available()
+    fit = (memory // 2) // LANE_BYTES if memory else 1
+    return max(1, workers, min(cores - workers - 1, views, fit))
+
+
+def nvidia_device() -> bool:
+    """Whether the NVIDIA driver shows a device here (what Blender's auto device turns to CUDA or OptiX)."""
+    return any(os.path.exists(p) for p in ("/dev/nvidiactl", "/proc/driver/nvidia/gpus"))
+
+
 View = tuple[int, int]
 _DATASETS: OrderedDict = OrderedDict()  # in a lane: (root, rig, view) -> Dataset, most recent last
 

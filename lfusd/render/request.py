@@ -96,7 +96,7 @@ def _free_disk(path: Path) -> int | None:
         return None
 
 
-def _memory() -> int | None:
+def memory_available() -> int | None:
     """The memory this process may use: the machine's, or less where a container's (cgroup) limit is lower."""
     try:
         ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
@@ -168,7 +168,7 @@ def check_size(req: RenderRequest, rigs: list[tuple[str, int, int, int]], frames
     if req.force:
         return
     disk, memory = size_estimate(rigs, len(frames), req.motion, req.workers if req.executor == "local" else 1, req.keep_raw)
-    free, ram = _free_disk(req.out), _memory()
+    free, ram = _free_disk(req.out), memory_available()
     what = ", ".join(f"{name} {views} views of {w}x{h}" for name, views, w, h in rigs)
     if ram is not None and memory > ram:
         raise LfusdError(f"rendering {what} needs about {_gb(memory)} of memory (this machine has {_gb(ram)}); "

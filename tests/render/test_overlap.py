@@ -126,3 +126,35 @@ def test_the_scene_is_evaluated_once_per_neighbour_frame(renders, caplog):
     _, events = _render(renders, "evaluations", caplog)
     needed = {g for f in FRAMES for g in (f - 1, f + 1) if g in FRAMES}  # the stage holds frames 1-3 only
     assert max(e for _, _, e in events) == len(needed)
+
+
+def test_derivation_lanes_take_the_cores_a_gpu_render_leaves_within_memory():
+    from lfusd.render.overlap import LANE_BYTES, derivation_lanes
+
+    gib = 1 << 30
+    # the CPU renders: one lane per Blender worker, whatever the machine
+    assert derivation_lanes(1, "cpu", 81, cores=16, memory=128 * gib) == 1
+    assert derivation_lanes(3, "cpu", 81, cores=16, memory=128 * gib) == 3
+    # a GPU: the cores the workers and the parent leave
+    for device in ("cuda", "optix"):
+        assert derivation_lanes(1, device, 81, cores=16, memory=128 * gib) == 14
+    assert derivation_lanes(2, "optix", 81, cores=16, memory=128 * gib) == 13
+    # at most a lane per view of a frame, per LANE_BYTES of half the memory, never fewer than the workers
+    assert derivation_lanes(1, "optix", 9, cores=64, memory=512 * gib) == 9
+    assert derivation_lanes(1, "optix", 81, cores=64, memory=8 * LANE_BYTES) == 4
+    assert derivation_lanes(1, "optix", 81, cores=2, memory=128 * gib) == 1
+    assert derivation_lanes(4, "optix", 81, cores=4, memory=gib) == 4
+
+
+
+def test_derivation_lanes_on_auto_follow_the_machine_and_stay_one_per_worker_where_the_memory_is_unknown(monkeypatch):
+    from lfusd.render import overlap, request
+    from lfusd.render.overlap import derivation_lanes
+
+    gib = 1 << 30
+    for gpu, lanes in ((False, 1), (True, 14)):  # auto renders where Blender finds CUDA/OptiX, else on the CPU
+        monkeypatch.setattr(overlap, "nvidia_device", lambda: gpu)
+        assert derivation_lanes(1, "auto", 81, cores=16, memory=128 * gib) == lanes
+
+    monkeypatch.setattr(request, "memory_available", lambda: None)
+    assert derivation_lanes(2, "cuda", 81, cores=16) == 2
