@@ -432,11 +432,6 @@ class LazyRawPasses:
     def shape(self) -> tuple[int, int]:
         return self._shape
 
-    @property
-    def decoded(self) -> bool:
-        """Whether the images have been decoded."""
-        return self._passes is not None
-
     def _images(self) -> RawPasses:
         if self._passes is None:
             self._passes = self._load()
