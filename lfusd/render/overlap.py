@@ -53,12 +53,8 @@ def derivation_lanes(workers: int, device: str, views: int, cores: int | None = 
     stays on one lane) and one per :data:`LANE_BYTES` of half the memory; never fewer than the workers."""
     if device == "cpu" or (device == "auto" and not nvidia_device()):
         return max(1, workers)
-    if cores is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    if memory is None:
-        from .request import memory_available
-
-        memory = memory_available()
+    cores = request.usable_cores() if cores is None else cores
+    memory = request.memory_available() if memory is None else memory
     fit = (memory // 2) // LANE_BYTES if memory else 1
     return max(1, workers, min(cores - workers - 1, views, fit))
 

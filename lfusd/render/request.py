@@ -75,7 +75,7 @@ class RenderRequest:
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        cores = usable_cores()
         if self.executor == "local" and self.workers and self.workers > cores:
             log.warning("--workers %d is more than this machine's %d CPU cores; using %d", self.workers, cores, cores)
             return replace(self, workers=cores)
@@ -94,6 +94,11 @@ def _free_disk(path: Path) -> int | None:
         return shutil.disk_usage(p).free
     except OSError:
         return None
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the system has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def memory_available() -> int | None:
