@@ -58,7 +58,7 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
                      if other is not None}
         occluders["here"] = occluders_of(ds, frame, view)
         cur = ds.raw_passes(frame, view)
-        memo = memo_for((str(ds.root), ds.rig_name, tuple(view)), *cur.depth.shape) if occluders["here"] is not None else None
+        memo = memo_for((str(ds.root), ds.rig_name, tuple(view)), *cur.shape) if occluders["here"] is not None else None
         return derive_motion(cur, nxt, prv, baseline=ds.baseline, occluders=occluders, memo=memo)
     except LfusdError as e:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
