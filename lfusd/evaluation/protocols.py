@@ -44,7 +44,8 @@ over pixels visible / not visible at t+1. A non-finite prediction makes EPE non-
 
 ``spring`` -- Spring benchmark (spring-benchmark.org; cv-stuttgart/springwebsite
 ``springeval/management/commands/evaluation.py``), pooled over all pixels of all images with
-ground truth: flow ``epe_px``, ``fl_pct`` (EPE > 3 and > 5 % of |gt|), ``epe_gt_1px_pct``;
+ground truth (disparity: pixels with a surface; lfusd's disparity 0 of the sky is NaN, no ground
+truth, in ``lfusd export spring`` and here alike, :func:`lfusd.exports.spring.spring_disparity`): flow ``epe_px``, ``fl_pct`` (EPE > 3 and > 5 % of |gt|), ``epe_gt_1px_pct``;
 disparity ``abs_px``, ``d1_pct``, ``epe_gt_1px_pct`` (differences taken in float32 as Spring
 does); scene flow ``sf_pct`` (outlier in d1, d2 or fl) and ``sf_epe_gt_1px_pct``. Spring's ground
 truth is 2x the image resolution and it takes the smallest error of the 4 sub-pixels; lfusd's is
@@ -402,6 +403,8 @@ def _spring_f_out(epe, gt16):
 
 
 def _spring(task, pred, truth):
+    from ..exports.spring import spring_disparity
+
     tally: Tally = {}
     with np.errstate(invalid="ignore", over="ignore"):
         if task == "flow":
@@ -417,7 +420,7 @@ def _spring(task, pred, truth):
         elif task == "disparity":
             p = np.asarray(pred)
             _spring_no_nan("disparity", _f64(p))
-            gt = np.asarray(truth["disparity"])
+            gt = spring_disparity(truth["disparity"])  # the sky has no ground truth, as in the export
             _same_shape("disparity", _f64(p), _f64(gt))
             epe = _spring_disp_epe(_f16(gt), _f16(p))
             n = int((~np.isnan(epe)).sum())
@@ -430,8 +433,9 @@ def _spring(task, pred, truth):
             valid = np.asarray(truth["valid"], bool)
             # the submission is stored as float16, then np.nan_to_num'd (evaluate_submission_sceneflow)
             d1p, d2p, fp = (np.nan_to_num(_f16(pred[k])) for k in ("disp", "disp2", "flow"))
-            g1 = _f16(truth["disparity"])
-            g2 = _f16(np.where(valid, _f64(truth["disparity2"]), np.nan))
+            d1 = spring_disparity(truth["disparity"])  # the sky has no ground truth, as in the export
+            g1 = _f16(d1)
+            g2 = _f16(np.where(valid & np.isfinite(d1), _f64(truth["disparity2"]), np.nan))
             gf = _f16(np.where(valid[..., None], _f64(truth["flow"]), np.nan))
             for what, a, b in (("disp", d1p, g1), ("disp2", d2p, g2), ("flow", fp, gf)):
                 _same_shape(f"scene flow {what}", a, b)

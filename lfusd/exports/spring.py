@@ -20,6 +20,15 @@ def _spring_path(sd: Path, kind: str, cam: str, i: int, ext: str) -> Path:
     return folder / f"{kind}_{cam}_{i:04d}.{ext}"
 
 
+def spring_disparity(disparity) -> np.ndarray:
+    """Disparity as the Spring layout stores it: NaN where there is no surface (lfusd's 0 for the
+    sky, which Spring leaves without ground truth). ``lfusd eval --protocol spring`` scores the same
+    pixels, so the official code on an export and ``lfusd eval`` on the dataset agree."""
+    d = np.asarray(disparity, np.float32)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(d) & (d > 0), d, np.float32(np.nan))
+
+
 def _spring_gt(a: np.ndarray) -> np.ndarray:
     """Spring's ground truth has twice the image resolution per axis and its loaders take
     ``gt[::2, ::2]``: each pixel's value fills its 2x2 block (lfusd's GT is at pixel centres)."""
@@ -52,9 +61,9 @@ def export_spring(ds, dest, frame: int | None = None) -> Path:
                 return _spring_path(sd, kind, cam, i, ext)
 
             formats.write_png(out("frame", "png"), ds.read(t, view, "rgb"))
-            d = np.asarray(ds.read(t, view, "disparity"), np.float32)
-            known = np.isfinite(d) & (d > 0)
-            formats.write_dsp5(out("disp1", "dsp5"), _spring_gt(np.where(known, d, np.nan)))
+            d = spring_disparity(ds.read(t, view, "disparity"))
+            known = np.isfinite(d)
+            formats.write_dsp5(out("disp1", "dsp5"), _spring_gt(d))
             for key, step, kind in (("fwd", 1, "FW"), ("bwd", -1, "BW")):
                 if t + step not in frames:
                     continue

@@ -389,6 +389,74 @@ def test_spring_refuses_nan_and_protocol_task_errors():
         protocols.check("hci", "views")
 
 
+class SkyFake(FakeDataset):
+    """The analytic scene with sky in its top rows, as lfusd stores it: depth inf, disparity 0,
+    instance 0, no motion ground truth."""
+
+    SKY_ROWS = 6
+
+    def read(self, frame, view, key):
+        a = super().read(frame, view, key)
+        fill = {"depth": np.inf, "disparity": 0.0, "instance": 0, "semantic": 0, "valid_fwd": False, "valid_bwd": False,
+                "flow_fwd": np.nan, "flow_bwd": np.nan, "scene_flow": np.nan, "disparity_change": np.nan}
+        if key in fill:
+            a[: self.SKY_ROWS] = fill[key]
+        return a
+
+
+def test_spring_protocol_equals_the_official_code_on_the_spring_export(tmp_path):
+    """Issue 39.10: Spring's evaluation.py run on the files of `lfusd export spring` (NaN in the sky)
+    and `lfusd eval --protocol spring` on the dataset give the same numbers, sky predicted or not."""
+    from lfusd.data import formats
+    from lfusd.exports.spring import export_spring
+
+    ds = SkyFake(root="/data/skyscene", rows=1, cols=3, width=24, height=20, frames=(1, 2, 3))
+    sd = export_spring(ds, tmp_path / "spring")
+    c = ds.rig.centre_view
+    load = lambda kind, i, ext: getattr(formats, f"read_{ext}")(sd / f"{kind}_left" / f"{kind}_left_{i:04d}.{ext}")[::2, ::2]  # noqa: E731  Spring's loader
+    disp_dir, sf_dir = tmp_path / "d", tmp_path / "s"
+    disp_dir.mkdir(), sf_dir.mkdir()
+    subs, gts, sf = [], [], {"s0": [], "s1": [], "sf": [], "g0": [], "g1": [], "gf": []}
+    for i, t in enumerate(ds.frames, start=1):
+        stem = f"{t:04d}_{c[0]:02d}_{c[1]:02d}"
+        d = ds.read(t, c, "disparity")
+        p = noisy(d, 50 + t, 2.0)
+        p[: SkyFake.SKY_ROWS] = 5.0  # a prediction in the sky: no ground truth there, so not scored
+        formats.write_pfm(disp_dir / f"{stem}.pfm", p)
+        subs.append(p)
+        gts.append(load("disp1", i, "dsp5"))
+        if t + 1 not in ds.frames:
+            continue
+        d2 = np.nan_to_num(d + ds.read(t, c, "disparity_change"))
+        fl = np.nan_to_num(ds.read(t, c, "flow_fwd"))
+        p2, pf = noisy(d2, 60 + t, 2.0), noisy(fl, 70 + t, 2.5)
+        p2[: SkyFake.SKY_ROWS], pf[: SkyFake.SKY_ROWS] = 4.0, 1.0
+        np.save(sf_dir / f"{stem}.npy", np.zeros(d.shape + (3,), np.float32))
+        formats.write_pfm(sf_dir / f"{stem}_disp.pfm", p)
+        formats.write_pfm(sf_dir / f"{stem}_disp2.pfm", p2)
+        formats.write_flo(sf_dir / f"{stem}_flow.flo", pf)
+        sf["s0"].append(p), sf["s1"].append(p2), sf["sf"].append(pf)
+        sf["g0"].append(gts[-1]), sf["g1"].append(load("disp2_FW", i, "dsp5")), sf["gf"].append(load("flow_FW", i, "flo5"))
+    assert np.isnan(gts[0][: SkyFake.SKY_ROWS]).all() and np.isfinite(gts[0][SkyFake.SKY_ROWS :]).all()
+    ref = spring_disp(subs, gts)
+    got = evaluate(ds, disp_dir, "disparity", protocol="spring")
+    assert_close(got.summary, ref)
+    assert got.summary["pixels"] == 3 * 24 * (20 - SkyFake.SKY_ROWS)
+    # scene flow: evaluation.py get_errors_sceneflow on the export's disp1, disp2_FW and flow_FW
+    f16 = lambda xs, shape: np.concatenate([np.asarray(x).reshape(shape) for x in xs]).astype(np.float16)  # noqa: E731
+    s0, s1, sfp = (np.nan_to_num(f16(sf[k], sh)) for k, sh in (("s0", -1), ("s1", -1), ("sf", (-1, 2))))
+    g0, g1, gf = f16(sf["g0"], -1), f16(sf["g1"], -1), f16(sf["gf"], (-1, 2))
+    e0 = np.abs(g0.astype(np.float32) - s0.astype(np.float32)).astype(np.float64)
+    e1 = np.abs(g1.astype(np.float32) - s1.astype(np.float32)).astype(np.float64)
+    ef = np.linalg.norm((gf - sfp).astype(np.float64), axis=-1)
+    with np.errstate(invalid="ignore"):
+        out = ((e0 > 3) & (e0 > 0.05 * np.abs(g0))) | ((e1 > 3) & (e1 > 0.05 * np.abs(g1))) | ((ef > 3) & (ef > 0.05 * np.linalg.norm(gf.astype(np.float64), axis=-1)))
+    n = (~np.isnan(e0 + e1 + ef)).sum()
+    got = evaluate(ds, sf_dir, "sceneflow", protocol="spring")
+    assert_close(got.summary, {"sf_pct": 100 * out.sum() / n, "sf_epe_gt_1px_pct": 100 * ((e0 > 1) | (e1 > 1) | (ef > 1)).sum() / n})
+    assert got.summary["pixels"] == n and 0 < got.summary["sf_pct"] < 100
+
+
 # ---- the rendered portrait dataset -------------------------------------------------------------------
 
 
@@ -467,8 +535,9 @@ def test_portrait_hci_and_spring_disparity(portrait, tmp_path):
         formats.write_pfm(clean / f"0001_{v[0]:02d}_{v[1]:02d}.pfm", p)
         subs.append(p)
     scores = evaluate(out, clean, "disparity", protocol="spring")
-    assert_close(scores.summary, spring_disp(subs, [gts[v] for v in VIEWS]))
-    assert scores.summary["pixels"] == 3 * 40 * 56 and all(v == "pooled" for v in scores.aggregation.values())
+    known = {v: np.where(gts[v] > 0, gts[v], np.nan) for v in VIEWS}  # as the Spring export stores it: no sky
+    assert_close(scores.summary, spring_disp(subs, [known[v] for v in VIEWS]))
+    assert scores.summary["pixels"] == sum(int(np.isfinite(known[v]).sum()) for v in VIEWS) and all(v == "pooled" for v in scores.aggregation.values())
 
 
 @pytest.mark.render
@@ -651,8 +720,8 @@ def test_portrait_sceneflow_views_and_native(portrait, tmp_path):
     # Spring: evaluation.py get_errors_sceneflow (nan_to_num of the submission)
     # (ground truth and submissions stored as float16, as Spring's pipeline does)
     s0, s1, sf = (np.nan_to_num(x.astype(np.float16)) for x in (p0, p1, pf))
-    g0 = g0.astype(np.float16)
-    G2 = np.where(valid, g1, np.nan).astype(np.float16)
+    G2 = np.where(valid & (g0 > 0), g1, np.nan).astype(np.float16)  # the export's disp2_FW: no sky
+    g0 = np.where(g0 > 0, g0, np.nan).astype(np.float16)  # the export's disp1: no sky
     GF = np.where(valid[..., None], gf, np.nan).astype(np.float16)
     d1e = np.abs(g0.astype(np.float32) - s0.astype(np.float32)).astype(np.float64)
     d2e = np.abs(G2.astype(np.float32) - s1.astype(np.float32)).astype(np.float64)
