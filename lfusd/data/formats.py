@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import LfusdError
 
 FLO_MAGIC = 202021.25
+FLO_UNKNOWN_THRESH = 1e9  # Middlebury flowIO: a component with |value| > 1e9 marks unknown flow
 KITTI_FLOW_SCALE = 64.0
 KITTI_DISP_SCALE = 256.0
 
@@ -126,8 +127,9 @@ def write_flo(path, flow) -> None:
         fh.write(np.ascontiguousarray(f).astype("<f4").tobytes())
 
 
-def read_flo(path) -> np.ndarray:
-    """Read a Middlebury .flo file into (H,W,2) float32."""
+def read_flo(path, unknown_as_nan: bool = False) -> np.ndarray:
+    """Read a Middlebury .flo file into (H,W,2) float32; with ``unknown_as_nan`` the pixels the
+    format flags unknown (a component beyond :data:`FLO_UNKNOWN_THRESH`) read as NaN."""
     data = _need(path).read_bytes()
     if len(data) < 12 or np.frombuffer(data[:4], "<f4")[0] != np.float32(FLO_MAGIC):
         raise LfusdError(f"{path} is not a Middlebury .flo file (no PIEH tag); give a .flo file")
@@ -135,7 +137,10 @@ def read_flo(path) -> np.ndarray:
     body = data[12 : 12 + 8 * w * h]
     if len(body) != 8 * w * h:
         raise LfusdError(f"{path} is truncated; rewrite the file")
-    return np.frombuffer(body, "<f4").reshape(h, w, 2).astype(np.float32)
+    flow = np.frombuffer(body, "<f4").reshape(h, w, 2).astype(np.float32)
+    if unknown_as_nan:
+        flow[np.any(np.abs(flow) > FLO_UNKNOWN_THRESH, axis=-1)] = np.nan
+    return flow
 
 
 # ---- KITTI 16-bit PNGs -------------------------------------------------------------------------

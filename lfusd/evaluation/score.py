@@ -4,7 +4,8 @@ Predictions are files in DIR named by frame and view, ``<frame:04d>_<row:02d>_<c
 (e.g. ``0001_04_04.pfm``), the names `lfusd export` uses:
 
 - disparity: ``.pfm``, ``.npy`` (H,W) or a KITTI 16-bit ``.png`` disparity in pixels per baseline step;
-- flow: ``.flo``, ``.npy`` (H,W,2) or a KITTI 16-bit ``.png`` forward flow (t -> t+1);
+- flow: ``.flo`` (pixels flagged unknown, beyond 1e9, are missing predictions, like NaN in
+  ``.npy``), ``.npy`` (H,W,2) or a KITTI 16-bit ``.png`` forward flow (t -> t+1);
 - sceneflow: ``.npy`` (H,W,3) world-frame displacement in metres (t -> t+1); with
   ``<stem>_disp.{pfm,npy}`` (disparity at t), ``<stem>_disp2.{pfm,npy}`` (disparity at t+1 of the
   point seen at t) and ``<stem>_flow.{flo,npy}`` beside it the KITTI d1/d2/fl/sf outliers are added;
@@ -45,7 +46,7 @@ def _load(path: Path, what: str) -> np.ndarray:
         if ext == ".pfm":
             return formats.read_pfm(path)
         if ext == ".flo":
-            return formats.read_flo(path)
+            return formats.read_flo(path, unknown_as_nan=True)  # a hole is a missing prediction, not a 1e10-px one
         if ext == ".npy":
             return np.load(path, allow_pickle=False)
         if ext == ".png":

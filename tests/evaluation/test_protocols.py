@@ -457,6 +457,32 @@ def test_spring_protocol_equals_the_official_code_on_the_spring_export(tmp_path)
     assert got.summary["pixels"] == n and 0 < got.summary["sf_pct"] < 100
 
 
+@pytest.mark.parametrize("protocol", ["kitti", "lfusd", "sintel"])
+def test_flo_unknown_flag_is_a_missing_prediction_like_nan(tmp_path, protocol):
+    """Issue 39.11: the same predictions as .npy with NaN holes and as .flo with Middlebury's
+    unknown flag (1e10, what `lfusd export flo` writes) score the same."""
+    from lfusd.data import formats
+    from lfusd.exports.flo import UNKNOWN_FLOW
+
+    ds = FakeDataset(root="/data/floscene", rows=1, cols=3, width=24, height=20, frames=(1, 2))
+    c = ds.rig.centre_view
+    stem = f"0001_{c[0]:02d}_{c[1]:02d}"
+    p = noisy(ds.read(1, c, "flow_fwd"), 80, 1.0, nan_rows=(7,), nan_pixels=((3, 4), (12, 20)))
+    (tmp_path / "npy").mkdir(), (tmp_path / "flo").mkdir()
+    np.save(tmp_path / "npy" / f"{stem}.npy", p)
+    holes = np.where(np.isnan(p), np.float32(UNKNOWN_FLOW), p)
+    holes[3, 4, 1] = -UNKNOWN_FLOW  # one component beyond the threshold is enough (flowIO's unknown_flow)
+    holes[3, 4, 0] = 0.5
+    formats.write_flo(tmp_path / "flo" / f"{stem}.flo", holes)
+    a = evaluate(ds, tmp_path / "npy", "flow", protocol=protocol).summary
+    b = evaluate(ds, tmp_path / "flo", "flow", protocol=protocol).summary
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k] == b[k] or close(b[k], a[k]), (k, b[k], a[k])
+    if protocol == "kitti":
+        assert a["density_pct"] < 100 and a["fl_all_occ_pct"] < 50  # the holes are filled, not 1e10-px errors
+
+
 # ---- the rendered portrait dataset -------------------------------------------------------------------
 
 
