@@ -28,7 +28,10 @@ share of ground-truth pixels predicted. Outlier: error > 3 px and error / |gt| >
 ``fl_all_occ_pct`` / ``fl_all_noc_pct`` (flow_occ: every pixel with ground truth; flow_noc: those
 not occluded at t+1), ``d1_all_occ_pct``, ``d2_all_occ_pct``, ``sf_all_occ_pct`` (outlier in d1,
 d2 or fl, over pixels valid in all three) and their ``_noc`` versions where noc ground truth
-exists, all pooled over the set as the devkit accumulates them; ``epe_occ_px`` is RAFT's
+exists, and, as the devkit's ``bg`` / ``fg`` columns, each of them over the background
+(``obj_map`` 0) and the foreground (``obj_map`` > 0: objects that move,
+:func:`lfusd.exports.kitti.kitti_object_map`) as ``d1_bg_occ_pct``, ``d1_fg_occ_pct``, ...; all
+pooled over the set as the devkit accumulates them; ``epe_occ_px`` is RAFT's
 ``kitti-epe``: per-image mean EPE over flow_occ, then the mean over images. Ground truth: a
 dataset gives the masks ``lfusd export kitti`` writes, unrounded; a KITTI folder
 (``--gt DEST/training``) gives the exported PNGs, rounded to 1/64 px (flow) and 1/256 px
@@ -297,8 +300,17 @@ def kitti_masks(truth: dict) -> dict:
     return out
 
 
+def _kitti_outliers(tally: Tally, metric: str, area: str, err, mask, fg) -> None:
+    """The devkit's bg / fg / all outlier rates of ``metric`` over ``mask`` (``fg``: obj_map > 0)."""
+    if fg is not None:
+        tally[f"{metric}_bg_{area}_pct"] = _pooled(err[mask & ~fg].sum(), (mask & ~fg).sum(), 100)
+        tally[f"{metric}_fg_{area}_pct"] = _pooled(err[mask & fg].sum(), (mask & fg).sum(), 100)
+    tally[f"{metric}_all_{area}_pct"] = _pooled(err[mask].sum(), mask.sum(), 100)
+
+
 def _kitti(task, pred, truth):
     k = kitti_masks(truth)
+    fg = np.asarray(truth["obj_map"]) > 0 if truth.get("obj_map") is not None else None
     tally: Tally = {}
     extra = {}
     if task == "flow":
@@ -307,8 +319,8 @@ def _kitti(task, pred, truth):
         _same_shape("KITTI flow", est, gt)
         dist, err = _kitti_flow_err(np.where(k["flow_occ"][..., None], gt, 0.0), est)
         occ, noc = k["flow_occ"], k["flow_noc"]
-        tally["fl_all_occ_pct"] = _pooled(err[occ].sum(), occ.sum(), 100)
-        tally["fl_all_noc_pct"] = _pooled(err[noc].sum(), noc.sum(), 100)
+        _kitti_outliers(tally, "fl", "occ", err, occ, fg)
+        _kitti_outliers(tally, "fl", "noc", err, noc, fg)
         tally["density_pct"] = _pooled((orig & occ).sum(), occ.sum(), 100)
         extra["epe_occ_px"] = float(dist[occ].mean()) if occ.any() else float("nan")  # RAFT: per-image mean
         n = int(occ.sum())
@@ -318,9 +330,9 @@ def _kitti(task, pred, truth):
         _same_shape("KITTI disparity", est, gt)
         err = _kitti_disp_err(gt, est)
         occ = k["disp0_occ"]
-        tally["d1_all_occ_pct"] = _pooled(err[occ].sum(), occ.sum(), 100)
+        _kitti_outliers(tally, "d1", "occ", err, occ, fg)
         if k.get("disp0_noc") is not None:
-            tally["d1_all_noc_pct"] = _pooled(err[k["disp0_noc"]].sum(), k["disp0_noc"].sum(), 100)
+            _kitti_outliers(tally, "d1", "noc", err, k["disp0_noc"], fg)
         tally["density_pct"] = _pooled((orig & occ).sum(), occ.sum(), 100)
         n = int(occ.sum())
     else:
@@ -337,12 +349,11 @@ def _kitti(task, pred, truth):
         for area in ("occ", "noc"):
             m0, m1, mf = k[f"disp0_{area}"], k[f"disp1_{area}"], k[f"flow_{area}"]
             if m0 is not None:
-                tally[f"d1_all_{area}_pct"] = _pooled(err0[m0].sum(), m0.sum(), 100)
-            tally[f"d2_all_{area}_pct"] = _pooled(err1[m1].sum(), m1.sum(), 100)
-            tally[f"fl_all_{area}_pct"] = _pooled(errf[mf].sum(), mf.sum(), 100)
+                _kitti_outliers(tally, "d1", area, err0, m0, fg)
+            _kitti_outliers(tally, "d2", area, err1, m1, fg)
+            _kitti_outliers(tally, "fl", area, errf, mf, fg)
             if m0 is not None:
-                m = m0 & m1 & mf
-                tally[f"sf_all_{area}_pct"] = _pooled((err0 | err1 | errf)[m].sum(), m.sum(), 100)
+                _kitti_outliers(tally, "sf", area, err0 | err1 | errf, m0 & m1 & mf, fg)
         n = int((k["disp0_occ"] & k["disp1_occ"] & k["flow_occ"]).sum())
     return _rows_from(tally, extra) | {"pixels": n}, tally
 

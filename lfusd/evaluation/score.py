@@ -105,6 +105,17 @@ def dataset_truth(ds, frame: int, view, task: str) -> dict:
     return t
 
 
+def _object_map(ds, frame: int, view) -> np.ndarray | None:
+    """KITTI's obj_map of (frame, frame + 1), or None for a dataset without motion keys (a still
+    render has no moving objects to split off; its scores then have no bg / fg columns)."""
+    from ..exports.kitti import kitti_object_map
+
+    try:
+        return kitti_object_map(ds, frame, view)
+    except LfusdError:
+        return None
+
+
 def _evaluate_export(fmt, root: Path, pred: Path, task: str, protocol: str) -> Scores:
     """Score predictions in the benchmark's submission layout against an export that ``fmt`` reads
     back (its :class:`lfusd.exports.registry.Reader`): the ground truth as the official pipeline sees it."""
@@ -183,8 +194,11 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
             fl = _companion(path, "_flow", (".flo", ".npy"))
             both = d1 and d2 and fl
             p = {"sceneflow": p, "disp": _load(d1, "disparity") if both else None, "disp2": _load(d2, "disparity") if both else None, "flow": _load(fl, "flow") if both else None}
+        truth = dataset_truth(ds, frame, view, task)
+        if protocol == "kitti" and frame + 1 in ds.frames:  # the devkit's bg / fg split: the obj_map `lfusd export kitti` writes
+            truth["obj_map"] = _object_map(ds, frame, view)
         try:
-            res, tally = protocols.score(protocol, task, p, dataset_truth(ds, frame, view, task))
+            res, tally = protocols.score(protocol, task, p, truth)
         except LfusdError as e:
             raise LfusdError(f"{path.name}: {e}") from None
         rows.append({"scene": scene_name(ds), "frame": frame, "row": view[0], "col": view[1], **res})

@@ -113,6 +113,8 @@ def kitti_truth(root: Path, name: str, task: str) -> dict:
     if task == "sceneflow":
         t["disp1"], t["disp1_occ"] = disp("disp_occ_1")
         t["disp1_noc"] = disp("disp_noc_1")[1]
+    if (root / "obj_map" / name).is_file():  # the devkit's bg / fg split
+        t["obj_map"] = formats.read_png(root / "obj_map" / name)
     return t
 
 

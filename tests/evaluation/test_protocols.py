@@ -483,6 +483,56 @@ def test_flo_unknown_flag_is_a_missing_prediction_like_nan(tmp_path, protocol):
         assert a["density_pct"] < 100 and a["fl_all_occ_pct"] < 50  # the holes are filled, not 1e10-px errors
 
 
+def test_kitti_protocol_has_the_devkit_background_and_foreground_columns(tmp_path):
+    """Issue 39.13: evaluate_scene_flow.cpp splits every outlier rate by obj_map (0 background,
+    > 0 foreground): D1-bg / D1-fg / D1-all, Fl-bg / Fl-fg / Fl-all; the same numbers from the
+    export (obj_map/ PNG read by the spec) and from the dataset."""
+    from lfusd.exports.kitti import export_kitti
+
+    ds = FakeDataset(root="/data/kittifg", rows=1, cols=3, width=24, height=20, frames=(1, 2, 3))
+    tr = export_kitti(ds, tmp_path / "kitti")
+    pred = tmp_path / "sub"
+    (pred / "flow").mkdir(parents=True), (pred / "disp_0").mkdir()
+    c = ds.rig.centre_view
+    acc = Acc()
+    for i, t in enumerate((1, 2)):
+        name = f"{i:06d}_10"
+        fp = noisy(ds.read(t, c, "flow_fwd"), 90 + t, 3.0, nan_pixels=((4, 4),))
+        dp = noisy(ds.read(t, c, "disparity"), 95 + t, 3.0)
+        np.save(pred / "flow" / f"{name}.npy", fp), np.save(pred / "disp_0" / f"{name}.npy", dp)
+        fg = read_png_spec(tr / "obj_map" / f"{name}.png") > 0
+        f = read_png_spec(tr / "flow_occ" / f"{name}.png").astype(np.float64)
+        gf, occ = (f[..., :2] - 2**15) / 64.0, f[..., 2] > 0
+        d = read_png_spec(tr / "disp_occ_0" / f"{name}.png").astype(np.float64)
+        gd, docc = d / 256.0, d > 0
+        ef, _ = devkit_flow_pred(fp.astype(np.float64))
+        ed, _ = devkit_disp_pred(dp.astype(np.float64))
+        for (y, x) in zip(*np.nonzero(occ)):
+            part = "fg" if fg[y, x] else "bg"
+            bad = f_err(gf[y, x], ef[y, x])[1]
+            acc.add(f"fl_{part}_occ_pct", bad, 1), acc.add("fl_all_occ_pct", bad, 1)
+        for (y, x) in zip(*np.nonzero(docc)):
+            part = "fg" if fg[y, x] else "bg"
+            bad = d_err(gd[y, x], ed[y, x])
+            acc.add(f"d1_{part}_occ_pct", bad, 1), acc.add("d1_all_occ_pct", bad, 1)
+    ref = acc.pct()
+    assert {"fl_bg_occ_pct", "fl_fg_occ_pct", "d1_bg_occ_pct", "d1_fg_occ_pct"} <= ref.keys()
+    assert 0 < ref["fl_fg_occ_pct"] < 100 and 0 < ref["d1_bg_occ_pct"] < 100
+    flow_ref = {k: v for k, v in ref.items() if k.startswith("fl_")}
+    disp_ref = {k: v for k, v in ref.items() if k.startswith("d1_")}
+    assert_close(evaluate(tr, pred, "flow", protocol="kitti").summary, flow_ref)
+    assert_close(evaluate(tr, pred, "disparity", protocol="kitti").summary, disp_ref)
+    # the dataset itself (unrounded ground truth): the same split, so the same columns
+    for task, folder, ext in (("flow", "flow", "npy"), ("disparity", "disp_0", "npy")):
+        ddir = tmp_path / f"ds_{task}"
+        ddir.mkdir()
+        for i, t in enumerate((1, 2)):
+            (ddir / f"{t:04d}_{c[0]:02d}_{c[1]:02d}.{ext}").write_bytes((pred / folder / f"{i:06d}_10.{ext}").read_bytes())
+        got = evaluate(ds, ddir, task, protocol="kitti").summary
+        want = flow_ref if task == "flow" else disp_ref
+        assert_close(got, want, tol=0.02)  # the export's 1/64 and 1/256 px rounding may flip a pixel at the threshold
+
+
 # ---- the rendered portrait dataset -------------------------------------------------------------------
 
 
