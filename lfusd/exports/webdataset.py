@@ -74,6 +74,17 @@ def exported_keys(ds) -> list[str]:
     return out
 
 
+# derived keys a sample holds too (the learning targets), each computed from a stored key
+DERIVED_IN_SHARDS = {"disparity": "depth", "semantic": "instance"}
+
+
+def shard_keys(ds) -> list[str]:
+    """The ``<key>.npy`` files of a sample: the stored keys (:func:`exported_keys`), plus
+    ``disparity`` and ``semantic`` where the keys they are computed from are there."""
+    names = exported_keys(ds)
+    return names + [k for k, src in DERIVED_IN_SHARDS.items() if src in names and k not in names]
+
+
 def _npy(a: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.asarray(a), allow_pickle=False)
@@ -137,6 +148,11 @@ def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification
               "encodingFormat": "application/x-tar", "sha256": _sha256(p), "contentSize": f"{p.stat().st_size} B"}
              for i, p in enumerate(shards)]
     shard_ids = [{"@id": f["@id"]} for f in files]
+    if (dest / layout.OBJECTS).is_file():  # the tables `instance` and `semantic` index, beside the shards
+        p = dest / layout.OBJECTS
+        files.append({"@type": "cr:FileObject", "@id": "objects", "name": "objects", "contentUrl": layout.OBJECTS,
+                      "encodingFormat": "application/json", "sha256": _sha256(p), "contentSize": f"{p.stat().st_size} B",
+                      "description": "the class table (semantic id -> class name) and the instance table (instance id -> prim path, class)"})
     parts = [("rgb", "rgb.png", "image/png", "sc:ImageObject", _field_description("rgb") + "; PNG"),
              ("meta", "json", "application/json", "sc:Text", "per-sample metadata: scene, rig, frame, row, col, width, height, K (3x3 px), "
               "cam_to_world (4x4 OpenCV camera to world, m), baseline_m, offset_x, offset_y (grid offsets in baselines)")]
@@ -170,12 +186,41 @@ def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification
     return doc
 
 
-def hf_card(ds, croissant_doc: dict, license: str | None = None) -> str:
-    """README.md of a Hugging Face dataset folder: YAML configs pointing at the shards, and the description."""
-    return (f"---\nlicense: {license or 'unknown'}\nconfigs:\n- config_name: default\n  data_files:\n  - split: train\n"
+# the per-sample json (_sample_meta) as a Hugging Face struct feature
+_META_FEATURES = (("scene", "string"), ("rig", "string"), ("frame", "int64"), ("row", "int64"), ("col", "int64"),
+                  ("width", "int64"), ("height", "int64"), ("K", "matrix"), ("cam_to_world", "matrix"),
+                  ("baseline_m", "float64"), ("offset_x", "float64"), ("offset_y", "float64"))
+
+
+def hf_features(ds, names: list[str]) -> str:
+    """The card's ``dataset_info.features`` (YAML): every ``<key>.npy`` as a fixed-shape array of its
+    dtype (``array2_d`` / ``array3_d``), so ``datasets`` stores it as one Arrow tensor rather than
+    nested lists (far faster to read) and hands ``instance`` back as int32, not int64."""
+    h, w = int(ds.rig.height), int(ds.rig.width)
+    lines = ["  features:", "  - name: __key__", "    dtype: string", "  - name: __url__", "    dtype: string",
+             "  - name: rgb.png", "    dtype: image", "  - name: json", "    struct:"]
+    for name, kind in _META_FEATURES:
+        lines += [f"    - name: {name}", "      list:\n        list: float64" if kind == "matrix" else f"      dtype: {kind}"]
+    for n in names:
+        k = keyreg.get(n)
+        shape = [h, w, *k.shape]
+        lines += [f"  - name: {n}.npy", "    dtype:", f"      array{len(shape)}_d:", "        shape:"]
+        lines += [f"        - {d}" for d in shape]
+        lines += [f"        dtype: {k.dtype}"]
+    return "\n".join(lines) + "\n"
+
+
+def hf_card(ds, croissant_doc: dict, license: str | None = None, names: list[str] | None = None) -> str:
+    """README.md of a Hugging Face dataset folder: YAML configs pointing at the shards, the
+    features of every column (:func:`hf_features`), and the description."""
+    info = f"dataset_info:\n{hf_features(ds, names)}" if names is not None else ""
+    return (f"---\nlicense: {license or 'unknown'}\n{info}configs:\n- config_name: default\n  data_files:\n  - split: train\n"
             f"    path: {SHARDS}/*.tar\ntags:\n- light-field\n- optical-flow\n- scene-flow\n- depth\n---\n\n"
-            f"# {croissant_doc['name']}\n\n{croissant_doc['description']}\n\nCroissant metadata: `{CROISSANT}`. Load with "
-            "`datasets.load_dataset(\"webdataset\", data_files={\"train\": \"shards/*.tar\"})` or `datasets.load_dataset(PATH)`.\n")
+            f"# {croissant_doc['name']}\n\n{croissant_doc['description']}\n\nCroissant metadata: `{CROISSANT}`; `{layout.OBJECTS}` "
+            "(where present) maps `instance` ids to prim paths and classes and `semantic` ids to class names. Load with "
+            "`datasets.load_dataset(PATH)` (the features above: every array keeps its shape and dtype; "
+            "`.with_format(\"numpy\", dtype=None)` keeps `instance` int32, which `datasets`' numpy format otherwise widens to int64) "
+            "or `datasets.load_dataset(\"webdataset\", data_files={\"train\": \"shards/*.tar\"})`.\n")
 
 
 LICENSE = Option("--license", "license", TEXT, "the data's license (SPDX id or URL) for the metadata (default: none claimed)")
@@ -188,7 +233,7 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
     license (an SPDX id or URL) for the metadata; none is claimed without it."""
     frames = frames_of(ds, frame)
     views = [tuple(v) for v in (views or ds.views)]
-    names = exported_keys(ds)
+    names = shard_keys(ds)
     dest = new_dest(dest)
     (dest / SHARDS).mkdir()
     rig = getattr(ds, "rig_name", "rig")
@@ -206,15 +251,15 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
         # so a re-export under the old name would read the old samples
         shards.append(p.rename(p.with_name(f"{p.stem}-{_sha256(p)[:12]}.tar")))
     verification = verification_figures(ds)
+    objects = Path(getattr(ds, "root", "")) / layout.OBJECTS
+    if objects.is_file():  # the class and instance tables that `instance` and `semantic` index
+        (dest / layout.OBJECTS).write_bytes(objects.read_bytes())
     doc = croissant(ds, dest, shards, names, verification, license)
     (dest / CROISSANT).write_text(json.dumps(doc, indent=1))
     if verification:
         (dest / VERIFICATION).write_text(json.dumps(verification, indent=1))
-    objects = Path(getattr(ds, "root", "")) / layout.OBJECTS
-    if objects.is_file():  # the class and instance tables that `instance` and `semantic` index
-        (dest / layout.OBJECTS).write_bytes(objects.read_bytes())
     if hf:
-        (dest / CARD).write_text(hf_card(ds, doc, license))
+        (dest / CARD).write_text(hf_card(ds, doc, license, names))
     log.info("wrote %d samples in %d shard(s) to %s", len(frames) * len(views), len(shards), dest)
     return shards
 

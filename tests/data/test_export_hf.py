@@ -48,6 +48,7 @@ def check_round_trip(ds, dest, rig="rig"):
     import webdataset as wds
 
     names = [k for k in keyreg.stored(ds.keys) if k != "rgb"]
+    names += [k for k, src in (("disparity", "depth"), ("semantic", "instance")) if src in names]  # the learning targets too
     expected = {sample_key(rig, t, v): (t, tuple(v)) for t in ds.frames for v in ds.views}
     shards = sorted(str(p) for p in (dest / "shards").glob("*.tar"))
     assert shards
@@ -116,6 +117,33 @@ def test_hf_export_loads_from_its_folder(tmp_path):
     assert sorted(d["__key__"]) == sorted(sample_key("rig", 2, v) for v in ds.views)
     with pytest.raises(Exception, match="already exists"):
         export.export(ds, "hf", tmp_path / "hf")
+
+
+@pytest.mark.slow
+def test_hf_card_declares_every_array_so_rows_load_as_typed_arrays(tmp_path):
+    """Issue 39.12: the card's features make every .npy a fixed-shape array of its key's dtype
+    (not nested lists), instance and semantic int32; disparity and semantic are in the shards."""
+    import datasets
+
+    ds = fake()
+    export.export(ds, "hf", tmp_path / "hf", frame=1)
+    d = datasets.load_dataset(str(tmp_path / "hf"), split="train", cache_dir=str(tmp_path / "cache"))
+    h, w = ds.rig.height, ds.rig.width
+    names = [k for k in keyreg.stored(ds.keys) if k != "rgb"] + ["disparity", "semantic"]
+    for n in names:
+        k = keyreg.get(n)
+        f = d.features[f"{n}.npy"]
+        assert isinstance(f, (datasets.Array2D, datasets.Array3D)), (n, f)
+        assert f.shape == (h, w, *k.shape) and f.dtype == k.dtype, (n, f)
+    rows = d.with_format("numpy", dtype=None)
+    for row in rows:
+        key = row["__key__"]
+        v = next(v for v in ds.views if sample_key("rig", 1, v) == key)
+        for n in names:
+            got = row[f"{n}.npy"]
+            assert got.dtype == np.dtype(keyreg.get(n).dtype), n
+            assert_same(got, ds.read(1, v, n), n)
+    assert rows[0]["instance.npy"].dtype == np.int32
 
 
 @pytest.mark.render
