@@ -264,3 +264,35 @@ def test_a_stuck_exit_function_does_not_keep_a_stopped_program_alive():
     assert time.monotonic() - t < 60
     assert p.returncode == 130
     assert p.stderr.strip().splitlines() == ["lfusd: interrupted; rerun the same command to resume"]
+
+
+def test_verify_prints_a_line_per_view_only_with_verbose(capsys, monkeypatch):
+    """Issue 39.14: `lfusd verify` without -v prints its table, not one line per view."""
+    import lfusd.truth.verify
+    from lfusd.cli import main
+
+    class Report:
+        ok = True
+
+        def table(self):
+            return "key  ok"
+
+        def failures(self):
+            return []
+
+        def compared(self):
+            return {"depth": 10}
+
+    def fake_verify(out, progress=None, **kw):
+        for v in ((0, 0), (0, 1), (1, 0)):
+            if progress:
+                progress(1, v)
+        return {"": Report()}
+
+    monkeypatch.setattr(lfusd.truth.verify, "verify", fake_verify)
+    assert main(["verify", "/nowhere"]) == 0
+    quiet = capsys.readouterr()
+    assert "verifying frame" not in quiet.out + quiet.err and "all checks passed" in quiet.out
+    assert main(["verify", "/nowhere", "-v"]) == 0
+    loud = capsys.readouterr()
+    assert loud.err.count("verifying frame 1 view") == 3

@@ -1,7 +1,7 @@
 """`lfusd eval --task disparity|flow|sceneflow|views --pred DIR --gt OUT [--protocol lfusd|hci|kitti|sintel|spring|basiclfsr|distgasr]`.
 
-Prints a table whose last row is the protocol's summary (pooled or mean, as the caption says) and
-writes JSON and CSV (default DIR/eval_<task>[_<protocol>].json and .csv).
+Prints the protocol's summary, one metric per line with how it was summarised (pooled or mean),
+then the per-image rows where they fit the terminal, and writes JSON and CSV (default DIR/eval_<task>[_<protocol>].json and .csv).
 """
 
 from __future__ import annotations
@@ -28,34 +28,46 @@ def register(subparsers) -> None:
 
 
 def _cell(v) -> str:
-    return f"{v:.4f}" if isinstance(v, float) else str(v)
+    if isinstance(v, float):
+        return f"{v:.4f}" if abs(v) < 1e6 or v != v else f"{v:.4g}"
+    return str(v)
 
 
-def print_table(scores: score.Scores) -> None:
-    rows = list(scores) + [scores.summary]
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    note = score.aggregation_note(scores)
-    try:
-        from rich.console import Console
-        from rich.table import Table
+def format_table(scores: score.Scores, width: int, csv_path=None) -> str:
+    """The summary one metric per line (metric, value, how it was summarised), which fits any
+    terminal, then the per-image rows where they fit in ``width`` columns (else where to find them)."""
+    how = {"pooled": "pooled over pixels", "mean": "mean of images"}
+    metrics = [k for k in scores.summary if k not in ("scene", "frame", "row", "col", "pixels")]
+    lines = [f"lfusd eval: {scores.task}, {scores.protocol} protocol, {len(scores)} image(s), "
+             f"{scores.summary['pixels']} px compared"]
+    name_w = max([len("metric"), *map(len, metrics)])
+    vals = [_cell(scores.summary[k]) for k in metrics]
+    val_w = max([len("summary"), *map(len, vals)])
+    lines.append(f"{'metric':<{name_w}}  {'summary':>{val_w}}  summarised as")
+    lines += [f"{k:<{name_w}}  {v:>{val_w}}  {how.get(scores.aggregation.get(k), '')}" for k, v in zip(metrics, vals)]
+    cols = ["frame", "row", "col", *metrics, "pixels"]
+    cells = [[_cell(r.get(k, "")) for k in cols] for r in scores]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]
+    if sum(widths) + 2 * (len(cols) - 1) <= width:
+        lines.append("")
+        lines.append("  ".join(f"{c:>{w}}" for c, w in zip(cols, widths)))
+        lines += ["  ".join(f"{c:>{w}}" for c, w in zip(row, widths)) for row in cells]
+    elif csv_path is not None:
+        lines += [f"the {len(scores)} per-image rows are too wide for {width} columns; they are in", f"  {csv_path}"]
+    return "\n".join(lines)
 
-        t = Table(title=f"lfusd eval: {scores.task}, {scores.protocol} protocol", caption=note)
-        for k in keys:
-            t.add_column(k, justify="right")
-        for r in rows:
-            t.add_row(*(_cell(r.get(k, "")) for k in keys))
-        Console().print(t)
-    except ImportError:  # rich is a dependency, but keep plain output possible
-        print("\t".join(keys))
-        for r in rows:
-            print("\t".join(_cell(r.get(k, "")) for k in keys))
-        print(note)
+
+def print_table(scores: score.Scores, csv_path=None) -> None:
+    import shutil
+
+    print(format_table(scores, shutil.get_terminal_size((80, 24)).columns, csv_path))
 
 
 def run(args) -> int:
     scores = score.evaluate(args.gt, args.pred, args.task, rig=args.rig, protocol=args.protocol)
     pred = Path(args.pred)
     stem = f"eval_{args.task}" + ("" if args.protocol == "lfusd" else f"_{args.protocol}")
-    score.write_results(scores, args.json or pred / f"{stem}.json", args.csv or pred / f"{stem}.csv")
-    print_table(scores)
+    csv_path = args.csv or pred / f"{stem}.csv"
+    score.write_results(scores, args.json or pred / f"{stem}.json", csv_path)
+    print_table(scores, csv_path)
     return 0

@@ -731,12 +731,45 @@ def test_eval_cli_protocol_table_and_errors(tmp_path, monkeypatch, capsys):
     formats.write_pfm(pred / "0001_01_01.pfm", noisy(d, 1, 0.05, nan_pixels=((20, 20),)))
     assert main(["eval", "--task", "disparity", "--protocol", "hci", "--pred", str(pred), "--gt", "/data/fake"]) == 0
     outp = capsys.readouterr().out
-    assert "hci protocol" in outp and "mean of per-image values" in outp
+    assert "hci protocol" in outp and "mean of images" in outp
     doc = json.loads((pred / "eval_disparity_hci.json").read_text())
     assert_close(doc["rows"][0], hci_toolkit(formats.read_pfm(pred / "0001_01_01.pfm"), d))
     assert main(["eval", "--task", "views", "--protocol", "hci", "--pred", str(pred), "--gt", "/data/fake"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("lfusd: error:") and "no views task" in err and "\n" not in err
+
+
+def test_eval_table_is_readable_at_80_columns(tmp_path, monkeypatch, capsys):
+    """Issue 39.14: at 80 columns every summary number is printed whole (rich cut them to `2.…`),
+    and per-image rows too wide for the terminal are pointed at in the CSV, not squeezed."""
+    from lfusd.cli import main
+    from lfusd.commands.eval import _cell
+    from lfusd.data import formats
+    import lfusd.data.folder
+
+    ds = FakeDataset(root="/data/fake", rows=1, cols=3, width=24, height=20, frames=(1, 2, 3))
+    monkeypatch.setattr(lfusd.data.folder, "open_dataset", lambda path, rig=None: ds)
+    monkeypatch.setenv("COLUMNS", "80")
+    pred = tmp_path / "p"
+    pred.mkdir()
+    for t in (1, 2):
+        for v in ds.views:
+            formats.write_flo(pred / f"{t:04d}_{v[0]:02d}_{v[1]:02d}.flo", noisy(ds.read(t, v, "flow_fwd"), t, 3.0))
+    assert main(["eval", "--task", "flow", "--protocol", "kitti", "--pred", str(pred), "--gt", "/data/fake"]) == 0
+    out = capsys.readouterr().out
+    doc = json.loads((pred / "eval_flow_kitti.json").read_text())
+    assert max(len(ln) for ln in out.splitlines() if "eval_flow_kitti.csv" not in ln) <= 80 and "…" not in out
+    metrics = [k for k in doc["summary"] if k not in ("scene", "frame", "row", "col", "pixels")]
+    assert len(metrics) >= 8  # bg / fg / all, occ / noc, density, EPE: too many for one 80-column row
+    for k in metrics:
+        line = next(ln for ln in out.splitlines() if ln.split()[:1] == [k])
+        assert line.split()[1] == _cell(doc["summary"][k]), line
+    assert "eval_flow_kitti.csv" in out  # the 6 per-image rows do not fit: where they are
+    # a terminal wide enough: the per-image rows are printed
+    monkeypatch.setenv("COLUMNS", "200")
+    assert main(["eval", "--task", "flow", "--protocol", "sintel", "--pred", str(pred), "--gt", "/data/fake"]) == 0
+    out = capsys.readouterr().out
+    assert max(map(len, out.splitlines())) <= 200 and len([ln for ln in out.splitlines() if ln.lstrip().startswith(("1 ", "2 "))]) == 6
 
 
 @pytest.mark.render
