@@ -364,8 +364,14 @@ class VerifyReport:
         if not self.rows:
             return self.problems + ["nothing to compare: the frames and views selected hold no ground truth to check; select some with --frames/--views"]
         out = list(self.problems)
-        out += [f"{key}: nothing to compare (0 px over every frame and view); check that --stage is the rendered stage"
-                for key, n in self.compared().items() if n == 0]
+        totals = self._totals()
+        for key, n in self.compared().items():
+            if n == 0 and totals[(key, ALL)]["foreground"] == 0:  # say what is true: no surface, not a wrong stage
+                out.append(f"{key}: nothing to compare (0 px): no surface is in view in the frames and views selected, in the "
+                           "dataset or in the stage; aim the rig at the scene, or select other --frames/--views")
+            elif n == 0:
+                out.append(f"{key}: nothing to compare (0 px over every frame and view, where {totals[(key, ALL)]['foreground']} px "
+                           "show a surface); check that --stage is the rendered stage")
         out += self.key_failures()
         if self.unchecked > UNCHECKED_FRACTION * self.valid:
             out.append(f"{self.unchecked} of {self.valid} px that the dataset calls valid could not be checked "

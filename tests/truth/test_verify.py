@@ -193,6 +193,19 @@ def test_verify_fails_when_it_compares_nothing(tmp_path, monkeypatch, capsys):
     assert not report.rows and not report.ok and report.failures()[0].startswith("nothing to compare")
 
 
+def test_nothing_in_view_is_said_as_such_not_blamed_on_the_stage():
+    """Issue 39.19: a view that sees no surface (dataset and stage agree: sky only) compares 0 px;
+    the failure says so instead of suggesting the stage is the wrong one."""
+    from lfusd.truth.verify import ALL, Row, VerifyReport
+
+    empty = VerifyReport(rows=[Row(1, (0, 0), "depth", ALL, 0, 0.0, 0.0, 0.0, 1e-4, foreground=0)])
+    line = empty.failures()[0]
+    assert "no surface is in view" in line and "--stage" not in line and not empty.ok
+    mismatch = VerifyReport(rows=[Row(1, (0, 0), "depth", ALL, 0, 0.0, 0.0, 0.0, 1e-4, foreground=120)])
+    line = mismatch.failures()[0]
+    assert "120 px show a surface" in line and "--stage" in line
+
+
 @pytest.mark.render
 def test_derive_command_names_a_missing_vector_pass(tmp_path, capsys):
     """A dataset whose raw passes lack Blender's vector pass: one line naming the file."""
