@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from lfusd import LfusdError  # noqa: E402
 from lfusd.evaluation.baselines import format_table, run_baselines  # noqa: E402
-from lfusd.data.folder import open_dataset  # noqa: E402
+from lfusd.data.dataset import open_dataset  # noqa: E402
 
 
 def main(argv=None) -> int:

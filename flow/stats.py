@@ -80,7 +80,7 @@ def dataset_stats(ds, frames=None, views=None, baseline: float | None = None) ->
 
 def main(argv: list[str] | None = None) -> int:
     from lfusd.camera import parse_frames, parse_view
-    from lfusd.data.folder import open_datasets
+    from lfusd.data.dataset import open_datasets
     from lfusd.errors import LfusdError
 
     ap = argparse.ArgumentParser(description=__doc__)

@@ -87,7 +87,7 @@ def start(a, script: str, tiny: dict, full: dict):
     device = device_of(a.device, a.threads)
     data = resolve_data(a)
     run.log["timing"]["render_s"] = time.time() - t0
-    from lfusd.data.folder import open_dataset
+    from lfusd.data.dataset import open_dataset
 
     ds = open_dataset(data, a.rig)
     if state:

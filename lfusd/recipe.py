@@ -279,7 +279,7 @@ def histogram(values: np.ndarray, edges) -> list[int]:
 
 def scene_stats(root: Path, stats_views: str = "centre") -> dict:
     """The statistics of one rendered scene folder (see the module docstring), with pixel counts."""
-    from .data.folder import open_datasets
+    from .data.dataset import open_datasets
 
     disp_hist = [0] * (len(DISPARITY_EDGES) - 1)
     flow_hist = [0] * (len(FLOW_EDGES) - 1)
@@ -366,7 +366,7 @@ def _read_record(path: Path) -> dict | None:
 
 def _verify_scene(out: Path, mode: str, thresholds: dict[str, float]) -> tuple[bool, dict, list[str]]:
     """(ok, pixels compared per key, failure lines) of ``lfusd verify`` on every rig of a scene."""
-    from .data.folder import open_datasets
+    from .data.dataset import open_datasets
     from .truth.verify import verify
 
     from .truth.verify import record_certificate

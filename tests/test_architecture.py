@@ -201,3 +201,32 @@ def test_the_facade_check_sees_facade_imports():
     assert [b.split(" ", 1)[0] for b in bad] == ["lfusd/author/probe.py:1", "lfusd/author/probe.py:2", "lfusd/author/probe.py:3"], bad
     assert "lfusd.data.dataset" in bad[0] and "lfusd.render.job" in bad[1]
     assert facade_violations([(PACKAGE / "data" / "probe.py", "lfusd.data.probe", "from .. import Dataset\n")]) == []
+
+
+def test_no_import_cycle_between_modules():
+    """Issue 39.21: no two modules import each other, directly or round a loop (deferred imports
+    inside functions count); a package and its own submodules are one unit."""
+    names = {name: path for path, name in modules()}
+    graph: dict[str, set[str]] = {}
+    for name, path in names.items():
+        graph[name] = set()
+        for _, mod in imports(path):
+            while mod and mod not in names:
+                mod = mod.rpartition(".")[0]
+            own = mod.startswith(name + ".") or name.startswith(mod + ".")  # a package and its submodule
+            if mod and mod != name and not own:
+                graph[name].add(mod)
+
+    def reaches(start: str, goal: str) -> bool:
+        seen, todo = set(), [start]
+        while todo:
+            m = todo.pop()
+            if m == goal:
+                return True
+            if m not in seen:
+                seen.add(m)
+                todo += graph[m]
+        return False
+
+    cycles = sorted(f"{a} -> {b} -> ... -> {a}" for a in graph for b in graph[a] if reaches(b, a))
+    assert not cycles, "\n".join(cycles)

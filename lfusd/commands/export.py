@@ -43,7 +43,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from .. import exports
-    from ..data.folder import open_dataset
+    from ..data.dataset import open_dataset
 
     fmt = exports.get(args.format)
     ds = open_dataset(args.out, args.rig)

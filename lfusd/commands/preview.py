@@ -19,7 +19,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..data.folder import open_dataset
+    from ..data.dataset import open_dataset
     from ..evaluation.preview import preview
 
     ds = open_dataset(args.out, args.rig)

@@ -251,3 +251,23 @@ def _cached(cache: dict, key, size: int, load):
     while len(cache) > size:
         del cache[next(iter(cache))]
     return value
+
+
+def open_dataset(path, rig: str | None = None) -> Dataset:
+    """``Dataset(path, rig=rig)`` with one-line errors naming the command-line fix: a missing
+    folder, or a dataset of several rigs opened without ``--rig``."""
+    p = Path(path)
+    if not p.is_dir():
+        raise LfusdError(f"dataset folder {p} does not exist; give the output folder of `lfusd render`")
+    if rig is None:
+        rigs = read_manifest(p).rigs
+        if len(rigs) > 1:
+            raise LfusdError(f"{p} holds rigs {', '.join(rigs)}; pick one with --rig NAME (rig=NAME from Python)")
+    return Dataset(p) if rig is None else Dataset(p, rig=rig)
+
+
+def open_datasets(path, rig: str | None = None) -> list[Dataset]:
+    """One reader per rig of the dataset in ``path``: just ``rig``, or every rig when it is None or 'all'."""
+    if rig not in (None, "all"):
+        return [open_dataset(path, rig)]
+    return [open_dataset(path, r) for r in read_manifest(path).rigs]  # the reader's one-line errors

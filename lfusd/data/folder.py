@@ -6,8 +6,8 @@ the exports) and every reader goes through here:
 - :func:`atomic_write` (defined in :mod:`lfusd.files`, below every layer, so that authoring uses
   the same one): a file appears whole or not at all (text, bytes, or a writer that takes a path),
   readable like the folder's other files;
-- :func:`open_dataset` / :func:`open_datasets`: a reader of one rig / of every rig, with one-line
-  errors for a folder that is missing or holds no dataset;
+- (a reader of one rig / of every rig is :func:`lfusd.data.dataset.open_dataset` /
+  :func:`lfusd.data.dataset.open_datasets`, beside the reader, which this module does not import);
 - the typed records of its metadata: :class:`Manifest` (with :class:`RenderSettings`),
   :class:`ObjectTable` and :class:`FrameMeta`, each read through the security checks of
   :mod:`lfusd.data.metadata` (names that become paths, sizes that become loops) and written back
@@ -42,23 +42,6 @@ from typing import Any, Callable, Protocol, runtime_checkable
 from .. import layout
 from ..files import atomic_write, file_mode  # noqa: F401  (the folder's writers take them from here)
 from ..errors import LfusdError
-
-
-def open_dataset(path, rig: str | None = None):
-    """``lfusd.Dataset(path, rig=rig)`` with a one-line error for a missing folder."""
-    p = Path(path)
-    if not p.is_dir():
-        raise LfusdError(f"dataset folder {p} does not exist; give the output folder of `lfusd render`")
-    from .dataset import Dataset
-
-    return Dataset(p) if rig is None else Dataset(p, rig=rig)
-
-
-def open_datasets(path, rig: str | None = None) -> list:
-    """One reader per rig of the dataset in ``path``: just ``rig``, or every rig when it is None or 'all'."""
-    if rig not in (None, "all"):
-        return [open_dataset(path, rig)]
-    return [open_dataset(path, r) for r in read_manifest(path).rigs]  # the reader's one-line errors
 
 
 @runtime_checkable

@@ -75,7 +75,7 @@ class LightFieldVideoDataset(_TorchDataset):
 
     def __init__(self, dataset, keys=("rgb",), views="all", frames=None, clip: int = 1, crop=None, random_crop: bool = False, target_views=None, rig: str | None = None):
         if isinstance(dataset, (str, Path)):
-            from .folder import open_dataset
+            from .dataset import open_dataset
 
             dataset = open_dataset(dataset, rig)
         self.ds = dataset

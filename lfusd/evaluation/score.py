@@ -161,7 +161,7 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
     """
     from . import protocols
     from .. import exports
-    from ..data import folder
+    from ..data import dataset
     from ..exports.common import scene_name
 
     if task not in TASKS:
@@ -174,7 +174,7 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
         found = exports.find_export(ds)  # an export a format reads back (a KITTI folder)
         if found is not None:
             return _evaluate_export(*found, pred, task, protocol)
-        ds = folder.open_dataset(ds, rig)
+        ds = dataset.open_dataset(ds, rig)
     files = find_predictions(pred, task)
     if not files:
         raise LfusdError(f"no {task} predictions in {pred}: expected files like 0001_04_04{EXTS[task][0]} (frame_row_col)")

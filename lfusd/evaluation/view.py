@@ -138,7 +138,7 @@ def view(out, save=None, rig: str | None = None, views=None, frames=None, every:
     ``frames``: frame numbers (default all complete frames); ``every``: keep every N-th of them.
     Returns what was logged per rig (frames, images, points, arrows).
     """
-    from ..data.folder import open_datasets
+    from ..data.dataset import open_datasets
 
     if every < 1:
         raise LfusdError(f"--every {every}: give a positive step (1 shows every frame)")

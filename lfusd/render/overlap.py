@@ -81,7 +81,7 @@ def _warm() -> None:
 
 def _derive(root: str, rig: str, view: View, frames: list[int], cached_views: int) -> int:
     """In a lane: derive the motion of ``frames`` of one view that is not current; how many were written."""
-    from ..data.folder import open_dataset
+    from ..data.dataset import open_dataset
     from ..truth.derive import derive_if_stale
 
     key = (root, rig, view)

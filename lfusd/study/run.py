@@ -205,7 +205,7 @@ def _render(req: StudyRequest, render_layer: Path, frames: list[int]) -> None:
 
 def load_views(root: Path, rig: str, frame: int, index: dict[str, int]) -> Views:
     """Every camera of a union rig at one frame, from the study's renders."""
-    from ..data.folder import open_dataset
+    from ..data.dataset import open_dataset
 
     ds = open_dataset(root, rig)
     n = len(index)
@@ -317,7 +317,7 @@ def _score_all(req, todo, results, unions, bands, scores_dir, settings_id, devic
 
 
 def _scene_flow(req, c: Candidate, v0: Views, v1: Views, q0, t: int, device) -> dict:
-    from ..data.folder import open_dataset
+    from ..data.dataset import open_dataset
 
     centre = v0.index[c.cameras[c.spec.views.index(c.spec.centre_view)]]
     q1 = estimate_inverse_depth(v1, centre, sorted({v1.index[i] for i in c.cameras}), req.n_planes, device=device)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..data.folder import open_datasets
+from ..data.dataset import open_datasets
 
 THRESHOLD = 0.01  # px
 GOAL_COVERAGE = 0.05  # the goal of issue 16: moving objects over 5 % of the centre view ...

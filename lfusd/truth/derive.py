@@ -31,7 +31,8 @@ import numpy as np
 from .. import cpu_account
 from ..data import integrity, store
 from ..processes import derivation_process_init, own_process_group
-from ..data.folder import atomic_write, open_dataset
+from ..data.dataset import open_dataset
+from ..data.folder import atomic_write
 from ..data.dataset import Dataset
 from ..camera import View
 from ..errors import LfusdError
@@ -308,7 +309,7 @@ def _derive_dataset(
     to them changes their motion). ``rigs``, ``frames`` and ``views`` default to every rig,
     completely rendered frame and view of the dataset. Returns how many views were written.
     """
-    from ..data.folder import open_datasets
+    from ..data.dataset import open_datasets
 
     datasets = list(open_datasets(root) if rigs is None else [open_dataset(root, rig) for rig in rigs])
     if check_links:

@@ -724,7 +724,7 @@ def verify(
     :data:`THRESHOLDS`; ``stage`` replaces the stage the manifest records; ``progress(frame, view)``
     is called before each view. What `lfusd verify` and `lfusd render-video --verify` run.
     """
-    from ..data import folder
+    from ..data import dataset
 
     unknown = sorted(set(thresholds or {}) - set(THRESHOLDS))
     if unknown:
@@ -732,7 +732,7 @@ def verify(
     from ..data.integrity import check_dataset
 
     reports = {}
-    for ds in folder.open_datasets(out, rig):
+    for ds in dataset.open_datasets(out, rig):
         if not ds.frames:
             raise LfusdError(f"dataset {out} has no completely rendered frame; finish the render first")
         # First every view's files against its record (what --integrity checks): a damaged file

@@ -16,6 +16,7 @@ from test_faults import fake_render, project, render  # noqa: F401  (fixtures)
 from lfusd import Dataset, LfusdError, layout
 from lfusd.camera import RigSpec
 from lfusd.data import folder
+from lfusd.data.dataset import open_dataset, open_datasets
 from lfusd.data.folder import FrameMeta, Manifest, ObjectTable, RenderSettings
 
 EYE = np.eye(4).tolist()
@@ -132,10 +133,10 @@ def test_the_writer_output_round_trips_and_opens_through_the_one_opener(capsys, 
     meta = layout.frame_dir(out, "main", 1) / layout.FRAME_META
     assert folder.read_frame_meta(meta).to_json() == meta.read_text()
     assert folder.existing_dataset(out) == folder.read_manifest(out)
-    (ds,) = folder.open_datasets(out)
+    (ds,) = open_datasets(out)
     assert isinstance(ds, Dataset) and ds.record.rigs == ("main",) and ds.manifest == json.loads(text)
     with pytest.raises(LfusdError, match="does not exist"):
-        folder.open_dataset(tmp_path / "nowhere")
+        open_dataset(tmp_path / "nowhere")
 
 
 def test_a_dataset_and_the_analytic_fake_read_like_a_dataset():
@@ -169,3 +170,18 @@ def test_one_resumable_folder_rule_for_render_study_and_recipe(tmp_path):
     assert sorted(p.name for p in users.iterdir()) == ["notes.txt"]
     (users / "record.json").write_text("ours")
     assert check(users) == "ours"
+
+
+@pytest.mark.parametrize("command", [["preview"], ["export", "hci"]])
+def test_a_two_rig_dataset_opened_without_rig_names_the_rig_option(capsys, tmp_path, command):
+    """Issue 39.19: `lfusd preview OUT` on a dataset of two rigs says `--rig NAME`, not a Python call."""
+    from support.cli import assert_one_line_error, run_cli
+
+    out = tmp_path / "two"
+    out.mkdir()
+    doc = _manifest_doc(rigs=["left", "right"], complete={"left": [1], "right": [1]})
+    doc["settings"]["rigs"] = {r: RigSpec(name=r, rows=1, cols=2, width=8, height=6).to_dict() for r in ("left", "right")}
+    (out / layout.MANIFEST).write_text(json.dumps(doc))
+    code, _, err = run_cli(capsys, *command, out, *([tmp_path / "dest"] if command[0] == "export" else []))
+    assert_one_line_error(code, err, "holds rigs left, right", "--rig NAME")
+    assert "Dataset(" not in err and not (tmp_path / "dest").exists()

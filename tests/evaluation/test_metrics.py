@@ -238,10 +238,10 @@ def fake_cli(monkeypatch):
     """Route the CLI's dataset opening to the analytic fake (the reader is tested elsewhere)."""
     from support.fake import FakeDataset
 
-    import lfusd.data.folder
+    import lfusd.data.dataset
 
     ds = FakeDataset(root="/data/fake", rows=3, cols=3, width=24, height=20, frames=(1, 2, 3))
-    monkeypatch.setattr(lfusd.data.folder, "open_dataset", lambda path, rig=None: ds)
+    monkeypatch.setattr(lfusd.data.dataset, "open_dataset", lambda path, rig=None: ds)
     return ds
 
 

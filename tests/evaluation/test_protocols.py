@@ -721,10 +721,10 @@ def test_portrait_kitti_folder_gives_the_official_numbers(portrait, tmp_path):
 def test_eval_cli_protocol_table_and_errors(tmp_path, monkeypatch, capsys):
     from lfusd.cli import main
     from lfusd.data import formats
-    import lfusd.data.folder
+    import lfusd.data.dataset
 
     ds = FakeDataset(root="/data/fake", rows=3, cols=3, width=48, height=40, frames=(1, 2))
-    monkeypatch.setattr(lfusd.data.folder, "open_dataset", lambda path, rig=None: ds)
+    monkeypatch.setattr(lfusd.data.dataset, "open_dataset", lambda path, rig=None: ds)
     pred = tmp_path / "p"
     pred.mkdir()
     d = ds.read(1, (1, 1), "disparity")
@@ -745,10 +745,10 @@ def test_eval_table_is_readable_at_80_columns(tmp_path, monkeypatch, capsys):
     from lfusd.cli import main
     from lfusd.commands.eval import _cell
     from lfusd.data import formats
-    import lfusd.data.folder
+    import lfusd.data.dataset
 
     ds = FakeDataset(root="/data/fake", rows=1, cols=3, width=24, height=20, frames=(1, 2, 3))
-    monkeypatch.setattr(lfusd.data.folder, "open_dataset", lambda path, rig=None: ds)
+    monkeypatch.setattr(lfusd.data.dataset, "open_dataset", lambda path, rig=None: ds)
     monkeypatch.setenv("COLUMNS", "80")
     pred = tmp_path / "p"
     pred.mkdir()

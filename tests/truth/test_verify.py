@@ -152,13 +152,13 @@ def test_verify_names_missing_stage_and_frames(tmp_path):
 
 
 def test_verify_command_passes_exact_motion_and_fails_corrupted_depth(tmp_path, monkeypatch, capsys):
-    import lfusd.data.folder
+    import lfusd.data.dataset
     from lfusd.cli import main
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
     ds = FakeDataset(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(lfusd.data.folder, "open_datasets", lambda p, rig=None: [ds])
+    monkeypatch.setattr(lfusd.data.dataset, "open_datasets", lambda p, rig=None: [ds])
     assert main(["verify", "OUT", "--frames", "1-3", "--views", "0,0"]) == 0
     assert "all checks passed" in capsys.readouterr().out
     for f in ds.frames:
@@ -170,7 +170,7 @@ def test_verify_command_passes_exact_motion_and_fails_corrupted_depth(tmp_path, 
 def test_verify_fails_when_it_compares_nothing(tmp_path, monkeypatch, capsys):
     # A check that compared nothing has failed: a --stage of another (here empty) scene matches no
     # pixel of the dataset, and a single frame has no motion to trace.
-    import lfusd.data.folder
+    import lfusd.data.dataset
     from lfusd.author.stage import new_stage
     from lfusd.cli import main
 
@@ -179,7 +179,7 @@ def test_verify_fails_when_it_compares_nothing(tmp_path, monkeypatch, capsys):
     empty = new_stage(tmp_path / "empty.usda", 1, 3)
     empty.GetRootLayer().Save()
     ds = FakeDataset(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(lfusd.data.folder, "open_datasets", lambda p, rig=None: [ds])
+    monkeypatch.setattr(lfusd.data.dataset, "open_datasets", lambda p, rig=None: [ds])
     assert main(["verify", "OUT"]) == 0
     out = capsys.readouterr().out
     passed = re.search(r"all checks passed \((\d+) px compared over (\d+) key checks\)", out)
@@ -264,11 +264,11 @@ def test_stats_script_reports_motion_and_disparity_ranges(tmp_path):
 def test_verify_report_script_writes_json_and_markdown(tmp_path, monkeypatch):
     import json
 
-    import lfusd.data.folder
+    import lfusd.data.dataset
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(lfusd.data.folder, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
+    monkeypatch.setattr(lfusd.data.dataset, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
     rc = _load_script("verify_report").main(["OUT", "--frames", "2", "--json", str(tmp_path / "r.json"), "--markdown", str(tmp_path / "r.md")])
     assert rc == 0
     data = json.loads((tmp_path / "r.json").read_text())
@@ -429,12 +429,12 @@ def test_lfusd_flow_names_a_missing_next_frame(blender_video, tmp_path, capsys):
 
 
 def test_verify_command_threshold_overrides(tmp_path, monkeypatch, capsys):
-    import lfusd.data.folder
+    import lfusd.data.dataset
     from lfusd.cli import main
 
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")
-    monkeypatch.setattr(lfusd.data.folder, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
+    monkeypatch.setattr(lfusd.data.dataset, "open_datasets", lambda p, rig=None: [FakeDataset(sc, tmp_path / "s.usda")])
     assert main(["verify", "OUT", "--frames", "2", "--threshold", "depth=1e-12"]) == 1
     assert re.search(r"FAIL depth \(.*frame 2 view 0,0 pixel", capsys.readouterr().out)
     assert main(["verify", "OUT", "--threshold", "depth"]) == 2
