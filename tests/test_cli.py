@@ -296,3 +296,18 @@ def test_verify_prints_a_line_per_view_only_with_verbose(capsys, monkeypatch):
     assert main(["verify", "/nowhere", "-v"]) == 0
     loud = capsys.readouterr()
     assert loud.err.count("verifying frame 1 view") == 3
+
+
+def test_rig_add_over_an_asset_reports_each_broken_arc_once_in_one_line(capfd, tmp_path):
+    """Issue 39.19: `rig add -o` over an asset with broken references (as OpenChessSet's) printed
+    every composition error twice (the asset's stage, then the layer over it)."""
+    from lfusd.cli import main
+
+    asset = tmp_path / "chess.usda"
+    asset.write_text('#usda 1.0\n(\n    defaultPrim = "World"\n    upAxis = "Z"\n    metersPerUnit = 1\n)\n'
+                     'def Xform "World"\n{\n    def Xform "Knight" (\n        references = @./missing_knight.usda@\n    )\n    {\n    }\n'
+                     '    def Xform "Board" (\n        payload = @./missing_board.usda@\n    )\n    {\n    }\n}\n')
+    assert main(["rig", "add", str(asset), "-o", str(tmp_path / "over.usda"), "--grid", "2x2"]) == 0
+    err = [ln for ln in capfd.readouterr().err.splitlines() if ln.strip()]
+    assert all(ln.startswith("lfusd: warning: USD: ") for ln in err), err  # nothing of pxr's own output
+    assert sum("missing_knight.usda" in ln for ln in err) == 1 and sum("missing_board.usda" in ln for ln in err) == 1, err

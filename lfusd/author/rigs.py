@@ -189,6 +189,16 @@ def add_rig_to_file(stage_path: str | Path, out: str | Path | None = None, *, na
     ``look_at`` are metres along the stage's own axes. ``from_camera``: centre the rig on that
     camera prim (:func:`add_rig_at_camera`), its aspect giving the height when ``resolution`` is
     None. ``force`` lifts the size limits (:func:`lfusd.camera.check_rig_size`)."""
+    from .stage import usd_warnings
+
+    with usd_warnings():  # what pxr posts while authoring and saving: one line each, not its raw output
+        return _add_rig_to_file(stage_path, out, name=name, grid=grid, baseline=baseline, focal_length_mm=focal_length_mm,
+                                sensor_mm=sensor_mm, resolution=resolution, at=at, look_at=look_at, spacing=spacing, layout=layout,
+                                radius=radius, axes=axes, from_camera=from_camera, force=force)
+
+
+def _add_rig_to_file(stage_path, out, *, name, grid, baseline, focal_length_mm, sensor_mm, resolution, at, look_at, spacing,
+                     layout, radius, axes, from_camera, force) -> tuple[RigSpec, str]:
     from ..camera import check_rig_size
     from .stage import open_for_edit, save_stage
 

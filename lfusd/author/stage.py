@@ -24,15 +24,22 @@ def _one_line(text: str) -> str:
 
 
 @contextmanager
-def usd_warnings():
+def usd_warnings(report: bool = True):
     """Report the warnings pxr posts inside the block as one ``lfusd: warning:`` line each (through
-    logging) instead of its own multi-line output on stderr; errors stay pxr's (they raise)."""
+    logging) instead of its own multi-line output on stderr, each once (a stage opened twice posts
+    its composition errors twice, differing only in the stage named); errors stay pxr's (they
+    raise). ``report=False`` drops them: for a stage whose arcs another stage composes again."""
     with Tf.DiagnosticTrap() as trap:
         try:
             yield
         finally:
-            for w in trap.GetWarnings():
-                log.warning("USD: %s", _one_line(w.commentary))
+            seen = set()
+            for w in trap.GetWarnings() if report else ():
+                line = _one_line(w.commentary)
+                same = re.sub(r"\s*\(instantiating stage on stage @[^@]*@\)$", "", line)
+                if same not in seen:
+                    seen.add(same)
+                    log.warning("USD: %s", line)
             for st in trap.GetStatuses():
                 log.info("USD: %s", _one_line(st.commentary))
             trap.ClearWarnings()
@@ -48,16 +55,17 @@ def check_up_axis(stage: Usd.Stage, where) -> None:
                              "layer metadata (re-export a .usdz)")
 
 
-def open_stage(path: str | Path) -> Usd.Stage:
+def open_stage(path: str | Path, warn: bool = True) -> Usd.Stage:
     """Open a USD stage, or raise LfusdError naming the file and what is wrong with it. pxr's
-    warnings while composing it come out as one line each (:func:`usd_warnings`)."""
+    warnings while composing it come out as one line each (:func:`usd_warnings`; none when
+    ``warn`` is False)."""
     p = Path(path)
     if not p.exists():
         raise LfusdError(f"stage {p} does not exist; give the path of a .usda/.usdc/.usdz/.usd file")
     if p.is_dir():
         raise LfusdError(f"stage {p} is a folder; give the path of a .usda/.usdc/.usdz/.usd file")
     try:
-        with usd_warnings():
+        with usd_warnings(report=warn):
             stage = Usd.Stage.Open(str(p))
     except Tf.ErrorException as e:
         first = str(e).strip().splitlines()
@@ -92,7 +100,9 @@ def layer_over(asset: str | Path, out: str | Path) -> Usd.Stage:
     (unchanged) and carries its root layer's metadata (:data:`LAYER_METADATA`); what lfusd
     authors then goes into ``out``. Nothing is written until the caller saves the root layer."""
     asset_path, out_path = Path(asset), Path(out)
-    asset_stage = open_stage(asset_path)  # held: its root layer lives as long as the stage
+    # held: its root layer lives as long as the stage; quiet: the stage over it composes the same
+    # arcs and reports each broken one (else every warning came twice)
+    asset_stage = open_stage(asset_path, warn=False)
     base = asset_stage.GetRootLayer().pseudoRoot
     if out_path.exists():
         raise LfusdError(f"{out_path} already exists; edit it in place by dropping -o, or give -o a new file")
