@@ -15,6 +15,7 @@ person is checked with the rulebook at every frame.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +30,8 @@ from .geometry import StageGeometry
 from .labels import TAXONOMY, class_label, labelled_ancestor, set_class_label
 from .stage import frame_range, world_frame
 from .vocabulary import GROUND, WATER
+
+log = logging.getLogger(__name__)
 
 PEOPLE_SCOPE = "/World/People"
 FILLET_RADIUS = 1.0  # metres: how tight a person turns at a path corner
@@ -134,7 +137,7 @@ class SupportSurfaces:
         if not self.info:
             raise LfusdError(
                 "the stage has no surfaces labelled as support (" + ", ".join(support) + "); "
-                "label its ground prims with lfusd.author.labels.set_class_label"
+                "name the prims a person walks on with --ground PRIM (lfusd.author.labels.set_class_label from Python)"
             )
 
     def cast(self, xy: np.ndarray) -> tuple[np.ndarray, list[tuple[str, str] | None]]:
@@ -472,7 +475,7 @@ def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
 
 def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3, start: int | None = None,
                character: str | Path | None = None, spec: _human.HumanSpec = _human.HumanSpec(),
-               path: str | None = None, support=None, water=None, check: bool = True) -> Usd.Prim:
+               path: str | None = None, support=None, water=None, check: bool = True, progress=None) -> Usd.Prim:
     """Add a person walking/running along ``points`` (metres along the stage's horizontal axes,
     :func:`path_axes`) from frame ``start``; returns its prim.
 
@@ -485,7 +488,15 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     classes default to the rulebook's ``person`` rule. With ``check``, the finished person is
     checked with the rulebook (lfusd.author.rules) at every frame and removed again if it breaks
     a rule; a run's flight phase is allowed by authoring the person's support ``tolerance``.
+    A walk or run on a stage with no time range (one frame) is refused: it would not move.
+    ``progress(what)`` is told each phase as it starts (a character's can take a minute).
     """
+
+    def phase(what: str) -> None:
+        log.info("add-person: %s", what)
+        if progress is not None:
+            progress(what)
+
     default_support, default_water = person_surfaces(stage)
     support = tuple(support) if support is not None else default_support
     water = tuple(water) if water is not None else default_water
@@ -500,12 +511,17 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
         raise LfusdError(f"unknown gait {gait!r}; use walk, run or idle")
     if gait != "idle" and not speed > 0:
         raise LfusdError(f"speed {speed:g} m/s is not positive; give a {gait} speed > 0 m/s")
+    if gait != "idle" and first == last:
+        raise LfusdError(f"the stage has {'no time range' if not stage.HasAuthoredTimeCodeRange() else f'one frame ({first})'}, "
+                         f"so the person would {gait} for one frame; give --frames N (the stage gets frames 1..N) or --gait idle")
     if character is not None:
+        phase(f"reading the character {Path(character).name}")
         character = read_character(character)  # refuse a bad file before other work
     fps = stage.GetTimeCodesPerSecond() or _gait.FPS
     frames = np.arange(first, last + 1)
 
     route = SmoothPath(pts)
+    phase(f"finding the ground under the path over {len(frames)} frames")
     surfaces = SupportSurfaces(stage, float(start), support, water)
     if gait == "walk" and speed > _gait._SPEED_LIMITS["walk"] or speed > _gait._SPEED_LIMITS["run"]:
         _gait.gait_params(gait, speed)  # raises the one-line error for too high a speed
@@ -539,6 +555,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
         prim = _human.define_human(stage, prim_path, spec).GetPrim()
         rig, skel_path, post = _gait.human_rig(spec), prim_path.AppendChild(_human.SKELETON_NAME), None
 
+    phase(f"moving the skeleton over {len(frames)} frames")
     params = _gait.gait_params(gait, speed, rig.height)
     table = None
     if gait != "idle":
@@ -559,6 +576,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
             # Both feet leave the ground in a run: allow that height, rounded up to a centimetre.
             set_constraint(prim, "tolerance", float(np.ceil(gap * 100 + 1) / 100))
     if check:
+        phase(f"checking the stage's rules at each of {len(frames)} frames")
         bad = _rulebook_violations(stage, prim)
         if bad:
             stage.RemovePrim(prim.GetPath())
@@ -573,13 +591,15 @@ SPEEDS = {"walk": 1.3, "run": 3.5, "idle": 3.5}  # m/s when none is given (idle 
 def add_person_to_file(stage_path: str | Path, points, out: str | Path | None = None, *, gait: str = "walk",
                        speed: float | None = None, start: int | None = None, character: str | Path | None = None,
                        height: float = 1.75, build: float = 0.5, name: str | None = None,
-                       force: bool = False) -> tuple[Usd.Prim, str, float]:
+                       force: bool = False, ground=(), frames: int | None = None, progress=None) -> tuple[Usd.Prim, str, float]:
     """`lfusd animate add-person`: add a person (:func:`add_person`) to the stage file ``stage_path``
     (into a new layer ``out`` over it when given) and save; returns the person's prim, the file
     written and the speed used (``speed`` None: :data:`SPEEDS`).
 
     ``height`` and ``build`` shape lfusd's procedural human (not a ``character``). ``name``: the
-    person's absolute prim path, refused when a prim is there unless ``force`` (it is replaced)."""
+    person's absolute prim path, refused when a prim is there unless ``force`` (it is replaced).
+    ``ground``: prim paths labelled ``ground`` first (:func:`label_ground`), for a stage without
+    support labels; ``frames``: a stage without a time range gets frames 1..frames."""
     from .stage import open_for_edit, save_stage
 
     speed = SPEEDS.get(gait, SPEEDS["run"]) if speed is None else speed
@@ -588,10 +608,44 @@ def add_person_to_file(stage_path: str | Path, points, out: str | Path | None = 
     stage = open_for_edit(stage_path, out)
     if name is not None:
         _clear_person_path(stage, name, force)
-    prim = add_person(stage, points, gait=gait, speed=speed, start=start, character=character, spec=spec, path=name)
+    label_ground(stage, ground)
+    if frames is not None:
+        set_frame_count(stage, frames)
+    prim = add_person(stage, points, gait=gait, speed=speed, start=start, character=character, spec=spec, path=name,
+                      progress=progress)
     target = str(out or stage_path)
     save_stage(stage, target)
     return prim, target, speed
+
+
+def label_ground(stage: Usd.Stage, prims) -> None:
+    """Label each of ``prims`` (absolute prim paths) ``ground``, so that a person walks on it: the
+    command-line way (``--ground PRIM``) for a stage whose ground carries no class label. A prim
+    missing, or labelled already with a class a person does not stand on, is refused in one line."""
+    support, _ = person_surfaces(stage)
+    for name in prims:
+        path = Sdf.Path(name) if Sdf.Path.IsValidPathString(name) else None
+        prim = stage.GetPrimAtPath(path) if path is not None and path.IsAbsolutePath() and path.IsPrimPath() else None
+        if not prim:
+            raise LfusdError(f"--ground {name!r} is not a prim of the stage; give the absolute path of the prim people walk on, e.g. /World/Floor")
+        label = class_label(prim)
+        if label and label not in support:
+            raise LfusdError(f"--ground {name} is labelled {label!r}, which a person does not stand on ({', '.join(support[:6])}, ...); "
+                             "give another prim")
+        if not label:
+            set_class_label(prim, "ground")
+
+
+def set_frame_count(stage: Usd.Stage, frames: int) -> None:
+    """Give a stage without a time range the frames 1..``frames`` (``--frames``); a stage with
+    one is refused (its range stays the user's)."""
+    if stage.HasAuthoredTimeCodeRange():
+        first, last = frame_range(stage)
+        raise LfusdError(f"the stage already has frames {first}-{last}; drop --frames (it is for a stage without a time range)")
+    if frames < 2:
+        raise LfusdError(f"--frames {frames}: a person moving needs at least 2 frames; give --frames 2 or more")
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(int(frames))
 
 
 def _clear_person_path(stage: Usd.Stage, name: str, force: bool) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 
 
@@ -28,6 +29,10 @@ def register(sub) -> None:
     add.add_argument("--build", type=float, default=0.5, help="procedural human's build, 0 slim to 1 heavy (default 0.5)")
     add.add_argument("--name", default=None, help="prim path for the person (default /World/People/Person_NN)")
     add.add_argument("--force", action="store_true", help="replace a prim already at --name")
+    add.add_argument("--ground", action="append", default=[], metavar="PRIM",
+                     help="label PRIM 'ground' so the person walks on it (repeatable), for a stage whose ground has no class label")
+    add.add_argument("--frames", type=int, default=None, metavar="N",
+                     help="give a stage without a time range the frames 1..N (a walk needs more than one frame)")
     add.set_defaults(func=run_add_person)
     cyc = asub.add_parser("write-cycles", help="write the procedural human's looping idle/walk/run clips (USD)")
     cyc.add_argument("-o", "--out", default="animations", help="folder (default: animations)")
@@ -49,9 +54,15 @@ def run_add_person(args) -> int:
     from ..author.people import add_person_to_file, parse_points
 
     t0 = time.perf_counter()
+
+    def progress(what: str) -> None:  # on a terminal: a line per phase (a character takes up to a minute)
+        if sys.stderr.isatty():
+            print(f"lfusd: add-person: {what} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
+
     prim, target, speed = add_person_to_file(
         args.stage, parse_points(args.path), args.out, gait=args.gait, speed=args.speed, start=args.start,
-        character=args.character, height=args.height, build=args.build, name=args.name, force=args.force)
+        character=args.character, height=args.height, build=args.build, name=args.name, force=args.force,
+        ground=args.ground, frames=args.frames, progress=progress)
     how = "standing" if args.gait == "idle" else f"{args.gait} at {speed:g} m/s"
     print(f"added {prim.GetPath()} ({how}) to {target} in {time.perf_counter() - t0:.2f} s")
     return 0

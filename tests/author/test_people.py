@@ -428,3 +428,74 @@ def test_add_person_to_file_refuses_a_taken_or_bad_name_before_writing(tmp_path)
     with pytest.raises(LfusdError, match="build"):
         add_person_to_file(path, [(-5, 0), (-1, 0)], build=7.0)
     assert path.read_bytes() == before
+
+
+def _unlabelled_floor_stage(path, last=None):
+    """A floor with no class label (as a downloaded set has), frames 1..last or no time range."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(24)
+    if last is not None:
+        stage.SetStartTimeCode(1)
+        stage.SetEndTimeCode(last)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    m = UsdGeom.Mesh.Define(stage, "/World/Floor")
+    m.CreatePointsAttr([(-10, -10, 0.25), (10, -10, 0.25), (10, 10, 0.25), (-10, 10, 0.25)])
+    m.CreateFaceVertexCountsAttr([4])
+    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    m.CreateSubdivisionSchemeAttr("none")
+    UsdGeom.Mesh.Define(stage, "/World/Table").CreatePointsAttr([(0, 0, 0)])
+    set_class_label(stage.GetPrimAtPath("/World/Table"), "table")
+    stage.Save()
+
+
+def test_ground_option_labels_the_floor_a_person_walks_on(tmp_path):
+    """Issue 39.18: a set without ground labels had only a Python fix; --ground PRIM labels it."""
+    path = tmp_path / "set.usda"
+    _unlabelled_floor_stage(path, last=24)
+    r = _cli(path, "--path", "-2,0", "2,0")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--ground PRIM" in r.stderr
+    for bad, needle in (("/World/Nothing", "not a prim"), ("/World/Table", "labelled 'table'")):
+        r = _cli(path, "--path", "-2,0", "2,0", "--ground", bad)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and needle in r.stderr, r.stderr
+    r = _cli(path, "--path", "-2,0", "2,0", "--ground", "/World/Floor")
+    assert r.returncode == 0, r.stderr
+    stage = Usd.Stage.Open(str(path))
+    assert class_label(stage.GetPrimAtPath("/World/Floor")) == "ground"
+    root = _root_world(stage, "/World/People/Person_00", [1, 12, 24])
+    np.testing.assert_allclose(root[:, 3, 2], 0.25, atol=1e-4)  # standing on the floor it was told about
+
+
+def test_a_walk_on_a_stage_without_time_range_is_refused_or_given_frames(tmp_path):
+    """Issue 39.18: a stage with no time range silently got a one-frame walk; now refused, and
+    --frames N gives it frames 1..N."""
+    path = tmp_path / "still.usda"
+    _unlabelled_floor_stage(path)
+    before = path.read_bytes()
+    r = _cli(path, "--path", "-2,0", "2,0", "--ground", "/World/Floor")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no time range" in r.stderr and "--frames N" in r.stderr
+    assert path.read_bytes() == before
+    assert _cli(path, "--path", "-2,0", "2,0", "--gait", "idle", "--ground", "/World/Floor", "-o", tmp_path / "idle.usda").returncode == 0
+    r = _cli(path, "--path", "-2,0", "2,0", "--ground", "/World/Floor", "--frames", "36")
+    assert r.returncode == 0, r.stderr
+    stage = Usd.Stage.Open(str(path))
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (1, 36)
+    root = _root_world(stage, "/World/People/Person_00", [1, 36])
+    assert np.linalg.norm(root[1, 3, :2] - root[0, 3, :2]) > 1.0  # it walks
+    r = _cli(path, "--path", "-2,3", "2,3", "--frames", "10")
+    assert r.returncode == 2 and "already has frames 1-36" in r.stderr
+
+
+def test_add_person_says_each_phase_on_a_terminal(tmp_path, monkeypatch, capsys):
+    """Issue 39.19: add-person ran up to a minute without a word; on a terminal it names each phase."""
+    from lfusd.cli import main
+
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=24)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    assert main(["animate", "add-person", str(path), "--path", "-5,0", "-2,0"]) == 0
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("lfusd: add-person: ")]
+    assert [ln.split(": ", 2)[2].split(" ")[0] for ln in lines] == ["finding", "moving", "checking"], err
+    assert all(ln.endswith(" s)") for ln in lines)
