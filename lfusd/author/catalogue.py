@@ -215,12 +215,37 @@ def inspect_asset(file: str | Path, cls: str | None = None, licence: str | None 
                     "fix the asset, or check those scenes with --no-usd-validation", file, issues[0],
                     f"; and {len(issues) - 1} more" if len(issues) > 1 else "")
 
+    odd = implausible_size(cls, (lo, hi), geometry.frame.meters_per_unit)
+    if odd:  # added all the same (the user may mean it), but said: the scenes would not fit it
+        log.warning("asset %s: %s", file, odd)
     return Asset(name=name or file.stem, file=str(file), prim=str(prim.GetPath()), cls=cls,
                  bounds=(tuple(round(float(v), 6) for v in lo), tuple(round(float(v), 6) for v in hi)),
                  meters_per_unit=geometry.frame.meters_per_unit, up_axis=geometry.frame.up_axis,
                  ground=round(float(lo[2]), 6), licence=(licence or _licence(stage, prim)), sha256=files_digest(files),
                  triangles=int(triangles), textured_materials=textured_materials(stage),
                  lights=tuple(str(p.GetPath().MakeRelativePath(prim.GetPath())) for p in lights))
+
+
+def implausible_size(cls: str, bounds, meters_per_unit: float = 1.0) -> str | None:
+    """What is wrong with an asset of class ``cls`` whose bounds (metres) are outside the class's
+    plausible size (:data:`lfusd.author.vocabulary.PLAUSIBLE_SIZE`), with the metersPerUnit that
+    would make it plausible when a unit mix-up explains it; None when plausible or unknown."""
+    from .vocabulary import PLAUSIBLE_SIZE
+
+    if cls not in PLAUSIBLE_SIZE:
+        return None
+    least, most = PLAUSIBLE_SIZE[cls]
+    size = float(np.max(np.asarray(bounds[1], float) - np.asarray(bounds[0], float)))
+    if least <= size <= most:
+        return None
+    hint = "check its metersPerUnit and scale"
+    for factor in (100.0, 1000.0, 1 / 100.0, 1 / 1000.0, 1 / 0.0254):  # cm, mm, m read as cm / mm, inches
+        if least <= size / factor <= most:
+            hint = (f"its geometry looks {factor:g} times too {'large' if factor > 1 else 'small'}: "
+                    f"set metersPerUnit = {meters_per_unit / factor:g} in the asset, then add it again")
+            break
+    return (f"a {size:.3g} m {cls} is implausible (a {cls}'s longest side is {least:g}-{most:g} m), "
+            f"so no scene will have room for it; {hint}")
 
 
 def content_files(file: str | Path) -> dict[str, dict]:

@@ -25,6 +25,10 @@ SURFACES = frozenset(GROUND + WATER)
 OBJECTS = ("person", "boat", "car", "building", "tree", "street_light", "bench", "table", "chair", "cabinet",
            "lamp", "bowl", "wall", "bin", "railing", "shelf")
 ANY = "any"  # in rules: every labelled object that is not a surface
+# (least, most) metres of a catalogue asset's longest side per class a template draws: an asset
+# outside is flagged when added (a car in centimetres read as metres is a 467 m car)
+PLAUSIBLE_SIZE = {"person": (0.5, 2.6), "car": (2.0, 12.0), "tree": (0.5, 60.0), "bench": (0.5, 6.0), "bin": (0.2, 2.0),
+                  "chair": (0.3, 1.8), "table": (0.3, 6.0), "shelf": (0.3, 6.0)}
 CLASSES = frozenset(GROUND + WATER + OBJECTS)
 
 # -- attributes and relationships ------------------------------------------------------------

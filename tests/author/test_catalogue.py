@@ -470,3 +470,31 @@ def test_a_light_inside_an_instance_is_refused(tmp_path, capsys):
     stage.GetRootLayer().Save()
     code, _, err = run_cli(capsys, "assets", "add", path)
     assert_one_line_error(code, err, "light inside an instance", "/Post/Head/Bulb")
+
+
+def test_an_implausibly_sized_asset_is_flagged_and_a_class_left_out_is_said(tmp_path, capsys):
+    """Issue 39.17: a car in centimetres whose file says metres was a silent 420 m car, and then no
+    car at all in the street; now its size is flagged when added (with the metersPerUnit that fits)
+    and the street says it has no car."""
+    from pxr import Sdf
+
+    car = write_car(tmp_path / "lib", name="giant")
+    layer = Sdf.Layer.FindOrOpen(str(car))
+    layer.pseudoRoot.SetInfo("metersPerUnit", 1.0)  # the converter's mistake: centimetres declared as metres
+    layer.Save()
+    cat = tmp_path / "cat.json"
+    code, out, err = run_cli(capsys, "assets", "add", car, "--catalogue", cat)
+    assert code == 0, err
+    warn = [ln for ln in err.splitlines() if "implausible" in ln]
+    assert len(warn) == 1 and f"a {CAR_LENGTH:.3g} m car" in warn[0] and "metersPerUnit = 0.01" in warn[0], err
+    code, out, err = run_cli(capsys, "stage", "new", "street", "-o", tmp_path / "s.usda", "--frames", "1", "--rigs", "1",
+                             "--grid", "2x2", "--resolution", "32x32", "--catalogue", cat)
+    assert code == 0, err
+    assert "the street scene has no car" in err and "1 car asset found room" in err, err
+    # a plausible car: no word about its size, and the street has cars
+    good = write_car(tmp_path / "ok", name="sedan")
+    code, _, err = run_cli(capsys, "assets", "add", good, "--catalogue", tmp_path / "ok.json")
+    assert code == 0 and "implausible" not in err
+    code, _, err = run_cli(capsys, "stage", "new", "street", "-o", tmp_path / "t.usda", "--frames", "1", "--rigs", "1",
+                           "--grid", "2x2", "--resolution", "32x32", "--catalogue", tmp_path / "ok.json")
+    assert code == 0 and "has no car" not in err, err

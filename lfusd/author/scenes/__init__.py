@@ -17,6 +17,7 @@ templates exist or in which order they were registered.
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 import math
 import pkgutil
@@ -36,6 +37,8 @@ from ..rigs import add_rig
 from ..rules import set_class_rule
 from ..vocabulary import ASSET, BOUNDS, DYNAMIC, LIGHTING, SEED, TEMPLATE
 from .build import Builder, MeshData, box
+
+log = logging.getLogger(__name__)
 
 # Rules for the object kit's classes (lfusd.author.scenes.objects), which every generated stage
 # adds to the default rulebook (stored as lfusd:rule:* attributes); a template adds its own.
@@ -85,6 +88,8 @@ class Scene:
     lighting: dict = field(default_factory=dict)  # the drawn lighting setup (customData lfusd:lighting)
     ctx: object = None  # the dynamic variant's state (lfusd.author.scenes.dynamic.Ctx)
     assets: dict = field(default_factory=dict)  # class -> catalogue assets drawn instead of its generator (catalogue.draw_assets)
+    assets_drawn: set = field(default_factory=set)  # classes of which a catalogue asset was drawn (Scene.draw)
+    assets_placed: set = field(default_factory=set)  # ... and placed (Scene.add)
 
     @property
     def stage(self) -> Usd.Stage:
@@ -108,6 +113,7 @@ class Scene:
         from ..catalogue import placed_size
 
         asset = pool[int(rng.integers(len(pool)))]
+        self.assets_drawn.add(cls)
         sx, sy, sz = placed_size(asset)
         return [("asset", box((sx, sy, sz), (0.0, 0.0, sz / 2)), AssetPart(asset))]
 
@@ -118,6 +124,7 @@ class Scene:
         self.builder.obj(path, label, pos, yaw_deg)
         if is_asset(parts):
             reference_asset(self.stage, self.builder.stage_path, path, parts[0][2].asset)
+            self.assets_placed.add(parts[0][2].asset.cls)
         else:
             for part, data, texture in parts:
                 r = (roughness or {}).get(part)  # None: the texture's finish (build.FINISHES)
@@ -377,8 +384,23 @@ def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, d
         from .dynamic import finish
 
         finish(scene)  # the rulebook over every frame; a mover that breaks a rule goes
+    _say_unplaced(scene, template)
     round_layer(stage.GetRootLayer())  # the same bytes from one seed on every CPU
     stage.GetRootLayer().Save()
+
+
+def _say_unplaced(scene: Scene, template: str) -> None:
+    """Warn of each catalogue class the template drew from but placed nothing of (every try
+    collided or did not fit: an asset far too large, say), instead of a scene silently without it.
+    People are placed by the dynamic variant's walkers, not here."""
+    from ..catalogue import placed_size
+
+    for cls, pool in sorted(scene.assets.items()):
+        if cls == "person" or cls not in scene.assets_drawn or cls in scene.assets_placed:
+            continue
+        longest = max(max(placed_size(a)) for a in pool)
+        log.warning("the %s scene has no %s: none of the catalogue's %d %s asset%s found room (the largest is %.3g m long); "
+                    "check their sizes with `lfusd assets list`", template, cls, len(pool), cls, "s" if len(pool) > 1 else "", longest)
 
 
 def _load_templates() -> None:
