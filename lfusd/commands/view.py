@@ -18,6 +18,9 @@ def register(subparsers) -> None:
     p.add_argument("--every", type=int, default=1, metavar="N", help="show every N-th of those frames (default 1)")
     p.add_argument("--max-points", type=int, default=20000, help="most points of the centre view's cloud per frame (default 20000)")
     p.add_argument("--max-arrows", type=int, default=1000, help="most scene-flow arrows per frame (default 1000)")
+    p.add_argument("--arrow-scale", type=float, default=None, metavar="X",
+                   help="draw scene-flow arrows X times their length (default: one scale per rig that makes them visible, printed)")
+    p.add_argument("--lossless", action="store_true", help="log the images as raw pixels instead of JPEG (a recording several times larger)")
     p.set_defaults(func=run)
 
 
@@ -25,9 +28,10 @@ def run(args) -> int:
     from ..evaluation.view import view
 
     result = view(args.out, save=args.save, rig=args.rig, views=args.views, frames=args.frames, every=args.every,
-                  max_points=args.max_points, max_arrows=args.max_arrows)
+                  max_points=args.max_points, max_arrows=args.max_arrows, arrow_scale=args.arrow_scale, lossless=args.lossless)
     for rig, c in result.items():
-        print(f"{rig}: {c['frames']} frames, {c['images']} images, {c['points']} points, {c['arrows']} scene-flow arrows")
+        arrows = f", drawn at {c['arrow_scale']:g}x their length" if c["arrows"] else ""
+        print(f"{rig}: {c['frames']} frames, {c['images']} images, {c['points']} points, {c['arrows']} scene-flow arrows{arrows}")
     if args.save:
         print(f"recording written to {args.save}; open it with: rerun {args.save}")
     return 0

@@ -4,17 +4,25 @@ Entity paths, per rig ``<rig>`` (world frame: lfusd's, Z-up, metres; timeline ``
 dataset's frame numbers)::
 
     world/<rig>/cam_<RR>_<CC>            Transform3D (the view's cam_to_world) + Pinhole (K, OpenCV RDF)
-    world/<rig>/cam_<RR>_<CC>/rgb        Image: the view's sRGB image
+    world/<rig>/cam_<RR>_<CC>/rgb        EncodedImage: the view's sRGB image, JPEG (Image, lossless, with ``lossless``)
     world/<rig>/cam_<RC>_<CC>/depth      DepthImage (centre view; metres)
     world/<rig>/cam_<RC>_<CC>/flow       Image: forward optical flow, Middlebury colour wheel (centre view)
     world/<rig>/cam_<RC>_<CC>/instance   SegmentationImage of instance ids (centre view)
     world/<rig>/cam_<RC>_<CC>/semantic   SegmentationImage of class ids, labelled by the class table
     world/<rig>/points                   Points3D: the centre view's surface points (``position``) in their colours
-    world/<rig>/scene_flow               Arrows3D: their scene flow to t+1 (where ``valid_fwd``)
+    world/<rig>/scene_flow               Arrows3D: their scene flow to t+1 (where ``valid_fwd`` and
+                                         the point moves), drawn ``arrow_scale`` times its length
+    world/<rig>/scene_flow_scale         TextDocument: that scale
 
 Points and arrows are subsampled on a regular pixel grid to at most ``max_points`` /
-``max_arrows``. Keys the dataset lacks (a still render has no motion) are left out. Reads the
-dataset through :class:`lfusd.Dataset` only; rerun is imported when a recording starts.
+``max_arrows``. Scene flow is millimetres to centimetres per frame in a scene of metres, so at
+true length the arrows are invisible: by default (``arrow_scale`` None) one scale per rig, the same
+at every frame, makes the 95th percentile of the moving arrows :data:`ARROW_SHARE` of the point
+cloud's extent (rounded down to 1, 2 or 5 times a power of ten); points that do not move get no
+arrow. The recording carries a layout (a blueprint): the 3D world beside the light-field grid of
+each rig's images as the rig sees them, the timeline open. Keys the dataset lacks (a still
+render has no motion) are left out. Reads the dataset through :class:`lfusd.Dataset` only; rerun
+is imported when a recording starts.
 """
 
 from __future__ import annotations
@@ -33,6 +41,9 @@ log = logging.getLogger(__name__)
 TIMELINE = "frame"
 MAX_POINTS = 20_000
 MAX_ARROWS = 1_000
+ARROW_SHARE = 0.03  # the default arrow scale draws the 95th percentile moving arrow this share of the scene's extent
+STILL_M = 1e-6  # m per frame: a point moving less gets no arrow (the stored scene flow's step is 2^-17 m)
+JPEG_QUALITY = 95
 
 
 def entity(rig: str, view=None, leaf: str | None = None) -> str:
@@ -80,8 +91,44 @@ def _spawn_viewer(rr, rec) -> None:
                          "write a recording with --save FILE.rrd and open it with 'rerun FILE.rrd' where a display is") from None
 
 
-def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: int = MAX_POINTS, max_arrows: int = MAX_ARROWS) -> dict:
-    """Log one rig of a dataset to rerun recording ``rec``; returns counts of what was logged."""
+def nice_scale(x: float) -> float:
+    """``x`` rounded down to 1, 2 or 5 times a power of ten (a scale a reader can say)."""
+    if not (x > 0 and math.isfinite(x)):
+        return 1.0
+    p = 10.0 ** math.floor(math.log10(x))
+    return max(m * p for m in (1.0, 2.0, 5.0) if m * p <= x * (1 + 1e-12))
+
+
+def auto_arrow_scale(vectors: list[np.ndarray], points: list[np.ndarray]) -> float:
+    """The default arrow scale of a rig (see the module docstring): 1 when nothing moves."""
+    moving = np.concatenate([np.linalg.norm(v, axis=-1) for v in vectors]) if vectors else np.zeros(0)
+    pts = np.concatenate(points) if points else np.zeros((0, 3))
+    if not moving.size or not len(pts):
+        return 1.0
+    extent = float(np.linalg.norm(pts.max(0) - pts.min(0)))
+    return nice_scale(ARROW_SHARE * extent / float(np.percentile(moving, 95)))
+
+
+def layout(rigs: dict):
+    """The recording's blueprint: the 3D world beside each rig's light-field grid (row-major, as
+    the rig sees them), the timeline open. ``rigs``: {name: (rows, cols, views shown)}."""
+    import rerun.blueprint as rrb
+
+    grids = []
+    for rig, (rows, cols, views) in rigs.items():
+        shown = set(map(tuple, views))
+        cells = [rrb.Spatial2DView(origin=entity(rig, (r, c)), contents=["$origin/rgb"], name=f"{rig} {r},{c}")
+                 for r in range(rows) for c in range(cols) if (r, c) in shown]
+        grids.append(rrb.Grid(contents=cells, grid_columns=cols, name=f"{rig} light field"))
+    return rrb.Blueprint(rrb.Horizontal(rrb.Spatial3DView(origin="world", name="world"), *grids),
+                         rrb.TimePanel(state="expanded"), collapse_panels=False)
+
+
+def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: int = MAX_POINTS, max_arrows: int = MAX_ARROWS,
+                arrow_scale: float | None = None, lossless: bool = False) -> dict:
+    """Log one rig of a dataset to rerun recording ``rec``; returns counts of what was logged and
+    the arrow scale used (``arrow_scale`` None: :func:`auto_arrow_scale`). ``lossless``: the
+    images as raw pixels instead of JPEG."""
     from .preview import flow_to_color
 
     rr = _rr()
@@ -91,13 +138,16 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
     classes = list(getattr(ds, "classes", []) or [])  # class id = index (0 = unlabelled)
     rec.log(entity(rig, centre, "semantic"), rr.AnnotationContext([(i, str(name)) for i, name in enumerate(classes)]), static=True)
     counts = {"frames": 0, "images": 0, "points": 0, "arrows": 0}
+    arrows: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame -> (origins, scene flow): logged once the scale is known
+    clouds = []
     for t in frames:
         rec.set_time(TIMELINE, sequence=int(t))
         for v in views:
             c2w = np.asarray(ds.cam_to_world(t, v), float)
             rec.log(entity(rig, v), rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]))
             rec.log(entity(rig, v), rr.Pinhole(image_from_camera=K, resolution=[w, h], camera_xyz=rr.ViewCoordinates.RDF))
-            rec.log(entity(rig, v, "rgb"), rr.Image(ds.read(t, v, "rgb")))
+            img = rr.Image(ds.read(t, v, "rgb"))
+            rec.log(entity(rig, v, "rgb"), img if lossless else img.compress(jpeg_quality=JPEG_QUALITY))
             counts["images"] += 1
         if centre in views:
             rgb = ds.read(t, centre, "rgb")
@@ -118,30 +168,44 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
                 ok = np.all(np.isfinite(p), axis=-1)
                 rec.log(entity(rig, None, "points"), rr.Points3D(p[ok], colors=col[ok]))
                 counts["points"] += int(ok.sum())
+                clouds.append(p[ok])
                 sf = _read(ds, t, centre, "scene_flow")
                 if sf is not None and valid is not None:
                     s = grid_step(h, w, max_arrows)
                     p, f = pos[::s, ::s].reshape(-1, 3), sf[::s, ::s].reshape(-1, 3)
                     ok = np.asarray(valid, bool)[::s, ::s].reshape(-1) & np.all(np.isfinite(p), -1) & np.all(np.isfinite(f), -1)
+                    ok &= np.linalg.norm(np.where(ok[:, None], f, 0.0), axis=-1) > STILL_M  # a still point: no arrow
                     if ok.any():  # none on the last frame: no t+1
-                        rec.log(entity(rig, None, "scene_flow"), rr.Arrows3D(origins=p[ok], vectors=f[ok]))
-                        counts["arrows"] += int(ok.sum())
+                        arrows[int(t)] = (p[ok], f[ok])
         counts["frames"] += 1
+    scale = float(arrow_scale) if arrow_scale is not None else auto_arrow_scale([f for _, f in arrows.values()], clouds)
+    for t, (o, f) in arrows.items():
+        rec.set_time(TIMELINE, sequence=t)
+        rec.log(entity(rig, None, "scene_flow"), rr.Arrows3D(origins=o, vectors=f * scale))
+        counts["arrows"] += len(o)
+    if arrows:
+        rec.log(entity(rig, None, "scene_flow_scale"), rr.TextDocument(f"scene-flow arrows drawn at {scale:g} times their length"), static=True)
+    counts["arrow_scale"] = scale
     return counts
 
 
 def view(out, save=None, rig: str | None = None, views=None, frames=None, every: int = 1,
-         max_points: int = MAX_POINTS, max_arrows: int = MAX_ARROWS) -> dict:
+         max_points: int = MAX_POINTS, max_arrows: int = MAX_ARROWS, arrow_scale: float | None = None,
+         lossless: bool = False) -> dict:
     """Show dataset ``out`` in the rerun viewer, or with ``save`` write it to that ``.rrd`` file.
 
     ``rig``: one rig (default every rig); ``views``: (row, col) views to show (default all);
-    ``frames``: frame numbers (default all complete frames); ``every``: keep every N-th of them.
-    Returns what was logged per rig (frames, images, points, arrows).
+    ``frames``: frame numbers (default all complete frames); ``every``: keep every N-th of them;
+    ``arrow_scale``: scene-flow arrows drawn this many times their length (default: chosen per
+    rig, see the module docstring); ``lossless``: raw images instead of JPEG.
+    Returns what was logged per rig (frames, images, points, arrows, arrow scale).
     """
     from ..data.dataset import open_datasets
 
     if every < 1:
         raise LfusdError(f"--every {every}: give a positive step (1 shows every frame)")
+    if arrow_scale is not None and not (arrow_scale > 0 and math.isfinite(arrow_scale)):
+        raise LfusdError(f"--arrow-scale {arrow_scale}: give a positive factor (1 draws scene flow at its true length)")
     if save is not None:
         save = Path(save)
         if save.suffix != ".rrd":
@@ -166,15 +230,18 @@ def view(out, save=None, rig: str | None = None, views=None, frames=None, every:
         plan.append((ds, fs[::every], vs))
     rr = _rr()
     rec = rr.RecordingStream(f"lfusd {Path(out).resolve().name}")
+    blueprint = layout({ds.rig_name: (ds.rig.rows, ds.rig.cols, vs) for ds, _, vs in plan})
     partial = None
     if save is not None:
         partial = save.with_name(f".{save.name}.partial-{os.getpid()}")
-        rec.save(str(partial))
+        rec.save(str(partial), default_blueprint=blueprint)
     else:
         _spawn_viewer(rr, rec)
+        rec.send_blueprint(blueprint)
     try:
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        result = {ds.rig_name: log_dataset(rec, ds, ds.rig_name, fs, vs, max_points, max_arrows) for ds, fs, vs in plan}
+        result = {ds.rig_name: log_dataset(rec, ds, ds.rig_name, fs, vs, max_points, max_arrows, arrow_scale, lossless)
+                  for ds, fs, vs in plan}
         try:
             rec.flush()
         except RuntimeError as e:  # the viewer went away (closed, or could not open a window)

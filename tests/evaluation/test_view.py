@@ -58,7 +58,7 @@ def check_cameras_and_cloud(ds, rec, rig, frames, views, max_points):
             np.testing.assert_allclose(np.array(rec[(cam, "Transform3D:mat3x3")][t]).reshape(3, 3).T, c2w[:3, :3], atol=1e-6)  # column-major
             np.testing.assert_allclose(np.array(rec[(cam, "Pinhole:image_from_camera")][t]).reshape(3, 3).T, K, atol=1e-4)
             assert list(np.array(rec[(cam, "Pinhole:resolution")][t]).ravel()) == [w, h]
-            assert rec[(entity(rig, v, "rgb"), "Image:buffer")][t] is not None
+            assert rec[(entity(rig, v, "rgb"), "EncodedImage:blob")][t] is not None  # JPEG by default
         pts = np.array(rec[(entity(rig, None, "points"), "Points3D:positions")][t], float).reshape(-1, 3)
         s = grid_step(h, w, max_points)
         rows, cols = np.mgrid[0:h:s, 0:w:s]
@@ -82,24 +82,88 @@ def test_fake_recording_has_posed_cameras_points_and_analytic_arrows(tmp_path):
 
     ds = FakeDataset(rows=3, cols=3, width=24, height=20, frames=(1, 2, 3))
     ds.resolution = (24, 20)
-    counts = record(ds, tmp_path / "fake.rrd", max_points=100, max_arrows=40)
+    counts = record(ds, tmp_path / "fake.rrd", max_points=100, max_arrows=40, arrow_scale=1.0)
     rec = read_rrd(tmp_path / "fake.rrd")
     check_cameras_and_cloud(ds, rec, "main", ds.frames, ds.views, 100)
-    assert counts["images"] == 27 and counts["frames"] == 3
-    # arrows: the box moves by V (rig frame) per frame, the wall not at all; none on the last frame (no t+1)
+    assert counts["images"] == 27 and counts["frames"] == 3 and counts["arrow_scale"] == 1.0
+    # arrows: the box moves by V (rig frame) per frame, the wall not at all (no arrow there); none on
+    # the last frame (no t+1)
     r2w = ds.rig.rig_to_world()[:3, :3]
     for t in (1, 2):
         o = np.array(rec[(entity("main", None, "scene_flow"), "Arrows3D:origins")][t], float).reshape(-1, 3)
         vec = np.array(rec[(entity("main", None, "scene_flow"), "Arrows3D:vectors")][t], float).reshape(-1, 3)
         assert len(o) > 0
-        box = np.linalg.norm(vec, axis=1) > 0
-        assert box.any() and (~box).any()
-        np.testing.assert_allclose(vec[box], np.broadcast_to(r2w @ V, vec[box].shape), atol=1e-6)
+        np.testing.assert_allclose(vec, np.broadcast_to(r2w @ V, vec.shape), atol=1e-6)  # only the box: still points get none
     assert 3 not in rec.get((entity("main", None, "scene_flow"), "Arrows3D:origins"), {})
     # the segmentation and flow images of the centre view
     c = ds.rig.centre_view
     assert set(rec[(entity("main", c, "instance"), "SegmentationImage:buffer")]) == {1, 2, 3}
     assert set(rec[(entity("main", c, "flow"), "Image:buffer")]) == {1, 2}
+
+
+class StreetFake(FakeDataset):
+    """The analytic scene stretched to a street's extent: a wall 25 m away that a box crosses by
+    3 cm per frame, as lfusd's street scenes move (issue 39.15: arrows invisible at true length)."""
+
+    def _compute(self, t, view, key):
+        a = super()._compute(t, view, key)
+        return (a * 8.0).astype(a.dtype) if key in ("position", "depth") else a
+
+
+def test_arrows_get_a_visible_scale_images_are_jpeg_and_the_recording_has_a_layout(tmp_path):
+    """Issue 39.15: the default arrow scale makes the 95th percentile moving arrow ARROW_SHARE of the
+    cloud's extent, rounded down to 1-2-5, the same at every frame and stated in the recording; still
+    points get no arrow; images are JPEG (smaller than raw); the recording carries a blueprint
+    (3D world beside the light-field grid, timeline open)."""
+    import rerun as rr
+
+    from lfusd.evaluation.view import ARROW_SHARE, layout, nice_scale
+
+    assert [nice_scale(x) for x in (0.7, 1.0, 3.3, 17.0, 499.0)] == [0.5, 1.0, 2.0, 10.0, 200.0]
+    ds = StreetFake(rows=2, cols=3, width=24, height=20, frames=(1, 2, 3))
+    ds.resolution = (24, 20)
+    counts = record(ds, tmp_path / "auto.rrd", max_points=400, max_arrows=400)
+    rec = read_rrd(tmp_path / "auto.rrd")
+    pts = np.concatenate([np.array(rec[(entity("main", None, "points"), "Points3D:positions")][t], float).reshape(-1, 3) for t in ds.frames])
+    true = []
+    for t in (1, 2):
+        sf = ds.read(t, ds.rig.centre_view, "scene_flow").reshape(-1, 3)
+        s = grid_step(20, 24, 400)
+        sf = ds.read(t, ds.rig.centre_view, "scene_flow")[::s, ::s].reshape(-1, 3)
+        true.append(sf[np.linalg.norm(sf, axis=-1) > 1e-6])
+    p95 = np.percentile(np.linalg.norm(np.concatenate(true), axis=-1), 95)
+    want = ARROW_SHARE * np.linalg.norm(pts.max(0) - pts.min(0)) / p95
+    scale = counts["arrow_scale"]
+    assert want / 5 < scale <= want and scale == nice_scale(want) and scale > 1
+    for t in (1, 2):
+        vec = np.array(rec[(entity("main", None, "scene_flow"), "Arrows3D:vectors")][t], float).reshape(-1, 3)
+        np.testing.assert_allclose(vec, true[t - 1] * scale, rtol=1e-5)  # one scale for every frame
+    assert f"{scale:g} times" in str(rec[(entity("main", None, "scene_flow_scale"), "TextDocument:text")][None])
+    # JPEG images are smaller than raw ones
+    record(ds, tmp_path / "raw.rrd", max_points=400, max_arrows=400, lossless=True)
+    assert (entity("main", (0, 0), "rgb"), "Image:buffer") in read_rrd(tmp_path / "raw.rrd")
+    assert (tmp_path / "auto.rrd").stat().st_size < (tmp_path / "raw.rrd").stat().st_size
+    # the layout: one 2D view per camera in a grid of the rig's columns, beside the 3D world
+    bp = tmp_path / "bp.rrd"
+    stream = rr.RecordingStream("bp")
+    stream.save(str(bp), default_blueprint=layout({"main": (2, 3, ds.views)}))
+    stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    stream.flush()
+    stream.disconnect()
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(bp)
+    (store,) = reader.blueprints()
+    bp_values = collections.defaultdict(list)
+    for chunk in reader.stream(store=store):
+        for name, values in chunk.to_record_batch().to_pydict().items():
+            if ":" in name:
+                bp_values[name.split("@")[-1]] += [v[0] if isinstance(v, list) and len(v) == 1 else v for v in values]
+    views = dict(zip(bp_values["ViewBlueprint:space_origin"], bp_values["ViewBlueprint:class_identifier"]))
+    assert views.pop("world") == "3D"
+    assert views == {entity("main", v): "2D" for v in ds.views}  # one image view per camera
+    assert 3 in bp_values["ContainerBlueprint:grid_columns"] and "main light field" in bp_values["ContainerBlueprint:display_name"]
+    assert bp_values["TimePanelBlueprint:state"]  # the timeline panel is set (expanded)
 
 
 def test_view_refuses_bad_requests_in_one_line(tmp_path):
@@ -136,7 +200,7 @@ def test_view_saves_a_recording_of_a_rendered_video(moving, tmp_path, capsys):
     from lfusd.cli import main
 
     rrd = tmp_path / "movers.rrd"
-    assert main(["view", str(moving), "--save", str(rrd), "--max-points", "300", "--max-arrows", "200"]) == 0
+    assert main(["view", str(moving), "--save", str(rrd), "--max-points", "300", "--max-arrows", "200", "--arrow-scale", "1"]) == 0
     assert "3 frames, 27 images" in capsys.readouterr().out
     ds = Dataset(moving)
     rec = read_rrd(rrd)
@@ -147,7 +211,7 @@ def test_view_saves_a_recording_of_a_rendered_video(moving, tmp_path, capsys):
     for t in (1, 2):
         o = np.array(rec[(entity("main", None, "scene_flow"), "Arrows3D:origins")][t], float).reshape(-1, 3)
         vec = np.array(rec[(entity("main", None, "scene_flow"), "Arrows3D:vectors")][t], float).reshape(-1, 3)
-        assert len(o) > 20
+        assert len(o) > 0
         expected = np.zeros_like(o)
         for (pose, size), (pose1, _) in zip(movers_world(t).values(), movers_world(t + 1).values()):
             local = (np.c_[o, np.ones(len(o))] @ np.linalg.inv(pose).T)[:, :3]
@@ -166,8 +230,8 @@ def test_view_saves_a_recording_of_a_rendered_video(moving, tmp_path, capsys):
     light = tmp_path / "light.rrd"
     assert main(["view", str(moving), "--save", str(light), "--views", "1,1", "0,0", "--frames", "1-3", "--every", "2"]) == 0
     rec = read_rrd(light)
-    assert set(rec[(entity("main", (0, 0), "rgb"), "Image:buffer")]) == {1, 3}
-    assert (entity("main", (0, 1), "rgb"), "Image:buffer") not in rec
+    assert set(rec[(entity("main", (0, 0), "rgb"), "EncodedImage:blob")]) == {1, 3}
+    assert (entity("main", (0, 1), "rgb"), "EncodedImage:blob") not in rec
     assert main(["view", str(moving), "--save", str(light)]) == 2
 
 
