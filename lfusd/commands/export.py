@@ -26,6 +26,9 @@ def register(subparsers) -> None:
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
     p.add_argument("dest", help="new folder to write")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
+    p.add_argument("--exposure", default=None, metavar="auto|GAIN",
+                   help="8-bit images from the linear render times one gain for the whole dataset: auto (the brightest 1 %% "
+                        "of pixels at 0.9 of white) or a number (default: as rendered)")
     argtypes.add_rig_option(p, "dataset")
     # Each format's options, once per flag; its help names the formats that take it.
     options: dict[str, list] = {}
@@ -47,6 +50,11 @@ def run(args) -> int:
 
     fmt = exports.get(args.format)
     ds = open_dataset(args.out, args.rig)
+    if args.exposure is not None:
+        from ..data.exposure import exposed
+
+        ds = exposed(ds, args.exposure)
+        print(f"exposure: gain {ds.gain:.4g} on the linear images, the same for every view and frame")
     result = exports.export(ds, fmt.name, args.dest, frame=args.frame, **{o.param: getattr(args, o.param) for o in fmt.options})
     n = len(result) if isinstance(result, list) else 1
     print(f"exported {fmt.name} to {args.dest} ({n} {fmt.unit}{'' if n == 1 else 's'})")

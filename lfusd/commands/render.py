@@ -19,4 +19,7 @@ def run(args) -> int:
     req = RenderRequest(frames=None if args.frame is None else [args.frame], **argtypes.render_request_fields(args))
     manifest = render(req)
     print(f"lfusd: {args.out}: rigs {', '.join(manifest['rigs'])}, frames {manifest['frames']}, device {manifest['device']}")
+    from .render_video import warn_exposure
+
+    warn_exposure(args.out)
     return 0

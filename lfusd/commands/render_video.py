@@ -29,11 +29,23 @@ def run(args) -> int:
     first, last = result.frames[0], result.frames[-1]
     print(f"lfusd: {args.out}: rig {', '.join(result.rigs)}, frames {first}-{last}, device {result.manifest['device']}, "
           f"motion derived for {result.derived} views")
+    warn_exposure(args.out)
     if args.verify:
         from ..truth.verify import record_certificate, verify
         from .verify import progress, show
 
-        reports = verify(args.out, rig=result.rigs[0] if len(result.rigs) == 1 else "all", frames=result.frames, progress=progress)
+        reports = verify(args.out, rig=result.rigs[0] if len(result.rigs) == 1 else "all", frames=result.frames,
+                         progress=progress if getattr(args, "verbose", 0) else None)
         record_certificate(args.out, reports)  # the dataset carries verify's figures (manifest.json "certificate")
         return show(reports)
     return 0
+
+
+def warn_exposure(out) -> None:
+    """A warning line per rig whose images are nearly black or overexposed (lfusd.data.exposure)."""
+    import sys
+
+    from ..data.exposure import check_folder
+
+    for line in check_folder(out):
+        print(f"lfusd: warning: {line}", file=sys.stderr)
