@@ -499,3 +499,46 @@ def test_add_person_says_each_phase_on_a_terminal(tmp_path, monkeypatch, capsys)
     lines = [ln for ln in err.splitlines() if ln.startswith("lfusd: add-person: ")]
     assert [ln.split(": ", 2)[2].split(" ")[0] for ln in lines] == ["finding", "moving", "checking"], err
     assert all(ln.endswith(" s)") for ln in lines)
+
+
+def test_a_t_posed_character_walks_with_its_arms_down(tmp_path, monkeypatch):
+    """Issue 39.16: a T-posed character (arms straight out, as glTF's BrainStem; written here as a
+    glTF converter writes one, Y-up under rotateX -90, anonymous joint names so only its shape
+    tells the arms) walks with its arms at its sides: the hands swing near the body at every frame."""
+    from support import characters
+
+    for s, x in (("l", -1.0), ("r", 1.0)):  # arms horizontal at shoulder height: wrists 0.70 m out
+        monkeypatch.setitem(characters._CANON, f"{s}_shoulder", (f"{s}_clavicle", (0.17 * x, 0.0, 1.40)))
+        monkeypatch.setitem(characters._CANON, f"{s}_elbow", (f"{s}_shoulder", (0.45 * x, 0.0, 1.40)))
+        monkeypatch.setitem(characters._CANON, f"{s}_wrist", (f"{s}_elbow", (0.70 * x, 0.0, 1.40)))
+    char = tmp_path / "tposed.usda"
+    characters.write_character(char, "cesium", up="Y", content=characters.scaled(100.0, 180.0), above=[("rotateX", -90.0), ("scale", 0.01)])
+    stage = slope_stage(tmp_path / "stage.usda", last=48)
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], gait="walk", speed=1.3, character=char)
+    geo = StageGeometry(stage)
+    body = [g for g in geo.gprims if g.GetPath().HasPrefix(prim.GetPath())]
+    for f in (1, 12, 24, 36, 48):
+        v = np.concatenate([geo.mesh(g, f).vertices for g in body])
+        across = v[:, 1].max() - v[:, 1].min()  # walking along +X: its width is along Y
+        assert across < 0.8, (f, across)  # T-posed it is 1.5 m across the hands; arms down, about 0.5 m
+        assert v[:, 2].max() - v[:, 2].min() > 1.6  # still a standing person
+
+
+def test_a_character_whose_arms_are_not_recognised_is_said_to_keep_them(tmp_path):
+    """Issue 39.16: where the skeleton's shape gives no arm (here its upper arms are missing), the
+    arms cannot be brought down for the gait: add-person says so instead of walking it silently."""
+    from support import characters
+
+    char = tmp_path / "armless.usda"
+    characters.write_character(char, "cesium", up="Y", content=characters.scaled(100.0, 180.0),
+                               above=[("rotateX", -90.0), ("scale", 0.01)], drop=("l_shoulder", "r_shoulder"))
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=24)
+    r = _cli(path, "--path", "-5,0", "-2,0", "--character", char)
+    assert r.returncode == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if "arm recognised" in ln]
+    assert len(warn) == 1 and "left or right arm" in warn[0] and warn[0].startswith("lfusd: warning:"), r.stderr
+    full = tmp_path / "full.usda"
+    characters.write_character(full, "cesium", up="Y", content=characters.scaled(100.0, 180.0), above=[("rotateX", -90.0), ("scale", 0.01)])
+    r = _cli(path, "--path", "-5,3", "-2,3", "--character", full)
+    assert r.returncode == 0 and "arm recognised" not in r.stderr, r.stderr
