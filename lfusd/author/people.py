@@ -200,12 +200,26 @@ def _flight_gap(stage: Usd.Stage, prim: Usd.Prim, frames: np.ndarray, surfaces: 
     return gap
 
 
-def _rulebook_violations(stage: Usd.Stage, prim: Usd.Prim) -> list[str]:
-    """Lines of the rulebook's violations (every frame) that concern ``prim``."""
+PROGRESS_EVERY_S = 5.0  # the rulebook's frames are reported at most this often (a large set takes minutes)
+
+
+def _rulebook_violations(stage: Usd.Stage, prim: Usd.Prim, progress=None) -> list[str]:
+    """Lines of the rulebook's violations (every frame) that concern ``prim``; ``progress(what)``
+    hears which frame the check is at, every :data:`PROGRESS_EVERY_S` seconds."""
+    import time
+
     from .rules import Checker
 
+    first, last = frame_range(stage)
+    said = [time.monotonic()]
+
+    def at(frame: int) -> None:
+        if progress is not None and time.monotonic() - said[0] >= PROGRESS_EVERY_S:
+            said[0] = time.monotonic()
+            progress(f"checking the stage's rules: frame {frame} of {first}-{last}")
+
     me = str(prim.GetPath())
-    return [v.line() for v in Checker(stage).check() if v.prim_path == me or me in v.detail]
+    return [v.line() for v in Checker(stage).check(progress=at) if v.prim_path == me or me in v.detail]
 
 
 # A character's legs (hips to ankles) must point down within this angle of the up axis.
@@ -583,7 +597,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
             set_constraint(prim, "tolerance", float(np.ceil(gap * 100 + 1) / 100))
     if check:
         phase(f"checking the stage's rules at each of {len(frames)} frames")
-        bad = _rulebook_violations(stage, prim)
+        bad = _rulebook_violations(stage, prim, progress)
         if bad:
             stage.RemovePrim(prim.GetPath())
             raise LfusdError(f"the person would break the stage's rules ({bad[0]}); change the path or start frame")

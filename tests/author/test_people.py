@@ -499,6 +499,13 @@ def test_add_person_says_each_phase_on_a_terminal(tmp_path, monkeypatch, capsys)
     lines = [ln for ln in err.splitlines() if ln.startswith("lfusd: add-person: ")]
     assert [ln.split(": ", 2)[2].split(" ")[0] for ln in lines] == ["finding", "moving", "checking"], err
     assert all(ln.endswith(" s)") for ln in lines)
+    # the rulebook's check (minutes on a large set) says which frame it is at
+    import lfusd.author.people
+
+    monkeypatch.setattr(lfusd.author.people, "PROGRESS_EVERY_S", 0.0)
+    assert main(["animate", "add-person", str(path), "--path", "-5,3", "-2,3"]) == 0
+    err = capsys.readouterr().err
+    assert "checking the stage's rules: frame 24 of 1-24" in err, err
 
 
 def test_a_t_posed_character_walks_with_its_arms_down(tmp_path, monkeypatch):
