@@ -620,6 +620,16 @@ def add_person_to_file(stage_path: str | Path, points, out: str | Path | None = 
     person's absolute prim path, refused when a prim is there unless ``force`` (it is replaced).
     ``ground``: prim paths labelled ``ground`` first (:func:`label_ground`), for a stage without
     support labels; ``frames``: a stage without a time range gets frames 1..frames."""
+    from .stage import usd_warnings
+
+    with usd_warnings():  # what pxr posts (a character's broken references ...): one line each, not its raw output
+        return _add_person_to_file(stage_path, points, out, gait=gait, speed=speed, start=start, character=character,
+                                   height=height, build=build, name=name, force=force, ground=ground, frames=frames,
+                                   progress=progress)
+
+
+def _add_person_to_file(stage_path, points, out, *, gait, speed, start, character, height, build, name, force, ground,
+                        frames, progress) -> tuple[Usd.Prim, str, float]:
     from .stage import open_for_edit, save_stage
 
     speed = SPEEDS.get(gait, SPEEDS["run"]) if speed is None else speed

@@ -36,7 +36,9 @@ def usd_warnings(report: bool = True):
             seen = set()
             for w in trap.GetWarnings() if report else ():
                 line = _one_line(w.commentary)
-                same = re.sub(r"\s*\(instantiating stage on stage @[^@]*@\)$", "", line)
+                # the same broken arc seen from another stage or prim (the asset, a layer over it,
+                # the prim that references it) is one problem: one line
+                same = re.sub(r"^In <[^>]*>: |\s*\((instantiating|recomposing) stage on stage @[^@]*@\)$", "", line)
                 if same not in seen:
                     seen.add(same)
                     log.warning("USD: %s", line)

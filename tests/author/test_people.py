@@ -549,3 +549,22 @@ def test_a_character_whose_arms_are_not_recognised_is_said_to_keep_them(tmp_path
     characters.write_character(full, "cesium", up="Y", content=characters.scaled(100.0, 180.0), above=[("rotateX", -90.0), ("scale", 0.01)])
     r = _cli(path, "--path", "-5,3", "-2,3", "--character", full)
     assert r.returncode == 0 and "arm recognised" not in r.stderr, r.stderr
+
+
+def test_a_character_with_a_broken_reference_is_one_warning_line_not_pxr_output(tmp_path):
+    """Issue 39.19: pxr's raw multi-line warnings leaked from add-person (a character file whose
+    prop references a missing file: four raw lines, from the character and from the placed person)."""
+    from support import characters
+
+    char = tmp_path / "c.usda"
+    characters.write_character(char, "cesium", up="Y", content=characters.scaled(100.0, 180.0), above=[("rotateX", -90.0), ("scale", 0.01)])
+    st = Usd.Stage.Open(str(char))
+    st.DefinePrim("/Root/Prop").GetReferences().AddReference("./missing_prop.usda")
+    st.Save()
+    path = tmp_path / "s.usda"
+    slope_stage(path, last=12)
+    r = _cli(path, "--path", "-5,0", "-2,0", "--character", char, "-o", tmp_path / "o.usda")
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert all(ln.startswith("lfusd: ") for ln in lines), lines  # nothing of pxr's own output
+    assert sum("missing_prop.usda" in ln for ln in lines) == 1, lines
