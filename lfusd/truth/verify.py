@@ -556,13 +556,16 @@ def compare_view(
     if bad.size:
         v, u = np.divmod(bad, W)
         traced = [t for t in (fwd, bwd, still) if t is not None]
+        explained = np.zeros(bad.size, bool)  # by an earlier candidate: the first that explains a pixel counts
         for cand in _candidates(traced, u.astype(np.float64), v.astype(np.float64)):
             c = dict(zip([n for n, t in (("fwd", fwd), ("bwd", bwd), ("still", still)) if t is not None], cand))
             e = _errors(ds, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr)
             _clear_visibility_ties(e, {"fwd": (fwd, c.get("fwd")), "bwd": (bwd, c.get("bwd"))})
             # a candidate that sees nothing where the centre saw a surface cannot explain the pixel
             fine = ~_over(e, thr) & (e["depth"] == e["depth"]) if "depth" in e else ~_over(e, thr)
-            fine &= ~ties[bad]
+            # (a pixel already accepted as an occlusion tie still needs its other keys explained)
+            fine &= ~explained
+            explained |= fine
             for k in err:
                 if k in e:
                     err[k][bad[fine]] = e[k][fine]
@@ -570,8 +573,9 @@ def compare_view(
     inst_tr = ids[st["mesh"]]
     d_ds = ds["depth"]
     fg_ds = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH)
-    inst_any = np.where(fg_ds & (ds["instance"] if ds.get("instance") is not None else inst_tr) > 0,
-                        ds["instance"] if ds.get("instance") is not None else inst_tr, inst_tr)
+    # The class of a pixel is the dataset's instance where it shows a labelled surface, else the trace's.
+    inst_ds = ds["instance"] if ds.get("instance") is not None else inst_tr
+    inst_any = np.where(fg_ds & (inst_ds > 0), inst_ds, inst_tr)
     labels_of = np.array([""] + [str(objects[i].label) for i in sorted(objects)], dtype=object)
     id_to_row = np.zeros(max([0] + list(objects) + [int(inst_any.max(initial=0))]) + 1, np.int64)
     for k, i in enumerate(sorted(objects)):

@@ -490,3 +490,56 @@ def test_one_planted_wrong_pixel_fails_verify_and_is_named(blender_video, tmp_pa
     assert main(["verify", str(out)]) == 1
     fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
     assert any(ln.startswith(f"FAIL {key}") and f"frame {frame} view 1,1 pixel (u={vx}, v={vy})" in ln for ln in fails), fails
+
+
+def test_instance_errors_are_attributed_to_the_class_the_dataset_claims_even_for_even_ids(tmp_path):
+    """Issue 37 item 7: a patch of wall pixels (id 1) the dataset labels as the block (id 2, an even
+    id) is counted in the block's rows: the class of a foreground pixel is the dataset's instance."""
+    sc = scene(cam_motion=False)
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    inst = ds.data[2]["instance"].copy()
+    assert inst[2:5, 2:5].tolist() == [[1] * 3] * 3  # a corner of the wall
+    inst[2:5, 2:5] = 2
+    ds.data[2]["instance"] = inst
+    report = verify_dataset(ds, frames=[2])
+    rows = {(r.key, r.label): r for r in report.rows}
+    assert rows[("instance", "block")].over == 9 and rows[("instance", "wall")].over == 0
+    assert any(line.startswith("instance (block)") for line in report.failures()), report.failures()
+
+
+def test_a_pixel_accepted_as_an_occlusion_tie_still_gets_the_tie_rule_for_its_other_keys(tmp_path, monkeypatch):
+    """Issue 37: ``fine &= ~ties[bad]`` stopped the tie rule for a pixel already accepted as an
+    occlusion (visibility) tie, so a silhouette pixel that was both failed on depth. Here the
+    dataset holds, at one silhouette pixel, what a ray TIE_PX away sees (made 0.5 px so that it
+    lands on the other surface), with its occlusion flipped and visibility ties granted
+    everywhere: every key is explained, and verify passes with the pixel counted as a tie."""
+    import lfusd.truth.verify as V
+
+    sc = scene(cam_motion=False)
+    stage = stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    monkeypatch.setattr(V, "TIE_PX", 0.5)
+    monkeypatch.setattr(V, "_visibility_tie", lambda ctx, tr, idx: np.ones(len(idx), bool))
+    fwd = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[3], N, N, 1, sc.baseline)
+    bwd = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[1], N, N, -1, sc.baseline)
+    d = ds.data[2]
+    # a block pixel whose right neighbour at +0.5 px is the wall: its last column on some row
+    rows, cols = np.nonzero(d["instance"] == 2)
+    for v0 in sorted(set(rows.tolist())):
+        u0 = int(cols[rows == v0].max())
+        cf = V.trace_pixels(fwd["ctx"], np.array([u0 + 0.5]), np.array([float(v0)]))
+        if cf["mesh"][0] == 0:
+            break
+    cb = V.trace_pixels(bwd["ctx"], np.array([u0 + 0.5]), np.array([float(v0)]))
+    assert cf["mesh"][0] == 0 and abs(cf["depth"][0] - d["depth"][v0, u0]) > 0.5  # the wall, far behind
+    d["depth"][v0, u0] = cf["depth"][0]
+    d["instance"][v0, u0] = 1
+    d["flow_fwd"][v0, u0], d["flow_bwd"][v0, u0] = cf["flow"][0], cb["flow"][0]
+    d["scene_flow"][v0, u0], d["disparity_change"][v0, u0] = cf["scene_flow"][0], cf["disparity_change"][0]
+    d["occlusion_fwd"][v0, u0] = not fwd["occluded"][v0, u0]  # an occlusion tie (granted) at the centre too
+    d["occlusion_bwd"][v0, u0] = cb["occluded"][0]
+    report = verify_dataset(ds, frames=[2])
+    assert report.ok, report.failures()
+    rows = {(r.key, r.label): r for r in report.rows}
+    assert rows[("depth", "(all)")].ties >= 1
