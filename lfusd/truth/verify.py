@@ -39,7 +39,19 @@ from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
 # The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
 # occlusion the fraction of interior (foreground) pixels that disagree.
 THRESHOLDS: dict[str, float] = accuracies()
-UNITS = accuracy_units()
+# Keys and records checked exactly (no user override): the normal's side (1 - cos of its angle to the
+# traced triangle's normal facing the camera: over 1, it faces away), validity and semantic class
+# (any disagreement fails).
+EXACT: dict[str, float] = {"normal": 1.0, "semantic": 0.0, "valid_fwd": 0.0, "valid_bwd": 0.0}
+UNITS = {**accuracy_units(), "normal": "1-cos", "semantic": "frac", "valid_fwd": "frac", "valid_bwd": "frac"}
+NORMAL_LENGTH_TOL = 1e-3  # |normal| - 1: the float16 storage adds at most 2.4e-4 per component
+# Bias: per object and view, the mean signed error of these keys is held to BIAS_FRACTION of the key's
+# per-pixel limit (0.005 px, 0.1 mm), never below the storage step of scene flow (2^-17 m), over
+# objects with at least BIAS_MIN_PX compared pixels (fewer: the per-pixel limit alone).
+BIAS_KEYS = ("flow_fwd", "flow_bwd", "scene_flow", "disparity_change")
+BIAS_FRACTION = 0.1
+BIAS_MIN_PX = 100
+BIAS = "_bias"  # suffix of the bias rows' keys
 SCENE_FLOW_REL = 1e-3  # scene flow is also held to this fraction of the object's size (small objects)
 SCENE_FLOW_FLOOR = 2.0**-17  # ... but never below its storage step (lfusd.keys: multiples of 2^-17 m)
 from .visibility import VISIBLE_EPS  # the tie rule of visibility, shared with the derivation
@@ -192,6 +204,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     depth = np.full(n, np.inf)
     pos = np.full((n, 3), np.nan)
     pos1 = np.full((n, 3), np.nan)
+    normal = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
     for i, (m0, m1) in enumerate(zip(s0.meshes, s1.meshes)):
         sel = np.flatnonzero(mesh == i)
@@ -201,6 +214,10 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         t, P, b1, b2 = _hit_on_triangle(o[sel], d[sel], *(m0.vertices[tr[:, k]] for k in range(3)))
         depth[sel] = t  # direction has camera-z 1, so the ray parameter is planar depth
         pos[sel] = P
+        g = np.cross(m0.vertices[tr[:, 1]] - m0.vertices[tr[:, 0]], m0.vertices[tr[:, 2]] - m0.vertices[tr[:, 0]])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g /= np.linalg.norm(g, axis=-1, keepdims=True)
+        normal[sel] = np.where(((g * d[sel]).sum(-1) > 0)[:, None], -g, g)  # the side the camera sees
         if m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles):
             V = m1.vertices[tr]
             pos1[sel] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
@@ -213,7 +230,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     with np.errstate(divide="ignore", invalid="ignore"):
         dchange = fb / z1 - fb / depth
     return {
-        "depth": depth, "position": pos, "mesh": mesh, "triangle": tri,
+        "depth": depth, "position": pos, "normal": normal, "mesh": mesh, "triangle": tri,
         "prim_paths": [m.prim_path for m in s0.meshes],
         "mesh_bounds": _bounds(s0.meshes),
         "flow": np.stack([u1 - u, v1 - v], -1),
@@ -340,7 +357,11 @@ class VerifyReport:
             rate = UNITS.get(key) == "frac"
             lim = e["threshold"]
             why = None
-            if label == ALL and e["over"] > FAIL_FRACTION * e["count"]:
+            if key.endswith(BIAS) and e["over"]:
+                why = f"mean signed error {e['max']:.3g} {UNITS[key[:-len(BIAS)]]} over {e['count']} px, over the bias limit {lim:g}"
+            elif key in EXACT and e["over"]:
+                why = f"{e['over']} of {e['count']} px " + ("face away from the camera or are not of unit length" if key == "normal" else "disagree")
+            elif label == ALL and e["over"] > FAIL_FRACTION * e["count"]:
                 why = f"{e['over']} of {e['count']} px over the limit {lim:g} (> {FAIL_FRACTION:g} of them)"
             elif not rate and e["max"] > MAX_FACTOR * lim:
                 why = f"a pixel is off by {e['max']:.3g} {UNITS[key]}, over {MAX_FACTOR}x the limit {lim:g}"
@@ -406,10 +427,14 @@ class VerifyReport:
 ALL = "(all)"
 
 
-def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict) -> dict[str, np.ndarray]:
+def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
+            classes: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per-key error at flat pixels ``idx`` (NaN where the key is not compared there): ``ds`` holds the
-    dataset's flat arrays, ``st`` a trace at t and ``fw``/``bw`` traces towards t+1 / t-1, each
-    indexed like ``idx``. Instance and occlusion errors are 0 (agree) or 1."""
+    dataset's flat arrays, ``st`` a trace at t and ``fw``/``bw`` traces towards t+1 / t-1 (None: the
+    frame has no neighbour that way, so the dataset must call no pixel valid that way), each
+    indexed like ``idx``; ``classes``: the stage's class id of every instance id (semantic check).
+    Instance, semantic, validity and occlusion errors are 0 (agree) or 1; normal: 1 - cos of the
+    angle to the traced triangle's normal facing the camera (2 when not of unit length)."""
     nan = np.full(idx.size, np.nan)
     inst_tr = ids[st["mesh"]]
     fg_tr = st["mesh"] >= 0
@@ -421,11 +446,23 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
         err["depth"] = np.where(both, np.abs(d_ds - st["depth"]) / st["depth"], nan)
         if ds.get("instance") is not None:
             err["instance"] = np.where(fg_ds | fg_tr, ((ds["instance"][idx] != inst_tr) | (fg_ds != fg_tr)).astype(float), nan)
+        if ds.get("semantic") is not None and classes is not None:
+            err["semantic"] = np.where(both, (ds["semantic"][idx] != classes[np.clip(inst_tr, 0, len(classes) - 1)]).astype(float), nan)
+        if ds.get("normal") is not None and "normal" in st:
+            n = ds["normal"][idx].astype(np.float64)
+            length = np.linalg.norm(n, axis=-1)
+            e = 1.0 - (n * st["normal"]).sum(-1) / length
+            err["normal"] = np.where(both, np.where(np.abs(length - 1) <= NORMAL_LENGTH_TOL, e, 2.0), nan)
         for name, tr in (("fwd", fw), ("bwd", bw)):
             if tr is None:
+                # No neighbour frame that way (the ends of the rendered range): nothing is valid there.
+                if ds.get(f"valid_{name}") is not None:
+                    err[f"valid_{name}"] = np.where(fg_ds, ds[f"valid_{name}"][idx].astype(float), nan)
                 continue
             ok = both & tr["valid"]
             if ds.get(f"valid_{name}") is not None:
+                # Valid exactly where the surface's motion is known: its mesh keeps its topology.
+                err[f"valid_{name}"] = np.where(both, (ds[f"valid_{name}"][idx] != tr["valid"]).astype(float), nan)
                 ok &= ds[f"valid_{name}"][idx]
             if ds.get(f"flow_{name}") is not None:
                 err[f"flow_{name}"] = np.where(ok, np.linalg.norm(ds[f"flow_{name}"][idx] - tr["flow"], axis=-1), nan)
@@ -534,12 +571,17 @@ def compare_view(
     when another surface its sample may have hit within float tolerance (:func:`_candidates`)
     agrees on every key (the tie rule). ``counts`` (optional dict) accumulates ``valid`` and
     ``unchecked`` pixels."""
-    thr = {**THRESHOLDS, **(thresholds or {})}
+    thr = {**THRESHOLDS, **EXACT, **(thresholds or {})}
     tr = fwd or bwd or still
     if tr is None:
         raise ValueError("compare_view needs a trace: fwd, bwd or still")
     H, W = np.asarray(data["depth"]).shape[:2]
     ids = object_ids_for(tr["prim_paths"], objects)
+    classes = None
+    if objects and all(getattr(o, "class_id", None) is not None for o in objects.values()):
+        classes = np.zeros(max(objects) + 1, np.int64)
+        for i, o in objects.items():
+            classes[i] = o.class_id
     flat = lambda t: None if t is None else {k: (a.reshape(H * W, *a.shape[2:]) if isinstance(a, np.ndarray) and a.shape[:2] == (H, W) else a)
                                              for k, a in t.items()}  # noqa: E731
     ds = {k: (None if a is None else np.asarray(a).reshape(H * W, *np.asarray(a).shape[2:])) for k, a in data.items()}
@@ -549,7 +591,7 @@ def compare_view(
             ds[k] = ds[k].astype(np.float64)
     st, fw, bw = flat(tr), flat(fwd), flat(bwd)
     idx = np.arange(H * W)
-    err = _errors(ds, idx, st, fw, bw, ids, thr)
+    err = _errors(ds, idx, st, fw, bw, ids, thr, classes)
     ties = np.zeros(H * W, bool)
     ties[_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)})] = True
     bad = np.flatnonzero(_over(err, thr))
@@ -559,7 +601,7 @@ def compare_view(
         explained = np.zeros(bad.size, bool)  # by an earlier candidate: the first that explains a pixel counts
         for cand in _candidates(traced, u.astype(np.float64), v.astype(np.float64)):
             c = dict(zip([n for n, t in (("fwd", fwd), ("bwd", bwd), ("still", still)) if t is not None], cand))
-            e = _errors(ds, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr)
+            e = _errors(ds, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr, classes)
             _clear_visibility_ties(e, {"fwd": (fwd, c.get("fwd")), "bwd": (bwd, c.get("bwd"))})
             # a candidate that sees nothing where the centre saw a surface cannot explain the pixel
             fine = ~_over(e, thr) & (e["depth"] == e["depth"]) if "depth" in e else ~_over(e, thr)
@@ -608,6 +650,52 @@ def compare_view(
             else:
                 rows.append(Row(frame, view, key, label, int(x.size), float(np.median(x)), float(np.percentile(x, 99)), float(x.max()),
                                 thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst))
+    rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
+    if bw is not None:
+        rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
+    return rows
+
+
+def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.ndarray, objects: dict, ties: np.ndarray,
+               frame: int, view: tuple[int, int], W: int, thr: dict, name: str = "fwd") -> list[Row]:
+    """One row per object and motion key (``<key>_bias``, labelled with the object's prim path):
+    the norm of the mean signed error over the object's compared pixels (ties left out: their
+    trace is another surface), against BIAS_FRACTION of the key's limit. A constant offset far
+    under the per-pixel limit (a whole car's flow 0.04 px off) fails here."""
+    if tr is None:
+        return []
+    keys = [k for k in BIAS_KEYS if ds.get(k) is not None and (k.endswith(name) or (name == "fwd" and not k.startswith("flow")))]
+    if not keys:
+        return []
+    d_ds = ds["depth"]
+    ok = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH) & (st["mesh"] >= 0) & tr["valid"] & ~ties & (inst > 0)
+    if ds.get(f"valid_{name}") is not None:
+        ok &= ds[f"valid_{name}"]
+    if not ok.any():
+        return []
+    sizes = object_sizes(ids, tr["mesh_bounds"])
+    rows = []
+    order = np.argsort(inst[ok], kind="stable")
+    pix = np.flatnonzero(ok)[order]
+    starts = np.flatnonzero(np.r_[True, np.diff(inst[pix]) != 0])
+    for a, b in zip(starts, np.r_[starts[1:], pix.size]):
+        obj = int(inst[pix[a]])
+        if b - a < BIAS_MIN_PX or obj not in objects:
+            continue
+        sel = pix[a:b]
+        for key in keys:
+            trace_key = "flow" if key.startswith("flow") else key
+            with np.errstate(invalid="ignore"):
+                diff = np.asarray(ds[key][sel], np.float64) - tr[trace_key][sel]
+            if not np.isfinite(diff).all():
+                continue
+            bias = float(np.linalg.norm(np.atleast_2d(diff.T).mean(-1)))
+            limit = BIAS_FRACTION * thr[key]
+            if key == "scene_flow":
+                limit = max(BIAS_FRACTION * min(thr[key], SCENE_FLOW_REL * sizes[obj]), SCENE_FLOW_FLOOR)
+            j = int(sel[len(sel) // 2])
+            rows.append(Row(frame, view, key + BIAS, objects[obj].prim_path, int(b - a), bias, bias, bias, limit,
+                            int(bias > limit), int(b - a), 0, (j % W, j // W, bias)))
     return rows
 
 
@@ -616,6 +704,93 @@ def compare_view(
 # The dataset's keys that verification reads ("mixed", an annotation of the footprint, is tested
 # against closed-form geometry in tests/truth/test_occlusion.py, not traced here).
 KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed"))
+
+
+# Keys checked when the dataset holds them: the normal's side and the semantic class.
+CHECKED = ("normal", "semantic")
+MAX_LINES = 5  # record problems of one kind named one by one; the rest counted
+
+
+def _table_problems(ds, objects: dict, class_names: list[str]) -> list[str]:
+    """The dataset's object table (``objects.json``) against the stage's (``objects``: id ->
+    ObjectEntry; ``class_names``): every id, prim path, label and class id must agree."""
+    fix = "objects.json does not describe the stage: restore it, or render again into a new folder"
+    out = []
+    theirs = ds.objects
+    for i in sorted(set(objects) | set(theirs)):
+        a, b = theirs.get(i), objects.get(i)
+        if b is None:
+            out.append(f"objects.json: object {i} ({a.prim_path}) is not an object of the stage; {fix}")
+        elif a is None:
+            out.append(f"objects.json: object {i} ({b.prim_path}) of the stage is missing; {fix}")
+        elif a.prim_path != b.prim_path:
+            out.append(f"objects.json: object {i} is {a.prim_path}, the stage's object {i} is {b.prim_path}; {fix}")
+        elif a.label != b.label or getattr(a, "class_id", b.class_id) != b.class_id:
+            out.append(f"objects.json: object {i} ({b.prim_path}) is labelled {a.label!r} (class {getattr(a, 'class_id', '?')}), "
+                       f"the stage labels it {b.label!r} (class {b.class_id}); {fix}")
+    mine = getattr(ds, "classes", None)
+    if mine is not None and list(mine) != list(class_names):
+        out.append(f"objects.json: the class table {list(mine)} is not the stage's {list(class_names)}; {fix}")
+    return out[:MAX_LINES] + ([f"objects.json: {len(out) - MAX_LINES} more objects disagree with the stage"] if len(out) > MAX_LINES else [])
+
+
+def _same(a, b) -> bool:
+    """Two record values equal, numbers to 1e-9 relative."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return bool(np.isclose(a, b, rtol=1e-9, atol=0))
+    return a == b
+
+
+def _stage_rig(stage, ds, problems: list[str]):
+    """The stage's rig of the dataset (``ds.rig_name``), its spec checked against the manifest's
+    (resolution aside: ``--resolution`` may override it); None for a reader without a rig record."""
+    from ..author.rigs import rigs
+
+    name, spec = getattr(ds, "rig_name", None), getattr(ds, "rig", None)
+    if name is None or spec is None:
+        return None
+    found = rigs(stage).get(name)
+    if found is None:
+        problems.append(f"manifest rig {name}: the stage has no rig {name!r} to check it against; pass the rendered stage with --stage")
+        return None
+    a, b = spec.to_dict(), found.spec.to_dict()
+    for k in sorted((set(a) | set(b)) - {"width", "height"}):
+        if not _same(a.get(k), b.get(k)):
+            problems.append(f"manifest rig {name}: {k} is {a.get(k)!r} but the stage's rig says {b.get(k)!r}; "
+                            "the manifest does not describe the render: restore it, or render again into a new folder")
+    return found
+
+
+def _checked_intrinsics(rig, ds, view, K: np.ndarray, W: int, H: int, problems: list[str], seen: set) -> np.ndarray:
+    """The stage rig's K at the rendered resolution; a problem line when the manifest's differs."""
+    from dataclasses import replace
+
+    Ks = replace(rig.spec, width=W, height=H).intrinsics()
+    if not np.allclose(K, Ks, rtol=1e-9, atol=1e-9) and ("K", tuple(view)) not in seen:
+        seen.add(("K", tuple(view)))
+        problems.append(f"manifest rig {rig.spec.name} view {view[0]},{view[1]}: intrinsics {K.tolist()} are not the stage rig's "
+                        f"{Ks.tolist()}; the manifest does not describe the render: restore it, or render again into a new folder")
+    return Ks
+
+
+POSE_TOL = 1e-6  # m (and rad): a recorded pose that differs from the stage's camera by more is wrong
+
+
+def _checked_pose(stage, rig, ds, frame: int, view, problems: list[str], seen: set) -> np.ndarray:
+    """The stage camera's pose of ``view`` at ``frame``; a problem line when frame.json's differs."""
+    P = rig.cam_to_world(stage, tuple(view), frame)
+    try:
+        mine = np.asarray(ds.cam_to_world(frame, view), np.float64)
+    except (FileNotFoundError, KeyError, LfusdError):
+        return P  # a frame not rendered: its absence is reported where it is read
+    off = float(np.abs(mine - P).max())
+    if off > POSE_TOL and (frame, tuple(view)) not in seen:
+        seen.add((frame, tuple(view)))
+        problems.append(f"frame {frame} view {view[0]},{view[1]}: frame.json's cam_to_world differs from the stage's camera by {off:.3g}; "
+                        "the record does not describe the render: restore it, or render again into a new folder")
+    return P
 
 
 def _read_optional(ds, frame, view, key):
@@ -651,13 +826,23 @@ def verify_dataset(
     the disparity-change check. ``progress(frame, view)`` is called before each view.
     """
     from ..author.geometry import StageGeometry
+    from ..author.labels import object_table
     from ..author.stage import open_stage
 
     stage_path = stage_path or dataset_stage_path(ds)
     if not stage_path:
         raise LfusdError("verify needs the stage the dataset was rendered from; pass --stage PATH")
-    geo = StageGeometry(open_stage(stage_path))
-    baseline = baseline if baseline is not None else getattr(ds, "baseline", None)
+    stage = open_stage(stage_path)
+    geo = StageGeometry(stage)
+    report = VerifyReport()
+    # The records against the stage: the object table (ids, paths, labels, classes) and the rig
+    # (its spec, intrinsics and every pose). The trace takes the stage's own values, not the records'.
+    table, class_names = object_table(stage)
+    objects = {e.instance_id: e for e in table}
+    report.problems += _table_problems(ds, objects, class_names)
+    rig = _stage_rig(stage, ds, report.problems)
+    if baseline is None:
+        baseline = rig.spec.baseline if rig is not None else getattr(ds, "baseline", None)
     # Every frame the manifest lists, complete or not: a view missing there is a failure, not a skip.
     record = getattr(ds, "record", None)  # a Dataset's typed manifest; analytic fakes have none
     all_frames = sorted(int(f) for f in (record.frames if record is not None else ()) or ds.frames)
@@ -670,9 +855,8 @@ def verify_dataset(
     for v in views:
         if tuple(v) not in [tuple(x) for x in ds.views]:
             raise LfusdError(f"view {v[0]},{v[1]} is not in the dataset; pick one of its views")
-    objects = ds.objects
-    report = VerifyReport()
     scenes: dict = {}
+    rig_checked: set = set()
     counts: dict = {}
     for f in frames:
         for view in views:
@@ -684,19 +868,23 @@ def verify_dataset(
             except (FileNotFoundError, LfusdError) as e:
                 report.problems.append(f"{where}: no depth to compare ({str(e).split(';')[0]}); rerun the render command to repair it")
                 continue
-            data = {k: _read_optional(ds, f, view, k) for k in KEYS}
+            data = {k: _read_optional(ds, f, view, k) for k in KEYS + CHECKED}
             lacking = [k for k in KEYS[2:] if data[k] is None]
             if expect_motion and lacking:
                 report.problems.append(f"{where}: no {', '.join(lacking)} to compare ({MOTION_FILE} missing or damaged); "
                                        "rerun render-video or 'lfusd derive' to repair it")
             H, W = np.asarray(data["depth"]).shape[:2]
             K = np.asarray(ds.intrinsics(view), np.float64)
-            c2w = np.asarray(ds.cam_to_world(f, view), np.float64)
+            pose = lambda g: np.asarray(ds.cam_to_world(g, view), np.float64)  # noqa: E731
+            if rig is not None:
+                K = _checked_intrinsics(rig, ds, view, K, W, H, report.problems, rig_checked)
+                pose = lambda g: _checked_pose(stage, rig, ds, g, view, report.problems, rig_checked)  # noqa: E731
+            c2w = pose(f)
             fwd = bwd = None
             if f + 1 in all_frames:
-                fwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f + 1, view), H, W, 1, baseline, scenes)
+                fwd = trace_motion(geo, f, K, c2w, pose(f + 1), H, W, 1, baseline, scenes)
             if f - 1 in all_frames:
-                bwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f - 1, view), H, W, -1, baseline, scenes)
+                bwd = trace_motion(geo, f, K, c2w, pose(f - 1), H, W, -1, baseline, scenes)
             # A frame without rendered neighbours has no motion keys to check: its static keys are.
             still = trace_motion(geo, f, K, c2w, c2w, H, W, 0, baseline, scenes) if fwd is None and bwd is None else None
             report.rows.extend(compare_view(data, fwd, bwd, objects, f, tuple(view), thresholds, still=still, counts=counts))

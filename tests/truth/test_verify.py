@@ -24,6 +24,21 @@ def scene(cam_motion=True):
     return Scene([back, cube], K, cams, N, N, baseline=0.2)
 
 
+def box_normals(sc, frame):
+    """Unit outward normal of the box face each pixel sees (NaN on background), from the closed form."""
+    o, d = sc.rays(frame)
+    _, which, local = sc.cast(o, d, frame)
+    out = np.full(which.shape + (3,), np.nan, np.float32)
+    for k, box in enumerate(sc.boxes):
+        sel = which == k
+        q = local[sel] / np.asarray(box.half)
+        axis = np.abs(q).argmax(-1)
+        n = np.zeros_like(q)
+        n[np.arange(len(q)), axis] = np.sign(q[np.arange(len(q)), axis])
+        out[sel] = n @ box.poses[frame][:3, :3].T
+    return out
+
+
 def stage_of(sc, path):
     """The same boxes as USD Cubes (size 2, scaled by their half extents), labelled."""
     stage = new_stage(str(path), 1, 3)
@@ -40,17 +55,29 @@ def stage_of(sc, path):
 
 
 class FakeDataset:
-    """The reader interface lfusd.truth.verify needs, over arrays derived from closed-form raw passes."""
+    """The reader interface lfusd.truth.verify needs, over arrays derived from closed-form raw passes,
+    with the stage's object table (as a render writes it: ids in path order), instance ids mapped to
+    it, and normals from the boxes' faces (outward: the side a camera outside sees)."""
 
     def __init__(self, sc, stage_path, exact=True):
+        from pxr import Usd
+
+        from lfusd.author.labels import object_table
+
         self.sc, self.stage_path, self.baseline = sc, str(stage_path), sc.baseline
         self.frames, self.views = [1, 2, 3], [(0, 0)]
-        self.objects = {b.instance: SimpleNamespace(prim_path=b.prim_path, label=lab) for b, lab in zip(sc.boxes, ("wall", "block"))}
+        table, self.classes = object_table(Usd.Stage.Open(str(stage_path)))
+        self.objects = {e.instance_id: SimpleNamespace(prim_path=e.prim_path, label=e.label, class_id=e.class_id) for e in table}
+        self.id = {e.prim_path: e.instance_id for e in table}
+        lut = np.zeros(max(b.instance for b in sc.boxes) + 1, np.int32)
+        for b in sc.boxes:
+            lut[b.instance] = self.id[b.prim_path]
         self.data = {}
         for f in self.frames:
             raw = sc.raw(f, exact)
             d = sc.derive(f, exact)
-            d["depth"], d["instance"] = raw.depth, raw.instance
+            d["depth"], d["instance"] = raw.depth, lut[raw.instance]
+            d["normal"] = box_normals(sc, f)
             self.data[f] = d
 
     def intrinsics(self, view):
@@ -60,6 +87,11 @@ class FakeDataset:
         return self.sc.cams[frame]
 
     def read(self, frame, view, key):
+        if key == "semantic":  # derived on read from the instance and the dataset's own table, as Dataset does
+            classes = np.zeros(max(max(self.objects), self.data[frame]["instance"].max()) + 1, np.int32)
+            for i, o in self.objects.items():
+                classes[i] = self.classes.index(o.label)
+            return classes[self.data[frame]["instance"]]
         return self.data[frame][key]
 
 
@@ -109,7 +141,8 @@ def test_verify_sees_the_silhouette_errors_of_the_vector_plus_depth_route(tmp_pa
     report = verify_dataset(FakeDataset(sc, tmp_path / "s.usda", exact=False))
     assert not report.ok
     failing = {line.split(" ", 1)[0] for line in report.failures()}
-    assert failing and failing <= {"scene_flow", "disparity_change", "occlusion_fwd", "occlusion_bwd"}, failing
+    # (and valid_fwd: that route calls pixels invalid whose motion is known)
+    assert failing and failing <= {"scene_flow", "disparity_change", "occlusion_fwd", "occlusion_bwd", "valid_fwd"}, failing
     assert not {"depth", "instance", "flow_fwd", "flow_bwd"} & failing
 
 
@@ -435,7 +468,8 @@ def test_verify_command_threshold_overrides(tmp_path, monkeypatch, capsys):
 ])
 def test_scene_flow_of_small_objects_is_held_to_their_size(tmp_path, half, offset, passes):
     """Scene flow passes at 1 mm, or 1e-3 of the object's size where that is smaller: an absolute
-    millimetre says nothing about a chess piece."""
+    millimetre says nothing about a chess piece. The offsets alternate in sign pixel by pixel (a
+    checkerboard), so that their mean is near 0: a constant one is a bias (see the bias test)."""
     K = intrinsics(N * 1.05, N, N)
     z = 12 * half  # the box fills about a sixth of the image whatever its size
     cube = Box((half, half, half), {f: pose(rot((0.3, 1, 0.2), 8.0 * f), (half * 0.2 * f, 0.0, z)) for f in (1, 2, 3)}, 1, "/World/Piece")
@@ -445,7 +479,9 @@ def test_scene_flow_of_small_objects_is_held_to_their_size(tmp_path, half, offse
     ds = FakeDataset(sc, tmp_path / "s.usda")
     for f in ds.frames:
         sf = ds.data[f]["scene_flow"]
-        ds.data[f]["scene_flow"] = np.where((ds.data[f]["instance"] == 1)[..., None], sf + np.float32(offset), sf)
+        sign = np.where(np.add.outer(np.arange(N), np.arange(N)) % 2 == 0, 1.0, -1.0)[..., None]
+        ds.data[f]["scene_flow"] = np.where((ds.data[f]["instance"] == ds.id["/World/Piece"])[..., None],
+                                            sf + (sign * offset).astype(np.float32), sf)
     report = verify_dataset(ds)
     rows = [r for r in report.rows if r.key == "scene_flow" and r.label == "wall"]  # the piece (first label)
     assert sum(r.count for r in rows) > 0
@@ -498,14 +534,18 @@ def test_instance_errors_are_attributed_to_the_class_the_dataset_claims_even_for
     sc = scene(cam_motion=False)
     stage_of(sc, tmp_path / "s.usda")
     ds = FakeDataset(sc, tmp_path / "s.usda")
+    wall, block = ds.id["/World/Wall"], ds.id["/World/Cube"]
+    assert wall == 2  # an even id: (fg & 2) is 0
     inst = ds.data[2]["instance"].copy()
-    assert inst[2:5, 2:5].tolist() == [[1] * 3] * 3  # a corner of the wall
-    inst[2:5, 2:5] = 2
+    rows, cols = np.nonzero(inst == block)
+    v0, u0 = int(np.median(rows)), int(np.median(cols))
+    assert (inst[v0 - 1:v0 + 2, u0 - 1:u0 + 2] == block).all()
+    inst[v0 - 1:v0 + 2, u0 - 1:u0 + 2] = wall
     ds.data[2]["instance"] = inst
     report = verify_dataset(ds, frames=[2])
     rows = {(r.key, r.label): r for r in report.rows}
-    assert rows[("instance", "block")].over == 9 and rows[("instance", "wall")].over == 0
-    assert any(line.startswith("instance (block)") for line in report.failures()), report.failures()
+    assert rows[("instance", "wall")].over == 9 and rows[("instance", "block")].over == 0
+    assert any(line.startswith("instance (wall)") for line in report.failures()), report.failures()
 
 
 def test_a_pixel_accepted_as_an_occlusion_tie_still_gets_the_tie_rule_for_its_other_keys(tmp_path, monkeypatch):
@@ -525,7 +565,7 @@ def test_a_pixel_accepted_as_an_occlusion_tie_still_gets_the_tie_rule_for_its_ot
     bwd = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[1], N, N, -1, sc.baseline)
     d = ds.data[2]
     # a block pixel whose right neighbour at +0.5 px is the wall: its last column on some row
-    rows, cols = np.nonzero(d["instance"] == 2)
+    rows, cols = np.nonzero(d["instance"] == ds.id["/World/Cube"])
     for v0 in sorted(set(rows.tolist())):
         u0 = int(cols[rows == v0].max())
         cf = V.trace_pixels(fwd["ctx"], np.array([u0 + 0.5]), np.array([float(v0)]))
@@ -534,7 +574,7 @@ def test_a_pixel_accepted_as_an_occlusion_tie_still_gets_the_tie_rule_for_its_ot
     cb = V.trace_pixels(bwd["ctx"], np.array([u0 + 0.5]), np.array([float(v0)]))
     assert cf["mesh"][0] == 0 and abs(cf["depth"][0] - d["depth"][v0, u0]) > 0.5  # the wall, far behind
     d["depth"][v0, u0] = cf["depth"][0]
-    d["instance"][v0, u0] = 1
+    d["instance"][v0, u0] = ds.id["/World/Wall"]
     d["flow_fwd"][v0, u0], d["flow_bwd"][v0, u0] = cf["flow"][0], cb["flow"][0]
     d["scene_flow"][v0, u0], d["disparity_change"][v0, u0] = cf["scene_flow"][0], cf["disparity_change"][0]
     d["occlusion_fwd"][v0, u0] = not fwd["occluded"][v0, u0]  # an occlusion tie (granted) at the centre too
@@ -543,3 +583,100 @@ def test_a_pixel_accepted_as_an_occlusion_tie_still_gets_the_tie_rule_for_its_ot
     assert report.ok, report.failures()
     rows = {(r.key, r.label): r for r in report.rows}
     assert rows[("depth", "(all)")].ties >= 1
+
+
+def _moving_block_pixels(ds, frame):
+    """The block's pixels at ``frame`` that are valid forward (the block moves between frames)."""
+    d = ds.data[frame]
+    return (d["instance"] == ds.id["/World/Cube"]) & d["valid_fwd"]
+
+
+def _plant_negated_normals(ds):
+    for f in ds.frames:
+        ds.data[f]["normal"] = -ds.data[f]["normal"]
+    return "normal", r"frame \d+"
+
+
+def _plant_unit_violation(ds):
+    ds.data[2]["normal"] = ds.data[2]["normal"] * np.float32(1.01)
+    return "normal", r"frame \d+"
+
+
+def _plant_cleared_valid_bits(ds):
+    sel = _moving_block_pixels(ds, 2)
+    assert sel.sum() > 100
+    d = ds.data[2]
+    d["valid_fwd"] = d["valid_fwd"] & ~sel
+    d["flow_fwd"][sel] = 0
+    d["scene_flow"][sel] = 0
+    d["disparity_change"][sel] = 0
+    return "valid_fwd", "frame 2"
+
+
+def _plant_valid_last_frame(ds):
+    d = ds.data[3]
+    assert not d["valid_fwd"].any()  # the last rendered frame: its forward motion is masked
+    fg = np.isfinite(d["depth"])
+    d["valid_fwd"] = fg.copy()
+    v, u = np.nonzero(fg)
+    d["flow_fwd"][v[:20], u[:20]] = 20.0
+    return "valid_fwd", "frame 3"
+
+
+def _plant_flow_bias(ds):
+    for f in ds.frames:
+        d = ds.data[f]
+        sel = d["instance"] == ds.id["/World/Cube"]
+        d["flow_fwd"][sel] += np.float32([0.04, 0.0])  # under the 0.05 px per-pixel limit everywhere
+    return "flow_fwd_bias (/World/Cube)", r"frame \d+"
+
+
+def _plant_scene_flow_bias(ds):
+    for f in ds.frames:
+        d = ds.data[f]
+        sel = d["instance"] == ds.id["/World/Cube"]
+        d["scene_flow"][sel] += np.float32(0.0009 / np.sqrt(3))  # 0.9 mm, under the 1 mm limit
+    return "scene_flow_bias (/World/Cube)", r"frame \d+"
+
+
+def _plant_relabelled_object(ds):
+    cube = ds.id["/World/Cube"]
+    ds.objects[cube] = SimpleNamespace(prim_path="/World/Cube", label="wall", class_id=ds.classes.index("wall"))
+    return "semantic", r"frame \d+"
+
+
+PLANTED = {"negated normals": _plant_negated_normals, "normal not of unit length": _plant_unit_violation,
+           "valid bit cleared over a moving object": _plant_cleared_valid_bits,
+           "last frame marked valid with garbage flow": _plant_valid_last_frame,
+           "flow bias +0.04 px on one object": _plant_flow_bias, "scene flow bias +0.9 mm on one object": _plant_scene_flow_bias,
+           "object relabelled in objects.json": _plant_relabelled_object}
+
+
+@pytest.mark.parametrize("case", list(PLANTED))
+def test_planted_errors_that_verify_used_not_to_check_fail_naming_key_and_pixel(tmp_path, case):
+    """Issue 37 items 2 and 3: each planted error, in data otherwise exact, fails verify with a line
+    naming the key (or the object for a bias), the frame and a pixel; the unplanted data passes."""
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    assert verify_dataset(ds).ok
+    key, where = PLANTED[case](ds)
+    report = verify_dataset(ds)
+    assert not report.ok
+    fails = report.failures()
+    assert any(re.match(rf"{re.escape(key)}[ :].*{where} view 0,0 pixel \(u=\d+, v=\d+\)", line) for line in fails), fails
+    if case == "object relabelled in objects.json":
+        assert any(line.startswith("objects.json: object") and "/World/Cube" in line and "'block'" in line for line in fails), fails
+
+
+def test_an_object_table_that_is_not_the_stages_is_named(tmp_path):
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    wall, cube = ds.id["/World/Wall"], ds.id["/World/Cube"]
+    ds.objects[wall], ds.objects[cube] = ds.objects[cube], ds.objects[wall]  # ids swapped in the table
+    fails = verify_dataset(ds, frames=[2]).failures()
+    assert any(line.startswith(f"objects.json: object {wall} is /World/Cube") for line in fails), fails
+    del ds.objects[wall]
+    fails = verify_dataset(ds, frames=[2]).failures()
+    assert any(f"objects.json: object {wall} (/World/Wall) of the stage is missing" in line for line in fails), fails
