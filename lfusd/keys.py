@@ -106,7 +106,7 @@ _TABLE = (
         storage=Storage("image")),
     Key("depth", "float32", (), "m", "planar z-depth along the optical axis; `inf` where no surface", _GT, RAW,
         accuracy=1e-4, accuracy_unit="rel", storage=Storage("float32")),
-    Key("normal", "float32", (3,), "unitless", "unit surface normal, world frame: the mesh's shading normal (its normals interpolated), without normal or bump maps; NaN where no surface", _GT, RAW,
+    Key("normal", "float32", (3,), "unitless", "unit surface normal, world frame: the mesh's shading normal (its normals interpolated), without normal or bump maps, on the side the camera sees (negated where the ray meets a triangle's back, as Cycles does); NaN where no surface", _GT, RAW,
         storage=Storage("half")),
     Key("position", "float32", (3,), "m", "world position of the surface seen at the pixel centre; NaN where no surface", _GT, STATIC,
         storage=Storage("computed", sources=("depth",))),
