@@ -680,3 +680,30 @@ def test_an_object_table_that_is_not_the_stages_is_named(tmp_path):
     del ds.objects[wall]
     fails = verify_dataset(ds, frames=[2]).failures()
     assert any(f"objects.json: object {wall} (/World/Wall) of the stage is missing" in line for line in fails), fails
+
+
+@pytest.mark.render
+def test_records_that_disagree_with_the_stage_fail_verify(blender_video, tmp_path, capsys):
+    """Issue 37 item 2: the manifest's baseline x1.05 (every disparity read 5 % off) and a view's pose
+    in frame.json moved 1 mm: `--integrity` cannot tell (no per-view file changed), verify names both."""
+    import json
+    import shutil
+
+    from lfusd.cli import main
+    from lfusd.layout import FRAME_META, MANIFEST
+
+    out = tmp_path / "out"
+    shutil.copytree(blender_video, out)
+    manifest = json.loads((out / MANIFEST).read_text())
+    manifest["settings"]["rigs"]["main"]["baseline"] *= 1.05
+    (out / MANIFEST).write_text(json.dumps(manifest))
+    meta_path = out / "main" / "f000002" / FRAME_META
+    meta = json.loads(meta_path.read_text())
+    meta["cam_to_world"]["00_01"][0][3] += 0.001
+    meta_path.write_text(json.dumps(meta))
+    assert main(["verify", str(out), "--integrity"]) == 0
+    capsys.readouterr()
+    assert main(["verify", str(out), "--frames", "2", "--views", "0,1"]) == 1
+    fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
+    assert any(ln.startswith("FAIL manifest rig main: baseline is") for ln in fails), fails
+    assert any(ln.startswith("FAIL frame 2 view 0,1: frame.json's cam_to_world differs from the stage's camera by 0.001") for ln in fails), fails
