@@ -42,8 +42,11 @@ THRESHOLDS: dict[str, float] = accuracies()
 # Keys and records checked exactly (no user override): the normal's side (1 - cos of its angle to the
 # traced triangle's normal facing the camera: over 1, it faces away), validity and semantic class
 # (any disagreement fails).
-EXACT: dict[str, float] = {"normal": 1.0, "semantic": 0.0, "valid_fwd": 0.0, "valid_bwd": 0.0}
-UNITS = {**accuracy_units(), "normal": "1-cos", "semantic": "frac", "valid_fwd": "frac", "valid_bwd": "frac"}
+EXACT: dict[str, float] = {"normal": 1.0, "semantic": 0.0, "valid_fwd": 0.0, "valid_bwd": 0.0, "mixed": 0.0}
+UNITS = {**accuracy_units(), "normal": "1-cos", "semantic": "frac", "valid_fwd": "frac", "valid_bwd": "frac", "mixed": "frac"}
+# mixed is decided again from verify's own corner rays (lfusd.truth.visibility's rule); a pixel whose
+# corners differ in depth or flow by MIXED_BAND times the rule's limits (either way) may be either.
+MIXED_BAND = (0.8, 1.25)
 NORMAL_LENGTH_TOL = 1e-3  # |normal| - 1: the float16 storage adds at most 2.4e-4 per component
 # Bias: per object and view, the mean signed error of these keys is held to BIAS_FRACTION of the key's
 # per-pixel limit (0.005 px, 0.1 mm), never below the storage step of scene flow (2^-17 m), over
@@ -612,6 +615,10 @@ def compare_view(
                 if k in e:
                     err[k][bad[fine]] = e[k][fine]
             ties[bad[fine]] = True
+    if ds.get("mixed") is not None:
+        base = fwd or bwd or still
+        err["mixed"], tied = _mixed_errors(ds["mixed"], base["ctx"], fwd is not None, ids, H, W)
+        ties |= tied
     inst_tr = ids[st["mesh"]]
     d_ds = ds["depth"]
     fg_ds = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH)
@@ -654,6 +661,63 @@ def compare_view(
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
     return rows
+
+
+def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
+                    depth_rel: float, flow_px: float) -> np.ndarray:
+    """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
+    the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
+    ``flow``) in forward flow by more than ``flow_px``."""
+    wc = W + 1
+    a = (np.arange(H)[:, None] * wc + np.arange(W)[None, :]).ravel()
+    c = np.stack([a, a + 1, a + wc, a + wc + 1], 1)
+    ids = ident[c]
+    out = (ids != ids[:, :1]).any(1)
+    D = depth[c]
+    with np.errstate(invalid="ignore"):
+        lo, hi = D.min(1), D.max(1)
+        out |= np.isfinite(hi) & (hi - lo > depth_rel * lo)
+        if flow is not None:
+            F = flow[c]
+            gap = np.zeros(len(a))
+            for x in range(4):
+                for y in range(x + 1, 4):
+                    gap = np.fmax(gap, np.linalg.norm(F[:, x] - F[:, y], axis=-1))  # NaN (unknown motion) counts as none
+            out |= (ids[:, 0] >= 0) & (gap > flow_px)
+    return out
+
+
+def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """(error 0/1 per pixel, tie per pixel) of the dataset's ``mixed`` against the rule decided on
+    verify's own rays through the pixel corners (the trace at t, carried to t+1 when ``carry``).
+    Either value is accepted where the decision changes within MIXED_BAND of its limits, or where
+    a corner's ray moved TIE_PX sees another object (a corner on an edge)."""
+    from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
+
+    vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
+    uc, vc = uc.ravel(), vc.ravel()
+    c = trace_pixels(ctx, uc, vc)
+    ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
+    flow = c["flow"] if carry else None
+    lo, hi = MIXED_BAND
+    surely = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi)
+    maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
+    got = np.asarray(mixed, bool)
+    wrong = (got & ~maybe) | (~got & surely)
+    tie = (surely != maybe) & (got == maybe)
+    bad = np.flatnonzero(wrong)
+    if bad.size:  # corners on an edge: another object TIE_PX away
+        wc = W + 1
+        a = (bad // W) * wc + bad % W
+        corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
+        moved = np.zeros(len(uc), bool)
+        for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
+            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv)["mesh"]
+            moved[corners] |= np.where(m >= 0, ids[m], -1) != ident[corners]
+        edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
+        wrong[bad[edge]] = False
+        tie[bad[edge]] = True
+    return wrong.astype(float), tie
 
 
 def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.ndarray, objects: dict, ties: np.ndarray,
@@ -701,13 +765,13 @@ def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.nd
 
 # -- datasets --------------------------------------------------------------------------------
 
-# The dataset's keys that verification reads ("mixed", an annotation of the footprint, is tested
-# against closed-form geometry in tests/truth/test_occlusion.py, not traced here).
+# The dataset's keys that verification reads and a dataset with motion must hold (``mixed``, in
+# CHECKED, is compared where present: datasets derived before it lack it).
 KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed"))
 
 
-# Keys checked when the dataset holds them: the normal's side and the semantic class.
-CHECKED = ("normal", "semantic")
+# Keys checked when the dataset holds them: the normal's side, the semantic class, mixed.
+CHECKED = ("normal", "semantic", "mixed")
 MAX_LINES = 5  # record problems of one kind named one by one; the rest counted
 
 

@@ -645,7 +645,23 @@ def _plant_relabelled_object(ds):
     return "semantic", r"frame \d+"
 
 
-PLANTED = {"negated normals": _plant_negated_normals, "normal not of unit length": _plant_unit_violation,
+def _plant_mixed_inside(ds):
+    d = ds.data[2]
+    assert d["mixed"].any() and not d["mixed"].all()
+    v, u = np.nonzero(~d["mixed"] & (d["instance"] == ds.id["/World/Cube"]))
+    d["mixed"][v[len(v) // 2], u[len(u) // 2]] = True  # one interior pixel of the block
+    return "mixed", "frame 2"
+
+
+def _plant_mixed_edge(ds):
+    d = ds.data[2]
+    v, u = np.nonzero(d["mixed"] & (d["instance"] == ds.id["/World/Cube"]))
+    d["mixed"][v[len(v) // 2], u[len(u) // 2]] = False  # one silhouette pixel of the block
+    return "mixed", "frame 2"
+
+
+PLANTED = {"mixed set on one interior pixel": _plant_mixed_inside, "mixed cleared on one silhouette pixel": _plant_mixed_edge,
+           "negated normals": _plant_negated_normals, "normal not of unit length": _plant_unit_violation,
            "valid bit cleared over a moving object": _plant_cleared_valid_bits,
            "last frame marked valid with garbage flow": _plant_valid_last_frame,
            "flow bias +0.04 px on one object": _plant_flow_bias, "scene flow bias +0.9 mm on one object": _plant_scene_flow_bias,
