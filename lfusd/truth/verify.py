@@ -21,6 +21,13 @@ when a second surface its sample may have hit within float tolerance agrees on e
 offset by ``TIE_PX`` (1e-3 px), or a second hit along its own ray within ``VISIBLE_EPS`` (1e-4) of
 the distance; for occlusion, also a surface within [eps/10, 10 eps] in front of the point at t+-1.
 Ties are counted and reported. :meth:`VerifyReport.certificate` is what a dataset records.
+
+Every other key and record is checked exactly (:data:`EXACT`): ``normal`` against the traced
+triangle (unit length, the side the camera sees), ``valid_fwd``/``valid_bwd`` (set exactly where the
+trace knows the motion, nowhere past the rendered range), ``semantic``, ``mixed`` (decided again on
+verify's own corner rays), the object table and the manifest's rig against the stage (the trace
+takes the stage's rig). Per object and view, the mean signed error of flow, scene flow and
+disparity change is held to a tenth of the limit (the ``<key>_bias`` rows).
 """
 
 from __future__ import annotations
@@ -411,10 +418,18 @@ class VerifyReport:
     def certificate(self) -> dict:
         """The per-key figures over all classes (pixels compared, coverage, p99, max, count over the
         limit, ties) and the verdict: what a dataset records as its proof (manifest, card)."""
+        summary = self.summary()
         keys = {e["key"]: {k: e[k] for k in ("count", "coverage", "p99", "max", "over", "ties", "threshold")}
-                for e in self.summary() if e["label"] == ALL}
-        return {"ok": self.ok, "rules": {"fail_fraction": FAIL_FRACTION, "max_factor": MAX_FACTOR, "unchecked_fraction": UNCHECKED_FRACTION},
-                "valid": self.valid, "unchecked": self.unchecked, "keys": keys}
+                for e in summary if e["label"] == ALL}
+        bias: dict[str, dict] = {}  # per key: the object of the largest bias relative to its limit
+        for e in summary:
+            if e["key"].endswith(BIAS) and e["count"]:
+                key = e["key"][:-len(BIAS)]
+                if key not in bias or e["max"] / e["threshold"] > bias[key]["max"] / bias[key]["threshold"]:
+                    bias[key] = {"object": e["label"], "max": e["max"], "threshold": e["threshold"], "over": e["over"]}
+        return {"ok": self.ok, "rules": {"fail_fraction": FAIL_FRACTION, "max_factor": MAX_FACTOR, "unchecked_fraction": UNCHECKED_FRACTION,
+                                         "bias_fraction": BIAS_FRACTION, "bias_min_px": BIAS_MIN_PX},
+                "valid": self.valid, "unchecked": self.unchecked, "keys": keys, "bias": bias}
 
     def table(self) -> str:
         """Plain-text table of :meth:`summary`."""

@@ -130,6 +130,11 @@ def test_verify_passes_on_exact_data_and_prints_per_class_rows(tmp_path):
     assert all(r.count > 100 for r in report.rows if r.key in ("flow_fwd", "depth") and r.label == "(all)")
     table = report.table()
     assert "scene_flow" in table and "block" in table
+    cert = report.certificate()
+    assert {"normal", "mixed", "valid_fwd", "valid_bwd", "semantic"} <= set(cert["keys"])
+    assert all(cert["keys"][k]["count"] > 1000 and cert["keys"][k]["over"] == 0 for k in ("normal", "mixed", "valid_fwd", "semantic"))
+    assert cert["bias"]["flow_fwd"]["object"] in ("/World/Wall", "/World/Cube") and cert["bias"]["flow_fwd"]["over"] == 0
+    assert cert["bias"]["scene_flow"]["max"] < 1e-5  # exact data: only the float rounding
 
 
 def test_verify_sees_the_silhouette_errors_of_the_vector_plus_depth_route(tmp_path):
