@@ -111,7 +111,7 @@ _TABLE = (
     Key("position", "float32", (3,), "m", "world position of the surface seen at the pixel centre; NaN where no surface", _GT, STATIC,
         storage=Storage("computed", sources=("depth",))),
     Key("instance", "int32", (), "id", "0 = background, otherwise an id listed in the object table", _GT, RAW,
-        accuracy=1e-3, accuracy_unit="frac", storage=Storage("uint32")),
+        accuracy=0.0, accuracy_unit="frac", storage=Storage("uint32")),
     Key("vector", "float32", (4,), "px", "Blender's raw vector pass: X, Y = previous - current, Z, W = current - next (raster pixels, y up)",
         _RAW, RAW),
     Key("next_position", "float32", (3,), "m", "world position at t+1 of the surface point seen at t; NaN where unknown (render-video)",
@@ -139,9 +139,9 @@ _TABLE = (
     Key("valid_bwd", "bool", (), "mask", "where the backward motion ground truth is defined", _MOTION, MOTION, step=-1,
         storage=Storage("mask", 1)),
     Key("occlusion_fwd", "bool", (), "mask", "the point is hidden or outside the image at t+1", _MOTION, MOTION,
-        step=1, accuracy=1e-3, accuracy_unit="frac", storage=Storage("mask", 2)),
+        step=1, accuracy=0.0, accuracy_unit="frac", storage=Storage("mask", 2)),
     Key("occlusion_bwd", "bool", (), "mask", "the point is hidden or outside the image at t-1", _MOTION, MOTION,
-        step=-1, accuracy=1e-3, accuracy_unit="frac", storage=Storage("mask", 3)),
+        step=-1, accuracy=0.0, accuracy_unit="frac", storage=Storage("mask", 3)),
     Key("mixed", "bool", (), "mask", "the pixel's footprint holds more than one surface or motion: the rays through its four corners "
         "(at +-1/2 px) see different instances, depths more than 1 % apart, or forward flows more than 0.5 px apart "
         "(render-video; the edge and fine-structure mask of HCI and Spring)", _MOTION, MOTION, storage=Storage("mask", 4)),

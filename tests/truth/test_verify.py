@@ -587,7 +587,8 @@ def test_a_pixel_accepted_as_an_occlusion_tie_still_gets_the_tie_rule_for_its_ot
     report = verify_dataset(ds, frames=[2])
     assert report.ok, report.failures()
     rows = {(r.key, r.label): r for r in report.rows}
-    assert rows[("depth", "(all)")].ties >= 1
+    assert rows[("depth", "(all)")].ties >= 1 and rows[("depth", "(all)")].tie_kinds.get("edge", 0) >= 1
+    assert report.certificate()["keys"]["depth"]["tie_kinds"]["edge"] >= 1
 
 
 def _moving_block_pixels(ds, frame):
@@ -665,7 +666,40 @@ def _plant_mixed_edge(ds):
     return "mixed", "frame 2"
 
 
-PLANTED = {"mixed set on one interior pixel": _plant_mixed_inside, "mixed cleared on one silhouette pixel": _plant_mixed_edge,
+def _interior(ds, frame=2, n=1):
+    """(rows, cols) of an n x n blob inside the block, valid forward, away from its edges."""
+    d = ds.data[frame]
+    inside = (d["instance"] == ds.id["/World/Cube"]) & d["valid_fwd"]
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    whole = sliding_window_view(inside, (n, n)).all(axis=(-1, -2))  # windows wholly inside
+    v, u = np.nonzero(whole)
+    assert v.size
+    k = np.argmin((v - v.mean()) ** 2 + (u - u.mean()) ** 2)
+    return slice(int(v[k]), int(v[k]) + n), slice(int(u[k]), int(u[k]) + n)
+
+
+def _plant(key, n, change):
+    def plant(ds):
+        sel = _interior(ds, 2, n)
+        ds.data[2][key][sel] = change(ds.data[2][key][sel])
+        return key, "frame 2"
+    return plant
+
+
+PLANTED_PIXELS = {  # errors a 1e-5 fraction of the compared pixels (and a 10x cap) let through
+    "1 px flow at 6x the limit": _plant("flow_fwd", 1, lambda a: a + np.float32([0.3, 0.0])),
+    "1 px disparity change at 6x the limit": _plant("disparity_change", 1, lambda a: a + np.float32(0.3)),
+    "a 3x3 flow blob at 9x the limit": _plant("flow_fwd", 3, lambda a: a + np.float32([0.0, 0.45])),
+    "36 px of flow at 9x the limit": _plant("flow_fwd", 6, lambda a: a - np.float32([0.45, 0.0])),
+    "30 px of scene flow +9 mm": _plant("scene_flow", 6, lambda a: a + np.float32([0.009, 0.0, 0.0])),
+    "a depth blob x1.0009": _plant("depth", 3, lambda a: a * np.float32(1.0009)),
+    "one flipped instance pixel": _plant("instance", 1, lambda a: np.where(a == 1, 2, 1).astype(a.dtype)),
+    "one flipped occlusion pixel": _plant("occlusion_fwd", 1, lambda a: ~a),
+}
+
+
+PLANTED = {**PLANTED_PIXELS, "mixed set on one interior pixel": _plant_mixed_inside, "mixed cleared on one silhouette pixel": _plant_mixed_edge,
            "negated normals": _plant_negated_normals, "normal not of unit length": _plant_unit_violation,
            "valid bit cleared over a moving object": _plant_cleared_valid_bits,
            "last frame marked valid with garbage flow": _plant_valid_last_frame,
@@ -728,3 +762,20 @@ def test_records_that_disagree_with_the_stage_fail_verify(blender_video, tmp_pat
     fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
     assert any(ln.startswith("FAIL manifest rig main: baseline is") for ln in fails), fails
     assert any(ln.startswith("FAIL frame 2 view 0,1: frame.json's cam_to_world differs from the stage's camera by 0.001") for ln in fails), fails
+
+
+@pytest.mark.parametrize("key,over,worst", [("flow_fwd", 1, 0.3), ("disparity_change", 1, 0.3), ("flow_fwd", 36, 0.45),
+                                            ("scene_flow", 30, 0.009), ("depth", 9, 9e-4), ("instance", 1, 1.0), ("occlusion_fwd", 1, 1.0)])
+def test_no_fraction_of_a_megapixel_view_may_exceed_its_limit(key, over, worst):
+    """Issue 37 item 1: the planted errors the 1e-5 fraction and the 10x cap let through in a 1024x1024
+    view (6x and 9x the limit, on 1 to 36 px; one flipped instance or occlusion pixel of a class) fail:
+    any pixel over its limit that no tie explains fails its key."""
+    from lfusd.truth.verify import ALL, Row, VerifyReport
+
+    n = 1024 * 1024
+    rows = [Row(2, (0, 0), key, label, n, 0.0, 0.0, worst, THRESHOLDS[key], over, n, 0, (5, 7, worst)) for label in (ALL, "car")]
+    report = VerifyReport(rows=rows)
+    assert not report.ok
+    assert any(line.startswith(key) and "frame 2 view 0,0 pixel (u=5, v=7)" in line for line in report.failures()), report.failures()
+    clean = VerifyReport(rows=[Row(2, (0, 0), key, label, n, 0.0, 0.0, 0.0, THRESHOLDS[key], 0, n, 3, (5, 7, 0.0)) for label in (ALL, "car")])
+    assert clean.ok  # ties are counted, not failures
