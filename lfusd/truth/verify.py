@@ -681,8 +681,8 @@ def compare_view(
                 if k in e:
                     err[k][bad[fine]] = e[k][fine]
             kind[bad[fine]] = 1 + TIE_KINDS.index(name)
-    if ds.get("mixed") is not None:
-        base = fwd or bwd or still
+    if ds.get("mixed") is not None and (fwd is not None or bwd is not None):  # a lone frame has no motion keys derived
+        base = fwd or bwd
         err["mixed"], tied = _mixed_errors(ds["mixed"], base["ctx"], fwd is not None, ids, H, W)
         kind[tied & (kind == 0)] = 1 + TIE_KINDS.index("mixed")
     ties = kind > 0
