@@ -40,8 +40,8 @@ def test_producers_and_consumers_take_their_key_lists_from_the_registry():
 
     assert set(passes.DERIVED) == set(keys.names(keys.STATIC))
     assert MOTION_KEYS == keys.names(keys.MOTION)
-    assert verify.THRESHOLDS == keys.accuracies() and set(verify.UNITS) == set(verify.THRESHOLDS)
-    assert set(verify.THRESHOLDS) <= set(verify.KEYS)
+    assert verify.THRESHOLDS == keys.accuracies() and set(verify.UNITS) == set(verify.THRESHOLDS) | set(verify.EXACT)
+    assert set(verify.THRESHOLDS) | set(verify.EXACT) <= set(verify.KEYS + verify.CHECKED) <= set(keys.KEYS)
     assert keys.names() == tuple(keys.KEYS)
     assert set(keys.names(keys.IMAGE, keys.RAW, keys.STATIC, keys.MOTION)) == set(keys.KEYS)
 

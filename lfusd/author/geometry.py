@@ -39,11 +39,32 @@ class WorldMesh:
     triangles: np.ndarray
 
 
-def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Fan-triangulate polygons given USD faceVertexCounts / faceVertexIndices."""
+def triangulate(counts: np.ndarray, indices: np.ndarray, points: np.ndarray | None = None, left_handed: bool = False) -> np.ndarray:
+    """Triangulate polygons given USD faceVertexCounts / faceVertexIndices as Blender does (bpy 5.0,
+    measured on bent, concave and left-handed quads): a ``left_handed`` mesh's faces are reversed
+    (the importer's winding), then each face is a fan from its first corner, except a quad whose
+    diagonal 0-2 lies outside it (corners 1 and 3 on one side of it, Blender's
+    is_quad_flip_v3_first_third_fast; needs ``points``), which is split along 1-3. A non-planar
+    quad's surface therefore follows its first corner, not its shorter diagonal. Faces of 5 or
+    more corners are fans (Blender's polyfill may split them otherwise: see docs/CONVENTIONS.md)."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    if left_handed and indices.size:
+        # reverse each face's corners: position j of a face of n corners takes corner n-1-j
+        face_of = np.repeat(np.arange(counts.size), counts)
+        j = np.arange(indices.size) - starts[face_of]
+        indices = indices[starts[face_of] + counts[face_of] - 1 - j]
+    if points is not None and indices.size:
+        quads = starts[counts == 4]
+        if quads.size:
+            P = np.asarray(points, np.float64)
+            v0, v1, v2, v3 = (P[indices[quads + k]] for k in range(4))
+            flip = (np.cross(v1 - v0, v2 - v0) * np.cross(v3 - v0, v2 - v0)).sum(-1) > 0
+            if flip.any():  # rotate the corners by one: the fan then runs from corner 1, along 1-3
+                q = quads[flip]
+                indices = indices.copy()
+                indices[q], indices[q + 1], indices[q + 2], indices[q + 3] = indices[q + 1], indices[q + 2], indices[q + 3], indices[q]
     tris = []
     for k in range(1, int(counts.max(initial=0)) - 1):
         sel = counts > k + 1
@@ -128,7 +149,8 @@ def _mesh_arrays(prim: Usd.Prim, t: Usd.TimeCode) -> tuple[np.ndarray, np.ndarra
     pts = np.array(pts, dtype=np.float64).reshape(-1, 3)
     counts, indices = mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t)
     check_mesh(path, pts, counts, indices, None if t.IsDefault() else t.GetValue())
-    return pts, triangulate(counts if counts is not None else [], indices if indices is not None else [])
+    left = mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded
+    return pts, triangulate(counts if counts is not None else [], indices if indices is not None else [], pts, left)
 
 
 # Implicit shapes Blender's USD importer tessellates in its own way (Cube alone is meshed exactly, by
@@ -161,6 +183,55 @@ def check_geometry(geometry: "StageGeometry", implicit: bool = True) -> None:
         # the default where nothing is animated, else every sample (a time sample hides the default)
         for t in [Usd.TimeCode(x) for x in times] or [Usd.TimeCode.Default()]:
             _mesh_arrays(prim, t)
+    check_divergence(geometry)
+
+
+WEIGHT_TOL = 1e-3  # |sum of a point's skin weights - 1| above this: Blender and UsdSkel skin it differently
+SHEAR_TOL = 1e-5  # cosine between two axes of an instance's transform above this: a shear
+
+
+def check_divergence(geometry: "StageGeometry") -> None:
+    """Refuse, in one line naming the prim, what Blender renders otherwise than USD (and so than the
+    ground truth and verify) defines it (issue 37): skin weights that do not sum to 1 (Blender
+    normalises them, UsdSkel does not), a PointInstancer's velocities, accelerations or angular
+    velocities (USD moves its instances by them between samples, Blender ignores them) and an
+    instance (point instance or scenegraph instance) whose transform is sheared (Blender's
+    instancing keeps only rotation and scale)."""
+    for path, (skin, _) in geometry._skinning.items():
+        indices, weights = skin.ComputeJointInfluences(Usd.TimeCode.EarliestTime()) or (None, None)
+        n = skin.GetNumInfluencesPerComponent()
+        if weights is None or not n:
+            continue
+        sums = np.asarray(weights, np.float64).reshape(-1, n).sum(1)
+        bad = np.flatnonzero(np.abs(sums - 1) > WEIGHT_TOL)
+        if bad.size:
+            raise LfusdError(f"mesh {path}'s skin weights sum to {sums[bad[0]]:.3g} at point {int(bad[0])} (and {bad.size - 1} more), "
+                             "not 1: Blender normalises them, UsdSkel does not; normalise its primvars:skel:jointWeights")
+    instancers: dict[str, Usd.Prim] = {}
+    first = geometry.stage.GetStartTimeCode() if geometry.stage.HasAuthoredTimeCodeRange() else 0.0
+    res = geometry.resolver(first)
+    sheared = None
+    for part in geometry.parts:
+        place = part.placement
+        while place is not None:
+            instancers.setdefault(str(place.instancer.GetPath()), place.instancer)
+            place = place.outer
+        if sheared is None and (part.placement is not None or part.prim.IsInstanceProxy()):
+            rows = res.part(part)[:3, :3]
+            rows = rows / np.linalg.norm(rows, axis=1, keepdims=True)
+            cos = np.abs(rows @ rows.T - np.eye(3)).max()
+            if cos > SHEAR_TOL:
+                sheared = (part.path, cos)
+    for path, prim in instancers.items():
+        inst = UsdGeom.PointInstancer(prim)
+        for name, attr in (("velocities", inst.GetVelocitiesAttr()), ("accelerations", inst.GetAccelerationsAttr()),
+                           ("angularVelocities", inst.GetAngularVelocitiesAttr())):
+            if attr and attr.HasAuthoredValue() and any(len(attr.Get(t) or []) for t in (attr.GetTimeSamples() or [Usd.TimeCode.Default()])):
+                raise LfusdError(f"PointInstancer {path} has {name}, which Blender ignores and USD moves its instances by; "
+                                 f"remove them and author its positions and orientations at every frame")
+    if sheared is not None:
+        raise LfusdError(f"instance {sheared[0]} has a sheared transform (axes {90 - np.degrees(np.arccos(min(1.0, sheared[1]))):.3g} degrees "
+                         "off square), which Blender's instancing drops; remove the shear (bake it into the prototype's points)")
 
 
 class StageGeometry:
@@ -219,7 +290,12 @@ class StageGeometry:
         if prim.IsA(UsdGeom.Mesh):
             pts, tris = _mesh_arrays(prim, t)
             if path in self._skinning:
-                return WorldMesh(path, self._skinned(path, pts, t, time), tris)
+                skinned = self._skinned(path, pts, t, time)
+                # Blender splits the deformed quads: the concave test on the skinned points
+                mesh = UsdGeom.Mesh(prim)
+                tris = triangulate(mesh.GetFaceVertexCountsAttr().Get(t), mesh.GetFaceVertexIndicesAttr().Get(t), skinned,
+                                   mesh.GetOrientationAttr().Get(t) == UsdGeom.Tokens.leftHanded)
+                return WorldMesh(path, skinned, tris)
             return WorldMesh(path, self.frame.points(_transform(pts, xf)), tris)
         if prim.IsA(UsdGeom.Cube):
             size = UsdGeom.Cube(prim).GetSizeAttr().Get(t)

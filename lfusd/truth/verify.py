@@ -12,15 +12,24 @@ Every pixel is compared where the dataset or the trace sees a surface, silhouett
 motion keys where both call the pixel valid. Limits (:data:`THRESHOLDS`, from lfusd.keys): flow
 0.05 px, scene flow 1 mm (or 1e-3 of the object's size, never below the 2^-17 m storage step:
 the error is scaled to the limit), depth 1e-4 relative, disparity change 0.05 px; instance and
-occlusion are agree / disagree. A key fails when more than ``FAIL_FRACTION`` (1e-5) of its
-compared pixels exceed the limit, when any pixel exceeds ``MAX_FACTOR`` (10) times it, or
-(instance, occlusion) when a class disagrees on more than the key's limit (0.1 %); the report fails
-when more than ``UNCHECKED_FRACTION`` (0.1 %) of the pixels the dataset calls valid cannot be
-checked (their mesh changes topology in the stage). Tie rule: a pixel over a limit is accepted
-when a second surface its sample may have hit within float tolerance agrees on every key: a ray
-offset by ``TIE_PX`` (1e-3 px), or a second hit along its own ray within ``VISIBLE_EPS`` (1e-4) of
-the distance; for occlusion, also a surface within [eps/10, 10 eps] in front of the point at t+-1.
+occlusion are agree / disagree. A key fails when any compared pixel exceeds its limit and no tie
+explains it (instance, occlusion: when any pixel disagrees, or more than a limit the user sets);
+the report fails when more than ``UNCHECKED_FRACTION`` (0.1 %) of the pixels the dataset calls
+valid cannot be checked (their mesh changes topology in the stage). Ties (:data:`TIE_KINDS`): a
+pixel over a limit is accepted when a second surface its sample may have hit within float
+tolerance agrees on every key: a ray moved by the float bound of an edge near the sample
+(:func:`_edge_step`: at least ``TIE_PX``, 1e-3 px; more where coordinates are large against the
+depth), or a second hit along its own ray within ``VISIBLE_EPS`` (1e-4) of the distance; for
+occlusion, also a surface within [eps/10, 10 eps] in front of the point at t+-1; for depth, an
+error within the float32 bound of a grazing hit (:func:`_clear_grazing_ties`).
 Ties are counted and reported. :meth:`VerifyReport.certificate` is what a dataset records.
+
+Every other key and record is checked exactly (:data:`EXACT`): ``normal`` against the traced
+triangle (unit length, the side the camera sees), ``valid_fwd``/``valid_bwd`` (set exactly where the
+trace knows the motion, nowhere past the rendered range), ``semantic``, ``mixed`` (decided again on
+verify's own corner rays), the object table and the manifest's rig against the stage (the trace
+takes the stage's rig). Per object and view, the mean signed error of flow, scene flow and
+disparity change is held to a tenth of the limit (the ``<key>_bias`` rows).
 """
 
 from __future__ import annotations
@@ -39,7 +48,22 @@ from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
 # The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
 # occlusion the fraction of interior (foreground) pixels that disagree.
 THRESHOLDS: dict[str, float] = accuracies()
-UNITS = accuracy_units()
+# Keys and records checked exactly (no user override): the normal's side (1 - cos of its angle to the
+# traced triangle's normal facing the camera: over 1, it faces away), validity and semantic class
+# (any disagreement fails).
+EXACT: dict[str, float] = {"normal": 1.0, "semantic": 0.0, "valid_fwd": 0.0, "valid_bwd": 0.0, "mixed": 0.0}
+UNITS = {**accuracy_units(), "normal": "1-cos", "semantic": "frac", "valid_fwd": "frac", "valid_bwd": "frac", "mixed": "frac"}
+# mixed is decided again from verify's own corner rays (lfusd.truth.visibility's rule); a pixel whose
+# corners differ in depth or flow by MIXED_BAND times the rule's limits (either way) may be either.
+MIXED_BAND = (0.8, 1.25)
+NORMAL_LENGTH_TOL = 1e-3  # |normal| - 1: the float16 storage adds at most 2.4e-4 per component
+# Bias: per object and view, the mean signed error of these keys is held to BIAS_FRACTION of the key's
+# per-pixel limit (0.005 px, 0.1 mm), never below the storage step of scene flow (2^-17 m), over
+# objects with at least BIAS_MIN_PX compared pixels (fewer: the per-pixel limit alone).
+BIAS_KEYS = ("flow_fwd", "flow_bwd", "scene_flow", "disparity_change")
+BIAS_FRACTION = 0.1
+BIAS_MIN_PX = 100
+BIAS = "_bias"  # suffix of the bias rows' keys
 SCENE_FLOW_REL = 1e-3  # scene flow is also held to this fraction of the object's size (small objects)
 SCENE_FLOW_FLOOR = 2.0**-17  # ... but never below its storage step (lfusd.keys: multiples of 2^-17 m)
 from .visibility import VISIBLE_EPS  # the tie rule of visibility, shared with the derivation
@@ -192,6 +216,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     depth = np.full(n, np.inf)
     pos = np.full((n, 3), np.nan)
     pos1 = np.full((n, 3), np.nan)
+    normal = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
     for i, (m0, m1) in enumerate(zip(s0.meshes, s1.meshes)):
         sel = np.flatnonzero(mesh == i)
@@ -201,6 +226,10 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         t, P, b1, b2 = _hit_on_triangle(o[sel], d[sel], *(m0.vertices[tr[:, k]] for k in range(3)))
         depth[sel] = t  # direction has camera-z 1, so the ray parameter is planar depth
         pos[sel] = P
+        g = np.cross(m0.vertices[tr[:, 1]] - m0.vertices[tr[:, 0]], m0.vertices[tr[:, 2]] - m0.vertices[tr[:, 0]])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            g /= np.linalg.norm(g, axis=-1, keepdims=True)
+        normal[sel] = np.where(((g * d[sel]).sum(-1) > 0)[:, None], -g, g)  # the side the camera sees
         if m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles):
             V = m1.vertices[tr]
             pos1[sel] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
@@ -213,7 +242,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     with np.errstate(divide="ignore", invalid="ignore"):
         dchange = fb / z1 - fb / depth
     return {
-        "depth": depth, "position": pos, "mesh": mesh, "triangle": tri,
+        "depth": depth, "position": pos, "normal": normal, "mesh": mesh, "triangle": tri,
         "prim_paths": [m.prim_path for m in s0.meshes],
         "mesh_bounds": _bounds(s0.meshes),
         "flow": np.stack([u1 - u, v1 - v], -1),
@@ -259,10 +288,18 @@ def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
     return out
 
 
-TIE_PX = 1e-3  # sub-pixel offset of the candidate rays of the tie rule (silhouettes)
-FAIL_FRACTION = 1e-5  # a key fails when more than this fraction of its compared pixels exceed its limit
-MAX_FACTOR = 10  # ... or when any pixel exceeds it this many times
-UNCHECKED_FRACTION = 1e-3  # ... or when more than this fraction of the pixels lfusd calls valid cannot be checked
+TIE_PX = 1e-3  # least sub-pixel offset of the candidate rays of the tie rule (an edge near the sample)
+EPS32 = 2.0**-24  # float32 unit roundoff: Blender intersects rays with float32 geometry
+EDGE_ULPS = 64  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
+GRAZING_ULPS = 16  # depth error bound of a hit at incidence theta: this many roundoffs of max(|P|, |O|) / cos(theta)
+GRAZING_COS = 0.1  # ... for hits beyond 84 degrees (nearer the normal the bound is far under any limit)
+UNCHECKED_FRACTION = 1e-3  # verify fails when more than this fraction of the pixels lfusd calls valid cannot be checked
+# Kinds of tie (a pixel over a limit that another surface or float rounding explains), counted per key:
+# edge: a ray moved by the float bound of the edges near the sample sees what the dataset holds;
+# surface: a second surface along the ray within VISIBLE_EPS of the distance; visibility: an occluder
+# within the visibility band; grazing: a depth within the float bound at the hit's incidence;
+# mixed: a mixed decision within its band.
+TIE_KINDS = ("edge", "surface", "visibility", "grazing", "mixed")
 
 
 @dataclass
@@ -282,6 +319,7 @@ class Row:
     foreground: int = 0  # foreground pixels of this class in the view (coverage = count / foreground)
     ties: int = 0  # pixels accepted by the tie rule (a second surface within float tolerance)
     worst: tuple | None = None  # (u, v, error) of the worst pixel
+    tie_kinds: dict = field(default_factory=dict)  # ties by kind (TIE_KINDS)
 
     @property
     def rate(self) -> bool:
@@ -297,9 +335,9 @@ class Row:
 class VerifyReport:
     """All rows of a verification and the verdict (:attr:`ok`).
 
-    A key fails when more than ``FAIL_FRACTION`` of its compared pixels exceed its limit, when any
-    pixel exceeds ``MAX_FACTOR`` times the limit, or (instance and occlusion) when a class's
-    disagreement rate exceeds the key's limit; the whole report fails when more than
+    A key fails when any compared pixel exceeds its limit unexplained by a tie (instance and
+    occlusion: disagrees, or more than the key's limit of a class does, 0 by default); the whole
+    report fails when more than
     ``UNCHECKED_FRACTION`` of the pixels the dataset calls valid could not be checked."""
 
     rows: list[Row] = field(default_factory=list)
@@ -319,11 +357,14 @@ class VerifyReport:
         out: dict[tuple[str, str], dict] = {}
         for r in self.rows:
             e = out.setdefault((r.key, r.label), {"key": r.key, "label": r.label, "count": 0, "over": 0, "foreground": 0, "ties": 0,
-                                                  "p99": 0.0, "max": 0.0, "medians": [], "threshold": r.threshold, "worst": None})
+                                                  "p99": 0.0, "max": 0.0, "medians": [], "threshold": r.threshold, "worst": None,
+                                                  "tie_kinds": {}})
             e["count"] += r.count
             e["over"] += r.over
             e["foreground"] += r.foreground
             e["ties"] += r.ties
+            for k, n in r.tie_kinds.items():
+                e["tie_kinds"][k] = e["tie_kinds"].get(k, 0) + n
             if r.count:
                 e["medians"].append(r.median)
                 e["p99"] = max(e["p99"], r.p99)
@@ -340,10 +381,12 @@ class VerifyReport:
             rate = UNITS.get(key) == "frac"
             lim = e["threshold"]
             why = None
-            if label == ALL and e["over"] > FAIL_FRACTION * e["count"]:
-                why = f"{e['over']} of {e['count']} px over the limit {lim:g} (> {FAIL_FRACTION:g} of them)"
-            elif not rate and e["max"] > MAX_FACTOR * lim:
-                why = f"a pixel is off by {e['max']:.3g} {UNITS[key]}, over {MAX_FACTOR}x the limit {lim:g}"
+            if key.endswith(BIAS) and e["over"]:
+                why = f"mean signed error {e['max']:.3g} {UNITS[key[:-len(BIAS)]]} over {e['count']} px, over the bias limit {lim:g}"
+            elif key in EXACT and e["over"]:
+                why = f"{e['over']} of {e['count']} px " + ("face away from the camera or are not of unit length" if key == "normal" else "disagree")
+            elif not rate and label == ALL and e["over"]:
+                why = f"{e['over']} of {e['count']} px over the limit {lim:g} (no tie explains them)"
             elif rate and e["count"] and e["over"] / e["count"] > lim:
                 why = f"disagrees on {100 * e['over'] / e['count']:.3g} % of {e['count']} px > {100 * lim:g} %"
             if why:
@@ -393,10 +436,19 @@ class VerifyReport:
     def certificate(self) -> dict:
         """The per-key figures over all classes (pixels compared, coverage, p99, max, count over the
         limit, ties) and the verdict: what a dataset records as its proof (manifest, card)."""
-        keys = {e["key"]: {k: e[k] for k in ("count", "coverage", "p99", "max", "over", "ties", "threshold")}
-                for e in self.summary() if e["label"] == ALL}
-        return {"ok": self.ok, "rules": {"fail_fraction": FAIL_FRACTION, "max_factor": MAX_FACTOR, "unchecked_fraction": UNCHECKED_FRACTION},
-                "valid": self.valid, "unchecked": self.unchecked, "keys": keys}
+        summary = self.summary()
+        keys = {e["key"]: {k: e[k] for k in ("count", "coverage", "p99", "max", "over", "ties", "tie_kinds", "threshold")}
+                for e in summary if e["label"] == ALL}
+        bias: dict[str, dict] = {}  # per key: the object of the largest bias relative to its limit
+        for e in summary:
+            if e["key"].endswith(BIAS) and e["count"]:
+                key = e["key"][:-len(BIAS)]
+                if key not in bias or e["max"] / e["threshold"] > bias[key]["max"] / bias[key]["threshold"]:
+                    bias[key] = {"object": e["label"], "max": e["max"], "threshold": e["threshold"], "over": e["over"]}
+        return {"ok": self.ok, "rules": {"unchecked_fraction": UNCHECKED_FRACTION, "tie_px": TIE_PX, "edge_ulps": EDGE_ULPS,
+                                         "grazing_ulps": GRAZING_ULPS, "visible_eps": VISIBLE_EPS,
+                                         "bias_fraction": BIAS_FRACTION, "bias_min_px": BIAS_MIN_PX},
+                "valid": self.valid, "unchecked": self.unchecked, "keys": keys, "bias": bias}
 
     def table(self) -> str:
         """Plain-text table of :meth:`summary`."""
@@ -412,10 +464,14 @@ class VerifyReport:
 ALL = "(all)"
 
 
-def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict) -> dict[str, np.ndarray]:
+def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
+            classes: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per-key error at flat pixels ``idx`` (NaN where the key is not compared there): ``ds`` holds the
-    dataset's flat arrays, ``st`` a trace at t and ``fw``/``bw`` traces towards t+1 / t-1, each
-    indexed like ``idx``. Instance and occlusion errors are 0 (agree) or 1."""
+    dataset's flat arrays, ``st`` a trace at t and ``fw``/``bw`` traces towards t+1 / t-1 (None: the
+    frame has no neighbour that way, so the dataset must call no pixel valid that way), each
+    indexed like ``idx``; ``classes``: the stage's class id of every instance id (semantic check).
+    Instance, semantic, validity and occlusion errors are 0 (agree) or 1; normal: 1 - cos of the
+    angle to the traced triangle's normal facing the camera (2 when not of unit length)."""
     nan = np.full(idx.size, np.nan)
     inst_tr = ids[st["mesh"]]
     fg_tr = st["mesh"] >= 0
@@ -427,11 +483,23 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
         err["depth"] = np.where(both, np.abs(d_ds - st["depth"]) / st["depth"], nan)
         if ds.get("instance") is not None:
             err["instance"] = np.where(fg_ds | fg_tr, ((ds["instance"][idx] != inst_tr) | (fg_ds != fg_tr)).astype(float), nan)
+        if ds.get("semantic") is not None and classes is not None:
+            err["semantic"] = np.where(both, (ds["semantic"][idx] != classes[np.clip(inst_tr, 0, len(classes) - 1)]).astype(float), nan)
+        if ds.get("normal") is not None and "normal" in st:
+            n = ds["normal"][idx].astype(np.float64)
+            length = np.linalg.norm(n, axis=-1)
+            e = 1.0 - (n * st["normal"]).sum(-1) / length
+            err["normal"] = np.where(both, np.where(np.abs(length - 1) <= NORMAL_LENGTH_TOL, e, 2.0), nan)
         for name, tr in (("fwd", fw), ("bwd", bw)):
             if tr is None:
+                # No neighbour frame that way (the ends of the rendered range): nothing is valid there.
+                if ds.get(f"valid_{name}") is not None:
+                    err[f"valid_{name}"] = np.where(fg_ds, ds[f"valid_{name}"][idx].astype(float), nan)
                 continue
             ok = both & tr["valid"]
             if ds.get(f"valid_{name}") is not None:
+                # Valid exactly where the surface's motion is known: its mesh keeps its topology.
+                err[f"valid_{name}"] = np.where(both, (ds[f"valid_{name}"][idx] != tr["valid"]).astype(float), nan)
                 ok &= ds[f"valid_{name}"][idx]
             if ds.get(f"flow_{name}") is not None:
                 err[f"flow_{name}"] = np.where(ok, np.linalg.norm(ds[f"flow_{name}"][idx] - tr["flow"], axis=-1), nan)
@@ -464,12 +532,25 @@ def _over(err: dict[str, np.ndarray], thr: dict) -> np.ndarray:
     return bad
 
 
-def _candidates(traces: list, u: np.ndarray, v: np.ndarray):
-    """Other surfaces a pixel's sample may have hit within float tolerance: rays offset by TIE_PX,
-    and a second hit along the pixel's own ray within VISIBLE_EPS of the first. Yields per
-    candidate the traces (one per direction in ``traces``) at those pixels."""
-    for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
-        yield [trace_pixels(t["ctx"], u + du, v + dv) for t in traces]
+def _edge_step(ctx: dict, u: np.ndarray, v: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Per pixel, how far (px) an edge near its sample may really lie, from float32 rounding of
+    coordinates of magnitude max(|P|, |O|) seen at ``depth``: never under TIE_PX."""
+    C = ctx["c2w"][:3, 3]
+    d = ray_directions(u, v, Camera(ctx["K"], ctx["c2w"]))
+    with np.errstate(invalid="ignore"):
+        P = C + depth[:, None] * d
+        mag = np.fmax(np.linalg.norm(P, axis=-1), np.linalg.norm(C))
+        step = EDGE_ULPS * EPS32 * mag / depth * float(ctx["K"][0, 0])
+    return np.where(np.isfinite(step), np.maximum(step, TIE_PX), TIE_PX)
+
+
+def _candidates(traces: list, u: np.ndarray, v: np.ndarray, step: np.ndarray | float = TIE_PX):
+    """Other surfaces a pixel's sample may have hit within float tolerance: rays offset by ``step``
+    (px, per pixel: :func:`_edge_step`), and a second hit along the pixel's own ray within
+    VISIBLE_EPS of the first. Yields per candidate its kind (TIE_KINDS) and the traces (one per
+    direction in ``traces``) at those pixels."""
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        yield "edge", [trace_pixels(t["ctx"], u + du * step, v + dv * step) for t in traces]
     ctx = traces[0]["ctx"]
     o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3)).copy()
     d = ray_directions(u, v, Camera(ctx["K"], ctx["c2w"]))
@@ -483,7 +564,7 @@ def _candidates(traces: list, u: np.ndarray, v: np.ndarray):
         return
     m, k = np.full(len(u), -1), np.zeros(len(u), np.int64)
     m[ray[alt]], k[ray[alt]] = mesh[alt], tri[alt]
-    yield [trace_pixels(t_["ctx"], u, v, hits=(m, k)) for t_ in traces]
+    yield "surface", [trace_pixels(t_["ctx"], u, v, hits=(m, k)) for t_ in traces]
 
 
 def _clear_visibility_ties(err: dict, traces: dict) -> np.ndarray:
@@ -502,6 +583,28 @@ def _clear_visibility_ties(err: dict, traces: dict) -> np.ndarray:
             err[key][left[flip]] = 0.0
             accepted.append(left[flip])
     return np.concatenate(accepted) if accepted else np.zeros(0, np.int64)
+
+
+def _clear_grazing_ties(err: dict, ds: dict, st: dict, ctx: dict, thr: dict, W: int) -> np.ndarray:
+    """Accept depth errors within the float32 bound of a hit at a grazing incidence: GRAZING_ULPS
+    roundoffs of max(|P|, |O|), over cos(incidence), relative to the depth (a face at 89.8 degrees
+    holds its depth to about 3e-4 only). Sets their error to 0 in ``err``; returns the pixels."""
+    if "depth" not in err:
+        return np.zeros(0, np.int64)
+    with np.errstate(invalid="ignore"):
+        idx = np.flatnonzero(err["depth"] > thr["depth"])
+    if idx.size == 0:
+        return idx
+    v, u = np.divmod(idx, W)
+    d = ray_directions(u.astype(np.float64), v.astype(np.float64), Camera(ctx["K"], ctx["c2w"]))
+    C = ctx["c2w"][:3, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs((st["normal"][idx] * d).sum(-1)) / np.linalg.norm(d, axis=-1)
+        mag = np.fmax(np.linalg.norm(st["position"][idx], axis=-1), np.linalg.norm(C))
+        bound = GRAZING_ULPS * EPS32 * mag / (st["depth"][idx] * cos)
+        ok = (err["depth"][idx] <= bound) & (cos < GRAZING_COS)
+    err["depth"][idx[ok]] = 0.0
+    return idx[ok]
 
 
 def _visibility_tie(ctx: dict, tr: dict, idx: np.ndarray) -> np.ndarray:
@@ -540,12 +643,17 @@ def compare_view(
     when another surface its sample may have hit within float tolerance (:func:`_candidates`)
     agrees on every key (the tie rule). ``counts`` (optional dict) accumulates ``valid`` and
     ``unchecked`` pixels."""
-    thr = {**THRESHOLDS, **(thresholds or {})}
+    thr = {**THRESHOLDS, **EXACT, **(thresholds or {})}
     tr = fwd or bwd or still
     if tr is None:
         raise ValueError("compare_view needs a trace: fwd, bwd or still")
     H, W = np.asarray(data["depth"]).shape[:2]
     ids = object_ids_for(tr["prim_paths"], objects)
+    classes = None
+    if objects and all(getattr(o, "class_id", None) is not None for o in objects.values()):
+        classes = np.zeros(max(objects) + 1, np.int64)
+        for i, o in objects.items():
+            classes[i] = o.class_id
     flat = lambda t: None if t is None else {k: (a.reshape(H * W, *a.shape[2:]) if isinstance(a, np.ndarray) and a.shape[:2] == (H, W) else a)
                                              for k, a in t.items()}  # noqa: E731
     ds = {k: (None if a is None else np.asarray(a).reshape(H * W, *np.asarray(a).shape[2:])) for k, a in data.items()}
@@ -555,29 +663,41 @@ def compare_view(
             ds[k] = ds[k].astype(np.float64)
     st, fw, bw = flat(tr), flat(fwd), flat(bwd)
     idx = np.arange(H * W)
-    err = _errors(ds, idx, st, fw, bw, ids, thr)
-    ties = np.zeros(H * W, bool)
-    ties[_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)})] = True
+    err = _errors(ds, idx, st, fw, bw, ids, thr, classes)
+    kind = np.zeros(H * W, np.int8)  # 0: no tie; else 1 + index in TIE_KINDS
+    kind[_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)})] = 1 + TIE_KINDS.index("visibility")
+    kind[_clear_grazing_ties(err, ds, st, tr["ctx"], thr, W)] = 1 + TIE_KINDS.index("grazing")
     bad = np.flatnonzero(_over(err, thr))
     if bad.size:
         v, u = np.divmod(bad, W)
         traced = [t for t in (fwd, bwd, still) if t is not None]
-        for cand in _candidates(traced, u.astype(np.float64), v.astype(np.float64)):
+        explained = np.zeros(bad.size, bool)  # by an earlier candidate: the first that explains a pixel counts
+        near = np.where(np.isfinite(st["depth"][bad]), st["depth"][bad], ds["depth"][bad])
+        step = _edge_step(tr["ctx"], u.astype(np.float64), v.astype(np.float64), near)
+        for name, cand in _candidates(traced, u.astype(np.float64), v.astype(np.float64), step):
             c = dict(zip([n for n, t in (("fwd", fwd), ("bwd", bwd), ("still", still)) if t is not None], cand))
-            e = _errors(ds, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr)
+            e = _errors(ds, bad, c.get("fwd") or c.get("bwd") or c["still"], c.get("fwd"), c.get("bwd"), ids, thr, classes)
             _clear_visibility_ties(e, {"fwd": (fwd, c.get("fwd")), "bwd": (bwd, c.get("bwd"))})
             # a candidate that sees nothing where the centre saw a surface cannot explain the pixel
             fine = ~_over(e, thr) & (e["depth"] == e["depth"]) if "depth" in e else ~_over(e, thr)
-            fine &= ~ties[bad]
+            # (a pixel already accepted as an occlusion tie still needs its other keys explained)
+            fine &= ~explained
+            explained |= fine
             for k in err:
                 if k in e:
                     err[k][bad[fine]] = e[k][fine]
-            ties[bad[fine]] = True
+            kind[bad[fine]] = 1 + TIE_KINDS.index(name)
+    if ds.get("mixed") is not None and (fwd is not None or bwd is not None):  # a lone frame has no motion keys derived
+        base = fwd or bwd
+        err["mixed"], tied = _mixed_errors(ds["mixed"], base["ctx"], fwd is not None, ids, H, W)
+        kind[tied & (kind == 0)] = 1 + TIE_KINDS.index("mixed")
+    ties = kind > 0
     inst_tr = ids[st["mesh"]]
     d_ds = ds["depth"]
     fg_ds = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH)
-    inst_any = np.where(fg_ds & (ds["instance"] if ds.get("instance") is not None else inst_tr) > 0,
-                        ds["instance"] if ds.get("instance") is not None else inst_tr, inst_tr)
+    # The class of a pixel is the dataset's instance where it shows a labelled surface, else the trace's.
+    inst_ds = ds["instance"] if ds.get("instance") is not None else inst_tr
+    inst_any = np.where(fg_ds & (inst_ds > 0), inst_ds, inst_tr)
     labels_of = np.array([""] + [str(objects[i].label) for i in sorted(objects)], dtype=object)
     id_to_row = np.zeros(max([0] + list(objects) + [int(inst_any.max(initial=0))]) + 1, np.int64)
     for k, i in enumerate(sorted(objects)):
@@ -604,20 +724,213 @@ def compare_view(
             over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
             j = int(np.flatnonzero(sel)[np.argmax(x)])
             worst = (j % W, j // W, float(x.max()))
+            counted = np.bincount(kind[sel & ties], minlength=len(TIE_KINDS) + 1)
+            by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
             if rate:
                 m = float(x.mean())
-                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst))
+                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst,
+                                by_kind))
             else:
                 rows.append(Row(frame, view, key, label, int(x.size), float(np.median(x)), float(np.percentile(x, 99)), float(x.max()),
-                                thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst))
+                                thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst, by_kind))
+    rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
+    if bw is not None:
+        rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
+    return rows
+
+
+def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
+                    depth_rel: float, flow_px: float) -> np.ndarray:
+    """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
+    the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
+    ``flow``) in forward flow by more than ``flow_px``."""
+    wc = W + 1
+    a = (np.arange(H)[:, None] * wc + np.arange(W)[None, :]).ravel()
+    c = np.stack([a, a + 1, a + wc, a + wc + 1], 1)
+    ids = ident[c]
+    out = (ids != ids[:, :1]).any(1)
+    D = depth[c]
+    with np.errstate(invalid="ignore"):
+        lo, hi = D.min(1), D.max(1)
+        out |= np.isfinite(hi) & (hi - lo > depth_rel * lo)
+        if flow is not None:
+            F = flow[c]
+            gap = np.zeros(len(a))
+            for x in range(4):
+                for y in range(x + 1, 4):
+                    gap = np.fmax(gap, np.linalg.norm(F[:, x] - F[:, y], axis=-1))  # NaN (unknown motion) counts as none
+            out |= (ids[:, 0] >= 0) & (gap > flow_px)
+    return out
+
+
+def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """(error 0/1 per pixel, tie per pixel) of the dataset's ``mixed`` against the rule decided on
+    verify's own rays through the pixel corners (the trace at t, carried to t+1 when ``carry``).
+    Either value is accepted where the decision changes within MIXED_BAND of its limits, or where
+    a corner's ray moved TIE_PX sees another object (a corner on an edge)."""
+    from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
+
+    vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
+    uc, vc = uc.ravel(), vc.ravel()
+    c = trace_pixels(ctx, uc, vc)
+    ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
+    flow = c["flow"] if carry else None
+    lo, hi = MIXED_BAND
+    surely = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi)
+    maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
+    got = np.asarray(mixed, bool)
+    wrong = (got & ~maybe) | (~got & surely)
+    tie = (surely != maybe) & (got == maybe)
+    bad = np.flatnonzero(wrong)
+    if bad.size:  # corners on an edge: another object TIE_PX away
+        wc = W + 1
+        a = (bad // W) * wc + bad % W
+        corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
+        moved = np.zeros(len(uc), bool)
+        for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
+            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv)["mesh"]
+            moved[corners] |= np.where(m >= 0, ids[m], -1) != ident[corners]
+        edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
+        wrong[bad[edge]] = False
+        tie[bad[edge]] = True
+    return wrong.astype(float), tie
+
+
+def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.ndarray, objects: dict, ties: np.ndarray,
+               frame: int, view: tuple[int, int], W: int, thr: dict, name: str = "fwd") -> list[Row]:
+    """One row per object and motion key (``<key>_bias``, labelled with the object's prim path):
+    the norm of the mean signed error over the object's compared pixels (ties left out: their
+    trace is another surface), against BIAS_FRACTION of the key's limit. A constant offset far
+    under the per-pixel limit (a whole car's flow 0.04 px off) fails here."""
+    if tr is None:
+        return []
+    keys = [k for k in BIAS_KEYS if ds.get(k) is not None and (k.endswith(name) or (name == "fwd" and not k.startswith("flow")))]
+    if not keys:
+        return []
+    d_ds = ds["depth"]
+    ok = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH) & (st["mesh"] >= 0) & tr["valid"] & ~ties & (inst > 0)
+    if ds.get(f"valid_{name}") is not None:
+        ok &= ds[f"valid_{name}"]
+    if not ok.any():
+        return []
+    sizes = object_sizes(ids, tr["mesh_bounds"])
+    rows = []
+    order = np.argsort(inst[ok], kind="stable")
+    pix = np.flatnonzero(ok)[order]
+    starts = np.flatnonzero(np.r_[True, np.diff(inst[pix]) != 0])
+    for a, b in zip(starts, np.r_[starts[1:], pix.size]):
+        obj = int(inst[pix[a]])
+        if b - a < BIAS_MIN_PX or obj not in objects:
+            continue
+        sel = pix[a:b]
+        for key in keys:
+            trace_key = "flow" if key.startswith("flow") else key
+            with np.errstate(invalid="ignore"):
+                diff = np.asarray(ds[key][sel], np.float64) - tr[trace_key][sel]
+            if not np.isfinite(diff).all():
+                continue
+            bias = float(np.linalg.norm(np.atleast_2d(diff.T).mean(-1)))
+            limit = BIAS_FRACTION * thr[key]
+            if key == "scene_flow":
+                limit = max(BIAS_FRACTION * min(thr[key], SCENE_FLOW_REL * sizes[obj]), SCENE_FLOW_FLOOR)
+            j = int(sel[len(sel) // 2])
+            rows.append(Row(frame, view, key + BIAS, objects[obj].prim_path, int(b - a), bias, bias, bias, limit,
+                            int(bias > limit), int(b - a), 0, (j % W, j // W, bias)))
     return rows
 
 
 # -- datasets --------------------------------------------------------------------------------
 
-# The dataset's keys that verification reads ("mixed", an annotation of the footprint, is tested
-# against closed-form geometry in tests/truth/test_occlusion.py, not traced here).
+# The dataset's keys that verification reads and a dataset with motion must hold (``mixed``, in
+# CHECKED, is compared where present: datasets derived before it lack it).
 KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed"))
+
+
+# Keys checked when the dataset holds them: the normal's side, the semantic class, mixed.
+CHECKED = ("normal", "semantic", "mixed")
+MAX_LINES = 5  # record problems of one kind named one by one; the rest counted
+
+
+def _table_problems(ds, objects: dict, class_names: list[str]) -> list[str]:
+    """The dataset's object table (``objects.json``) against the stage's (``objects``: id ->
+    ObjectEntry; ``class_names``): every id, prim path, label and class id must agree."""
+    fix = "objects.json does not describe the stage: restore it, or render again into a new folder"
+    out = []
+    theirs = ds.objects
+    for i in sorted(set(objects) | set(theirs)):
+        a, b = theirs.get(i), objects.get(i)
+        if b is None:
+            out.append(f"objects.json: object {i} ({a.prim_path}) is not an object of the stage; {fix}")
+        elif a is None:
+            out.append(f"objects.json: object {i} ({b.prim_path}) of the stage is missing; {fix}")
+        elif a.prim_path != b.prim_path:
+            out.append(f"objects.json: object {i} is {a.prim_path}, the stage's object {i} is {b.prim_path}; {fix}")
+        elif a.label != b.label or getattr(a, "class_id", b.class_id) != b.class_id:
+            out.append(f"objects.json: object {i} ({b.prim_path}) is labelled {a.label!r} (class {getattr(a, 'class_id', '?')}), "
+                       f"the stage labels it {b.label!r} (class {b.class_id}); {fix}")
+    mine = getattr(ds, "classes", None)
+    if mine is not None and list(mine) != list(class_names):
+        out.append(f"objects.json: the class table {list(mine)} is not the stage's {list(class_names)}; {fix}")
+    return out[:MAX_LINES] + ([f"objects.json: {len(out) - MAX_LINES} more objects disagree with the stage"] if len(out) > MAX_LINES else [])
+
+
+def _same(a, b) -> bool:
+    """Two record values equal, numbers to 1e-9 relative."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return bool(np.isclose(a, b, rtol=1e-9, atol=0))
+    return a == b
+
+
+def _stage_rig(stage, ds, problems: list[str]):
+    """The stage's rig of the dataset (``ds.rig_name``), its spec checked against the manifest's
+    (resolution aside: ``--resolution`` may override it); None for a reader without a rig record."""
+    from ..author.rigs import rigs
+
+    name, spec = getattr(ds, "rig_name", None), getattr(ds, "rig", None)
+    if name is None or spec is None:
+        return None
+    found = rigs(stage).get(name)
+    if found is None:
+        problems.append(f"manifest rig {name}: the stage has no rig {name!r} to check it against; pass the rendered stage with --stage")
+        return None
+    a, b = spec.to_dict(), found.spec.to_dict()
+    for k in sorted((set(a) | set(b)) - {"width", "height"}):
+        if not _same(a.get(k), b.get(k)):
+            problems.append(f"manifest rig {name}: {k} is {a.get(k)!r} but the stage's rig says {b.get(k)!r}; "
+                            "the manifest does not describe the render: restore it, or render again into a new folder")
+    return found
+
+
+def _checked_intrinsics(rig, ds, view, K: np.ndarray, W: int, H: int, problems: list[str], seen: set) -> np.ndarray:
+    """The stage rig's K at the rendered resolution; a problem line when the manifest's differs."""
+    from dataclasses import replace
+
+    Ks = replace(rig.spec, width=W, height=H).intrinsics()
+    if not np.allclose(K, Ks, rtol=1e-9, atol=1e-9) and ("K", tuple(view)) not in seen:
+        seen.add(("K", tuple(view)))
+        problems.append(f"manifest rig {rig.spec.name} view {view[0]},{view[1]}: intrinsics {K.tolist()} are not the stage rig's "
+                        f"{Ks.tolist()}; the manifest does not describe the render: restore it, or render again into a new folder")
+    return Ks
+
+
+POSE_TOL = 1e-6  # m (and rad): a recorded pose that differs from the stage's camera by more is wrong
+
+
+def _checked_pose(stage, rig, ds, frame: int, view, problems: list[str], seen: set) -> np.ndarray:
+    """The stage camera's pose of ``view`` at ``frame``; a problem line when frame.json's differs."""
+    P = rig.cam_to_world(stage, tuple(view), frame)
+    try:
+        mine = np.asarray(ds.cam_to_world(frame, view), np.float64)
+    except (FileNotFoundError, KeyError, LfusdError):
+        return P  # a frame not rendered: its absence is reported where it is read
+    off = float(np.abs(mine - P).max())
+    if off > POSE_TOL and (frame, tuple(view)) not in seen:
+        seen.add((frame, tuple(view)))
+        problems.append(f"frame {frame} view {view[0]},{view[1]}: frame.json's cam_to_world differs from the stage's camera by {off:.3g}; "
+                        "the record does not describe the render: restore it, or render again into a new folder")
+    return P
 
 
 def _read_optional(ds, frame, view, key):
@@ -653,13 +966,23 @@ def verify_dataset(
     the disparity-change check. ``progress(frame, view)`` is called before each view.
     """
     from ..author.geometry import StageGeometry
+    from ..author.labels import object_table
     from ..author.stage import open_stage
 
     stage_path = stage_path or dataset_stage_path(ds)
     if not stage_path:
         raise LfusdError("verify needs the stage the dataset was rendered from; pass --stage PATH")
-    geo = StageGeometry(open_stage(stage_path))
-    baseline = baseline if baseline is not None else getattr(ds, "baseline", None)
+    stage = open_stage(stage_path)
+    geo = StageGeometry(stage)
+    report = VerifyReport()
+    # The records against the stage: the object table (ids, paths, labels, classes) and the rig
+    # (its spec, intrinsics and every pose). The trace takes the stage's own values, not the records'.
+    table, class_names = object_table(stage)
+    objects = {e.instance_id: e for e in table}
+    report.problems += _table_problems(ds, objects, class_names)
+    rig = _stage_rig(stage, ds, report.problems)
+    if baseline is None:
+        baseline = rig.spec.baseline if rig is not None else getattr(ds, "baseline", None)
     # Every frame the manifest lists, complete or not: a view missing there is a failure, not a skip.
     record = getattr(ds, "record", None)  # a Dataset's typed manifest; analytic fakes have none
     all_frames = sorted(int(f) for f in (record.frames if record is not None else ()) or ds.frames)
@@ -672,9 +995,8 @@ def verify_dataset(
     for v in views:
         if tuple(v) not in [tuple(x) for x in ds.views]:
             raise LfusdError(f"view {v[0]},{v[1]} is not in the dataset; pick one of its views")
-    objects = ds.objects
-    report = VerifyReport()
     scenes: dict = {}
+    rig_checked: set = set()
     counts: dict = {}
     for f in frames:
         for view in views:
@@ -686,19 +1008,23 @@ def verify_dataset(
             except (FileNotFoundError, LfusdError) as e:
                 report.problems.append(f"{where}: no depth to compare ({str(e).split(';')[0]}); rerun the render command to repair it")
                 continue
-            data = {k: _read_optional(ds, f, view, k) for k in KEYS}
+            data = {k: _read_optional(ds, f, view, k) for k in KEYS + CHECKED}
             lacking = [k for k in KEYS[2:] if data[k] is None]
             if expect_motion and lacking:
                 report.problems.append(f"{where}: no {', '.join(lacking)} to compare ({MOTION_FILE} missing or damaged); "
                                        "rerun render-video or 'lfusd derive' to repair it")
             H, W = np.asarray(data["depth"]).shape[:2]
             K = np.asarray(ds.intrinsics(view), np.float64)
-            c2w = np.asarray(ds.cam_to_world(f, view), np.float64)
+            pose = lambda g: np.asarray(ds.cam_to_world(g, view), np.float64)  # noqa: E731
+            if rig is not None:
+                K = _checked_intrinsics(rig, ds, view, K, W, H, report.problems, rig_checked)
+                pose = lambda g: _checked_pose(stage, rig, ds, g, view, report.problems, rig_checked)  # noqa: E731
+            c2w = pose(f)
             fwd = bwd = None
             if f + 1 in all_frames:
-                fwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f + 1, view), H, W, 1, baseline, scenes)
+                fwd = trace_motion(geo, f, K, c2w, pose(f + 1), H, W, 1, baseline, scenes)
             if f - 1 in all_frames:
-                bwd = trace_motion(geo, f, K, c2w, ds.cam_to_world(f - 1, view), H, W, -1, baseline, scenes)
+                bwd = trace_motion(geo, f, K, c2w, pose(f - 1), H, W, -1, baseline, scenes)
             # A frame without rendered neighbours has no motion keys to check: its static keys are.
             still = trace_motion(geo, f, K, c2w, c2w, H, W, 0, baseline, scenes) if fwd is None and bwd is None else None
             report.rows.extend(compare_view(data, fwd, bwd, objects, f, tuple(view), thresholds, still=still, counts=counts))
