@@ -20,12 +20,17 @@ from lfusd.errors import LfusdError  # noqa: E402
 def main(argv: list[str]) -> int:
     for name in argv:
         path = DEFINITIONS / f"{name}.digests.json"
+        before = path.read_text() if path.is_file() else None
         path.write_text(json.dumps({"stages": {}}) + "\n")  # load_definition needs the file; filled below
         try:
             d = load_definition(name)
             with tempfile.TemporaryDirectory() as tmp:
                 digests = stage_digests(d, Path(tmp))
-        except LfusdError as e:
+        except (LfusdError, KeyboardInterrupt) as e:
+            if before is None:
+                path.unlink()
+            else:
+                path.write_text(before)  # the frozen digests stay as they were
             print(f"bench_freeze: error: {e}", file=sys.stderr)
             return 2
         path.write_text(json.dumps({"stages": digests}, indent=1) + "\n")

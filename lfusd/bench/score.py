@@ -24,9 +24,10 @@ motion ground truth is defined (``valid_fwd``), each within the region.
 - KITTI: ``d1_pct``, ``d2_pct`` (disparity at t+1 = disparity + change), ``fl_pct``, ``sf_pct``.
 
 Angular consistency (``angular_spread_m``): for every pixel p of the centre view at a scored frame
-t with valid forward motion, no ``mixed`` footprint, and its true world point X, each view sees X
-where the pixel q nearest to X's projection is inside the image, has valid forward motion, no
-``mixed`` footprint, and its own true point lies within one pixel footprint (depth / f_px) of X.
+t with valid forward motion, and its true world point X (``position``), a view sees X where the
+pixel q nearest to X's projection is inside the image, has valid forward motion, and its own true
+point lies within one pixel footprint of X (|X_q - X| <= depth_q / f_px; this leaves out the
+pixels of another surface, and grazing ones).
 With s_v the predicted scene flow at q in each of the n >= 2 views that see X, the spread is
 sqrt(sum_v |s_v - mean(s)|^2 / n); ``angular_spread_m`` is its mean over those points.
 ``angular_spread_gt_m`` is the same with the true scene flows, the floor a perfect prediction gets
@@ -165,7 +166,7 @@ def correspondences(ds, frame: int, truths: dict) -> tuple[np.ndarray, dict]:
     """The centre view's points X (N,3) and, per view, (seen (N,) bool, flat pixel index (N,)); see the module docstring."""
     centre = tuple(ds.rig.centre_view)
     tc = truths[centre]
-    ok = tc["valid_fwd"].astype(bool) & ~tc["mixed"].astype(bool) & np.all(np.isfinite(tc["position"]), -1)
+    ok = tc["valid_fwd"].astype(bool) & np.all(np.isfinite(tc["position"]), -1)
     X = np.asarray(tc["position"], np.float64)[ok]
     K = np.asarray(ds.intrinsics(centre), np.float64)
     h, w = ok.shape
@@ -180,7 +181,7 @@ def correspondences(ds, frame: int, truths: dict) -> tuple[np.ndarray, dict]:
             vv = np.rint(K[1, 1] * p[:, 1] / z + K[1, 2])
         inside = (z > 0) & (u >= 0) & (u < w) & (vv >= 0) & (vv < h)
         idx = np.where(inside, vv * w + u, 0).astype(np.int64)
-        valid = t["valid_fwd"].astype(bool).ravel()[idx] & ~t["mixed"].astype(bool).ravel()[idx]
+        valid = t["valid_fwd"].astype(bool).ravel()[idx]
         q = np.asarray(t["position"], np.float64).reshape(-1, 3)[idx]
         depth = np.asarray(t["depth"], np.float64).ravel()[idx]
         with np.errstate(invalid="ignore"):
