@@ -112,3 +112,21 @@ def test_the_definitions_are_recipes_lfusd_dataset_make_reads():
     for name in bench_make.definition_names():
         path = bench_make.DEFINITIONS / f"{name}.toml"
         assert parse_recipe(tomllib.loads(path.read_text()), str(path)).parts
+
+
+def test_make_bench_passes_its_run_settings_to_every_scene_and_only_those(tmp_path, monkeypatch):
+    """--executor/--workers/--device change how a scene renders (lfusd.recipe.RUN_SETTINGS), not its identity."""
+    from lfusd import recipe
+
+    seen = []
+
+    def fake_scene(r, spec, root, quiet=True):
+        seen.append((r.executor, r.ray_address, r.workers, r.device))
+        raise bench_make.LfusdError("stopped by the test")
+
+    monkeypatch.setattr(recipe, "make_scene", fake_scene)
+    with pytest.raises(bench_make.LfusdError, match="stopped by the test"):
+        bench_make.make_bench("tiny", tmp_path / "b", executor="ray", ray_address="host:1", workers=3, device="cpu")
+    assert seen == [("ray", "host:1", 3, "cpu")]
+    with pytest.raises(bench_make.LfusdError, match="cannot override samples"):
+        recipe.make_dataset(tmp_path / "b" / "recipe.toml", tmp_path / "c", overrides={"samples": 1})
