@@ -12,7 +12,7 @@ def register(sub) -> None:
     from ..recipe import EXECUTORS
     from ..render.request import DEVICES
 
-    p = sub.add_parser("bench", help="the light-field video scene-flow benchmark: make it, score a submission, run a baseline")
+    p = sub.add_parser("bench", help="the light-field video scene-flow benchmark: make, oracle, score, baseline")
     bsub = p.add_subparsers(dest="bench_command", metavar="ACTION")
     m = bsub.add_parser("make", help="render a frozen benchmark and write its public/ and gt/ folders (resumable)",
                         description="Generate the definition's stages (refused when they differ from its frozen digests), render and verify "
