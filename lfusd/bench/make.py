@@ -267,7 +267,8 @@ def make_bench(name: str, root, quiet: bool = True, progress=None, executor: str
                              "choose a new -o folder")
         return rec
 
-    resumable_folder(root, layout.BENCH_RECORD, "benchmark", "lfusd benchmark", same)
+    existed = root.exists()
+    fresh = resumable_folder(root, layout.BENCH_RECORD, "benchmark", "lfusd benchmark", same) is None  # absent or empty
     try:
         root.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -275,10 +276,15 @@ def make_bench(name: str, root, quiet: bool = True, progress=None, executor: str
     result = BenchResult(root)
     with output_lock(root):
         rec = {"format": FORMAT, "version": RECORD_VERSION, "name": d.name, "definition": d.digest, "complete": False}
-        atomic_write(root / layout.BENCH_RECORD, json.dumps(rec, indent=1) + "\n")
-        atomic_write(root / layout.BENCH_RECIPE, d.text)
         render = root / layout.BENCH_RENDER
-        check_stages(d, render / layout.RECIPE_STAGES)
+        try:
+            atomic_write(root / layout.BENCH_RECORD, json.dumps(rec, indent=1) + "\n")
+            atomic_write(root / layout.BENCH_RECIPE, d.text)
+            check_stages(d, render / layout.RECIPE_STAGES)
+        except BaseException:
+            if fresh:  # a refused (or stopped) first run leaves the folder as it found it
+                _undo(root, existed)
+            raise
         overrides = {k: v for k, v in (("executor", executor), ("ray_address", ray_address), ("workers", workers), ("device", device)) if v is not None}
         made = make_dataset(root / layout.BENCH_RECIPE, render, quiet=quiet, progress=progress, overrides=overrides)
         result.made, result.skipped = made.made, made.skipped
@@ -312,6 +318,21 @@ def make_bench(name: str, root, quiet: bool = True, progress=None, executor: str
         atomic_write(root / layout.BENCH_RECORD, json.dumps(rec, indent=1) + "\n")
         result.record = rec
     return result
+
+
+def _undo(root: Path, existed: bool) -> None:
+    """Remove what a first run wrote before it rendered anything: the record, the recipe and the stages."""
+    import shutil
+
+    for name in (layout.BENCH_RECORD, layout.BENCH_RECIPE):
+        (root / name).unlink(missing_ok=True)
+    shutil.rmtree(root / layout.BENCH_RENDER, ignore_errors=True)
+    if not existed:
+        (root / layout.LOCK).unlink(missing_ok=True)
+        try:
+            root.rmdir()
+        except OSError:
+            pass  # something else appeared there meanwhile: left alone
 
 
 def _card_header(d: Definition, splits: dict) -> str:

@@ -48,7 +48,20 @@ def test_a_stage_that_differs_from_its_frozen_digest_is_refused_before_rendering
     monkeypatch.setattr(bench_make, "load_definition", lambda name: bench_make.Definition(**{**d.__dict__, "digests": drifted}))
     with pytest.raises(bench_make.LfusdError, match=f"stage {first} of benchmark tiny differs from its frozen digest"):
         bench_make.make_bench("tiny", tmp_path / "b")
-    assert not (tmp_path / "b" / "render" / "scenes").exists()  # nothing rendered
+    assert not (tmp_path / "b").exists()  # a refused first run leaves nothing
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(bench_make.LfusdError, match="differs from its frozen digest"):
+        bench_make.make_bench("tiny", tmp_path / "empty")
+    assert [p.name for p in (tmp_path / "empty").iterdir()] == [".lock"]  # as found, but for the lock every writer takes
+
+
+def test_score_and_oracle_refuse_a_folder_that_is_not_a_finished_benchmark(tmp_path, capsys):
+    (tmp_path / "sub").mkdir()
+    code, _, err = run_cli(capsys, "bench", "score", tmp_path / "sub", "--bench", tmp_path)
+    assert_one_line_error(code, err, "is not a benchmark folder", "lfusd bench make")
+    (tmp_path / "bench.json").write_text(json.dumps({"format": "lfusd-bench", "name": "tiny", "complete": False}))
+    code, _, err = run_cli(capsys, "bench", "oracle", tmp_path, "-o", tmp_path / "o")
+    assert_one_line_error(code, err, "is not complete", "lfusd bench make tiny")
 
 
 @pytest.mark.render
