@@ -224,3 +224,54 @@ def test_baseline_a_writes_a_submission_from_the_public_inputs_alone(oracle, tmp
     assert code == 0 and "| DIS + plane sweep |" in out
     res = json.loads((tmp_path / "dis" / "score.json").read_text())["overall"]["all"]
     assert res["epe_px"] > 0 and res["epe3d_m"] > 0  # an estimate, not the ground truth
+
+
+class _PlaneRig:
+    """A 1x2 rig (views (0,0) and (0,1), 0.5 m apart along x, OpenCV axes = world axes) before a
+    fronto-parallel plane at z = 5 m: disparity f b / z = 2 px exactly, so view (0,1) sees the centre's
+    pixel (u, v) at (u - 2, v)."""
+
+    W, H, F, B, Z = 16, 12, 20.0, 0.5, 5.0
+
+    class rig:
+        centre_view = (0, 0)
+
+    def intrinsics(self, view):
+        return np.array([[self.F, 0, (self.W - 1) / 2], [0, self.F, (self.H - 1) / 2], [0, 0, 1.0]])
+
+    def cam_to_world(self, frame, view):
+        m = np.eye(4)
+        m[0, 3] = self.B * view[1]
+        return m
+
+    def truth(self, view, flow):
+        K = self.intrinsics(view)
+        v, u = np.mgrid[0:self.H, 0:self.W].astype(np.float64)
+        pos = np.stack([(u - K[0, 2]) * self.Z / self.F + self.B * view[1], (v - K[1, 2]) * self.Z / self.F, np.full(u.shape, self.Z)], -1)
+        return {"valid_fwd": np.ones(u.shape, bool), "position": pos, "depth": np.full(u.shape, self.Z),
+                "scene_flow": np.broadcast_to(np.asarray(flow, np.float64), pos.shape).copy()}
+
+
+def test_correspondences_follow_the_light_field_geometry_and_skip_another_surface():
+    ds = _PlaneRig()
+    truths = {(0, 0): ds.truth((0, 0), [0, 0, 0]), (0, 1): ds.truth((0, 1), [0, 0, 0])}
+    truths[(0, 1)]["position"][:, 5] += [0, 0, 1.0]  # column 5 of view (0,1) sees a surface 1 m behind
+    X, corr = bench_score.correspondences(ds, 1, truths)
+    v, u = np.mgrid[0:ds.H, 0:ds.W]
+    assert len(X) == ds.H * ds.W
+    seen0, idx0 = corr[(0, 0)]
+    assert seen0.all() and np.array_equal(idx0, (v * ds.W + u).ravel())
+    seen1, idx1 = corr[(0, 1)]
+    want = ((u >= 2) & (u - 2 != 5)).ravel()  # inside the image, and not the other surface
+    assert np.array_equal(seen1, want)
+    assert np.array_equal(idx1[want], (v * ds.W + u - 2).ravel()[want])
+
+
+def test_angular_spread_of_two_views_that_disagree_by_delta_is_half_of_it():
+    ds = _PlaneRig()
+    c, delta = np.array([0.1, 0.0, -0.2]), np.array([0.0, 0.06, 0.08])  # |delta| = 0.1 m
+    truths = {(0, 0): ds.truth((0, 0), c), (0, 1): ds.truth((0, 1), c)}
+    preds = {(0, 0): {"scene_flow": truths[(0, 0)]["scene_flow"]}, (0, 1): {"scene_flow": truths[(0, 1)]["scene_flow"] + delta}}
+    sp, sg, n = bench_score.angular(ds, 1, truths, preds)
+    assert n == ds.H * (ds.W - 2)  # the points both views see
+    assert sp / n == pytest.approx(0.05) and sg == 0.0
