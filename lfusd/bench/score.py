@@ -107,18 +107,16 @@ def regions(t: dict) -> dict[str, np.ndarray]:
     return {"all": ones, "noc": ~occ, "occ": occ, "moving": moving, "static": ~moving, "mixed": t["mixed"].astype(bool)}
 
 
-def _n(gt: np.ndarray, mask: np.ndarray) -> int:
-    finite = np.isfinite(gt) if gt.ndim == mask.ndim else np.all(np.isfinite(gt), axis=-1)
-    return int((finite & mask).sum())
-
-
 def view_tally(pred: dict, t: dict) -> dict[str, dict[str, list[float]]]:
-    """{region: {metric: [value x pixels, pixels]}} of one view and frame, through lfusd.evaluation.metrics."""
+    """{region: {metric: [value x pixels, pixels]}} of one view and frame, through lfusd.evaluation.metrics.
+
+    Each region's pixels are selected first and handed to the metrics as 1-D lists (their masks are
+    then the ground truth's finiteness, as over the image): 6 regions cost one pass each over their pixels."""
     from ..evaluation import metrics
 
     surface = np.isfinite(t["depth"])
     valid = t["valid_fwd"].astype(bool)
-    d2_gt = t["disparity"] + t["disparity_change"]
+    d2_gt = t["disparity"] + t["disparity_change"]  # float32 sums, as lfusd eval's truth and a submission's disp2
     d2_pred = pred["disparity"] + pred["disparity_change"]
     out: dict[str, dict[str, list[float]]] = {}
     for name, r in regions(t).items():
@@ -129,16 +127,19 @@ def view_tally(pred: dict, t: dict) -> dict[str, dict[str, list[float]]]:
                 acc[k] = [v * n if n else 0.0, n]
 
         m = surface & r
-        add(metrics.disparity(pred["disparity"], t["disparity"], m), _n(t["disparity"], m))
+        g = t["disparity"][m]
+        add(metrics.disparity(pred["disparity"][m], g), int(np.isfinite(g).sum()))
         m = valid & r
-        add(metrics.optical_flow(pred["flow"], t["flow_fwd"], m), _n(t["flow_fwd"], m))
-        e = np.abs(np.asarray(pred["disparity_change"], np.float64) - t["disparity_change"])
-        mc = m & np.isfinite(t["disparity_change"])
-        add({"dchange_epe_px": float(e[mc].mean()) if mc.any() else 0.0}, int(mc.sum()))
-        add(metrics.scene_flow(pred["scene_flow"], t["scene_flow"], m), _n(t["scene_flow"], m))
-        mk = m & np.isfinite(t["disparity"]) & np.isfinite(d2_gt) & np.all(np.isfinite(t["flow_fwd"]), -1)
-        kitti = metrics.kitti_outliers(pred["disparity"], t["disparity"], d2_pred, d2_gt, pred["flow"], t["flow_fwd"], m)
-        add(kitti, int(mk.sum()))
+        gf, pf = t["flow_fwd"][m], pred["flow"][m]
+        ff = np.all(np.isfinite(gf), -1)
+        add(metrics.optical_flow(pf, gf), int(ff.sum()))
+        gc = np.asarray(t["disparity_change"][m], np.float64)
+        e = np.abs(np.asarray(pred["disparity_change"][m], np.float64) - gc)[np.isfinite(gc)]
+        add({"dchange_epe_px": float(e.mean()) if e.size else 0.0}, int(e.size))
+        gs = t["scene_flow"][m]
+        add(metrics.scene_flow(pred["scene_flow"][m], gs), int(np.all(np.isfinite(gs), -1).sum()))
+        gd, g2 = t["disparity"][m], d2_gt[m]
+        add(metrics.kitti_outliers(pred["disparity"][m], gd, d2_pred[m], g2, pf, gf), int((np.isfinite(gd) & np.isfinite(g2) & ff).sum()))
         acc.pop("q25_x100", None)  # a quantile does not pool
         out[name] = acc
     return out
