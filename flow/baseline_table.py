@@ -1,6 +1,7 @@
 """Classical baselines on an lfusd dataset, printed as a results table in the literature's style.
 
     .venv/bin/python flow/baseline_table.py OUT [--frames 1 2] [--views all|cross] [--planes 64] [--asr 7]
+    .venv/bin/python flow/baseline_table.py BENCH --submission SUB [--planes 48]   # = lfusd bench baseline BENCH -o SUB
 
 Disparity: plane sweep over the views (PyTorch; CUDA when present), scored with the HCI metrics
 (MSE x100, BadPix, Q25) over pixels with a surface. Optical flow: OpenCV DIS on the centre view
@@ -35,7 +36,19 @@ def main(argv=None) -> int:
     p.add_argument("--device", default=None, help="torch device (default: cuda if available)")
     p.add_argument("--rig", default=None, help="rig name, for a dataset with several rigs")
     p.add_argument("--json", default=None, help="also write the numbers here")
+    p.add_argument("--submission", default=None, metavar="SUB",
+                   help="OUT is a benchmark folder (lfusd bench make): write baseline (a) on its test split as a submission to SUB")
     a = p.parse_args(argv)
+    if a.submission:
+        from lfusd.bench.baseline import write_baseline
+
+        try:
+            n = write_baseline(a.out, a.submission, n_planes=a.planes, window=a.window, device=a.device)
+        except LfusdError as e:
+            print(f"baseline_table: error: {e}", file=sys.stderr)
+            return 2
+        print(f"{a.submission}: {n} files; score them with `lfusd bench score {a.submission} --bench {a.out}`")
+        return 0
     try:
         ds = open_dataset(a.out, a.rig)
         t0 = time.time()

@@ -80,3 +80,19 @@ RECIPE_SCENES = "scenes"  # one lfusd dataset folder per scene, and its record <
 RECIPE_CARD = "CARD.md"
 RECIPE_CARD_JSON = "card.json"
 RECIPE_PLOTS = "plots"  # the card's PNG figures
+
+# A benchmark folder (`lfusd bench make NAME -o DIR`, lfusd.bench).
+BENCH_RECORD = "bench.json"  # the definition it was made from (name, digest, splits); a rerun must match it
+BENCH_RECIPE = "recipe.toml"  # the definition's recipe, as `lfusd dataset make` reads it
+BENCH_RENDER = "render"  # the recipe's dataset (every scene, test ground truth included): never published
+BENCH_PUBLIC = "public"  # what is published: train/ and val/ with ground truth, test/ with rgb and cameras only
+BENCH_GT = "gt"  # the test scenes' ground truth (lfusd datasets) and BENCH_DIGESTS
+BENCH_DIGESTS = "digests.json"  # sha256 of every file under gt/, checked by `lfusd bench score`
+BENCH_CARD = "CARD.md"
+BENCH_CAMERAS = "cameras.json"  # a public test scene's rig, intrinsics, poses and disparity range
+BENCH_RGB = "rgb"  # a public test scene's images, one PNG per frame and view
+
+
+def bench_name(frame: int, view: tuple[int, int]) -> str:
+    """The stem of a benchmark image or submission file: ``0001_04_04`` (frame 1, row 4, col 4)."""
+    return f"{frame:04d}_{view[0]:02d}_{view[1]:02d}"

@@ -456,14 +456,25 @@ def _check_folder(root: Path, recipe_text: str) -> None:
     resumable_folder(root, layout.RECIPE_COPY, "dataset", "recipe dataset", same_recipe, foreign=True)
 
 
-def make_dataset(recipe_path, root, quiet: bool = True, progress=None) -> MakeResult:
+RUN_SETTINGS = ("executor", "ray_address", "workers", "device")  # how a scene renders, not what: not part of its identity
+
+
+def make_dataset(recipe_path, root, quiet: bool = True, progress=None, overrides: dict | None = None) -> MakeResult:
     """Make (or finish) the dataset of the recipe at ``recipe_path`` in folder ``root`` and write its card.
 
-    ``progress(index, total, scene, action)`` is called per scene ('skip' or 'make')."""
+    ``progress(index, total, scene, action)`` is called per scene ('skip' or 'make').
+    ``overrides``: values of :data:`RUN_SETTINGS` replacing the recipe's (``lfusd bench make --executor ray``)."""
+    from dataclasses import replace
+
     from .data.folder import atomic_write, output_lock
 
     recipe_path, root = Path(recipe_path), Path(root)
     recipe = load_recipe(recipe_path)
+    if overrides:
+        unknown = set(overrides) - set(RUN_SETTINGS)
+        if unknown:
+            raise LfusdError(f"cannot override {', '.join(sorted(unknown))} of a recipe; only {', '.join(RUN_SETTINGS)}")
+        recipe = replace(recipe, **overrides)
     text = recipe_path.read_text()
     if root.exists() and not root.is_dir():
         raise LfusdError(f"output {root} is a file; give a folder for the dataset")

@@ -36,6 +36,8 @@ ALLOWED = {
     # A dataset recipe orchestrates the whole pipeline (generate, render, verify, measure), like the
     # commands, but below them: the CLI calls it, it calls no command.
     "recipe": BASE | {"author", "render", "data", "truth", "recipe"},
+    # The benchmark makes a recipe's dataset, splits it, and scores submissions with evaluation's metrics.
+    "bench": BASE | {"author", "data", "recipe", "evaluation", "bench"},
     "commands": None,  # the CLI may call anything
     "cli": None,
     "__init__": None,  # the facade (lazy)
