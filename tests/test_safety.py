@@ -556,15 +556,35 @@ def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
     from lfusd.data.folder import remove_stale_partials
 
     dest = tmp_path / "exp"
-    dead = tmp_path / ".exp.partial-999999999"  # no such process
+    dead = tmp_path / ".exp.partial-999999999-k2j3h4x9"  # lfusd's name, of no running process
     (dead / "sub").mkdir(parents=True)
     (dead / "sub" / "scene_f0001.h5").write_bytes(b"half")
-    alive = tmp_path / f".exp.partial-{os.getpid()}"  # a running export's
+    alive = tmp_path / f".exp.partial-{os.getpid()}-a1b2c3d4"  # a running export's
     alive.mkdir()
     other = tmp_path / ".exp.partial-notes"
     other.mkdir()
     remove_stale_partials(dest)
     assert not dead.exists() and alive.is_dir() and other.is_dir()
+
+
+def test_export_keeps_a_partial_named_folder_it_cannot_prove_it_made(tmp_path):
+    """Issue 39 item 8: a folder named like a partial export of a dead process, but without
+    lfusd's random part (someone else's), or a link of that name, is left alone."""
+    from lfusd.data.folder import new_folder
+
+    dest = tmp_path / "exp"
+    users = tmp_path / ".exp.partial-999999999"  # no random part: not a name lfusd makes
+    users.mkdir()
+    (users / "thesis.tex").write_text("the user's")
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    (target / "keep").write_text("the user's")
+    (tmp_path / ".exp.partial-999999998-zzzzzzzz").symlink_to(target, target_is_directory=True)
+    with new_folder(dest) as tmp:
+        assert tmp.name.startswith(f".exp.partial-{os.getpid()}-") and len(tmp.name) == len(f".exp.partial-{os.getpid()}-") + 8
+        tmp.mkdir()
+    assert (users / "thesis.tex").read_text() == "the user's" and (target / "keep").read_text() == "the user's"
+    assert dest.is_dir()
 
 
 def test_a_rerun_removes_the_temporaries_of_a_killed_run_and_nothing_else(capsys, tmp_path, project, fake_render):
