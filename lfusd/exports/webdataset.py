@@ -40,7 +40,6 @@ import numpy as np
 from ..data import formats
 from .. import keys as keyreg
 from .. import layout
-from ..errors import LfusdError
 from .common import frames_of, new_dest
 from .registry import TEXT, Option, register
 
@@ -60,18 +59,15 @@ def sample_key(rig: str, frame: int, view) -> str:
 
 
 def exported_keys(ds) -> list[str]:
-    """The keys a sample holds besides ``rgb``: those the dataset stores, readable on its first view."""
-    wanted = ds.keys if getattr(ds, "keys", None) is not None else keyreg.check_wanted(None, motion=True, keep_raw=False)
-    candidates = [k for k in keyreg.stored(wanted) if k != "rgb" and keyreg.get(k).storage.encoding != "raw"]
-    t, v = ds.frames[0], tuple(ds.views[0])
-    out = []
-    for k in candidates:
-        try:
-            ds.read(t, v, k)
-        except (LfusdError, KeyError):  # e.g. motion keys of a still render (format version 1 records no key list)
-            continue
-        out.append(k)
-    return out
+    """The keys a sample holds besides ``rgb``: those the dataset's manifest says it stores (the
+    keys its render was asked for, else every key that render makes: motion keys only for a
+    render-video), never guessed from what one view happens to read; a view that cannot give one
+    of them is an error when its sample is written."""
+    keys = getattr(ds, "keys", None)
+    if keys is None:
+        record = getattr(ds, "record", None)  # the typed manifest of a Dataset (lfusd.data.folder.Manifest)
+        keys = keyreg.check_wanted(None, motion=record.settings.motion if record is not None else True, keep_raw=False)
+    return [k for k in keyreg.stored(keys) if k != "rgb" and keyreg.get(k).storage.encoding != "raw"]
 
 
 def _npy(a: np.ndarray) -> bytes:

@@ -154,3 +154,33 @@ def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_
     # the metadata's keys and their descriptions come from lfusd.keys
     depth = next(r for r in meta["recordSet"] if r["name"] == "depth")
     assert keyreg.get("depth").meaning in depth["description"] and "H,W float32" in depth["description"]
+
+
+def test_a_view_that_cannot_be_read_fails_the_export_instead_of_dropping_its_keys(tmp_path):
+    """Issue 39 item 3: the keys come from the manifest (here: every key a still render makes),
+    not from the first view; that view's damaged ground truth is one error, not an export
+    without depth, normal and instance."""
+    from types import SimpleNamespace
+
+    from lfusd.errors import LfusdError
+
+    class Damaged(FakeDataset):
+        def read(self, frame, view, key):
+            if tuple(view) == (0, 0) and key != "rgb":
+                raise LfusdError(f"{self.root}/f000001/00_00/gt.exr is damaged; rerun the render")
+            return super().read(frame, view, key)
+
+    ds = Damaged(root=tmp_path / "scene", rows=1, cols=2, width=16, height=12, frames=(1,))
+    ds.keys = None  # format version 1, or a render of every key: the manifest records no key list
+    ds.record = SimpleNamespace(settings=SimpleNamespace(motion=False), certificate=None)
+    names = webdataset_keys(ds)
+    assert {"depth", "normal", "instance"} <= set(names) and not {"flow_fwd", "scene_flow"} & set(names)
+    with pytest.raises(LfusdError, match="gt.exr is damaged"):
+        export.export(ds, "webdataset", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def webdataset_keys(ds):
+    from lfusd.exports.webdataset import exported_keys
+
+    return exported_keys(ds)
