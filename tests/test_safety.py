@@ -603,3 +603,57 @@ def test_a_rerun_removes_the_temporaries_of_a_killed_run_and_nothing_else(capsys
     assert render(capsys, project / "scene.usda", out)[0] == 0
     assert not any(p.exists() for p in debris) and not (frame / ".00_00.tmp-4242-1399").exists()
     assert all(p.read_text() == "the user's" for p in mine)
+
+
+def test_a_certificate_is_republished_only_while_bound_to_the_content(capsys, tmp_path, project, fake_render):
+    """Issue 39 item 4: verify's figures are bound to the digests of what they certify and the
+    verifier's version; a certificate pasted into manifest.json, or one whose files changed since,
+    is not passed on by the exports (nor the card, lfusd.recipe._certificate: the same check)."""
+    from types import SimpleNamespace
+
+    from lfusd.data.certificate import certified
+    from lfusd.exports.webdataset import verification_figures
+    from lfusd.recipe import _certificate
+    from lfusd.truth.verify import record_certificate
+
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    figures = {"ok": True, "valid": 256, "unchecked": 0,
+               "keys": {"depth": {"count": 256, "coverage": 1.0, "p99": 0.0, "max": 0.0, "over": 0, "ties": 0, "threshold": 0.001}}}
+    record_certificate(out, {"main": SimpleNamespace(certificate=lambda: figures)})
+    cert = certified(out, "main")["main"]
+    assert {k: cert[k] for k in figures} == figures and cert["binding"]["verifier"].startswith("lfusd ")
+    assert verification_figures(Dataset(out))["certificate"]["main"]["keys"] == figures["keys"]
+    assert _certificate(out)["depth"]["count"] == 256
+    manifest = json.loads((out / "manifest.json").read_text())
+
+    # a certificate pasted into the manifest (no binding, or the binding of other content)
+    for pasted in ({"main": figures}, {"main": {**figures, "binding": {"verifier": "lfusd 0.1.0", "content_sha256": "0" * 64}}}):
+        (out / "manifest.json").write_text(json.dumps({**manifest, "certificate": pasted}))
+        assert certified(out) == {} and verification_figures(Dataset(out)) == {} and _certificate(out) == {}
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    assert certified(out, "main")
+
+    # a file it covers changed (same size), its record kept, then the record made to match
+    rgb = frame_dir(out, "main", 1) / "00_00" / "rgb.exr"
+    rgb.write_bytes(b"FAKE")
+    assert certified(out) == {} and verification_figures(Dataset(out)) == {}
+    from lfusd.data import integrity
+
+    integrity.record_files(rgb.parent, {"rgb.exr": integrity.file_entry(rgb)})
+    assert certified(out) == {} and _certificate(out) == {}
+
+
+def test_exports_read_no_verification_outside_the_dataset_folder(tmp_path):
+    """Issue 39 item 4: a sibling <name>.json and a grandparent card.json saying "verified" are not
+    the dataset's: an export republishes nothing from them."""
+    from support.fake import FakeDataset
+
+    from lfusd.exports.webdataset import verification_figures
+
+    root = tmp_path / "recipe"
+    (root / "scenes" / "street_000").mkdir(parents=True)
+    (root / "scenes" / "street_000.json").write_text(json.dumps({"verified": True, "compared": 12345}))
+    (root / "card.json").write_text(json.dumps({"name": "streets", "verified": True, "pixels": 999}))
+    ds = FakeDataset(root=root / "scenes" / "street_000", rows=1, cols=2, width=16, height=12, frames=(1,))
+    assert verification_figures(ds) == {}

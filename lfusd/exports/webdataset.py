@@ -22,8 +22,9 @@ its sha256), one FileSet per key inside the shards and one RecordSet per key who
 descriptions (dtype, shape, unit, meaning) come from :mod:`lfusd.keys`. ``.npy`` files are
 declared ``text/plain`` because that is the format whose raw bytes mlcroissant returns
 (``fileProperty: content``); ``numpy.load(io.BytesIO(content))`` decodes them. Verification
-figures found beside the dataset (a recipe's scene record and card) go into the description and
-into ``lfusd_verification.json``.
+certificate of the rig (lfusd verify's figures in the manifest, still bound to the content:
+:mod:`lfusd.data.certificate`) goes into the description and into ``lfusd_verification.json``;
+nothing outside the dataset's folder is read.
 """
 
 from __future__ import annotations
@@ -93,23 +94,17 @@ def _sha256(path: Path) -> str:
 
 
 def verification_figures(ds) -> dict:
-    """What the dataset's certificate says about its verification, where lfusd wrote one: the
-    manifest's ``certificate`` (lfusd verify's figures), a recipe's scene record (``scenes/<scene>.json``) and card."""
-    root = Path(getattr(ds, "root", "."))
-    out = {}
-    record = getattr(ds, "record", None)  # the typed manifest of a Dataset (lfusd.data.folder.Manifest)
-    if record is not None and record.certificate is not None:
-        out["certificate"] = record.certificate
-    record = root.parent / f"{root.name}.json"
-    card = root.parent.parent / layout.RECIPE_CARD_JSON
-    for name, path, fields in (("scene_record", record, ("verified", "compared")), ("card", card, ("name", "verified", "pixels"))):
-        try:
-            doc = json.loads(path.read_text())
-        except (OSError, ValueError):
-            continue
-        if isinstance(doc, dict) and "verified" in doc:
-            out[name] = {f: doc[f] for f in fields if f in doc}
-    return out
+    """The dataset's verification certificate of the exported rig (lfusd verify's figures, in its
+    manifest), only where its binding to the content still holds (lfusd.data.certificate.certified).
+    Reads nothing outside the dataset's folder."""
+    from ..data.certificate import certified
+
+    root = getattr(ds, "root", None)
+    if root is None or not (Path(root) / layout.MANIFEST).is_file():
+        return {}  # a reader made in memory: no certificate
+    rig = getattr(ds, "rig_name", None)
+    cert = certified(root, rig)
+    return {"certificate": cert} if cert else {}
 
 
 def _field_description(name: str) -> str:

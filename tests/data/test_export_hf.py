@@ -133,9 +133,10 @@ def test_rendered_dataset_round_trips(box_dataset, tmp_path):
     assert objects["classes"] == ds.classes
 
 
-def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_path):
-    """A recipe's scene record (scenes/<scene>.json) and card (card.json) go into the Croissant
-    description and lfusd_verification.json; no license is claimed unless given."""
+def test_metadata_carries_only_a_given_license_and_nothing_from_outside_the_dataset(tmp_path):
+    """No license is claimed unless given; a recipe's scene record (scenes/<scene>.json) and card
+    (card.json) lie outside the dataset's folder, so nothing of them is republished (issue 39 item 4:
+    the certificate comes from the manifest, bound to the content, tests/test_safety.py)."""
     root = tmp_path / "recipe"
     (root / "scenes" / "street_000").mkdir(parents=True)
     (root / "scenes" / "street_000.json").write_text(json.dumps({"verified": True, "compared": 12345, "stats": {}}))
@@ -144,9 +145,9 @@ def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_
     ds.keys = ("rgb", "depth")
     export.export(ds, "hf", tmp_path / "a")
     meta = json.loads((tmp_path / "a" / "metadata.json").read_text())
-    figures = json.loads((tmp_path / "a" / "lfusd_verification.json").read_text())
-    assert figures == {"scene_record": {"verified": True, "compared": 12345}, "card": {"name": "streets", "verified": True, "pixels": 999}}
-    assert '"compared": 12345' in meta["description"] and "license" not in meta and "url" not in meta
+    assert not (tmp_path / "a" / "lfusd_verification.json").exists()
+    assert "12345" not in meta["description"] and "Verification" not in meta["description"]
+    assert "license" not in meta and "url" not in meta
     assert "license: unknown" in (tmp_path / "a" / "README.md").read_text()
     export.hf.export_hf(ds, tmp_path / "b", license="cc-by-4.0")
     assert json.loads((tmp_path / "b" / "metadata.json").read_text())["license"] == "cc-by-4.0"
