@@ -258,6 +258,27 @@ def test_absurd_manifest_fields_are_refused_in_one_line(capsys, tmp_path, projec
 
 
 @pytest.mark.parametrize("craft,named", [
+    (lambda m: m["settings"].__setitem__("keys", ["rgb", "bogus"]), "'settings.keys' names 'bogus'"),
+    (lambda m: m["stage"].__setitem__("path", ["x"]), "'stage.path' is not a string"),
+    (lambda m: m["stage"].__setitem__("path", 5), "'stage.path' is not a string"),
+    (lambda m: m["stage"].__setitem__("files", ["scene.usda"]), "'stage.files'"),
+])
+def test_crafted_manifest_records_are_one_line_not_exit_3(capsys, tmp_path, project, fake_render, craft, named):
+    """Issue 39 item 6: a key list naming a key lfusd does not know (export webdataset, derive) and
+    a stage record of the wrong type (verify) are refused in one line, exit 2, by every reader."""
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    edit_manifest(out, craft)
+    for argv in (("verify", out), ("export", "webdataset", out, tmp_path / "exp"), ("verify", out, "--integrity")):
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2, (argv, err)
+        assert_one_line_error(code, err, "manifest.json", named)
+    with pytest.raises(LfusdError, match=named):
+        Dataset(out)
+    assert not (tmp_path / "exp").exists()
+
+
+@pytest.mark.parametrize("craft,named", [
     (lambda t: t["objects"].append({"id": 10**12, "prim_path": "/X", "label": "x", "class_id": 0}), "object id"),
     (lambda t: t["objects"].append({"id": 5, "prim_path": "/X", "label": "x", "class_id": 99}), "class id"),
 ])

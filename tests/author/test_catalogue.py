@@ -470,3 +470,29 @@ def test_a_light_inside_an_instance_is_refused(tmp_path, capsys):
     stage.GetRootLayer().Save()
     code, _, err = run_cli(capsys, "assets", "add", path)
     assert_one_line_error(code, err, "light inside an instance", "/Post/Head/Bulb")
+
+
+@pytest.mark.parametrize("craft,needle", [
+    (lambda e: e.__setitem__("bounds", [[0, 0], [1, 1]]), "'bounds'"),
+    (lambda e: e.__setitem__("prim", "bad prim!!"), "is not an absolute prim path"),
+    (lambda e: e.__setitem__("lights", ["../../../../Rigs"]), "is not a prim path below the asset's prim"),
+    (lambda e: e.__setitem__("name", "../x\nlfusd: all fine"), "is not an asset name"),
+    (lambda e: e.__setitem__("up_axis", "W"), "'up_axis'"),
+])
+def test_a_crafted_catalogue_entry_is_one_line_in_check_and_stage_new(tmp_path, capsys, craft, needle):
+    """Issue 39 item 6: a catalogue entry lfusd would not write (two-component bounds, an invalid
+    prim, a light path climbing out of the asset to deactivate the scene's rigs, a name with ../
+    and a newline) is refused in one line by `assets check` and `stage new`, not exit 3 or passed."""
+    write_car(tmp_path / "lib")
+    assert run_cli(capsys, "assets", "add", tmp_path / "lib")[0] == 0
+    cat = tmp_path / "lib" / "catalogue.json"
+    doc = json.loads(cat.read_text())
+    craft(doc["assets"][0])
+    cat.write_text(json.dumps(doc))
+    code, _, err = run_cli(capsys, "assets", "check", cat)
+    assert code == 2
+    assert_one_line_error(code, err, "damaged entry", needle)
+    code, _, err = run_cli(capsys, "stage", "new", "street", "-o", tmp_path / "s.usda", "--catalogue", cat)
+    assert code == 2
+    assert_one_line_error(code, err, "damaged entry", needle)
+    assert not (tmp_path / "s.usda").exists()
