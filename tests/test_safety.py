@@ -678,3 +678,61 @@ def test_exports_read_no_verification_outside_the_dataset_folder(tmp_path):
     (root / "card.json").write_text(json.dumps({"name": "streets", "verified": True, "pixels": 999}))
     ds = FakeDataset(root=root / "scenes" / "street_000", rows=1, cols=2, width=16, height=12, frames=(1,))
     assert verification_figures(ds) == {}
+
+
+@pytest.mark.parametrize("claim", ["grid", "complete frames", "listed frames"])
+def test_a_manifest_claiming_far_more_than_is_on_disk_is_refused_before_work_scales(capsys, tmp_path, project, fake_render, claim):
+    """Issue 39 item 5: a 1x1, one-frame dataset whose manifest claims a 512x512 grid, or a million
+    frames (complete, or listed; 100,000 here, to stay fast), is refused in one line by the readers before they loop over the
+    claim (verify ran for minutes), in well under the time one pass over the claim takes."""
+    import time
+
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+
+    def craft(m):
+        if claim == "grid":
+            m["settings"]["rigs"]["main"].update(rows=512, cols=512)
+        else:
+            m["frames"] = list(range(1, 100_001))
+            if claim == "complete frames":
+                m["complete"]["main"] = m["frames"]
+
+    edit_manifest(out, craft)
+    t0 = time.monotonic()
+    for argv in (("verify", out), ("verify", out, "--integrity")):
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2, (argv, err)
+        assert_one_line_error(code, err, "manifest.json", "views of rig 'main'", "on disk")
+    if claim != "listed frames":  # a render still running lists frames not yet on disk: a reader opens it
+        with pytest.raises(LfusdError, match="records as complete"):
+            Dataset(out)
+    assert time.monotonic() - t0 < 30
+
+
+def test_a_manifest_claiming_another_image_size_is_refused_when_its_pixels_are_read(capsys, tmp_path, project, fake_render, monkeypatch):
+    """Issue 39 item 5: a manifest claiming 65536x65536 for 16x16 images gives every export the
+    claimed intrinsics; a read compares the array with the claim and refuses the mismatch."""
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    monkeypatch.setattr(Dataset, "_read", lambda self, frame, view, key: np.zeros((16, 16), np.float32))  # the fake files hold no image
+    assert Dataset(out).read(1, (0, 0), "depth").shape == (16, 16)
+    edit_manifest(out, lambda m: m["settings"]["rigs"]["main"].update(width=65536, height=65536))
+    with pytest.raises(LfusdError, match="holds depth of 16x16 px, but .*manifest.json says rig 'main' is 65536x65536"):
+        Dataset(out).read(1, (0, 0), "depth")
+
+
+@pytest.mark.render
+def test_an_export_of_a_rendered_dataset_claiming_another_size_is_one_line(capsys, tmp_path, box_dataset):
+    """Issue 39 item 5, rendered: `export pfm` of a dataset whose manifest claims 65536x65536 exits 2
+    in one line (it wrote the claimed intrinsics, exit 0) and leaves no export."""
+    import shutil
+
+    _, rendered = box_dataset
+    out = tmp_path / "out"
+    shutil.copytree(rendered, out)
+    rig = json.loads((out / "manifest.json").read_text())["rigs"][0]
+    edit_manifest(out, lambda m: m["settings"]["rigs"][rig].update(width=65536, height=65536))
+    code, _, err = run_cli(capsys, "export", "pfm", out, tmp_path / "exp", "--rig", rig)
+    assert_one_line_error(code, err, "says rig", "65536x65536")
+    assert code == 2 and not (tmp_path / "exp").exists()
