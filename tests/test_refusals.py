@@ -166,6 +166,40 @@ def test_a_non_finite_transform_is_refused_up_front_in_render_and_check(capsys, 
     assert code == 2 and text == ""
 
 
+def _broken_reference(stage, path):
+    stage.DefinePrim("/World/Chair").GetReferences().AddReference("./models/chair.usda")  # no such file
+
+
+def _sublayer_cycle(stage, path):
+    other = Sdf.Layer.CreateNew(str(path.with_name("lights.usda")))
+    other.subLayerPaths.append(path.name)  # lights.usda -> scene.usda -> lights.usda
+    other.Save()
+    stage.GetRootLayer().subLayerPaths.append("lights.usda")
+
+
+def _both(stage, path):
+    _sublayer_cycle(stage, path)
+    _broken_reference(stage, path)
+
+
+@pytest.mark.parametrize("damage,words", [(_broken_reference, "Could not open asset @"), (_sublayer_cycle, "has cycles"),
+                                          (_both, "(and 1 more: `lfusd check")])
+def test_a_stage_that_does_not_compose_is_said_in_one_line_by_render(capsys, tmp_path, damage, words, fake_render):
+    """Issue 39 item 9: a broken reference or a sublayer cycle rendered with exit 0 and pxr's raw
+    diagnostics; render and render-video now say in one line that the stage does not compose, what
+    that means for the render and the fix (the render goes on: a wild stage's missing reference
+    renders as in issue 12, tests/render/test_wild_materials.py)."""
+    path, stage = _stage(tmp_path)
+    damage(stage, path)
+    stage.Save()
+    for command in ("render", "render-video"):
+        code, _, err = run_cli(capsys, command, path, "-o", tmp_path / command, *FAST)
+        assert code == 0, err
+        said = [ln for ln in err.splitlines() if "compose" in ln or "Could not open" in ln or "cycles" in ln]
+        assert len(said) == 1 and said[0].startswith("lfusd: warning: stage ") and "does not compose" in said[0], err
+        assert words in said[0] and "fix or remove that reference or sublayer" in said[0]  # two errors: one line still
+
+
 def test_the_issues_instanced_sphere_leaves_nothing_and_renders_once_converted(capsys, tmp_path, fake_render):
     """Main wrote .lock, manifest.json, objects.json and frame.json before refusing; the fixed stage was
     then told the dataset had changed."""
