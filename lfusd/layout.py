@@ -58,9 +58,14 @@ def view_key(view: tuple[int, int]) -> str:
     return f"{view[0]:02d}_{view[1]:02d}"
 
 
+def frame_name(frame: int) -> str:
+    """The name of one frame's folder: ``f000001``."""
+    return f"f{frame:06d}"
+
+
 def frame_dir(root: Path, rig: str, frame: int) -> Path:
     """The folder of one frame of one rig: ``OUT/<rig>/f000001``."""
-    return Path(root) / rig / f"f{frame:06d}"
+    return Path(root) / rig / frame_name(frame)
 
 
 # A rig study's folder (`lfusd rig-study -o STUDY`): its own files, and the dataset of its renders.

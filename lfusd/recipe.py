@@ -385,10 +385,13 @@ def _verify_scene(out: Path, mode: str, thresholds: dict[str, float]) -> tuple[b
 
 
 def _certificate(out: Path) -> dict:
-    """Per key over a scene's rigs, from its manifest's certificate: pixels compared, worst max, over the limit, ties."""
+    """Per key over a scene's rigs, from its manifest's certificate (where its binding to the
+    scene's content holds): pixels compared, worst max, over the limit, ties."""
+    from .data.certificate import certified
+
     try:
-        cert = json.loads((out / layout.MANIFEST).read_text()).get("certificate") or {}
-    except (OSError, ValueError):
+        cert = certified(out)  # only figures still bound to the scene's content
+    except LfusdError:
         return {}
     keys: dict[str, dict] = {}
     for rig in cert.values():
@@ -505,6 +508,8 @@ def make_dataset(recipe_path, root, quiet: bool = True, progress=None, overrides
                 log.info("scene %s: complete and verified, skipped", spec.name)
                 if progress:
                     progress(i, len(specs), spec.name, "skip")
+                # the card republishes the certificate: only while it is still bound to the scene's files
+                rec = {**rec, "certificate": _certificate(root / layout.RECIPE_SCENES / spec.name)}
                 records[spec.name] = rec
                 continue
             if progress:

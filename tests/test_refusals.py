@@ -126,6 +126,80 @@ def test_a_broken_mesh_is_one_line_naming_the_prim_in_render_and_check(capsys, t
     assert code == 2 and text == ""
 
 
+NAN = float("nan")
+BAD_TRANSFORMS = {
+    # a mover whose translate is NaN at frame 3 only (the case of the issue)
+    "translate at a frame": (lambda st: [UsdGeom.Xformable(st.GetPrimAtPath("/World/BoxB")).GetOrderedXformOps()[0].Set(
+        Gf.Vec3d(0, 0, NAN if f == 3 else 0.5), f) for f in (1, 2, 3, 4)], "/World/BoxB", "at frame 3"),
+    "scale default": (lambda st: UsdGeom.Xformable(_triangle(st, "/World/Scan")).AddScaleOp().Set(Gf.Vec3f(1, float("inf"), 1)),
+                      "/World/Scan", "its default value"),
+    "camera rotate": (lambda st: UsdGeom.Xformable(next(p for p in st.Traverse() if p.IsA(UsdGeom.Camera))).AddRotateZOp(
+        opSuffix="tilt").Set(NAN), "", "xformOp:rotateZ:tilt"),
+    "instancer position": (lambda st: _instancer(st, [(0, 0, 0), (NAN, 0, 0)]), "/World/Pi", "positions"),
+}
+
+
+def _instancer(stage, positions):
+    pi = UsdGeom.PointInstancer.Define(stage, "/World/Pi")
+    UsdGeom.Cube.Define(stage, "/World/Pi/Protos/Cube")
+    pi.CreatePrototypesRel().SetTargets(["/World/Pi/Protos/Cube"])
+    pi.CreateProtoIndicesAttr([0] * len(positions))
+    pi.CreatePositionsAttr(positions)
+
+
+@pytest.mark.parametrize("case", list(BAD_TRANSFORMS))
+def test_a_non_finite_transform_is_refused_up_front_in_render_and_check(capsys, tmp_path, case, fake_render):
+    """Issue 39 item 7: a NaN transform rendered, then failed with a hint to delete frame.json and left
+    41 files, while `lfusd check` said nothing; refused before anything is written, in one line
+    naming the prim, by render, render-video and check."""
+    path, stage = _stage(tmp_path)
+    damage, prim, words = BAD_TRANSFORMS[case]
+    damage(stage)
+    stage.Save()
+    out = tmp_path / "out"
+    for command in ("render", "render-video"):
+        code, _, err = run_cli(capsys, command, path, "-o", out, *FAST)
+        assert_one_line_error(code, err, prim, "not finite", words)
+        assert code == 2 and not out.exists() and fake_render == []
+    code, text, err = run_cli(capsys, "check", path, "--no-usd-validation", "--no-coverage")
+    assert_one_line_error(code, err, prim, "not finite", words)
+    assert code == 2 and text == ""
+
+
+def _broken_reference(stage, path):
+    stage.DefinePrim("/World/Chair").GetReferences().AddReference("./models/chair.usda")  # no such file
+
+
+def _sublayer_cycle(stage, path):
+    other = Sdf.Layer.CreateNew(str(path.with_name("lights.usda")))
+    other.subLayerPaths.append(path.name)  # lights.usda -> scene.usda -> lights.usda
+    other.Save()
+    stage.GetRootLayer().subLayerPaths.append("lights.usda")
+
+
+def _both(stage, path):
+    _sublayer_cycle(stage, path)
+    _broken_reference(stage, path)
+
+
+@pytest.mark.parametrize("damage,words", [(_broken_reference, "Could not open asset @"), (_sublayer_cycle, "has cycles"),
+                                          (_both, "(and 1 more: `lfusd check")])
+def test_a_stage_that_does_not_compose_is_said_in_one_line_by_render(capsys, tmp_path, damage, words, fake_render):
+    """Issue 39 item 9: a broken reference or a sublayer cycle rendered with exit 0 and pxr's raw
+    diagnostics; render and render-video now say in one line that the stage does not compose, what
+    that means for the render and the fix (the render goes on: a wild stage's missing reference
+    renders as in issue 12, tests/render/test_wild_materials.py)."""
+    path, stage = _stage(tmp_path)
+    damage(stage, path)
+    stage.Save()
+    for command in ("render", "render-video"):
+        code, _, err = run_cli(capsys, command, path, "-o", tmp_path / command, *FAST)
+        assert code == 0, err
+        said = [ln for ln in err.splitlines() if "compose" in ln or "Could not open" in ln or "cycles" in ln]
+        assert len(said) == 1 and said[0].startswith("lfusd: warning: stage ") and "does not compose" in said[0], err
+        assert words in said[0] and "fix or remove that reference or sublayer" in said[0]  # two errors: one line still
+
+
 def test_the_issues_instanced_sphere_leaves_nothing_and_renders_once_converted(capsys, tmp_path, fake_render):
     """Main wrote .lock, manifest.json, objects.json and frame.json before refusing; the fixed stage was
     then told the dataset had changed."""

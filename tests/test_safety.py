@@ -258,6 +258,27 @@ def test_absurd_manifest_fields_are_refused_in_one_line(capsys, tmp_path, projec
 
 
 @pytest.mark.parametrize("craft,named", [
+    (lambda m: m["settings"].__setitem__("keys", ["rgb", "bogus"]), "'settings.keys' names 'bogus'"),
+    (lambda m: m["stage"].__setitem__("path", ["x"]), "'stage.path' is not a string"),
+    (lambda m: m["stage"].__setitem__("path", 5), "'stage.path' is not a string"),
+    (lambda m: m["stage"].__setitem__("files", ["scene.usda"]), "'stage.files'"),
+])
+def test_crafted_manifest_records_are_one_line_not_exit_3(capsys, tmp_path, project, fake_render, craft, named):
+    """Issue 39 item 6: a key list naming a key lfusd does not know (export webdataset, derive) and
+    a stage record of the wrong type (verify) are refused in one line, exit 2, by every reader."""
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    edit_manifest(out, craft)
+    for argv in (("verify", out), ("export", "webdataset", out, tmp_path / "exp"), ("verify", out, "--integrity")):
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2, (argv, err)
+        assert_one_line_error(code, err, "manifest.json", named)
+    with pytest.raises(LfusdError, match=named):
+        Dataset(out)
+    assert not (tmp_path / "exp").exists()
+
+
+@pytest.mark.parametrize("craft,named", [
     (lambda t: t["objects"].append({"id": 10**12, "prim_path": "/X", "label": "x", "class_id": 0}), "object id"),
     (lambda t: t["objects"].append({"id": 5, "prim_path": "/X", "label": "x", "class_id": 99}), "class id"),
 ])
@@ -556,15 +577,35 @@ def test_a_killed_exports_partial_folder_is_removed_by_the_rerun(tmp_path):
     from lfusd.data.folder import remove_stale_partials
 
     dest = tmp_path / "exp"
-    dead = tmp_path / ".exp.partial-999999999"  # no such process
+    dead = tmp_path / ".exp.partial-999999999-k2j3h4x9"  # lfusd's name, of no running process
     (dead / "sub").mkdir(parents=True)
     (dead / "sub" / "scene_f0001.h5").write_bytes(b"half")
-    alive = tmp_path / f".exp.partial-{os.getpid()}"  # a running export's
+    alive = tmp_path / f".exp.partial-{os.getpid()}-a1b2c3d4"  # a running export's
     alive.mkdir()
     other = tmp_path / ".exp.partial-notes"
     other.mkdir()
     remove_stale_partials(dest)
     assert not dead.exists() and alive.is_dir() and other.is_dir()
+
+
+def test_export_keeps_a_partial_named_folder_it_cannot_prove_it_made(tmp_path):
+    """Issue 39 item 8: a folder named like a partial export of a dead process, but without
+    lfusd's random part (someone else's), or a link of that name, is left alone."""
+    from lfusd.data.folder import new_folder
+
+    dest = tmp_path / "exp"
+    users = tmp_path / ".exp.partial-999999999"  # no random part: not a name lfusd makes
+    users.mkdir()
+    (users / "thesis.tex").write_text("the user's")
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    (target / "keep").write_text("the user's")
+    (tmp_path / ".exp.partial-999999998-zzzzzzzz").symlink_to(target, target_is_directory=True)
+    with new_folder(dest) as tmp:
+        assert tmp.name.startswith(f".exp.partial-{os.getpid()}-") and len(tmp.name) == len(f".exp.partial-{os.getpid()}-") + 8
+        tmp.mkdir()
+    assert (users / "thesis.tex").read_text() == "the user's" and (target / "keep").read_text() == "the user's"
+    assert dest.is_dir()
 
 
 def test_a_rerun_removes_the_temporaries_of_a_killed_run_and_nothing_else(capsys, tmp_path, project, fake_render):
@@ -583,3 +624,115 @@ def test_a_rerun_removes_the_temporaries_of_a_killed_run_and_nothing_else(capsys
     assert render(capsys, project / "scene.usda", out)[0] == 0
     assert not any(p.exists() for p in debris) and not (frame / ".00_00.tmp-4242-1399").exists()
     assert all(p.read_text() == "the user's" for p in mine)
+
+
+def test_a_certificate_is_republished_only_while_bound_to_the_content(capsys, tmp_path, project, fake_render):
+    """Issue 39 item 4: verify's figures are bound to the digests of what they certify and the
+    verifier's version; a certificate pasted into manifest.json, or one whose files changed since,
+    is not passed on by the exports (nor the card, lfusd.recipe._certificate: the same check)."""
+    from types import SimpleNamespace
+
+    from lfusd.data.certificate import certified
+    from lfusd.exports.webdataset import verification_figures
+    from lfusd.recipe import _certificate
+    from lfusd.truth.verify import record_certificate
+
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    figures = {"ok": True, "valid": 256, "unchecked": 0,
+               "keys": {"depth": {"count": 256, "coverage": 1.0, "p99": 0.0, "max": 0.0, "over": 0, "ties": 0, "threshold": 0.001}}}
+    record_certificate(out, {"main": SimpleNamespace(certificate=lambda: figures)})
+    cert = certified(out, "main")["main"]
+    assert {k: cert[k] for k in figures} == figures and cert["binding"]["verifier"].startswith("lfusd ")
+    assert verification_figures(Dataset(out))["certificate"]["main"]["keys"] == figures["keys"]
+    assert _certificate(out)["depth"]["count"] == 256
+    manifest = json.loads((out / "manifest.json").read_text())
+
+    # a certificate pasted into the manifest (no binding, or the binding of other content)
+    for pasted in ({"main": figures}, {"main": {**figures, "binding": {"verifier": "lfusd 0.1.0", "content_sha256": "0" * 64}}}):
+        (out / "manifest.json").write_text(json.dumps({**manifest, "certificate": pasted}))
+        assert certified(out) == {} and verification_figures(Dataset(out)) == {} and _certificate(out) == {}
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    assert certified(out, "main")
+
+    # a file it covers changed (same size), its record kept, then the record made to match
+    rgb = frame_dir(out, "main", 1) / "00_00" / "rgb.exr"
+    rgb.write_bytes(b"FAKE")
+    assert certified(out) == {} and verification_figures(Dataset(out)) == {}
+    from lfusd.data import integrity
+
+    integrity.record_files(rgb.parent, {"rgb.exr": integrity.file_entry(rgb)})
+    assert certified(out) == {} and _certificate(out) == {}
+
+
+def test_exports_read_no_verification_outside_the_dataset_folder(tmp_path):
+    """Issue 39 item 4: a sibling <name>.json and a grandparent card.json saying "verified" are not
+    the dataset's: an export republishes nothing from them."""
+    from support.fake import FakeDataset
+
+    from lfusd.exports.webdataset import verification_figures
+
+    root = tmp_path / "recipe"
+    (root / "scenes" / "street_000").mkdir(parents=True)
+    (root / "scenes" / "street_000.json").write_text(json.dumps({"verified": True, "compared": 12345}))
+    (root / "card.json").write_text(json.dumps({"name": "streets", "verified": True, "pixels": 999}))
+    ds = FakeDataset(root=root / "scenes" / "street_000", rows=1, cols=2, width=16, height=12, frames=(1,))
+    assert verification_figures(ds) == {}
+
+
+@pytest.mark.parametrize("claim", ["grid", "complete frames", "listed frames"])
+def test_a_manifest_claiming_far_more_than_is_on_disk_is_refused_before_work_scales(capsys, tmp_path, project, fake_render, claim):
+    """Issue 39 item 5: a 1x1, one-frame dataset whose manifest claims a 512x512 grid, or a million
+    frames (complete, or listed; 100,000 here, to stay fast), is refused in one line by the readers before they loop over the
+    claim (verify ran for minutes), in well under the time one pass over the claim takes."""
+    import time
+
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+
+    def craft(m):
+        if claim == "grid":
+            m["settings"]["rigs"]["main"].update(rows=512, cols=512)
+        else:
+            m["frames"] = list(range(1, 100_001))
+            if claim == "complete frames":
+                m["complete"]["main"] = m["frames"]
+
+    edit_manifest(out, craft)
+    t0 = time.monotonic()
+    for argv in (("verify", out), ("verify", out, "--integrity")):
+        code, _, err = run_cli(capsys, *argv)
+        assert code == 2, (argv, err)
+        assert_one_line_error(code, err, "manifest.json", "views of rig 'main'", "on disk")
+    if claim != "listed frames":  # a render still running lists frames not yet on disk: a reader opens it
+        with pytest.raises(LfusdError, match="records as complete"):
+            Dataset(out)
+    assert time.monotonic() - t0 < 30
+
+
+def test_a_manifest_claiming_another_image_size_is_refused_when_its_pixels_are_read(capsys, tmp_path, project, fake_render, monkeypatch):
+    """Issue 39 item 5: a manifest claiming 65536x65536 for 16x16 images gives every export the
+    claimed intrinsics; a read compares the array with the claim and refuses the mismatch."""
+    out = tmp_path / "out"
+    assert render(capsys, project / "scene.usda", out)[0] == 0
+    monkeypatch.setattr(Dataset, "_read", lambda self, frame, view, key: np.zeros((16, 16), np.float32))  # the fake files hold no image
+    assert Dataset(out).read(1, (0, 0), "depth").shape == (16, 16)
+    edit_manifest(out, lambda m: m["settings"]["rigs"]["main"].update(width=65536, height=65536))
+    with pytest.raises(LfusdError, match="holds depth of 16x16 px, but .*manifest.json says rig 'main' is 65536x65536"):
+        Dataset(out).read(1, (0, 0), "depth")
+
+
+@pytest.mark.render
+def test_an_export_of_a_rendered_dataset_claiming_another_size_is_one_line(capsys, tmp_path, box_dataset):
+    """Issue 39 item 5, rendered: `export pfm` of a dataset whose manifest claims 65536x65536 exits 2
+    in one line (it wrote the claimed intrinsics, exit 0) and leaves no export."""
+    import shutil
+
+    _, rendered = box_dataset
+    out = tmp_path / "out"
+    shutil.copytree(rendered, out)
+    rig = json.loads((out / "manifest.json").read_text())["rigs"][0]
+    edit_manifest(out, lambda m: m["settings"]["rigs"][rig].update(width=65536, height=65536))
+    code, _, err = run_cli(capsys, "export", "pfm", out, tmp_path / "exp", "--rig", rig)
+    assert_one_line_error(code, err, "says rig", "65536x65536")
+    assert code == 2 and not (tmp_path / "exp").exists()

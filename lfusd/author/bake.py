@@ -400,19 +400,15 @@ def _texture_paths(stage) -> list[str]:
 # -- running Infinigen ----------------------------------------------------------------------------
 
 def infinigen_python(python: str | Path | None = None) -> Path:
-    """Infinigen's interpreter: ``python``, else $LFUSD_INFINIGEN_PYTHON, else
-    ``.venv-infinigen/bin/python`` in the current folder or beside lfusd's source tree;
-    LfusdError (naming the set-up script) when it does not exist."""
+    """Infinigen's interpreter: ``python``, else $LFUSD_INFINIGEN_PYTHON, else the
+    ``.venv-infinigen/bin/python`` that scripts/setup_infinigen.sh made in lfusd's project folder;
+    LfusdError (naming the set-up script) when it does not exist. Never a program found in the
+    current folder: a folder someone else made would get its program run."""
     given = python or os.environ.get(PYTHON_ENV)
-    if given:
-        candidates = [Path(given)]
-    else:
-        candidates = [Path.cwd() / ".venv-infinigen/bin/python", Path(__file__).resolve().parents[2] / ".venv-infinigen/bin/python"]
-    for c in candidates:
-        if c.is_file() and os.access(c, os.X_OK):
-            return c
-    where = str(candidates[0]) if given else ".venv-infinigen/bin/python"
-    raise LfusdError(f"Infinigen's environment is missing ({where} not found); run {SETUP_SCRIPT} "
+    candidate = Path(given) if given else Path(__file__).resolve().parents[2] / ".venv-infinigen/bin/python"
+    if candidate.is_file() and os.access(candidate, os.X_OK):
+        return candidate
+    raise LfusdError(f"Infinigen's environment is missing ({candidate} not found); run {SETUP_SCRIPT} "
                      f"(opt-in: a few minutes, about 2.5 GB) or name its interpreter with --python or ${PYTHON_ENV}")
 
 
@@ -424,6 +420,20 @@ def factory_class(factory: str, cls: str | None) -> str:
         return FACTORY_CLASSES[factory]
     raise LfusdError(f"lfusd has no class for Infinigen factory {factory}; pass --class CLASS "
                      f"(known factories: {', '.join(sorted(FACTORY_CLASSES))})")
+
+
+def _exported(line: str, factory: str, seed: int) -> Path:
+    """The asset file the runner's ``LFUSD_BAKE {...}`` line names, or one line when it names none
+    or the file is not there."""
+    try:
+        usd = json.loads(line[len("LFUSD_BAKE "):])["usd"]
+        path = Path(usd) if isinstance(usd, str) and usd else None
+    except (ValueError, KeyError, TypeError):
+        path = None
+    if path is None or not path.is_file():
+        raise LfusdError(f"Infinigen reported no asset file for {factory} seed {seed} ({path or 'no path'} is missing); "
+                         "rerun it with -vv to see Infinigen's output, or check its environment with scripts/setup_infinigen.sh")
+    return path
 
 
 @dataclass
@@ -480,7 +490,7 @@ def bake(generator: str, factory: str, seed: int, catalogue: str | Path, out: st
         if proc.returncode != 0 or not lines:
             last = next((ln for ln in reversed(proc.stdout.splitlines()) if ln.strip()), "no output")
             raise LfusdError(f"Infinigen failed on {factory} seed {seed} (exit {proc.returncode}): {last.strip()}")
-        exported = Path(json.loads(lines[-1][len("LFUSD_BAKE "):])["usd"])
+        exported = _exported(lines[-1], factory, seed)
         report = clean_asset(exported, asset_dir / f"{name}.usdc", cls=cls, licence=LICENCE_INFINIGEN,
                              max_triangles=max_triangles, label=f"{factory} seed {seed}")
         shutil.rmtree(raw)

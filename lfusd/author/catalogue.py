@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -93,11 +94,46 @@ class Asset:
 
     @classmethod
     def from_json(cls, d: dict, folder: Path) -> Asset:
+        """The entry ``d`` of a catalogue in ``folder``, its fields checked (:func:`_check_entry`):
+        ValueError naming the first that is not what `lfusd assets add` writes."""
         d = dict(d)
         d["cls"] = d.pop("class")
         d["bounds"] = tuple(tuple(float(v) for v in c) for c in d["bounds"])
         d["lights"] = tuple(d.get("lights", ()))
+        _check_entry(d)
         return cls(**d, folder=str(folder))
+
+
+def _check_entry(d: dict) -> None:
+    """An entry's fields as `lfusd assets add` writes them: a plain name, a file, an absolute prim
+    path, lights as prim paths below it (never ``..``), bounds of two finite 3-vectors lo <= hi, a
+    positive scale and a Y or Z up axis; ValueError naming the first field that is not."""
+    from pxr import Sdf
+
+    name = d.get("name")
+    if not (isinstance(name, str) and 0 < len(name) <= 255 and name.isprintable() and "/" not in name and "\\" not in name
+            and not name.startswith(".")):
+        raise ValueError(f"name {str(name)[:60]!r} is not an asset name (printable, no path separator, not hidden)")
+    where = f"asset {name!r}"
+    if not isinstance(d.get("file"), str) or not d["file"] or not d["file"].isprintable():
+        raise ValueError(f"{where}: 'file' is not a file name")
+    prim = d.get("prim")
+    if not (isinstance(prim, str) and Sdf.Path.IsValidPathString(prim) and Sdf.Path(prim).IsAbsolutePath()
+            and Sdf.Path(prim).IsPrimPath()):
+        raise ValueError(f"{where}: prim {str(prim)[:60]!r} is not an absolute prim path")
+    for light in d["lights"]:
+        ok = isinstance(light, str) and Sdf.Path.IsValidPathString(light)
+        p = Sdf.Path(light) if ok else None
+        if not (ok and not p.IsAbsolutePath() and p.IsPrimPath() and ".." not in light.split("/") and light not in (".", "")):
+            raise ValueError(f"{where}: light {str(light)[:60]!r} is not a prim path below the asset's prim")
+    lo, hi = d["bounds"] if len(d["bounds"]) == 2 else ((), ())
+    if not (len(lo) == 3 and len(hi) == 3 and all(np.isfinite(lo)) and all(np.isfinite(hi)) and all(a <= b for a, b in zip(lo, hi))):
+        raise ValueError(f"{where}: 'bounds' is not two finite 3-vectors, low then high")
+    mpu = d.get("meters_per_unit")
+    if isinstance(mpu, bool) or not isinstance(mpu, (int, float)) or not (math.isfinite(mpu) and mpu > 0):
+        raise ValueError(f"{where}: 'meters_per_unit' is not a positive number")
+    if d.get("up_axis") not in ("Y", "Z"):
+        raise ValueError(f"{where}: 'up_axis' is not Y or Z")
 
 
 # -- reading an asset -----------------------------------------------------------------------------

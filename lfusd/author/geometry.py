@@ -158,12 +158,52 @@ def _mesh_arrays(prim: Usd.Prim, t: Usd.TimeCode) -> tuple[np.ndarray, np.ndarra
 IMPLICIT_SHAPES = frozenset({"Sphere", "Cylinder", "Cylinder_1", "Cone", "Capsule", "Capsule_1", "Plane"})
 
 
+def check_transforms(stage: Usd.Stage) -> None:
+    """Refuse, in one line naming the prim, a transform that is not finite (NaN or inf) at its default
+    or at any authored time sample: every xform op of every prim (prototypes of instances included:
+    their ops are those of every instance), and point instancers' positions, orientations and scales.
+    Blender renders such a stage, and the ground truth of that frame cannot be made."""
+    prims = list(stage.Traverse())
+    for proto in stage.GetPrototypes():
+        prims += list(Usd.PrimRange(proto))
+    for prim in prims:
+        ops = UsdGeom.Xformable(prim).GetOrderedXformOps() if prim.IsA(UsdGeom.Xformable) else []
+        for op in ops:
+            attr = op.GetAttr()
+            for t in [Usd.TimeCode.Default(), *map(Usd.TimeCode, attr.GetTimeSamples())]:
+                if attr.Get(t) is not None and not np.isfinite(np.array(op.GetOpTransform(t), dtype=np.float64)).all():
+                    raise _not_finite(prim, op.GetOpName(), t)
+        if prim.IsA(UsdGeom.PointInstancer):
+            pi = UsdGeom.PointInstancer(prim)
+            for attr in (pi.GetPositionsAttr(), pi.GetOrientationsAttr(), pi.GetScalesAttr()):
+                for t in [Usd.TimeCode.Default(), *map(Usd.TimeCode, attr.GetTimeSamples())]:
+                    v = attr.Get(t)
+                    if v is not None and len(v) and not np.isfinite(_floats(v)).all():
+                        raise _not_finite(prim, attr.GetName(), t)
+
+
+def _floats(v) -> np.ndarray:
+    """An array attribute's values as floats (quaternions as their four components)."""
+    try:
+        return np.array(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        return np.array([[q.GetReal(), *q.GetImaginary()] for q in v], dtype=np.float64)
+
+
+def _not_finite(prim: Usd.Prim, what: str, t: Usd.TimeCode) -> LfusdError:
+    at = "its default value" if t.IsDefault() else f"frame {t.GetValue():g}"
+    return LfusdError(f"{prim.GetPath()} has a transform that is not finite (NaN or inf in {what} at {at}); "
+                      "fix that value in the stage")
+
+
 def check_geometry(geometry: "StageGeometry", implicit: bool = True) -> None:
     """Refuse, before anything is written, a stage whose drawn geometry lfusd cannot render and verify
-    alike: an implicit shape (:data:`IMPLICIT_SHAPES`), instance proxies and point instances'
-    prototypes included (``implicit=False``: skip them); or a mesh :func:`check_mesh` refuses, at its
-    default and every authored time sample. Other gprims are left as before (the render worker warns
-    about those Blender does not import)."""
+    alike: a transform that is not finite (:func:`check_transforms`); an implicit shape
+    (:data:`IMPLICIT_SHAPES`), instance proxies and point instances' prototypes included
+    (``implicit=False``: skip them); or a mesh :func:`check_mesh` refuses, at its default and every
+    authored time sample. Other gprims are left as before (the render worker warns about those
+    Blender does not import)."""
+    check_transforms(geometry.stage)
     seen: set[str] = set()
     for part in geometry.parts:
         prim = part.prim
@@ -403,4 +443,4 @@ def local_to_world(stage: Usd.Stage, prim_path: str, time: float) -> np.ndarray:
     return world_frame(stage).pose(UsdGeom.Xformable(stage.GetPrimAtPath(prim_path)).ComputeLocalToWorldTransform(Usd.TimeCode(time)))
 
 
-__all__ = ["StageGeometry", "WorldMesh", "check_geometry", "check_mesh", "triangulate", "local_to_world", "render_instances"]
+__all__ = ["StageGeometry", "WorldMesh", "check_geometry", "check_transforms", "check_mesh", "triangulate", "local_to_world", "render_instances"]

@@ -24,17 +24,21 @@ def _one_line(text: str) -> str:
 
 
 @contextmanager
-def usd_warnings(report: bool = True):
+def usd_warnings(report: bool = True, composition: bool = True):
     """Report the warnings pxr posts inside the block as one ``lfusd: warning:`` line each (through
     logging) instead of its own multi-line output on stderr, each once (a stage opened twice posts
     its composition errors twice, differing only in the stage named); errors stay pxr's (they
-    raise). ``report=False`` drops them: for a stage whose arcs another stage composes again."""
+    raise). ``report=False`` drops them: for a stage whose arcs another stage composes again.
+    ``composition`` False: leave out the composition errors a stage reports as it opens (its caller
+    states them itself, :func:`composition_problem`)."""
     with Tf.DiagnosticTrap() as trap:
         try:
             yield
         finally:
             seen = set()
             for w in trap.GetWarnings() if report else ():
+                if not composition and w.sourceFunction.endswith("UsdStage::_ReportErrors"):
+                    continue
                 line = _one_line(w.commentary)
                 # the same broken arc seen from another stage or prim (the asset, a layer over it,
                 # the prim that references it) is one problem: one line
@@ -57,17 +61,31 @@ def check_up_axis(stage: Usd.Stage, where) -> None:
                              "layer metadata (re-export a .usdz)")
 
 
-def open_stage(path: str | Path, warn: bool = True) -> Usd.Stage:
+def composition_problem(stage: Usd.Stage, where) -> str | None:
+    """One line on what keeps a stage from composing (a reference, payload or sublayer that cannot
+    be opened, a sublayer cycle, ...: ``Usd.Stage.GetCompositionErrors``, what `lfusd check` lists),
+    or None when it composes."""
+    errors = stage.GetCompositionErrors()
+    if not errors:
+        return None
+    first = _one_line(str(errors[0])).rstrip(".")
+    more = f" (and {len(errors) - 1} more: `lfusd check {where}` lists them)" if len(errors) > 1 else ""
+    return (f"stage {where} does not compose: {first}{more}; what it names is not in the render: fix or remove that "
+            "reference or sublayer, then render again")
+
+
+def open_stage(path: str | Path, warn: bool = True, render: bool = False) -> Usd.Stage:
     """Open a USD stage, or raise LfusdError naming the file and what is wrong with it. pxr's
     warnings while composing it come out as one line each (:func:`usd_warnings`; none when
-    ``warn`` is False)."""
+    ``warn`` is False); for a ``render``, its composition errors come out as one line saying what
+    they mean (:func:`composition_problem`)."""
     p = Path(path)
     if not p.exists():
         raise LfusdError(f"stage {p} does not exist; give the path of a .usda/.usdc/.usdz/.usd file")
     if p.is_dir():
         raise LfusdError(f"stage {p} is a folder; give the path of a .usda/.usdc/.usdz/.usd file")
     try:
-        with usd_warnings(report=warn):
+        with usd_warnings(report=warn, composition=not render):
             stage = Usd.Stage.Open(str(p))
     except Tf.ErrorException as e:
         first = str(e).strip().splitlines()
@@ -76,6 +94,9 @@ def open_stage(path: str | Path, warn: bool = True) -> Usd.Stage:
     if stage is None:
         raise LfusdError(f"stage {p} is not a readable USD file; fix or regenerate it")
     check_up_axis(stage, p)
+    problem = composition_problem(stage, p) if render else None
+    if problem:
+        log.warning("%s", problem)
     return stage
 
 

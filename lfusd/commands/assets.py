@@ -51,7 +51,8 @@ def register(sub) -> None:
     b.add_argument("--class", dest="cls", metavar="CLASS",
                    help="the asset's semantic class (default: lfusd's class for the factory, e.g. ChairFactory -> chair)")
     b.add_argument("--python", metavar="PATH",
-                   help="the generator's Python (default: $LFUSD_INFINIGEN_PYTHON, else .venv-infinigen/bin/python)")
+                   help="the generator's Python (default: $LFUSD_INFINIGEN_PYTHON, else the .venv-infinigen/bin/python "
+                        "that scripts/setup_infinigen.sh made in lfusd's project folder; never one of the current folder)")
     b.add_argument("--max-triangles", type=int, default=MAX_TRIANGLES, metavar="N",
                    help=f"refuse an asset with more drawn triangles, every copy counted (default {MAX_TRIANGLES})")
     b.add_argument("--texture-size", type=int, default=1024, metavar="PX", help="baked texture size in pixels (default 1024)")

@@ -37,7 +37,7 @@ TMP_NAME = re.compile(r"\.(?:(?:%s)\.[a-z0-9_]{8}\.(?:tmp|exr|json|npz)|\d{2,4}_
 
 def link_error(path: Path) -> LfusdError:
     """The one-line refusal of a link where lfusd writes or deletes."""
-    return LfusdError(f"{path} is a symbolic link, and lfusd never makes links in a dataset folder; "
+    return LfusdError(f"{path} is a symbolic link, and lfusd never makes links in the folders it writes; "
                       "remove the link (or choose another -o folder), then rerun")
 
 
@@ -83,6 +83,22 @@ def check_tree(out: str | Path, rigs=(), frames=None) -> None:
                 for ve in it:
                     if ve.is_symlink():  # a view folder or frame.json that is a link
                         raise link_error(Path(ve.path))
+
+
+def check_entries(folder: str | Path, names=(), folders=()) -> None:
+    """Refuse, in one line, a link where lfusd writes in a folder that is not a dataset (a rig
+    study's): each entry of ``names`` in ``folder`` and every entry of each folder of ``folders``
+    (the folders themselves included) must be a real file or folder (or absent)."""
+    folder = Path(folder)
+    for name in (*names, *folders):
+        if is_link(folder / name):
+            raise link_error(folder / name)
+    for name in folders:
+        if (folder / name).is_dir():
+            with os.scandir(folder / name) as it:
+                for e in it:
+                    if e.is_symlink():
+                        raise link_error(Path(e.path))
 
 
 def open_new(path: str | Path, append: bool = False) -> int:

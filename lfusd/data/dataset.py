@@ -17,7 +17,7 @@ import numpy as np
 from . import passes, store
 from .. import cpu_account, layout
 from .folder import FrameMeta, Manifest, ObjectTable, read_frame_meta, read_manifest, read_objects
-from .integrity import complete_frames
+from .integrity import check_claims, complete_frames
 from ..camera import RigSpec, View
 from ..errors import LfusdError
 from ..keys import GT_RAW, IMAGE, MOTION, STATIC, get
@@ -83,6 +83,8 @@ class Dataset:
         if scan or complete is None:  # manifests before the "complete" record: look at the folders
             # Sizes against each view's completion record (checksums: `lfusd verify --integrity`).
             complete = complete_frames(self.root, rig, list(self.record.frames), self.views)
+        else:  # the manifest's record, against what is on disk before anything loops over it
+            check_claims(self.root, rig, complete, self.views, "records as complete")
         self.frames: list[int] = [int(f) for f in complete]  # frames with every view rendered
         # Per-instance caches, most recent last: raw passes (t-1, t, t+1 of a view for the motion derivation), frame.json files.
         self._raw_cache: dict[str, dict[str, np.ndarray]] = {}
@@ -135,6 +137,14 @@ class Dataset:
 
     def read(self, frame: int, view: View, key: str) -> np.ndarray:
         """One ground-truth array (lfusd.keys and docs/CONVENTIONS.md list the keys, shapes and meanings)."""
+        a = self._read(frame, view, key)
+        if a.shape[:2] != (self.rig.height, self.rig.width):  # the manifest's size is what K and every export use
+            raise LfusdError(f"{self.view_dir(frame, view)} holds {key} of {a.shape[1]}x{a.shape[0]} px, but {self.root / layout.MANIFEST} "
+                             f"says rig {self.rig_name!r} is {self.rig.width}x{self.rig.height}; the manifest is damaged: "
+                             "render the dataset again into a new folder, or get it again whole")
+        return a
+
+    def _read(self, frame: int, view: View, key: str) -> np.ndarray:
         k = get(key)
         d = self.view_dir(frame, view)
         if self.keys is not None and key not in self.keys and k.storage.encoding != "raw":

@@ -439,14 +439,33 @@ def output_lock(out: str | Path):
         os.close(fd)  # closing drops the flock
 
 
+def _random8() -> str:
+    """Eight random characters of the alphabet ``tempfile`` uses (the random part of lfusd's temporary names)."""
+    import secrets
+
+    return "".join(secrets.choice("abcdefghijklmnopqrstuvwxyz0123456789_") for _ in range(8))
+
+
+def _partial_pattern(dest: Path) -> re.Pattern:
+    """The name of a partial folder of a write to ``dest``: ``.<name>.partial-<pid>-<8 random>``."""
+    return re.compile(rf"\.{re.escape(dest.name)}\.partial-(\d+)-[a-z0-9_]{{8}}")
+
+
 def remove_stale_partials(dest: Path) -> None:
-    """Remove the partial folders of writes to ``dest`` that were killed (``.<name>.partial-<pid>``
-    of a process no longer running; never a link), so that a rerun leaves nothing behind."""
-    pattern = re.compile(rf"\.{re.escape(dest.name)}\.partial-(\d+)")
+    """Remove the partial folders of writes to ``dest`` that were killed: only a name lfusd makes
+    (``.<name>.partial-<pid>-<8 random>``, :func:`new_folder`), a real folder (never a link) owned by
+    this user, of a process no longer running; so that a rerun leaves nothing behind."""
+    pattern = _partial_pattern(dest)
     for p in dest.parent.iterdir() if dest.parent.is_dir() else ():
         m = pattern.fullmatch(p.name)
-        if not m or p.is_symlink() or not p.is_dir():
+        if not m:
             continue
+        try:
+            st = os.lstat(p)
+        except OSError:
+            continue
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+            continue  # a link, a file, or another user's folder: not ours to remove
         try:
             os.kill(int(m[1]), 0)
         except ProcessLookupError:
@@ -458,7 +477,7 @@ def remove_stale_partials(dest: Path) -> None:
 @contextlib.contextmanager
 def new_folder(dest: str | Path, what: str = "export"):
     """A new folder ``dest`` written whole or not at all (an export): yields the hidden path
-    ``.<name>.partial-<pid>`` beside it for the writer to create and fill, renamed to ``dest`` when
+    ``.<name>.partial-<pid>-<8 random>`` beside it for the writer to create and fill, renamed to ``dest`` when
     the block ends, removed when it fails (an OSError becomes one line). The partial folders of
     killed writes to ``dest`` are removed first; an existing ``dest`` is refused."""
     from .formats import why_unwritable
@@ -471,7 +490,7 @@ def new_folder(dest: str | Path, what: str = "export"):
     except OSError as e:
         raise LfusdError(f"cannot create {what} target {dest} ({e.strerror}): {why_unwritable(dest)}") from None
     remove_stale_partials(dest)
-    tmp = dest.parent / f".{dest.name}.partial-{os.getpid()}"
+    tmp = dest.parent / f".{dest.name}.partial-{os.getpid()}-{_random8()}"
     try:
         yield tmp
         tmp.rename(dest)

@@ -259,8 +259,46 @@ def view_complete(view_dir: str | Path) -> bool:
 
 def complete_frames(root: str | Path, rig: str, frames, views) -> list[int]:
     """The ``frames`` whose every view's files match their records by size (a quick check:
-    checksums are for the planner and `lfusd verify --integrity`)."""
-    return [f for f in frames if not any(render_problems(frame_dir(root, rig, f) / view_key(v), deep=False) for v in views)]
+    checksums are for the planner and `lfusd verify --integrity`). A frame without a folder is
+    passed over with one listing of the rig's folder, so a long frame list costs nothing per frame."""
+    on_disk = _folders(Path(root) / rig)
+    return [f for f in frames if layout.frame_name(f) in on_disk
+            and not any(render_problems(frame_dir(root, rig, f) / view_key(v), deep=False) for v in views)]
+
+
+# A manifest may claim more than was rendered (a render stopped early), but not absurdly more: past
+# this many missing views, and ten times more missing than present, its claim is refused before
+# any work scales with it (a 2x2 dataset claiming a 512x512 grid, a listing of a million frames).
+MAX_MISSING_VIEWS = 10_000
+
+
+def _folders(path: Path) -> set[str]:
+    """The names of the real folders in ``path`` (none when it is missing or not a folder)."""
+    try:
+        with os.scandir(path) as it:
+            return {e.name for e in it if e.is_dir(follow_symlinks=False)}
+    except OSError:
+        return set()
+
+
+def check_claims(root: str | Path, rig: str, frames, views, what: str = "lists") -> None:
+    """Refuse, in one line, a manifest whose frames x views of ``rig`` exceed what is on disk by
+    more than :data:`MAX_MISSING_VIEWS` and tenfold (two folder listings: the rig's, and the
+    first present frame's), before a reader loops over them."""
+    from ..errors import LfusdError
+
+    root = Path(root)
+    frames, n_views = list(frames), len(views)
+    on_disk = _folders(root / rig)
+    present = [f for f in frames if layout.frame_name(f) in on_disk]
+    have = _folders(frame_dir(root, rig, present[0])) if present else set()
+    views_there = sum(view_key(v) in have for v in views) if present else 0
+    claimed = len(frames) * n_views
+    there = len(present) * views_there  # at most: the first present frame's views in each present frame
+    if claimed - there > MAX_MISSING_VIEWS and claimed > 10 * there:
+        raise LfusdError(f"{root / layout.MANIFEST} {what} {len(frames)} frames x {n_views} views of rig {rig!r}, but {len(present)} "
+                         f"of those frames are on disk, with {views_there} views in the first; finish its render (a rerun "
+                         "resumes it), or get the dataset again whole")
 
 
 def pixels_digest(arrays: dict) -> str:
@@ -356,6 +394,7 @@ def check_dataset(root: str | Path, rig: str | None = None, progress=None, frame
     checked, problems = 0, []
     for name in rigs:
         spec = manifest.rig_spec(name, root / layout.MANIFEST)
+        check_claims(root, name, chosen, spec.views if views is None else [v for v in spec.views if tuple(v) in {tuple(w) for w in views}])
         for f in chosen:
             for v in spec.views if views is None else [v for v in spec.views if tuple(v) in {tuple(w) for w in views}]:
                 progress and progress(name, f, v)

@@ -96,10 +96,28 @@ def validate_manifest(manifest, path="manifest.json") -> dict:
     keys = settings.get("keys")
     if keys is not None and (not isinstance(keys, list) or not all(isinstance(k, str) for k in keys) or len(keys) > 100):
         raise _bad(path, "'settings.keys' is not a list of key names")
+    from ..keys import KEYS
+
+    unknown = [k for k in keys or () if k not in KEYS]
+    if unknown:
+        raise _bad(path, f"'settings.keys' names {unknown[0][:40]!r}, not a key lfusd writes")
+    _stage(manifest.get("stage", {}), path)
     version = manifest.get("version", 1)
     if isinstance(version, bool) or not isinstance(version, int):
         raise _bad(path, f"'version' {str(version)[:20]!r} is not an integer")
     return manifest
+
+
+def _stage(stage, path) -> None:
+    """The ``stage`` record: the stage's path and digest as strings, its files a record per file name."""
+    if not isinstance(stage, dict):
+        raise _bad(path, "'stage' is not an object")
+    for key in ("path", "sha256"):
+        if key in stage and not isinstance(stage[key], str):
+            raise _bad(path, f"'stage.{key}' is not a string")
+    files = stage.get("files", {})
+    if not isinstance(files, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in files.items()):
+        raise _bad(path, "'stage.files' is not an object of file records")
 
 
 def validate_objects(table, path="objects.json") -> dict:

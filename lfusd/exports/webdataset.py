@@ -22,8 +22,9 @@ its sha256), one FileSet per key inside the shards and one RecordSet per key who
 descriptions (dtype, shape, unit, meaning) come from :mod:`lfusd.keys`. ``.npy`` files are
 declared ``text/plain`` because that is the format whose raw bytes mlcroissant returns
 (``fileProperty: content``); ``numpy.load(io.BytesIO(content))`` decodes them. Verification
-figures found beside the dataset (a recipe's scene record and card) go into the description and
-into ``lfusd_verification.json``.
+certificate of the rig (lfusd verify's figures in the manifest, still bound to the content:
+:mod:`lfusd.data.certificate`) goes into the description and into ``lfusd_verification.json``;
+nothing outside the dataset's folder is read.
 """
 
 from __future__ import annotations
@@ -40,7 +41,6 @@ import numpy as np
 from ..data import formats
 from .. import keys as keyreg
 from .. import layout
-from ..errors import LfusdError
 from .common import frames_of, new_dest
 from .registry import TEXT, Option, register
 
@@ -60,18 +60,15 @@ def sample_key(rig: str, frame: int, view) -> str:
 
 
 def exported_keys(ds) -> list[str]:
-    """The keys a sample holds besides ``rgb``: those the dataset stores, readable on its first view."""
-    wanted = ds.keys if getattr(ds, "keys", None) is not None else keyreg.check_wanted(None, motion=True, keep_raw=False)
-    candidates = [k for k in keyreg.stored(wanted) if k != "rgb" and keyreg.get(k).storage.encoding != "raw"]
-    t, v = ds.frames[0], tuple(ds.views[0])
-    out = []
-    for k in candidates:
-        try:
-            ds.read(t, v, k)
-        except (LfusdError, KeyError):  # e.g. motion keys of a still render (format version 1 records no key list)
-            continue
-        out.append(k)
-    return out
+    """The keys a sample holds besides ``rgb``: those the dataset's manifest says it stores (the
+    keys its render was asked for, else every key that render makes: motion keys only for a
+    render-video), never guessed from what one view happens to read; a view that cannot give one
+    of them is an error when its sample is written."""
+    keys = getattr(ds, "keys", None)
+    if keys is None:
+        record = getattr(ds, "record", None)  # the typed manifest of a Dataset (lfusd.data.folder.Manifest)
+        keys = keyreg.check_wanted(None, motion=record.settings.motion if record is not None else True, keep_raw=False)
+    return [k for k in keyreg.stored(keys) if k != "rgb" and keyreg.get(k).storage.encoding != "raw"]
 
 
 # derived keys a sample holds too (the learning targets), each computed from a stored key
@@ -108,23 +105,17 @@ def _sha256(path: Path) -> str:
 
 
 def verification_figures(ds) -> dict:
-    """What the dataset's certificate says about its verification, where lfusd wrote one: the
-    manifest's ``certificate`` (lfusd verify's figures), a recipe's scene record (``scenes/<scene>.json``) and card."""
-    root = Path(getattr(ds, "root", "."))
-    out = {}
-    record = getattr(ds, "record", None)  # the typed manifest of a Dataset (lfusd.data.folder.Manifest)
-    if record is not None and record.certificate is not None:
-        out["certificate"] = record.certificate
-    record = root.parent / f"{root.name}.json"
-    card = root.parent.parent / layout.RECIPE_CARD_JSON
-    for name, path, fields in (("scene_record", record, ("verified", "compared")), ("card", card, ("name", "verified", "pixels"))):
-        try:
-            doc = json.loads(path.read_text())
-        except (OSError, ValueError):
-            continue
-        if isinstance(doc, dict) and "verified" in doc:
-            out[name] = {f: doc[f] for f in fields if f in doc}
-    return out
+    """The dataset's verification certificate of the exported rig (lfusd verify's figures, in its
+    manifest), only where its binding to the content still holds (lfusd.data.certificate.certified).
+    Reads nothing outside the dataset's folder."""
+    from ..data.certificate import certified
+
+    root = getattr(ds, "root", None)
+    if root is None or not (Path(root) / layout.MANIFEST).is_file():
+        return {}  # a reader made in memory: no certificate
+    rig = getattr(ds, "rig_name", None)
+    cert = certified(root, rig)
+    return {"certificate": cert} if cert else {}
 
 
 def _field_description(name: str) -> str:

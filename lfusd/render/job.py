@@ -272,7 +272,7 @@ def render(req: RenderRequest, progress=None) -> dict:
     from ..truth.derive import derive_dataset
 
     req = req.capped()
-    return _render(req, open_stage(req.stage), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers, lock=False))[0]
+    return _render(req, open_stage(req.stage, render=True), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers, lock=False))[0]
 
 
 def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, overlap=None) -> tuple[dict, list[str]]:
@@ -440,7 +440,7 @@ def render_video(req: RenderRequest) -> VideoResult:
     runs, Ray units) at the end."""
     from .overlap import MotionScheduler, derivation_lanes
 
-    stage = open_stage(req.stage)
+    stage = open_stage(req.stage, render=True)
     if not req.frames:
         first, last = frame_range(stage)
         if last - first + 1 > layout.MAX_FRAMES:  # before a list of them is made

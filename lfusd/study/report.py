@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import layout
+from ..files import atomic_write
 from .score import Bands, finite_mean
 
 SCALARS = ("disp_err", "disp_bad", "psnr", "ssim", "coverage", "holes", "outside", "parallax_nn", "parallax_far", "epe3d", "outlier3d")
@@ -186,7 +187,7 @@ def plots(out: Path, ranked: list[dict], bands: Bands) -> None:
     axs[0, 0].set_ylabel("relative disparity error (%)")
     axs[1, 0].set_ylabel("held-out view PSNR (dB)")
     axs[0, -1].legend(fontsize=6)
-    fig.savefig(out / layout.STUDY_PLOT, dpi=110)
+    _save(fig, out / layout.STUDY_PLOT)
 
     hm = out / layout.STUDY_HEATMAPS
     hm.mkdir(exist_ok=True)
@@ -198,7 +199,7 @@ def plots(out: Path, ranked: list[dict], bands: Bands) -> None:
         im = _heatmap(ax, row, vmin, vmax)
         ax.set_title(f"#{row['rank']} {row['arrangement']}", fontsize=7)
         fig.colorbar(im, ax=ax, label="held-out PSNR (dB)")
-        fig.savefig(hm / f"{row['arrangement']}.png", dpi=110)
+        _save(fig, hm / f"{row['arrangement']}.png")
     n = len(ranked)
     cols = int(math.ceil(math.sqrt(n)))
     rws = int(math.ceil(n / cols))
@@ -213,12 +214,17 @@ def plots(out: Path, ranked: list[dict], bands: Bands) -> None:
         ax.set_title(f"#{row['rank']} {row['arrangement']}", fontsize=5)
     if im is not None:
         fig.colorbar(im, ax=axs, label="held-out PSNR (dB): redundancy")
-    fig.savefig(hm / "overview.png", dpi=110)
+    _save(fig, hm / "overview.png")
 
 
 def write(req, ranked, candidates, skipped, bands: Bands, cameras: int, views_total: int) -> Path:
     """report.md and the figures in the study folder; returns the report's path."""
     plots(req.out, ranked, bands)
     path = req.out / layout.STUDY_REPORT
-    path.write_text(markdown(req, ranked, skipped, bands, cameras, views_total))
+    atomic_write(path, markdown(req, ranked, skipped, bands, cameras, views_total))
     return path
+
+
+def _save(fig, path: Path) -> None:
+    """A figure as PNG, written whole under a new temporary name (never through a file found there)."""
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=110))

@@ -112,9 +112,25 @@ def _digest(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()[:16]
 
 
+# What lfusd writes in a study folder (none of them, nor anything in the folders, may be a link:
+# lfusd would write through it); renders/ is a dataset, checked by the render like any other.
+STUDY_FILES = (layout.STUDY_RECORD, layout.STUDY_RENDER_LAYER, layout.STUDY_CANDIDATES_LAYER, layout.STUDY_REPORT,
+               layout.STUDY_PLOT, f".{layout.STUDY_RENDER_LAYER}.tmp.usda", f".{layout.STUDY_CANDIDATES_LAYER}.tmp.usda",
+               layout.STUDY_RENDERS, layout.LOCK)
+STUDY_FOLDERS = (layout.STUDY_SCORES, layout.STUDY_HEATMAPS)
+
+
+def check_links(out: Path) -> None:
+    """Refuse, in one line, a study folder in which lfusd would write through a link (lfusd.data.confined)."""
+    from ..data.confined import check_entries
+
+    check_entries(out, STUDY_FILES, STUDY_FOLDERS)
+
+
 def _prepare_folder(out: Path, record: dict) -> None:
     """Refuse a folder that is not this study's: a file, other files, another study's record
-    (lfusd.data.folder.resumable_folder); then write the record of a new study."""
+    (lfusd.data.folder.resumable_folder), a link where lfusd writes (:func:`check_links`); then
+    write the record of a new study."""
     from ..data.folder import atomic_write, resumable_folder
 
     def same_study(path: Path) -> dict:
@@ -133,6 +149,7 @@ def _prepare_folder(out: Path, record: dict) -> None:
         return old
 
     resumable_folder(out, layout.STUDY_RECORD, "study", "rig study", same_study)
+    check_links(out)
     out.mkdir(parents=True, exist_ok=True)
     if not (out / layout.STUDY_RECORD).is_file():
         atomic_write(out / layout.STUDY_RECORD, json.dumps(record, indent=1))
@@ -223,7 +240,6 @@ def run_study(req: StudyRequest, say=None) -> StudyResult:
     """Build, render and score every candidate, then rank and report (see the module docstring)."""
     from ..author.rigs import rigs, select_rigs
     from ..author.stage import check_frames, files_digest, frame_range, is_static, open_stage, stage_files
-    from . import report
 
     say = say or (lambda msg: print(msg, file=sys.stderr, flush=True))
     start = time.monotonic()
@@ -240,11 +256,21 @@ def run_study(req: StudyRequest, say=None) -> StudyResult:
     applied_names = _check_apply(req, rigs(stage), list(bases))
     arrs = arrangements(req.baselines, req.spacings, req.layouts, req.axes)
     candidates, skipped, unions = build({n: r.spec for n, r in bases.items()}, arrs, req.grid, req.resolution)
-    cameras = sum(len(u.ids) for u in unions.values())
-    views_total = sum(len(c.cameras) for c in candidates)
     record = {"format": STUDY_FORMAT, "version": 1, "stage": str(req.stage), "stage_id": files_digest(stage_files(req.stage)),
               "settings": req.settings()}
     _prepare_folder(req.out, record)
+    from ..data.folder import output_lock
+
+    with output_lock(req.out):  # one writer of the study's files (its renders take their own lock)
+        return _run(req, say, start, stage, bases, frames, render_frames, applied_names, candidates, skipped, unions, record)
+
+
+def _run(req: StudyRequest, say, start, stage, bases, frames, render_frames, applied_names, candidates, skipped, unions, record) -> StudyResult:
+    """Render, score, rank, report and apply, in a prepared and locked study folder."""
+    from . import report
+
+    cameras = sum(len(u.ids) for u in unions.values())
+    views_total = sum(len(c.cameras) for c in candidates)
     say(f"lfusd: {len(candidates)} candidates at {len(bases)} position(s): {views_total} views, {cameras} distinct cameras to render")
     render_layer = _write_layers(req, stage, bases, candidates, unions, render_frames)
     _render(req, render_layer, render_frames)
@@ -271,6 +297,7 @@ def run_study(req: StudyRequest, say=None) -> StudyResult:
     with _one_thread():
         _score_all(req, todo, results, unions, bands, scores_dir, settings_id, device, say)
     ranked = report.rank(candidates, results, frames, req.task, req.min_psnr, bands)
+    check_links(req.out)  # again: the report and figures are written now, an hour after the first check
     report.write(req, ranked, candidates, skipped, bands, cameras, views_total)
     applied = _apply(req, bases, candidates, ranked[0], applied_names) if req.apply else []
     return StudyResult(ranked, req.out, len(candidates), skipped, cameras, views_total, applied, time.monotonic() - start)
@@ -291,6 +318,8 @@ def _one_thread():
 
 
 def _score_all(req, todo, results, unions, bands, scores_dir, settings_id, device, say) -> None:
+    from ..data.folder import atomic_write
+
     cache: dict[tuple[str, int], Views] = {}
     t0 = time.monotonic()
     for n, (c, t) in enumerate(todo):
@@ -307,9 +336,8 @@ def _score_all(req, todo, results, unions, bands, scores_dir, settings_id, devic
         if req.task == "sceneflow":
             s |= _scene_flow(req, c, v, views_at(t + 1), s["q_centre"], t, device)
         results[c.name][str(t)] = _jsonable(s)
-        tmp = scores_dir / f".{c.name}.json.tmp"
-        tmp.write_text(json.dumps({"settings_id": settings_id, "candidate": c.name, "frames": results[c.name]}))
-        tmp.replace(scores_dir / f"{c.name}.json")  # a candidate is done only when its file is whole
+        # a candidate is done only when its file is whole (a new temporary, never one found there)
+        atomic_write(scores_dir / f"{c.name}.json", json.dumps({"settings_id": settings_id, "candidate": c.name, "frames": results[c.name]}))
         el = time.monotonic() - t0
         if not req.quiet or n + 1 == len(todo):
             say(f"lfusd: scored {n + 1}/{len(todo)} ({c.name}, frame {t}): disparity error {s['disp_err']:.1f} %, "

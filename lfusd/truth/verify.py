@@ -1074,15 +1074,18 @@ def verify(
 
 def record_certificate(out, reports: dict) -> dict:
     """Write verify's figures into the dataset's manifest (``certificate``: per rig, the per-key
-    pixels compared, coverage, p99, max, count over the limit, ties, and the verdict), so the
-    dataset carries its own proof. Returns the certificate. Call it while holding the folder."""
+    pixels compared, coverage, p99, max, count over the limit, ties, the verdict, and their binding
+    to the content, lfusd.data.certificate), so the dataset carries its own proof. Returns the certificate. Call it while holding the folder."""
     from dataclasses import replace
     from pathlib import Path
 
     from ..data.folder import atomic_write, read_manifest
     from ..layout import MANIFEST
 
+    from ..data.certificate import bind
+
     manifest = read_manifest(out)
-    cert = {name or "": rep.certificate() for name, rep in reports.items()}
+    # bound to the content it measured (lfusd.data.certificate): re-checked before it is republished
+    cert = {name: bind(out, name, rep.certificate()) for name, rep in reports.items() if name}
     atomic_write(Path(out) / MANIFEST, replace(manifest, certificate={**(manifest.certificate or {}), **cert}).to_json())
     return cert

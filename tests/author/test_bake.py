@@ -227,6 +227,45 @@ def test_a_failing_generator_is_one_line_and_leaves_nothing(tmp_path, capsys):
     assert os.listdir(lib) == []
 
 
+def test_bake_never_runs_a_python_found_in_the_current_folder(tmp_path, capsys, monkeypatch):
+    """Issue 39 item 2: a folder someone else made (with its own .venv-infinigen/bin/python) does
+    not get its program run by `lfusd assets bake` without --python."""
+    from lfusd.author.bake import infinigen_python
+
+    planted = tmp_path / "theirs" / ".venv-infinigen" / "bin" / "python"
+    planted.parent.mkdir(parents=True)
+    ran = tmp_path / "ran"
+    planted.write_text(f"#!/bin/sh\ntouch {ran}\n")
+    planted.chmod(0o755)
+    monkeypatch.chdir(tmp_path / "theirs")
+    monkeypatch.delenv(PYTHON_ENV, raising=False)
+    (tmp_path / "lib").mkdir()
+    try:
+        chosen = infinigen_python()
+    except LfusdError:
+        chosen = None
+    assert chosen is None or chosen.resolve() != planted.resolve()
+    code, _, err = run_cli(capsys, "assets", "bake", "--generator", "infinigen", "ChairFactory", "--seed", "0",
+                           "--catalogue", tmp_path / "lib" / "catalogue.json")
+    assert not ran.exists()
+    if chosen is None:  # no Infinigen set up in this project: one line naming the set-up script
+        assert_one_line_error(code, err, "scripts/setup_infinigen.sh")
+
+
+def test_a_generator_that_reports_a_missing_file_is_one_line_and_leaves_nothing(tmp_path, capsys):
+    """Issue 39 item 2: a runner line naming no file that exists is one line, exit 2 (was exit 3)."""
+    python = tmp_path / "python"
+    python.write_text(f"#!{sys.executable}\nprint('LFUSD_BAKE ' + '{{\"usd\": \"/nonexistent/x.usdc\"}}')\n")
+    python.chmod(0o755)
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    code, _, err = run_cli(capsys, "assets", "bake", "--generator", "infinigen", "ChairFactory", "--seed", "0",
+                           "--catalogue", lib / "catalogue.json", "--python", python)
+    assert code == 2
+    assert_one_line_error(code, err, "Infinigen reported no asset file for ChairFactory seed 0", "/nonexistent/x.usdc")
+    assert os.listdir(lib) == []
+
+
 def test_bake_over_the_budget_is_refused_in_one_line_and_leaves_nothing(tmp_path, capsys):
     python = _stand_in(tmp_path / "python")
     lib = tmp_path / "lib"

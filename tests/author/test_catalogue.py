@@ -498,3 +498,29 @@ def test_an_implausibly_sized_asset_is_flagged_and_a_class_left_out_is_said(tmp_
     code, _, err = run_cli(capsys, "stage", "new", "street", "-o", tmp_path / "t.usda", "--frames", "1", "--rigs", "1",
                            "--grid", "2x2", "--resolution", "32x32", "--catalogue", tmp_path / "ok.json")
     assert code == 0 and "has no car" not in err, err
+
+
+@pytest.mark.parametrize("craft,needle", [
+    (lambda e: e.__setitem__("bounds", [[0, 0], [1, 1]]), "'bounds'"),
+    (lambda e: e.__setitem__("prim", "bad prim!!"), "is not an absolute prim path"),
+    (lambda e: e.__setitem__("lights", ["../../../../Rigs"]), "is not a prim path below the asset's prim"),
+    (lambda e: e.__setitem__("name", "../x\nlfusd: all fine"), "is not an asset name"),
+    (lambda e: e.__setitem__("up_axis", "W"), "'up_axis'"),
+])
+def test_a_crafted_catalogue_entry_is_one_line_in_check_and_stage_new(tmp_path, capsys, craft, needle):
+    """Issue 39 item 6: a catalogue entry lfusd would not write (two-component bounds, an invalid
+    prim, a light path climbing out of the asset to deactivate the scene's rigs, a name with ../
+    and a newline) is refused in one line by `assets check` and `stage new`, not exit 3 or passed."""
+    write_car(tmp_path / "lib")
+    assert run_cli(capsys, "assets", "add", tmp_path / "lib")[0] == 0
+    cat = tmp_path / "lib" / "catalogue.json"
+    doc = json.loads(cat.read_text())
+    craft(doc["assets"][0])
+    cat.write_text(json.dumps(doc))
+    code, _, err = run_cli(capsys, "assets", "check", cat)
+    assert code == 2
+    assert_one_line_error(code, err, "damaged entry", needle)
+    code, _, err = run_cli(capsys, "stage", "new", "street", "-o", tmp_path / "s.usda", "--catalogue", cat)
+    assert code == 2
+    assert_one_line_error(code, err, "damaged entry", needle)
+    assert not (tmp_path / "s.usda").exists()

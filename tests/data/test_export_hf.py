@@ -161,9 +161,10 @@ def test_rendered_dataset_round_trips(box_dataset, tmp_path):
     assert objects["classes"] == ds.classes
 
 
-def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_path):
-    """A recipe's scene record (scenes/<scene>.json) and card (card.json) go into the Croissant
-    description and lfusd_verification.json; no license is claimed unless given."""
+def test_metadata_carries_only_a_given_license_and_nothing_from_outside_the_dataset(tmp_path):
+    """No license is claimed unless given; a recipe's scene record (scenes/<scene>.json) and card
+    (card.json) lie outside the dataset's folder, so nothing of them is republished (issue 39 item 4:
+    the certificate comes from the manifest, bound to the content, tests/test_safety.py)."""
     root = tmp_path / "recipe"
     (root / "scenes" / "street_000").mkdir(parents=True)
     (root / "scenes" / "street_000.json").write_text(json.dumps({"verified": True, "compared": 12345, "stats": {}}))
@@ -172,9 +173,9 @@ def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_
     ds.keys = ("rgb", "depth")
     export.export(ds, "hf", tmp_path / "a")
     meta = json.loads((tmp_path / "a" / "metadata.json").read_text())
-    figures = json.loads((tmp_path / "a" / "lfusd_verification.json").read_text())
-    assert figures == {"scene_record": {"verified": True, "compared": 12345}, "card": {"name": "streets", "verified": True, "pixels": 999}}
-    assert '"compared": 12345' in meta["description"] and "license" not in meta and "url" not in meta
+    assert not (tmp_path / "a" / "lfusd_verification.json").exists()
+    assert "12345" not in meta["description"] and "Verification" not in meta["description"]
+    assert "license" not in meta and "url" not in meta
     assert "license: unknown" in (tmp_path / "a" / "README.md").read_text()
     export.hf.export_hf(ds, tmp_path / "b", license="cc-by-4.0")
     assert json.loads((tmp_path / "b" / "metadata.json").read_text())["license"] == "cc-by-4.0"
@@ -182,3 +183,33 @@ def test_metadata_carries_the_recipes_verification_and_only_a_given_license(tmp_
     # the metadata's keys and their descriptions come from lfusd.keys
     depth = next(r for r in meta["recordSet"] if r["name"] == "depth")
     assert keyreg.get("depth").meaning in depth["description"] and "H,W float32" in depth["description"]
+
+
+def test_a_view_that_cannot_be_read_fails_the_export_instead_of_dropping_its_keys(tmp_path):
+    """Issue 39 item 3: the keys come from the manifest (here: every key a still render makes),
+    not from the first view; that view's damaged ground truth is one error, not an export
+    without depth, normal and instance."""
+    from types import SimpleNamespace
+
+    from lfusd.errors import LfusdError
+
+    class Damaged(FakeDataset):
+        def read(self, frame, view, key):
+            if tuple(view) == (0, 0) and key != "rgb":
+                raise LfusdError(f"{self.root}/f000001/00_00/gt.exr is damaged; rerun the render")
+            return super().read(frame, view, key)
+
+    ds = Damaged(root=tmp_path / "scene", rows=1, cols=2, width=16, height=12, frames=(1,))
+    ds.keys = None  # format version 1, or a render of every key: the manifest records no key list
+    ds.record = SimpleNamespace(settings=SimpleNamespace(motion=False), certificate=None)
+    names = webdataset_keys(ds)
+    assert {"depth", "normal", "instance"} <= set(names) and not {"flow_fwd", "scene_flow"} & set(names)
+    with pytest.raises(LfusdError, match="gt.exr is damaged"):
+        export.export(ds, "webdataset", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+def webdataset_keys(ds):
+    from lfusd.exports.webdataset import exported_keys
+
+    return exported_keys(ds)

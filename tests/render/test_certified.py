@@ -68,6 +68,9 @@ def test_static_thin_pole_has_zero_flow_and_verify_passes(tmp_path):
     # render-video --verify leaves verify's figures in the manifest: the dataset carries its proof
     cert = ds.manifest["certificate"]["main"]
     assert cert["ok"] and cert["unchecked"] == 0
+    from lfusd.data.certificate import certified
+
+    assert certified(out) == {"main": cert}  # bound to the rendered content, and the binding holds (issue 39 item 4)
     for key in ("depth", "instance", "flow_fwd", "flow_bwd", "scene_flow", "occlusion_fwd", "occlusion_bwd"):
         assert cert["keys"][key]["count"] > 0 and cert["keys"][key]["over"] == 0, key
     assert cert["keys"]["depth"]["coverage"] >= 0.99

@@ -185,3 +185,43 @@ def test_rig_study_bad_input(capsys, tmp_path):
     code, _, err = run_cli(capsys, "rig-study", STAGES / "static_boxes.usda", "-o", tmp_path / "s", "--spacing", "uniform,wavy")
     assert_one_line_error(code, err, "wavy", "--spacing")
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("entry", ["report.md", "scores", "heatmaps", "scores/.c_b0p05_uniform.json.tmp", "score_vs_baseline.png"])
+def test_a_study_folder_with_a_link_where_lfusd_writes_is_refused_and_the_target_untouched(tmp_path, entry):
+    """Issue 39 item 1: a study folder follows the dataset folder's rule, no link followed."""
+    from lfusd.errors import LfusdError
+    from lfusd.study.run import STUDY_FORMAT, _prepare_folder
+
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "thesis.tex").write_text("the user's")
+    out = tmp_path / "study"
+    (out / "scores").mkdir(parents=True)
+    record = {"format": STUDY_FORMAT, "version": 1, "stage": "s.usda", "stage_id": "abc", "settings": {"grid": [3, 3]}}
+    (out / "study.json").write_text(json.dumps(record))
+    link = out / entry
+    if link.exists():
+        link.rmdir()
+    link.symlink_to(home if "." not in entry else home / "thesis.tex")
+    with pytest.raises(LfusdError, match="symbolic link") as e:
+        _prepare_folder(out, record)
+    assert str(link) in str(e.value) and "\n" not in str(e.value)
+    assert [p.name for p in home.iterdir()] == ["thesis.tex"] and (home / "thesis.tex").read_text() == "the user's"
+
+
+def test_the_study_report_and_figures_replace_a_file_whole_never_write_through_it(tmp_path):
+    """Issue 39 item 1: report.md and the PNGs are written under a new temporary name and renamed
+    (a file or link found at their name is replaced, its target untouched)."""
+    from matplotlib.figure import Figure
+
+    from lfusd.study.report import _save
+
+    target = tmp_path / "thesis.tex"
+    target.write_text("the user's")
+    png = tmp_path / "overview.png"
+    png.symlink_to(target)
+    fig = Figure(figsize=(1, 1))
+    fig.subplots().plot([0, 1])
+    _save(fig, png)
+    assert target.read_text() == "the user's" and not png.is_symlink() and png.read_bytes()[:4] == b"\x89PNG"
