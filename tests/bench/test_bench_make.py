@@ -41,18 +41,13 @@ def test_a_definition_whose_parts_share_a_scene_is_refused(tmp_path, monkeypatch
 
 
 def test_a_stage_that_differs_from_its_frozen_digest_is_refused_before_rendering(tmp_path, monkeypatch):
-    d = bench_make.load_definition("tiny")
-    bench_make.check_stages(d, tmp_path / "stages")  # the frozen digests hold for today's generators
+    d = bench_make.load_definition("tiny")  # its frozen digests hold for today's generators: the tiny_bench fixture's make checks them
     first = d.specs[0].name
     drifted = {**d.digests, first: "0" * 64}
     monkeypatch.setattr(bench_make, "load_definition", lambda name: bench_make.Definition(**{**d.__dict__, "digests": drifted}))
     with pytest.raises(bench_make.LfusdError, match=f"stage {first} of benchmark tiny differs from its frozen digest"):
         bench_make.make_bench("tiny", tmp_path / "b")
     assert not (tmp_path / "b").exists()  # a refused first run leaves nothing
-    (tmp_path / "empty").mkdir()
-    with pytest.raises(bench_make.LfusdError, match="differs from its frozen digest"):
-        bench_make.make_bench("tiny", tmp_path / "empty")
-    assert [p.name for p in (tmp_path / "empty").iterdir()] == [".lock"]  # as found, but for the lock every writer takes
 
 
 def test_score_and_oracle_refuse_a_folder_that_is_not_a_finished_benchmark(tmp_path, capsys):
