@@ -15,14 +15,23 @@ ground-truth keys, all views cropped with one window:
   super-resolution) the item also holds ``target_rgb`` [Vt,3,h,w] and ``target_views``.
 
 Keys of forward motion (t -> t+1) leave out the last frame, backward ones the first.
+
+Fast reading: give a training cache (``lfusd export cache OUT DEST``, :mod:`lfusd.data.cache`)
+instead of the dataset folder. The items are the same (the cache holds exactly what
+``Dataset.read`` returns), but each key of a crop is one slice of a memory map for all views
+(no decode, no whole image, no per-view copy). :func:`data_loader` builds a DataLoader with
+seeded workers (:func:`worker_init_fn`) and pinned memory when asked; ``transform`` (e.g.
+:class:`lfusd.data.augment.RandomLightField`) augments each item.
 """
 
 from __future__ import annotations
 
+import random
 from pathlib import Path
 
 import numpy as np
 import torch
+from torch.utils.data import DataLoader
 from torch.utils.data import Dataset as _TorchDataset
 
 from ..errors import LfusdError
@@ -55,6 +64,38 @@ def select_views(rig, views) -> list[tuple[int, int]]:
     return out
 
 
+def worker_init_fn(worker_id: int) -> None:
+    """Seed NumPy's and Python's global generators in a DataLoader worker from the seed PyTorch gave
+    it, so that workers (and epochs) draw different crops and augmentations."""
+    seed = torch.initial_seed() % 2**32
+    np.random.seed(seed)
+    random.seed(seed)
+
+
+def data_loader(dataset, batch_size: int = 1, shuffle: bool = True, num_workers: int = 0, pin_memory: bool = False, **kw) -> DataLoader:
+    """A ``torch.utils.data.DataLoader`` over ``dataset`` with :func:`worker_init_fn`, persistent
+    workers and ``pin_memory`` (page-locked batches for fast copies to a GPU); ``kw`` go to DataLoader."""
+    kw.setdefault("worker_init_fn", worker_init_fn)
+    if num_workers > 0:
+        kw.setdefault("persistent_workers", True)
+    return DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, num_workers=num_workers,
+                      pin_memory=pin_memory and torch.cuda.is_available(), **kw)
+
+
+def _stacked_tensor(key: str, a: np.ndarray) -> torch.Tensor:
+    """A stacked [V, H, W, *C] array as the item's tensor [V, *C, H, W] (the layout of :func:`_to_tensor`)."""
+    if a.dtype == bool:
+        return torch.from_numpy(a)
+    if np.issubdtype(a.dtype, np.integer) and key != "rgb":
+        return torch.from_numpy(a.astype(np.int64))
+    t = torch.from_numpy(a)
+    if t.ndim == 4:
+        t = t.permute(0, 3, 1, 2)
+    if key == "rgb":
+        return t.to(torch.float32).div_(255.0 if a.dtype == np.uint8 else 1.0).contiguous()
+    return t.to(torch.float32).contiguous()
+
+
 def _to_tensor(key: str, a: np.ndarray) -> torch.Tensor:
     a = np.asarray(a)
     if not a.flags.writeable:  # e.g. images decoded by Pillow; torch wants writable memory
@@ -73,12 +114,17 @@ def _to_tensor(key: str, a: np.ndarray) -> torch.Tensor:
 class LightFieldVideoDataset(_TorchDataset):
     """``torch.utils.data.Dataset`` of light-field frames (see the module docstring for the items)."""
 
-    def __init__(self, dataset, keys=("rgb",), views="all", frames=None, clip: int = 1, crop=None, random_crop: bool = False, target_views=None, rig: str | None = None):
+    def __init__(self, dataset, keys=("rgb",), views="all", frames=None, clip: int = 1, crop=None, random_crop: bool = False, target_views=None,
+                 rig: str | None = None, transform=None):
+        """``dataset``: a dataset folder, a training cache folder (:mod:`lfusd.data.cache`) or an
+        object reading like either; ``transform``: a callable applied to each item (an augmentation)."""
         if isinstance(dataset, (str, Path)):
+            from .cache import TrainingCache, is_cache
             from .folder import open_dataset
 
-            dataset = open_dataset(dataset, rig)
+            dataset = TrainingCache(dataset) if is_cache(dataset) else open_dataset(dataset, rig)
         self.ds = dataset
+        self.transform = transform
         self.keys = tuple(keys)
         unknown = [k for k in self.keys if k not in KEYS]
         if unknown:
@@ -139,10 +185,15 @@ class LightFieldVideoDataset(_TorchDataset):
         frames = self._all_frames[i : i + self.clip]
         y0, x0, ch, cw = self._window()
 
+        fast = hasattr(self.ds, "window")  # a training cache: one slice of one map per key and frame
+
         def stack(key, views):
             per_t = []
             for t in frames:
-                per_t.append(torch.stack([_to_tensor(key, self.ds.read(t, v, key))[..., y0 : y0 + ch, x0 : x0 + cw] for v in views]))
+                if fast:
+                    per_t.append(_stacked_tensor(key, self.ds.window(t, key, views, y0, x0, ch, cw)))
+                else:
+                    per_t.append(torch.stack([_to_tensor(key, self.ds.read(t, v, key))[..., y0 : y0 + ch, x0 : x0 + cw] for v in views]))
             return per_t[0] if self.clip == 1 else torch.stack(per_t)
 
         item = {k: stack(k, self.views) for k in self.keys}
@@ -162,4 +213,4 @@ class LightFieldVideoDataset(_TorchDataset):
         if self.target_views is not None:
             item["target_rgb"] = stack("rgb", self.target_views)
             item["target_views"] = torch.tensor(self.target_views, dtype=torch.int64)
-        return item
+        return item if self.transform is None else self.transform(item)

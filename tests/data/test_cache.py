@@ -1,0 +1,118 @@
+"""The training cache (lfusd.data.cache, `lfusd export cache`) and the loader reading it."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from support.fake import FakeDataset
+from lfusd import LfusdError
+
+KEYS = ("rgb", "depth", "disparity", "position", "normal", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change",
+        "valid_fwd", "occlusion_bwd")
+
+
+@pytest.fixture(scope="module")
+def fake():
+    return FakeDataset(rows=3, cols=5, width=24, height=20, frames=(1, 2, 3))
+
+
+def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal dtype, shape and bytes (NaN payloads and signed zeros included)."""
+    a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def check_every_key(ds, cache) -> int:
+    n = 0
+    assert list(cache.frames) == list(ds.frames)
+    for t in ds.frames:
+        for v in ds.views:
+            for k in cache.keys:
+                assert same_bits(cache.read(t, v, k), ds.read(t, v, k)), (t, v, k)
+                n += 1
+            np.testing.assert_array_equal(cache.cam_to_world(t, v), ds.cam_to_world(t, v))
+            np.testing.assert_array_equal(cache.intrinsics(v), ds.intrinsics(v))
+    return n
+
+
+def test_every_key_of_every_view_equals_the_reader(fake, tmp_path):
+    from lfusd.data.cache import TrainingCache, write_cache
+
+    write_cache(fake, tmp_path / "c", keys=KEYS)
+    cache = TrainingCache(tmp_path / "c")
+    assert cache.keys == KEYS and cache.rig == fake.rig
+    assert check_every_key(fake, cache) == 3 * 15 * len(KEYS)
+    # uncompressed: each file is the decoded array plus a header of at most 128 bytes
+    for k in KEYS:
+        size = (tmp_path / "c" / "000002" / f"{k}.npy").stat().st_size
+        assert 0 < size - fake.read(2, (0, 0), k).nbytes * 15 <= 128
+
+
+def test_loader_items_from_the_cache_equal_the_dataset_items(fake, tmp_path):
+    from lfusd.data.cache import write_cache
+    from lfusd.torch import LightFieldVideoDataset
+
+    write_cache(fake, tmp_path / "c", keys=KEYS)
+    keys = ("rgb", "disparity", "flow_fwd", "valid_fwd", "instance", "scene_flow")
+    for views in ("all", "cross", [(2, 4), (0, 1)]):
+        slow = LightFieldVideoDataset(fake, keys=keys, views=views, crop=(8, 10), clip=2)
+        fast = LightFieldVideoDataset(str(tmp_path / "c"), keys=keys, views=views, crop=(8, 10), clip=2)
+        assert len(slow) == len(fast) == 1
+        a, b = slow[0], fast[0]
+        assert a.keys() == b.keys()
+        for k in a:
+            assert a[k].dtype == b[k].dtype and a[k].shape == b[k].shape, k
+            assert torch.equal(a[k], b[k]) or (a[k].is_floating_point() and torch.equal(a[k].nan_to_num(7.0), b[k].nan_to_num(7.0))), k
+
+
+def test_a_rerun_completes_and_repairs(fake, tmp_path):
+    from lfusd.data.cache import RECORD, TrainingCache, write_cache
+
+    dest = tmp_path / "c"
+    write_cache(fake, dest, frame=2, keys=("rgb", "depth"))
+    assert TrainingCache(dest).frames == [2]
+    (dest / "000002" / "depth.npy").write_bytes(b"broken")  # a damaged file
+    mtime = os.stat(dest / "000002" / "rgb.npy").st_mtime_ns
+    write_cache(fake, dest)  # the recorded keys, every frame
+    cache = TrainingCache(dest)
+    assert cache.frames == [1, 2, 3] and cache.keys == ("rgb", "depth")
+    check_every_key(fake, cache)
+    assert os.stat(dest / "000002" / "rgb.npy").st_mtime_ns != mtime  # the frame's files were written again
+    with pytest.raises(LfusdError, match="another dataset, rig or key set"):
+        write_cache(fake, dest, keys=("rgb",))
+    doc = json.loads((dest / RECORD).read_text())
+    assert sorted(doc["frames"]) == ["1", "2", "3"]
+
+
+def test_refusals(fake, tmp_path):
+    from lfusd.data.cache import TrainingCache, write_cache
+
+    (tmp_path / "user").mkdir()
+    (tmp_path / "user" / "notes.txt").write_text("mine")
+    with pytest.raises(LfusdError, match="not empty and holds no lfusd training cache"):
+        write_cache(fake, tmp_path / "user", keys=("rgb",))
+    assert sorted(p.name for p in (tmp_path / "user").iterdir()) == ["notes.txt"]
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    os.symlink(target, tmp_path / "link")
+    with pytest.raises(LfusdError, match="symbolic link"):
+        write_cache(fake, tmp_path / "link", keys=("rgb",))
+    assert list(target.iterdir()) == []
+    dest = tmp_path / "c"
+    write_cache(fake, dest, frame=1, keys=("rgb",))
+    os.symlink(target, dest / "000002")  # a planted frame folder
+    with pytest.raises(LfusdError, match="symbolic link"):
+        write_cache(fake, dest)
+    assert list(target.iterdir()) == []
+    with pytest.raises(LfusdError, match="not in the cache"):
+        TrainingCache(dest).read(1, (0, 0), "depth")
+    with pytest.raises(LfusdError, match="no training cache"):
+        TrainingCache(tmp_path / "user")
+    with pytest.raises(LfusdError, match="unknown ground-truth key"):
+        write_cache(fake, tmp_path / "d", keys=("rgb", "colour"))
+    assert not (tmp_path / "d").exists()
