@@ -22,7 +22,8 @@ Geometry (docs/CONVENTIONS.md: a point at disparity d seen at (u, v) in the cent
 - :func:`transpose`: image and grid transposed (u <-> v, row <-> col, sx <-> sy); flow components
   swap; the world is mirrored across the camera's x = y plane; fx <-> fy, cx <-> cy. Needs square
   pixels (fx = fy) and, for batches, square crops.
-- :func:`colour_jitter` and :func:`noise` change ``rgb`` (and ``target_rgb``) only, float in [0, 1]:
+- :func:`colour_jitter` and :func:`noise` change ``rgb`` (and ``target_rgb``) only, float in [0, 1]
+  (uint8 rgb, ``LightFieldVideoDataset(uint8_rgb=True)``, becomes float / 255 first):
   one brightness, contrast and saturation factor for all views and frames of an item (views must
   stay photo-consistent), independent Gaussian noise per pixel, clipped to [0, 1].
 
@@ -248,19 +249,21 @@ def refocus(item: dict, k: int, margin: tuple[int, int] | None = None) -> dict:
     return out
 
 
-def _rgb_keys(item) -> list[str]:
-    keys = [k for k in ("rgb", "target_rgb") if k in item]
-    for k in keys:
-        if not _np(item[k][..., :1, :1]).dtype.kind == "f":
-            raise LfusdError(f"{k} is not float in [0, 1]; colour augmentations take the loader's float rgb")
-    return keys
+def _float_rgb(item) -> dict:
+    """The item with ``rgb`` / ``target_rgb`` as float in [0, 1] (uint8 sRGB divided by 255, as the loader does)."""
+    out = dict(item)
+    for k in ("rgb", "target_rgb"):
+        if k in item and _np(item[k][..., :1, :1]).dtype == np.uint8:
+            out[k] = item[k].float() / 255.0 if _is_torch(item[k]) else item[k].astype(np.float32) / np.float32(255.0)
+    return out
 
 
 def colour_jitter(item: dict, brightness: float = 1.0, contrast: float = 1.0, saturation: float = 1.0) -> dict:
     """Scale brightness, contrast (about the item's mean grey) and saturation (about each pixel's
     grey, Rec. 709 weights) of ``rgb`` and ``target_rgb`` by the same factors in every view and frame."""
+    item = _float_rgb(item)
     out = dict(item)
-    keys = _rgb_keys(item)
+    keys = [k for k in ("rgb", "target_rgb") if k in item]
     if not keys:
         return out
     w = np.array([0.2126, 0.7152, 0.0722])
@@ -278,9 +281,12 @@ def colour_jitter(item: dict, brightness: float = 1.0, contrast: float = 1.0, sa
 
 def noise(item: dict, sigma: float, rng: np.random.Generator | None = None) -> dict:
     """Add Gaussian noise of standard deviation ``sigma`` to ``rgb`` and ``target_rgb``, independently per pixel, view and frame."""
+    item = _float_rgb(item)
     out = dict(item)
     rng = rng or np.random.default_rng()
-    for k in _rgb_keys(item):
+    for k in ("rgb", "target_rgb"):
+        if k not in item:
+            continue
         x = item[k]
         n = _like(rng.normal(0.0, sigma, size=tuple(x.shape)), x)
         out[k] = (x + n).clamp(0.0, 1.0) if _is_torch(x) else np.clip(x + n, 0.0, 1.0)

@@ -200,8 +200,8 @@ class TrainingCache:
     (``rig``, ``frames``, ``views``, ``keys``, ``read``, ``intrinsics``, ``cam_to_world``) plus
     :meth:`window`, a crop of several views in one slice.
 
-    :meth:`read` returns a read-only view of the map (copy it to write); each process opens its
-    own maps on first use (a DataLoader's workers included)."""
+    :meth:`read` returns a view of the map, copy-on-write (writing into it changes no file); each
+    process opens its own maps on first use (a DataLoader's workers included)."""
 
     def __init__(self, root):
         self.root = Path(root)
@@ -219,6 +219,7 @@ class TrainingCache:
         self._missing = {int(t): set(e.get("missing", ())) for t, e in self.record["frames"].items()}
         self._k = np.asarray(self.record["intrinsics"], np.float64)
         self._maps: dict[tuple[int, str], np.ndarray] = {}
+        self._memo: dict[tuple, list[int]] = {}
         self._pid = os.getpid()
 
     @property
@@ -233,8 +234,16 @@ class TrainingCache:
         except KeyError:
             raise LfusdError(f"view {tuple(view)} is not in this {self.rig.rows}x{self.rig.cols} cache") from None
 
+    def _indices(self, views) -> list[int]:
+        """Positions of ``views`` on the stacked axis (remembered per selection: a loader asks for the same views every item)."""
+        sel = tuple(tuple(v) for v in views)
+        idx = self._memo.get(sel)
+        if idx is None:
+            idx = self._memo[sel] = [self.view_index(v) for v in sel]
+        return idx
+
     def maps(self, frame: int, key: str) -> np.ndarray:
-        """The read-only memory map [V, H, W, *C] of ``key`` at ``frame`` (``cam_to_world``: [V, 4, 4])."""
+        """The copy-on-write memory map [V, H, W, *C] of ``key`` at ``frame`` (``cam_to_world``: [V, 4, 4])."""
         if os.getpid() != self._pid:  # a forked worker opens its own maps
             self._maps, self._pid = {}, os.getpid()
         ck = (int(frame), key)
@@ -250,7 +259,7 @@ class TrainingCache:
                 raise LfusdError(f"the dataset gave no {key!r} for frame {frame}, so the cache {self.root} has none; read another frame")
             path = self.root / frame_folder(frame) / f"{key}.npy"
             try:
-                m = np.load(path, mmap_mode="r", allow_pickle=False)
+                m = np.load(path, mmap_mode="c", allow_pickle=False)  # copy-on-write: writing an item never reaches the file
             except (OSError, ValueError) as e:
                 raise LfusdError(f"{path} is unreadable ({getattr(e, 'strerror', None) or e}); rerun 'lfusd export cache' to repair the cache") from None
         self._maps[ck] = m
@@ -259,17 +268,18 @@ class TrainingCache:
         return m
 
     def read(self, frame: int, view, key: str) -> np.ndarray:
-        """One key of one view, equal to ``Dataset.read`` of the source (a read-only view of the map)."""
+        """One key of one view, equal to ``Dataset.read`` of the source (a copy-on-write view of the map)."""
         return self.maps(frame, key)[self.view_index(view)]
 
     def window(self, frame: int, key: str, views, top: int, left: int, height: int, width: int) -> np.ndarray:
         """``key`` of ``views`` cropped to rows top..top+height, columns left..left+width: one
-        array [V, height, width, *C] copied out of the map in one slice (no per-view copy)."""
+        array [V, height, width, *C], a view of the map where the views are consecutive (no copy:
+        the map is copy-on-write, so writing into it changes no file), else one copy."""
         m = self.maps(frame, key)
-        idx = [self.view_index(v) for v in views]
+        idx = self._indices(views)
         rows, cols = slice(top, top + height), slice(left, left + width)
         if idx == list(range(idx[0], idx[0] + len(idx))):
-            return np.array(m[idx[0] : idx[0] + len(idx), rows, cols])
+            return m[idx[0] : idx[0] + len(idx), rows, cols]
         return m[idx, rows, cols]  # advanced indexing on the view axis: one copy
 
     def intrinsics(self, view) -> np.ndarray:

@@ -82,8 +82,9 @@ def data_loader(dataset, batch_size: int = 1, shuffle: bool = True, num_workers:
                       pin_memory=pin_memory and torch.cuda.is_available(), **kw)
 
 
-def _stacked_tensor(key: str, a: np.ndarray) -> torch.Tensor:
-    """A stacked [V, H, W, *C] array as the item's tensor [V, *C, H, W] (the layout of :func:`_to_tensor`)."""
+def _stacked_tensor(key: str, a: np.ndarray, uint8_rgb: bool = False) -> torch.Tensor:
+    """A stacked [V, H, W, *C] array (a writable view of a copy-on-write map: no copy here) as the
+    item's tensor [V, *C, H, W] (the values of :func:`_to_tensor`); collating the batch copies it once."""
     if a.dtype == bool:
         return torch.from_numpy(a)
     if np.issubdtype(a.dtype, np.integer) and key != "rgb":
@@ -91,17 +92,19 @@ def _stacked_tensor(key: str, a: np.ndarray) -> torch.Tensor:
     t = torch.from_numpy(a)
     if t.ndim == 4:
         t = t.permute(0, 3, 1, 2)
-    if key == "rgb":
-        return t.to(torch.float32).div_(255.0 if a.dtype == np.uint8 else 1.0).contiguous()
-    return t.to(torch.float32).contiguous()
+    if key == "rgb" and a.dtype == np.uint8:
+        return t if uint8_rgb else torch.div(t, 255.0)  # one pass: uint8 -> float32 / 255, as _to_tensor
+    return t if t.dtype == torch.float32 else t.to(torch.float32)
 
 
-def _to_tensor(key: str, a: np.ndarray) -> torch.Tensor:
+def _to_tensor(key: str, a: np.ndarray, uint8_rgb: bool = False) -> torch.Tensor:
     a = np.asarray(a)
     if not a.flags.writeable:  # e.g. images decoded by Pillow; torch wants writable memory
         a = a.copy()
     if key == "rgb":
         t = torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)
+        if uint8_rgb and a.dtype == np.uint8:
+            return t
         return t.to(torch.float32) / (255.0 if a.dtype == np.uint8 else 1.0)
     if a.dtype == bool:
         return torch.from_numpy(np.ascontiguousarray(a))
@@ -115,9 +118,11 @@ class LightFieldVideoDataset(_TorchDataset):
     """``torch.utils.data.Dataset`` of light-field frames (see the module docstring for the items)."""
 
     def __init__(self, dataset, keys=("rgb",), views="all", frames=None, clip: int = 1, crop=None, random_crop: bool = False, target_views=None,
-                 rig: str | None = None, transform=None):
+                 rig: str | None = None, transform=None, uint8_rgb: bool = False):
         """``dataset``: a dataset folder, a training cache folder (:mod:`lfusd.data.cache`) or an
-        object reading like either; ``transform``: a callable applied to each item (an augmentation)."""
+        object reading like either; ``transform``: a callable applied to each item (an augmentation);
+        ``uint8_rgb``: ``rgb`` (and ``target_rgb``) as the stored uint8 sRGB [V,3,h,w] rather than
+        float32 in [0, 1] (a quarter of the bytes: divide by 255 on the GPU)."""
         if isinstance(dataset, (str, Path)):
             from .cache import TrainingCache, is_cache
             from .folder import open_dataset
@@ -125,6 +130,7 @@ class LightFieldVideoDataset(_TorchDataset):
             dataset = TrainingCache(dataset) if is_cache(dataset) else open_dataset(dataset, rig)
         self.ds = dataset
         self.transform = transform
+        self.uint8_rgb = bool(uint8_rgb)
         self.keys = tuple(keys)
         unknown = [k for k in self.keys if k not in KEYS]
         if unknown:
@@ -162,6 +168,10 @@ class LightFieldVideoDataset(_TorchDataset):
         else:
             self.crop = None
         self.random_crop = random_crop
+        # per-item constants, made once
+        self._views_t = torch.tensor(self.views, dtype=torch.int64)
+        self._offsets_t = torch.tensor([dataset.rig.offsets(v) for v in self.views], dtype=torch.float64)
+        self._k = np.stack([np.array(dataset.intrinsics(v), dtype=np.float64) for v in self.views])
 
     def __len__(self) -> int:
         return len(self._starts)
@@ -191,23 +201,24 @@ class LightFieldVideoDataset(_TorchDataset):
             per_t = []
             for t in frames:
                 if fast:
-                    per_t.append(_stacked_tensor(key, self.ds.window(t, key, views, y0, x0, ch, cw)))
+                    per_t.append(_stacked_tensor(key, self.ds.window(t, key, views, y0, x0, ch, cw), self.uint8_rgb))
                 else:
-                    per_t.append(torch.stack([_to_tensor(key, self.ds.read(t, v, key))[..., y0 : y0 + ch, x0 : x0 + cw] for v in views]))
+                    per_t.append(torch.stack([_to_tensor(key, self.ds.read(t, v, key), self.uint8_rgb)[..., y0 : y0 + ch, x0 : x0 + cw] for v in views]))
             return per_t[0] if self.clip == 1 else torch.stack(per_t)
 
         item = {k: stack(k, self.views) for k in self.keys}
         item["frames"] = torch.tensor(frames, dtype=torch.int64)
-        item["views"] = torch.tensor(self.views, dtype=torch.int64)
-        item["offsets"] = torch.tensor([self.ds.rig.offsets(v) for v in self.views], dtype=torch.float64)
-        ks = []
-        for v in self.views:
-            k = np.array(self.ds.intrinsics(v), dtype=np.float64)
-            k[0, 2] -= x0
-            k[1, 2] -= y0
-            ks.append(k)
-        item["intrinsics"] = torch.from_numpy(np.stack(ks))
-        poses = torch.from_numpy(np.stack([np.stack([np.asarray(self.ds.cam_to_world(t, v), np.float64) for v in self.views]) for t in frames]))
+        item["views"] = self._views_t
+        item["offsets"] = self._offsets_t
+        ks = self._k.copy()
+        ks[:, 0, 2] -= x0
+        ks[:, 1, 2] -= y0
+        item["intrinsics"] = torch.from_numpy(ks)
+        if fast:
+            idx = self.ds._indices(self.views)
+            poses = torch.from_numpy(np.stack([self.ds.maps(t, "cam_to_world")[idx] for t in frames]))
+        else:
+            poses = torch.from_numpy(np.stack([np.stack([np.asarray(self.ds.cam_to_world(t, v), np.float64) for v in self.views]) for t in frames]))
         item["cam_to_world"] = poses[0] if self.clip == 1 else poses
         item["crop"] = torch.tensor([y0, x0], dtype=torch.int64)
         if self.target_views is not None:

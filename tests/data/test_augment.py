@@ -202,3 +202,28 @@ def test_random_augmentation_in_the_loader_with_seeded_workers():
     d = LightFieldVideoDataset(ds, keys=("disparity",), views="centre", transform=_draws)
     batches = list(data_loader(d, batch_size=1, num_workers=2))
     assert len({int(b["draw"]) for b in batches}) == 4 and len({int(b["aug"]) for b in batches}) == 4
+
+
+@pytest.mark.render
+def test_augmented_rendered_views_warp_onto_the_augmented_centre(box_dataset):
+    """On a rendered scene (3x3 views, 48x48 of 64x48): a neighbour view warped by the augmented
+    centre disparity matches the augmented centre view, and the unaugmented disparity does not."""
+    from lfusd import Dataset
+    from lfusd.torch import LightFieldVideoDataset
+
+    _, out = box_dataset
+    item = LightFieldVideoDataset(Dataset(out, rig="main"), keys=("rgb", "disparity", "depth", "position"), crop=48)[0]
+    item = {k: (v[None] if k in ("rgb", "disparity", "depth", "position", "cam_to_world") else v) for k, v in item.items()}  # as a clip of one
+
+    def error(it, i, disparity=None):
+        return warp_error(it, i, disparity)
+
+    base = [error(item, i) for i in (1, 3, 5, 7)]  # the four neighbours of the centre
+    assert max(base) < 0.05
+    for name in ("refocus+1", "flip x", "flip y", "transpose", "all"):
+        out_item = AUGMENTS[name](item)
+        errs = [error(out_item, i) for i in (1, 3, 5, 7)]
+        assert max(errs) < 1.5 * max(base) + 0.01, (name, errs, base)
+    shifted = aug.refocus(item, 1)
+    wrong = shifted["disparity"].numpy()[0] + 1  # the disparity before the shift
+    assert error(shifted, 1, wrong) > 2 * error(shifted, 1)

@@ -116,3 +116,36 @@ def test_refusals(fake, tmp_path):
     with pytest.raises(LfusdError, match="unknown ground-truth key"):
         write_cache(fake, tmp_path / "d", keys=("rgb", "colour"))
     assert not (tmp_path / "d").exists()
+
+
+def test_items_are_copy_on_write_and_uint8_rgb_is_the_stored_bytes(fake, tmp_path):
+    from lfusd.data.cache import write_cache
+    from lfusd.torch import LightFieldVideoDataset
+
+    write_cache(fake, tmp_path / "c", keys=("rgb", "depth"))
+    item = LightFieldVideoDataset(str(tmp_path / "c"), keys=("rgb", "depth"), views="all", uint8_rgb=True)[0]
+    assert item["rgb"].dtype == torch.uint8
+    np.testing.assert_array_equal(item["rgb"][4].permute(1, 2, 0).numpy(), fake.read(1, (0, 4), "rgb"))
+    item["depth"] += 1  # an in-place change of the item reaches neither the file nor the next item
+    item2 = LightFieldVideoDataset(str(tmp_path / "c"), keys=("depth",), views="all")[0]
+    np.testing.assert_array_equal(item2["depth"][0].numpy(), fake.read(1, (0, 0), "depth"))
+    slow = LightFieldVideoDataset(fake, keys=("rgb",), views="cross", uint8_rgb=True, crop=5)[2]
+    fast = LightFieldVideoDataset(str(tmp_path / "c"), keys=("rgb",), views="cross", uint8_rgb=True, crop=5)[2]
+    assert torch.equal(slow["rgb"], fast["rgb"])
+
+
+@pytest.mark.render
+def test_the_cache_of_a_rendered_dataset_equals_its_reader_bit_for_bit(box_dataset, tmp_path):
+    """Every key of every view of both rendered rigs (a planar 3x3 and a spherical 2x3), through the CLI."""
+    from lfusd import Dataset
+    from lfusd.cli import main
+    from lfusd.data.cache import TrainingCache
+
+    _, out = box_dataset
+    for rig in ("main", "dome"):
+        assert main(["export", "cache", str(out), str(tmp_path / rig), "--rig", rig]) == 0
+        ds, cache = Dataset(out, rig=rig), TrainingCache(tmp_path / rig)
+        assert {"rgb", "depth", "normal", "position", "instance", "semantic", "depth_euclidean"} <= set(cache.keys)
+        assert check_every_key(ds, cache) == len(ds.frames) * len(ds.views) * len(cache.keys)
+        assert (tmp_path / rig / "manifest.json").read_bytes() == (out / "manifest.json").read_bytes()
+        assert main(["export", "cache", str(out), str(tmp_path / rig), "--rig", rig]) == 0  # a rerun of a complete cache changes nothing
