@@ -30,7 +30,8 @@ Geometry (docs/CONVENTIONS.md: a point at disparity d seen at (u, v) in the cent
 Flips and transposes need the set of views closed under the mirror (``all``, ``cross``,
 ``corners``, ``centre`` on a uniform grid); refocus needs integer shifts k*sx, k*sy. An item with
 ``target_rgb`` (angular super-resolution) takes only the colour augmentations. Blender's raw
-``vector`` pass is refused. NumPy only at import (works on PyTorch tensors by their methods).
+``vector`` pass is refused. Imports only NumPy: PyTorch tensors are handled through their own
+methods, so reading and augmenting stays free of torch where items are NumPy.
 """
 
 from __future__ import annotations
@@ -58,18 +59,14 @@ def _np(a) -> np.ndarray:
 def _like(x: np.ndarray, ref):
     """``x`` as the kind of array ``ref`` is (a tensor on ref's device and dtype, or NumPy of ref's dtype)."""
     if _is_torch(ref):
-        import torch
-
-        return torch.as_tensor(np.ascontiguousarray(x), dtype=ref.dtype, device=ref.device)
+        return ref.new_tensor(np.ascontiguousarray(x), dtype=ref.dtype)
     return np.ascontiguousarray(x, dtype=ref.dtype)
 
 
 def _take(a, idx, axis: int):
-    if _is_torch(a):
-        import torch
-
-        return a.index_select(axis, torch.as_tensor(idx, device=a.device))
-    return np.take(a, idx, axis=axis)
+    """``a`` at positions ``idx`` along ``axis`` (a copy; NumPy or PyTorch alike)."""
+    axis = axis % a.ndim
+    return a[(slice(None),) * axis + (list(idx),)]
 
 
 def _flip(a, axis: int):
@@ -226,16 +223,11 @@ def refocus(item: dict, k: int, margin: tuple[int, int] | None = None) -> dict:
         raise LfusdError(f"a refocus margin of {my, mx} px leaves nothing of {h}x{w} crops; ask the loader for larger crops")
     for key in keys:
         a = item[key]
-        parts = []
+        shape = tuple(a.shape[:-2]) + (hh, ww)
+        v = a.new_empty(shape) if _is_torch(a) else np.empty(shape, a.dtype)
+        lead = (slice(None),) * vaxis
         for i, (sx, sy) in enumerate(shifts):
-            v = _take(a, [i], vaxis)
-            parts.append(v[..., my - sy : my - sy + hh, mx - sx : mx - sx + ww])
-        if _is_torch(a):
-            import torch
-
-            v = torch.cat(parts, vaxis)
-        else:
-            v = np.concatenate(parts, vaxis)
+            v[lead + (i,)] = a[lead + (i,)][..., my - sy : my - sy + hh, mx - sx : mx - sx + ww]
         out[key] = v - k if key == "disparity" else v
     kk = _np(item["intrinsics"]).astype(np.float64).copy()
     kk[:, 0, 2] += shifts[:, 0] - mx

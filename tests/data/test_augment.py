@@ -19,8 +19,9 @@ KEYS = ("rgb", "disparity", "depth", "position", "normal", "scene_flow", "flow_f
 def item():
     from lfusd.torch import LightFieldVideoDataset
 
-    ds = FakeDataset(rows=5, cols=5, width=48, height=48, frames=(1, 2, 3, 4))
-    return LightFieldVideoDataset(ds, keys=KEYS, views="all", clip=2, frames=[2])[0]
+    # an off-centre crop (principal point not at the crop's centre), so that the flips' cx' = w-1-cx matters
+    ds = FakeDataset(rows=5, cols=5, width=49, height=51, frames=(1, 2, 3, 4))
+    return LightFieldVideoDataset(ds, keys=KEYS, views="all", clip=2, frames=[2], crop=(46, 44))[0]
 
 
 def project(p: np.ndarray, pose: np.ndarray, k: np.ndarray):
@@ -33,24 +34,30 @@ def centre_index(item) -> int:
     return int(np.flatnonzero(np.all(item["offsets"].numpy() == 0, axis=1))[0])
 
 
-def check_geometry(item) -> None:
-    """Every key agrees with every other through the cameras (t = 0 and 1 of a clip)."""
-    pos, sf, flow, disp, depth = (item[k].numpy().astype(np.float64) for k in ("position", "scene_flow", "flow_fwd", "disparity", "depth"))
+def check_geometry(item, motion: bool = True) -> None:
+    """Every key agrees with every other through the cameras (t = 0 and 1 of a clip; ``motion``: the flow too)."""
+    pos, disp, depth = (item[k].numpy().astype(np.float64) for k in ("position", "disparity", "depth"))
     poses, ks, offs = item["cam_to_world"].numpy(), item["intrinsics"].numpy(), item["offsets"].numpy()
     h, w = pos.shape[-2:]
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     c = centre_index(item)
     for i in range(len(offs)):
-        for t in (0, 1):
+        for t in range(len(pos)):
             u, v, z = project(pos[t, i], poses[t, i], ks[i])  # each view sees its own positions at its pixels
-            np.testing.assert_allclose(u, xx, atol=2e-3)
-            np.testing.assert_allclose(v, yy, atol=2e-3)
-            np.testing.assert_allclose(z, depth[t, i], rtol=1e-5)
+            fg = np.isfinite(depth[t, i])  # a surface (a rendered scene has background)
+            assert fg.mean() > 0.5 and np.isnan(u[~fg]).all()
+            np.testing.assert_allclose(u[fg], xx[fg], atol=2e-3)
+            np.testing.assert_allclose(v[fg], yy[fg], atol=2e-3)
+            np.testing.assert_allclose(z[fg], depth[t, i][fg], rtol=1e-5)
         # the centre view's points appear in view i at (u - d sx, v - d sy) (docs/CONVENTIONS.md)
         u, v, _ = project(pos[0, c], poses[0, i], ks[i])
-        np.testing.assert_allclose(u, xx - disp[0, c] * offs[i, 0], atol=2e-3)
-        np.testing.assert_allclose(v, yy - disp[0, c] * offs[i, 1], atol=2e-3)
+        fg = np.isfinite(depth[0, c])
+        np.testing.assert_allclose(u[fg], (xx - disp[0, c] * offs[i, 0])[fg], atol=2e-3)
+        np.testing.assert_allclose(v[fg], (yy - disp[0, c] * offs[i, 1])[fg], atol=2e-3)
+        if not motion:
+            continue
         # forward flow: where the moved point projects at t+1
+        sf, flow = item["scene_flow"].numpy().astype(np.float64), item["flow_fwd"].numpy().astype(np.float64)
         u, v, _ = project(pos[0, i] + sf[0, i], poses[1, i], ks[i])
         np.testing.assert_allclose(u, xx + flow[0, i, 0], atol=2e-3)
         np.testing.assert_allclose(v, yy + flow[0, i, 1], atol=2e-3)
@@ -65,7 +72,7 @@ def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
             + img[..., v0 + 1, u0 + 1] * a * b)
 
 
-def warp_error(item, i: int, disparity=None) -> float:
+def warp_error(item, i: int, disparity=None, least: float = 0.2, surface_only: bool = False) -> float:
     """Mean |centre - view i warped to the centre by the centre's disparity| over pixels whose
     sample lies inside view i and away from depth edges (bilinear sampling blurs them)."""
     rgb = item["rgb"].numpy().astype(np.float64)
@@ -84,7 +91,10 @@ def warp_error(item, i: int, disparity=None) -> float:
     from scipy.ndimage import binary_dilation
 
     ok &= ~binary_dilation(edge, iterations=3)
-    assert ok.mean() > 0.2
+    if surface_only:  # leave out the empty background, which looks the same whatever the disparity
+        depth = item["depth"].numpy()
+        ok &= np.isfinite((depth[0] if depth.ndim == 4 else depth)[c])
+    assert ok.mean() > least
     return float(np.abs(bilinear(rgb[i], u, v) - rgb[c])[:, ok].mean())
 
 
@@ -207,7 +217,9 @@ def test_random_augmentation_in_the_loader_with_seeded_workers():
 @pytest.mark.render
 def test_augmented_rendered_views_warp_onto_the_augmented_centre(box_dataset):
     """On a rendered scene (3x3 views, 48x48 of 64x48): a neighbour view warped by the augmented
-    centre disparity matches the augmented centre view, and the unaugmented disparity does not."""
+    centre disparity matches the augmented centre view as well as before the augmentation (and,
+    after a refocus, the unshifted disparity does not); the rendered positions, depth and disparity
+    agree through the augmented cameras."""
     from lfusd import Dataset
     from lfusd.torch import LightFieldVideoDataset
 
@@ -216,7 +228,7 @@ def test_augmented_rendered_views_warp_onto_the_augmented_centre(box_dataset):
     item = {k: (v[None] if k in ("rgb", "disparity", "depth", "position", "cam_to_world") else v) for k, v in item.items()}  # as a clip of one
 
     def error(it, i, disparity=None):
-        return warp_error(it, i, disparity)
+        return warp_error(it, i, disparity, least=0.1)
 
     base = [error(item, i) for i in (1, 3, 5, 7)]  # the four neighbours of the centre
     assert max(base) < 0.05
@@ -227,3 +239,5 @@ def test_augmented_rendered_views_warp_onto_the_augmented_centre(box_dataset):
     shifted = aug.refocus(item, 1)
     wrong = shifted["disparity"].numpy()[0] + 1  # the disparity before the shift
     assert error(shifted, 1, wrong) > 2 * error(shifted, 1)
+    for name in AUGMENTS:  # and the rendered positions, depth and disparity agree through the augmented cameras
+        check_geometry(AUGMENTS[name](item), motion=False)
