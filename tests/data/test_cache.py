@@ -149,3 +149,15 @@ def test_the_cache_of_a_rendered_dataset_equals_its_reader_bit_for_bit(box_datas
         assert check_every_key(ds, cache) == len(ds.frames) * len(ds.views) * len(cache.keys)
         assert (tmp_path / rig / "manifest.json").read_bytes() == (out / "manifest.json").read_bytes()
         assert main(["export", "cache", str(out), str(tmp_path / rig), "--rig", rig]) == 0  # a rerun of a complete cache changes nothing
+
+
+def test_workers_forked_after_the_parent_read_open_their_own_maps(fake, tmp_path):
+    from lfusd.data.cache import write_cache
+    from lfusd.torch import LightFieldVideoDataset, data_loader
+
+    write_cache(fake, tmp_path / "c", keys=("rgb", "disparity"))
+    d = LightFieldVideoDataset(str(tmp_path / "c"), keys=("rgb", "disparity"), views="corners")
+    first = d[0]  # the parent maps the files before the workers fork
+    batches = list(data_loader(d, batch_size=1, shuffle=False, num_workers=2))
+    assert [int(b["frames"][0, 0]) for b in batches] == [1, 2, 3]
+    assert torch.equal(batches[0]["rgb"][0], first["rgb"]) and torch.equal(batches[2]["disparity"][0], d[2]["disparity"])
