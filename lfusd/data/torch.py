@@ -26,6 +26,7 @@ seeded workers (:func:`worker_init_fn`) and pinned memory when asked; ``transfor
 
 from __future__ import annotations
 
+import copy
 import random
 from pathlib import Path
 
@@ -72,12 +73,34 @@ def worker_init_fn(worker_id: int) -> None:
     random.seed(seed)
 
 
+class _FloatRgbAfterCollation:
+    """Collation that stacks uint8 ``rgb`` / ``target_rgb`` and only then divides by 255: the same
+    float32 values as the items' own, at a third of the memory traffic (one pass over the batch)."""
+
+    def __call__(self, items):
+        from torch.utils.data import default_collate
+
+        batch = default_collate(items)
+        for k in ("rgb", "target_rgb"):
+            if k in batch and batch[k].dtype == torch.uint8:
+                batch[k] = torch.div(batch[k], 255.0)
+        return batch
+
+
 def data_loader(dataset, batch_size: int = 1, shuffle: bool = True, num_workers: int = 0, pin_memory: bool = False, **kw) -> DataLoader:
     """A ``torch.utils.data.DataLoader`` over ``dataset`` with :func:`worker_init_fn`, persistent
-    workers and ``pin_memory`` (page-locked batches for fast copies to a GPU); ``kw`` go to DataLoader."""
+    workers and ``pin_memory`` (page-locked batches for fast copies to a GPU); ``kw`` go to DataLoader.
+
+    Over a :class:`LightFieldVideoDataset` with float rgb and no transform, the items are read with
+    uint8 rgb and the batch is converted once after collation (the same values, fewer bytes moved)."""
     kw.setdefault("worker_init_fn", worker_init_fn)
     if num_workers > 0:
         kw.setdefault("persistent_workers", True)
+    if (batch_size is not None and "collate_fn" not in kw and isinstance(dataset, LightFieldVideoDataset)
+            and not dataset.uint8_rgb and dataset.transform is None):
+        dataset = copy.copy(dataset)
+        dataset.uint8_rgb = True
+        kw["collate_fn"] = _FloatRgbAfterCollation()
     return DataLoader(dataset, batch_size=batch_size, shuffle=shuffle, num_workers=num_workers,
                       pin_memory=pin_memory and torch.cuda.is_available(), **kw)
 

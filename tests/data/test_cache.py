@@ -161,3 +161,18 @@ def test_workers_forked_after_the_parent_read_open_their_own_maps(fake, tmp_path
     batches = list(data_loader(d, batch_size=1, shuffle=False, num_workers=2))
     assert [int(b["frames"][0, 0]) for b in batches] == [1, 2, 3]
     assert torch.equal(batches[0]["rgb"][0], first["rgb"]) and torch.equal(batches[2]["disparity"][0], d[2]["disparity"])
+
+
+def test_data_loader_batches_equal_the_stacked_items(fake, tmp_path):
+    """data_loader reads uint8 rgb and divides after collation: the same float32 values as the items."""
+    from lfusd.data.cache import write_cache
+    from lfusd.torch import LightFieldVideoDataset, data_loader
+
+    write_cache(fake, tmp_path / "c", keys=("rgb", "disparity"))
+    for source in (fake, str(tmp_path / "c")):
+        d = LightFieldVideoDataset(source, keys=("rgb", "disparity"), views="cross", crop=7)
+        (batch,) = list(data_loader(d, batch_size=3, shuffle=False))
+        items = [d[i] for i in range(3)]
+        assert not d.uint8_rgb and batch["rgb"].dtype == torch.float32
+        for k in ("rgb", "disparity", "intrinsics", "cam_to_world"):
+            assert torch.equal(batch[k], torch.stack([it[k] for it in items])), k
