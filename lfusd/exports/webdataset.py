@@ -23,7 +23,9 @@ descriptions (dtype, shape, unit, meaning) come from :mod:`lfusd.keys`. ``.npy``
 declared ``text/plain`` because that is the format whose raw bytes mlcroissant returns
 (``fileProperty: content``); ``numpy.load(io.BytesIO(content))`` decodes them. Verification
 figures found beside the dataset (a recipe's scene record and card) go into the description and
-into ``lfusd_verification.json``.
+into ``lfusd_verification.json``. ``lfusd_rig.json`` holds the rig's name and spec and
+``objects.json`` the dataset's object table, so that :class:`lfusd.data.shards.ShardDataset` reads
+the export as a dataset (the training loader's items, derived keys included).
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ SHARDS = "shards"
 CROISSANT = "metadata.json"
 CARD = "README.md"
 VERIFICATION = "lfusd_verification.json"
+RIG = "lfusd_rig.json"  # the rig's name and spec, so that lfusd.data.shards reads the shards as a dataset
 
 
 def sample_key(rig: str, frame: int, view) -> str:
@@ -210,6 +213,7 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
     (dest / CROISSANT).write_text(json.dumps(doc, indent=1))
     if verification:
         (dest / VERIFICATION).write_text(json.dumps(verification, indent=1))
+    (dest / RIG).write_text(json.dumps({"rig": rig, "spec": ds.rig.to_dict()}, indent=1))
     objects = Path(getattr(ds, "root", "")) / layout.OBJECTS
     if objects.is_file():  # the class and instance tables that `instance` and `semantic` index
         (dest / layout.OBJECTS).write_bytes(objects.read_bytes())
