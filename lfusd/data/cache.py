@@ -27,10 +27,11 @@ neither pxr, bpy nor torch.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import logging
 import os
+import re
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,7 @@ from .. import keys as keyreg
 from .. import layout
 from ..camera import RigSpec
 from ..errors import LfusdError
-from ..files import atomic_write
+from ..files import atomic_write, file_mode
 from . import confined
 from .folder import output_lock, resumable_folder
 
@@ -63,12 +64,6 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 22), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def _npy_bytes(a: np.ndarray) -> bytes:
-    buf = io.BytesIO()
-    np.lib.format.write_array(buf, np.ascontiguousarray(a), version=(1, 0), allow_pickle=False)
-    return buf.getvalue()
 
 
 def cacheable_keys(ds, keys=None) -> list[str]:
@@ -122,6 +117,69 @@ def _frame_intact(dest: Path, entry: dict) -> bool:
     return True
 
 
+# The temporaries of a killed cache run: ".<name>.npy.<8 random>.tmp" (a frame's file), ".cache.json.<8 random>.tmp".
+_TMP = re.compile(r"\.(?:[A-Za-z0-9_]+\.npy|cache\.json|manifest\.json|objects\.json)\.[a-z0-9_]{8}\.tmp")
+
+
+def _remove_temporaries(folder: Path) -> None:
+    """Remove what a killed run of the cache left in ``folder``: only its temporaries' names, never through a link."""
+    with os.scandir(folder) as it:
+        for e in it:
+            if _TMP.fullmatch(e.name) and not e.is_dir(follow_symlinks=False):
+                os.unlink(e.path)
+
+
+def _write_frame(ds, dest: Path, t: int, views, keys) -> tuple[dict, list[str]]:
+    """Write one frame's files, view after view (each view's files decoded once for all its keys),
+    straight into memory-mapped temporaries renamed when whole; returns (files record, missing keys)."""
+    rel = {name: f"{frame_folder(t)}/{name}.npy" for name in (POSES, *keys)}
+    for r in rel.values():
+        if confined.is_link(dest / r):
+            raise confined.link_error(dest / r)
+    maps: dict[str, np.ndarray] = {}
+    tmps: dict[str, str] = {}
+    missing: list[str] = []
+
+    def open_map(name: str, first: np.ndarray) -> np.ndarray:
+        fd, tmp = tempfile.mkstemp(dir=dest / frame_folder(t), prefix=f".{name}.npy.", suffix=".tmp")
+        os.close(fd)
+        tmps[name] = tmp
+        return np.lib.format.open_memmap(tmp, mode="w+", dtype=first.dtype, shape=(len(views), *first.shape))
+
+    try:
+        for i, v in enumerate(views):
+            pose = np.asarray(ds.cam_to_world(t, v), np.float64)
+            if i == 0:
+                maps[POSES] = open_map(POSES, pose)
+            maps[POSES][i] = pose
+            for k in keys:
+                if k in missing:
+                    continue
+                try:
+                    a = np.asarray(ds.read(t, v, k))
+                except LfusdError:
+                    missing.append(k)  # e.g. a motion key the derivation could not write for this frame
+                    continue
+                if i == 0:
+                    maps[k] = open_map(k, a)
+                maps[k][i] = a
+        files = {}
+        for name, m in maps.items():
+            m.flush()
+            del m
+            if name in missing:
+                continue
+            path = Path(tmps[name])
+            os.chmod(path, file_mode())
+            files[rel[name]] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+            os.replace(path, dest / rel[name])
+        return files, missing
+    finally:
+        maps.clear()
+        for tmp in tmps.values():
+            Path(tmp).unlink(missing_ok=True)  # those not renamed: a failed or missing key
+
+
 def write_cache(ds, dest, frame: int | None = None, keys=None) -> list[Path]:
     """Make or complete the training cache of ``ds`` in ``dest`` (see the module docstring); returns
     the folders of the frames it holds. ``frame``: only that frame; ``keys``: the keys to cache
@@ -155,6 +213,7 @@ def write_cache(ds, dest, frame: int | None = None, keys=None) -> list[Path]:
         for name in (RECORD, layout.MANIFEST, layout.OBJECTS):
             if confined.is_link(dest / name):
                 raise confined.link_error(dest / name)
+        _remove_temporaries(dest)
         doc = record or {"format": FORMAT, "version": VERSION, "source": source, "rig": ds.rig.to_dict(), "keys": keys,
                          "key_info": key_info, "views": [list(v) for v in views],
                          "intrinsics": [np.asarray(ds.intrinsics(v), np.float64).tolist() for v in views], "frames": {}}
@@ -173,20 +232,8 @@ def write_cache(ds, dest, frame: int | None = None, keys=None) -> list[Path]:
                 done.append(fdir)
                 continue
             fdir.mkdir(exist_ok=True)
-            files, missing = {}, []
-            arrays = {POSES: np.stack([np.asarray(ds.cam_to_world(t, v), np.float64) for v in views])}
-            for k in keys:
-                try:
-                    arrays[k] = np.stack([ds.read(t, v, k) for v in views])
-                except LfusdError:
-                    missing.append(k)  # e.g. a motion key the derivation could not write for this frame
-            for name, a in arrays.items():
-                data = _npy_bytes(a)
-                rel = f"{frame_folder(t)}/{name}.npy"
-                if confined.is_link(dest / rel):
-                    raise confined.link_error(dest / rel)
-                atomic_write(dest / rel, data)
-                files[rel] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+            _remove_temporaries(fdir)
+            files, missing = _write_frame(ds, dest, t, views, keys)
             doc["frames"][str(t)] = {"files": files, "missing": missing}
             atomic_write(dest / RECORD, json.dumps(doc, indent=1))
             log.info("cached frame %s (%d keys, %d views)", t, len(keys) - len(missing), len(views))

@@ -77,6 +77,8 @@ def test_a_rerun_completes_and_repairs(fake, tmp_path):
     write_cache(fake, dest, frame=2, keys=("rgb", "depth"))
     assert TrainingCache(dest).frames == [2]
     (dest / "000002" / "depth.npy").write_bytes(b"broken")  # a damaged file
+    (dest / "000002" / ".rgb.npy.ab12cd34.tmp").write_bytes(b"left by a killed run")
+    (dest / "000002" / "notes.txt").write_text("a user's")
     mtime = os.stat(dest / "000002" / "rgb.npy").st_mtime_ns
     write_cache(fake, dest)  # the recorded keys, every frame
     cache = TrainingCache(dest)
@@ -87,6 +89,7 @@ def test_a_rerun_completes_and_repairs(fake, tmp_path):
         write_cache(fake, dest, keys=("rgb",))
     doc = json.loads((dest / RECORD).read_text())
     assert sorted(doc["frames"]) == ["1", "2", "3"]
+    assert sorted(p.name for p in (dest / "000002").iterdir()) == ["cam_to_world.npy", "depth.npy", "notes.txt", "rgb.npy"]
 
 
 def test_refusals(fake, tmp_path):
@@ -176,3 +179,22 @@ def test_data_loader_batches_equal_the_stacked_items(fake, tmp_path):
         assert not d.uint8_rgb and batch["rgb"].dtype == torch.float32
         for k in ("rgb", "disparity", "intrinsics", "cam_to_world"):
             assert torch.equal(batch[k], torch.stack([it[k] for it in items])), k
+
+
+def test_a_key_the_dataset_lacks_for_a_frame_is_recorded_missing(tmp_path):
+    from lfusd.data.cache import TrainingCache, write_cache
+
+    class Gappy(FakeDataset):
+        def read(self, frame, view, key):
+            if frame == 3 and key == "flow_fwd" and tuple(view) == (1, 1):  # fails mid-frame, after other views were written
+                raise LfusdError("no flow here")
+            return super().read(frame, view, key)
+
+    ds = Gappy(rows=2, cols=2, width=8, height=6, frames=(1, 2, 3))
+    write_cache(ds, tmp_path / "c", keys=("rgb", "flow_fwd"))
+    cache = TrainingCache(tmp_path / "c")
+    assert cache.frames == [1, 2, 3]
+    assert same_bits(cache.read(3, (1, 1), "rgb"), ds.read(3, (1, 1), "rgb"))
+    with pytest.raises(LfusdError, match="gave no 'flow_fwd' for frame 3"):
+        cache.read(3, (0, 0), "flow_fwd")
+    assert sorted(p.name for p in (tmp_path / "c" / "000003").iterdir()) == ["cam_to_world.npy", "rgb.npy"]
