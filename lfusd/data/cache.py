@@ -67,12 +67,13 @@ def _sha256(path: Path) -> str:
 
 
 def cacheable_keys(ds, keys=None) -> list[str]:
-    """The keys a cache of ``ds`` holds: ``keys`` (checked), or every key ``ds.read`` returns on its
-    first frame and view except Blender's raw passes (registry order)."""
+    """The keys a cache of ``ds`` holds, in registry order: ``keys`` (checked), or every key
+    ``ds.read`` returns on its first frame and view except Blender's raw passes."""
     if not ds.frames:
         raise LfusdError(f"dataset {getattr(ds, 'root', '')} has no completely rendered frame yet; finish its render first")
     if keys is not None:
-        out = [keyreg.get(k).name for k in dict.fromkeys(keys)]
+        asked = {keyreg.get(k).name for k in keys}
+        out = [k for k in keyreg.KEYS if k in asked]  # registry order: the same set is the same cache whatever order it was asked in
         t, v = ds.frames[0], tuple(ds.views[0])
         for k in out:
             ds.read(t, v, k)  # a key the dataset cannot give is its reader's one-line error now, not mid-way

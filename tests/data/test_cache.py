@@ -11,6 +11,7 @@ import torch
 
 from support.fake import FakeDataset
 from lfusd import LfusdError
+from lfusd import keys as keyreg
 
 KEYS = ("rgb", "depth", "disparity", "position", "normal", "instance", "flow_fwd", "flow_bwd", "scene_flow", "disparity_change",
         "valid_fwd", "occlusion_bwd")
@@ -45,7 +46,8 @@ def test_every_key_of_every_view_equals_the_reader(fake, tmp_path):
 
     write_cache(fake, tmp_path / "c", keys=KEYS)
     cache = TrainingCache(tmp_path / "c")
-    assert cache.keys == KEYS and cache.rig == fake.rig
+    assert set(cache.keys) == set(KEYS) and cache.rig == fake.rig
+    assert list(cache.keys) == [k for k in keyreg.KEYS if k in KEYS]  # registry order, whatever order they were asked in
     assert check_every_key(fake, cache) == 3 * 15 * len(KEYS)
     # uncompressed: each file is the decoded array plus a header of at most 128 bytes
     for k in KEYS:
@@ -80,7 +82,7 @@ def test_a_rerun_completes_and_repairs(fake, tmp_path):
     (dest / "000002" / ".rgb.npy.ab12cd34.tmp").write_bytes(b"left by a killed run")
     (dest / "000002" / "notes.txt").write_text("a user's")
     mtime = os.stat(dest / "000002" / "rgb.npy").st_mtime_ns
-    write_cache(fake, dest)  # the recorded keys, every frame
+    write_cache(fake, dest, keys=("depth", "rgb"))  # the recorded keys (in another order), every frame
     cache = TrainingCache(dest)
     assert cache.frames == [1, 2, 3] and cache.keys == ("rgb", "depth")
     check_every_key(fake, cache)
