@@ -1,4 +1,5 @@
-"""PyTorch entry points: ``lfusd.torch.LightFieldVideoDataset`` (see lfusd.data.torch).
+"""PyTorch entry points: ``lfusd.torch.LightFieldVideoDataset``, ``data_loader`` and ``worker_init_fn``
+(see lfusd.data.torch; the augmentations are lfusd.data.augment).
 
 This module is ``lfusd.torch``; with absolute imports (Python 3) ``import torch`` anywhere in the
 package still means PyTorch itself.
@@ -6,6 +7,6 @@ package still means PyTorch itself.
 
 from __future__ import annotations
 
-from lfusd.data.torch import KEYS, LightFieldVideoDataset, select_views
+from lfusd.data.torch import KEYS, LightFieldVideoDataset, data_loader, select_views, worker_init_fn
 
-__all__ = ["KEYS", "LightFieldVideoDataset", "select_views"]
+__all__ = ["KEYS", "LightFieldVideoDataset", "data_loader", "select_views", "worker_init_fn"]

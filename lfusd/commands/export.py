@@ -20,11 +20,11 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "export",
         help="export a dataset to HCI, KITTI, Spring, .flo, PFM, HDF5 LF layouts or WebDataset / Hugging Face shards",
-        description="Export a rendered dataset OUT into DEST (which must not exist yet).",
+        description="Export a rendered dataset OUT into DEST (which must not exist yet; cache makes or completes its own DEST).",
     )
     p.add_argument("format", choices=list(FORMATS), help="target layout: " + "; ".join(f"{f.name}: {f.help}" for f in FORMATS.values()))
     p.add_argument("out", help="dataset folder (output of `lfusd render`)")
-    p.add_argument("dest", help="new folder to write")
+    p.add_argument("dest", help="new folder to write (cache: a new folder or the cache to complete)")
     p.add_argument("--frame", type=int, default=None, help="export only this frame (default: all)")
     p.add_argument("--exposure", default=None, metavar="auto|GAIN",
                    help="8-bit images from the linear render times one gain for the whole dataset: auto (the brightest 1 %% "

@@ -226,6 +226,17 @@ def encode_png(rgb) -> bytes:
     return buf.tobytes()
 
 
+def decode_png(data: bytes, name: str = "PNG") -> np.ndarray:
+    """The (H,W,3) RGB or (H,W) grey image of PNG bytes (as :func:`read_png` reads a file)."""
+    cv2 = _cv2()
+    a = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if a is None:
+        raise LfusdError(f"{name} is not a readable image")
+    if a.ndim == 3:
+        a = a[..., 2::-1] if a.shape[2] == 4 else a[..., ::-1]  # BGR(A) -> RGB
+    return np.ascontiguousarray(a)
+
+
 def read_png(path) -> np.ndarray:
     """Read a PNG as (H,W,3) RGB or (H,W) grey, keeping its bit depth."""
     cv2 = _cv2()

@@ -15,15 +15,19 @@ from ..data.folder import DatasetLike, new_folder
 from .registry import FORMATS, Format, find_export, get
 
 # The formats, in the order the command line lists them (each module registers itself).
-from . import hci, kitti, spring, flo, pfm, lfmat, hf, webdataset  # noqa: E402,F401  the registry import
+from . import hci, kitti, spring, flo, pfm, lfmat, hf, webdataset, cache  # noqa: E402,F401  the registry import
 
 __all__ = ["FORMATS", "Format", "export", "find_export", "get"]
 
 
 def export(ds: DatasetLike, fmt: str, dest, frame: int | None = None, **kw):
     """Write ``ds`` in format ``fmt`` (:data:`FORMATS`) into the new folder ``dest``, whole or not at
-    all (:func:`lfusd.data.folder.new_folder`): a failed export leaves nothing that blocks its retry."""
-    writer = get(fmt).writer
+    all (:func:`lfusd.data.folder.new_folder`): a failed export leaves nothing that blocks its retry.
+    A resumable format (``cache``) makes or completes ``dest`` itself."""
+    f = get(fmt)
+    writer = f.writer
+    if f.resumable:  # makes or completes dest itself (the training cache)
+        return writer(ds, dest, frame=frame, **kw)
     with new_folder(dest, "export") as tmp:
         result = writer(ds, tmp, frame=frame, **kw)
     dest = Path(dest)

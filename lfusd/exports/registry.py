@@ -50,7 +50,8 @@ class Reader:
 @dataclass(frozen=True)
 class Format:
     """One export format: its name, a line of help, the writer ``writer(ds, dest, frame=None,
-    **options)``, its options, what the writer's result counts (``unit``) and its reader, if any."""
+    **options)``, its options, what the writer's result counts (``unit``), its reader, if any, and
+    whether it resumes its own target (``resumable``)."""
 
     name: str
     help: str
@@ -58,18 +59,21 @@ class Format:
     options: tuple[Option, ...] = ()
     unit: str = "item"
     reader: Reader | None = None
+    resumable: bool = False  # the writer makes or completes ``dest`` itself (the training cache), not a new folder
 
 
 FORMATS: dict[str, Format] = {}
 
 
-def register(name: str, help: str, options: tuple[Option, ...] = (), unit: str = "item", reader: Reader | None = None):
-    """Decorator registering ``writer`` as export format ``name``."""
+def register(name: str, help: str, options: tuple[Option, ...] = (), unit: str = "item", reader: Reader | None = None,
+             resumable: bool = False):
+    """Decorator registering ``writer`` as export format ``name`` (``resumable``: it makes or
+    completes its target itself rather than writing a new folder whole)."""
 
     def wrap(writer: Callable) -> Callable:
         if name in FORMATS:
             raise ValueError(f"export format {name!r} is registered twice")
-        FORMATS[name] = Format(name, help, writer, tuple(options), unit, reader)
+        FORMATS[name] = Format(name, help, writer, tuple(options), unit, reader, resumable)
         return writer
 
     return wrap

@@ -25,6 +25,9 @@ declared ``text/plain`` because that is the format whose raw bytes mlcroissant r
 certificate of the rig (lfusd verify's figures in the manifest, still bound to the content:
 :mod:`lfusd.data.certificate`) goes into the description and into ``lfusd_verification.json``;
 nothing outside the dataset's folder is read.
+``lfusd_rig.json`` holds the rig's name and spec and ``objects.json`` the dataset's object table, so
+that :class:`lfusd.data.shards.ShardDataset` reads the export as a dataset (the training loader's
+items, derived keys included).
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ SHARDS = "shards"
 CROISSANT = "metadata.json"
 CARD = "README.md"
 VERIFICATION = "lfusd_verification.json"
+RIG = "lfusd_rig.json"  # the rig's name and spec, so that lfusd.data.shards reads the shards as a dataset
 
 
 def sample_key(rig: str, frame: int, view) -> str:
@@ -249,6 +253,7 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
     (dest / CROISSANT).write_text(json.dumps(doc, indent=1))
     if verification:
         (dest / VERIFICATION).write_text(json.dumps(verification, indent=1))
+    (dest / RIG).write_text(json.dumps({"rig": rig, "spec": ds.rig.to_dict()}, indent=1))
     if hf:
         (dest / CARD).write_text(hf_card(ds, doc, license, names))
     log.info("wrote %d samples in %d shard(s) to %s", len(frames) * len(views), len(shards), dest)
