@@ -180,3 +180,109 @@ class ASRNet(nn.Module):
         x = sai_to_macpi(corners.reshape(b, 2, 2, c, h, w).permute(0, 3, 1, 2, 4, 5))
         r = macpi_to_sai(self.upsample(self.blocks(self.head(x))), self.n, self.n)  # B,C,n,n,H,W
         return blend_corners(corners, self.n) + r.permute(0, 2, 3, 1, 4, 5).reshape(b, self.n * self.n, c, h, w)
+
+
+# ---- scene flow ---------------------------------------------------------------------------------
+
+
+def backward_warp(x: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    """x [B, C, H, W] sampled at (u, v) + flow [B, 2, H, W] (bilinear, zeros outside)."""
+    b, _, h, w = x.shape
+    ys, xs = torch.meshgrid(torch.arange(h, device=x.device, dtype=x.dtype), torch.arange(w, device=x.device, dtype=x.dtype), indexing="ij")
+    u, v = xs + flow[:, 0], ys + flow[:, 1]
+    grid = torch.stack([2 * u / max(w - 1, 1) - 1, 2 * v / max(h - 1, 1) - 1], -1)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+
+
+def local_correlation(f1: torch.Tensor, f2: torch.Tensor, radius: int) -> torch.Tensor:
+    """PWC-Net's cost volume: [B, (2r+1)^2, H, W], the mean over channels of f1 times f2 shifted by
+    every (dx, dy) in [-r, r]^2 (zeros outside), row-major over (dy, dx)."""
+    b, c, h, w = f1.shape
+    p = F.pad(f2, (radius, radius, radius, radius))
+    out = [(f1 * p[:, :, dy : dy + h, dx : dx + w]).mean(1) for dy in range(2 * radius + 1) for dx in range(2 * radius + 1)]
+    return torch.stack(out, 1)
+
+
+def _conv(i: int, o: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(i, o, 3, stride=stride, padding=1), _act())
+
+
+class FlowNet(nn.Module):
+    """PWC-lite optical flow of two images: a shared feature pyramid (``levels`` levels, each at half
+    the resolution of the one above, the finest at 1/2), at each level from the coarsest a local
+    correlation of frame t's features with frame t+1's warped by the upsampled flow and a small
+    decoder for the residual flow; the finest flow is upsampled bilinearly to full resolution.
+
+    forward(img0, img1 [B, 3, H, W]) -> flow [B, 2, H, W] in pixels (frame t -> t+1). H and W need not
+    be multiples of anything (levels are resized to fit).
+    """
+
+    def __init__(self, ch: int = 16, levels: int = 3, radius: int = 3):
+        super().__init__()
+        self.radius = radius
+        chans = [ch * 2**i for i in range(levels)]
+        enc, prev = [], 3
+        for c in chans:
+            enc.append(nn.Sequential(_conv(prev, c, 2), _conv(c, c)))
+            prev = c
+        self.encoder = nn.ModuleList(enc)
+        corr = (2 * radius + 1) ** 2
+        self.decoders = nn.ModuleList(nn.Sequential(_conv(corr + c + 2, 2 * ch), _conv(2 * ch, ch), nn.Conv2d(ch, 2, 3, padding=1)) for c in chans)
+
+    def pyramid(self, x):
+        feats = []
+        for e in self.encoder:
+            x = e(x)
+            feats.append(x)
+        return feats
+
+    def forward(self, img0: torch.Tensor, img1: torch.Tensor) -> torch.Tensor:
+        p0, p1 = self.pyramid(img0), self.pyramid(img1)
+        flow = None
+        for lvl in reversed(range(len(p0))):
+            f0, f1 = p0[lvl], p1[lvl]
+            if flow is None:
+                flow = f0.new_zeros(f0.shape[0], 2, *f0.shape[-2:])
+            else:
+                flow = _resize_flow(flow, f0.shape[-2:])
+            corr = local_correlation(f0, backward_warp(f1, flow), self.radius)
+            flow = flow + self.decoders[lvl](torch.cat([corr, f0, flow], 1))
+        return _resize_flow(flow, img0.shape[-2:])
+
+
+def _resize_flow(flow: torch.Tensor, size) -> torch.Tensor:
+    """Bilinear resize of a flow field with its vectors scaled to the new pixel size."""
+    h, w = flow.shape[-2:]
+    out = F.interpolate(flow, size=tuple(size), mode="bilinear", align_corners=True)
+    sx, sy = (size[1] - 1) / max(w - 1, 1), (size[0] - 1) / max(h - 1, 1)
+    return torch.stack([out[:, 0] * sx, out[:, 1] * sy], 1)
+
+
+class SceneFlowNet(nn.Module):
+    """Light-field scene flow of the reference view from two frames of a square U x U light field:
+    :class:`FlowNet` on the reference view at t and t+1, one :class:`DisparityNet` (shared weights)
+    on the whole light field at t and at t+1, and the disparity change of each reference pixel's
+    point as the disparity at t+1 sampled where the flow carries the pixel, minus the disparity at t
+    (lfusd's ``disparity_change``). Scene flow follows from these through the camera
+    (lfusd.evaluation.baselines.scene_flow_from_change).
+
+    forward(views0, views1 [B, U*U, 3, H, W] row-major, rel [B, U*U, 2] offsets from the reference
+    view in baselines, ref: the reference view's index) -> dict of ``flow`` [B, 2, H, W],
+    ``disparity`` [B, H, W] (t), ``disparity_next`` [B, H, W] (t+1, its own pixels) and
+    ``disparity_change`` [B, H, W].
+    """
+
+    def __init__(self, ang: int, d_min: float, d_max: float, n_disp: int = 9, ch: int = 16, n_blocks: int = 2, cost_ch: int = 32,
+                 flow_ch: int = 16, flow_levels: int = 3, radius: int = 3):
+        super().__init__()
+        self.ang = ang
+        self.disparity = DisparityNet(ang, d_min, d_max, n_disp, ch=ch, n_blocks=n_blocks, cost_ch=cost_ch)
+        self.flow = FlowNet(flow_ch, flow_levels, radius)
+
+    def forward(self, views0: torch.Tensor, views1: torch.Tensor, rel: torch.Tensor, ref: int) -> dict:
+        b = views0.shape[0]
+        d = self.disparity(torch.cat([views0, views1]), torch.cat([rel, rel]))
+        d0, d1 = d[:b], d[b:]
+        flow = self.flow(views0[:, ref], views1[:, ref])
+        d1_at = backward_warp(d1[:, None], flow)[:, 0]
+        return {"flow": flow, "disparity": d0, "disparity_next": d1, "disparity_change": d1_at - d0}

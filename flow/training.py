@@ -67,10 +67,12 @@ def common_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def start(a, script: str, tiny: dict, full: dict):
+def start(a, script: str, tiny: dict, full: dict, tiny_scene: tuple | None = None):
     """Open the run folder (and its checkpoint with --resume), fill unset options with the --tiny or
     full-size defaults, set torch up and find (or render) the dataset.
 
+    ``tiny_scene``: (stage, ``lfusd rig add`` arguments or None to use the stage's rig, ``lfusd
+    render-video`` arguments) of the --tiny dataset instead of :data:`TINY_STAGE` and its settings.
     Returns (run, checkpoint state or None, device, dataset folder, reader, train frames, eval frames).
     """
     t0 = time.time()
@@ -85,7 +87,7 @@ def start(a, script: str, tiny: dict, full: dict):
     if state:
         torch.set_rng_state(state["rng"])
     device = device_of(a.device, a.threads)
-    data = resolve_data(a)
+    data = resolve_data(a, tiny_scene)
     run.log["timing"]["render_s"] = time.time() - t0
     from lfusd.data.dataset import open_dataset
 
@@ -122,8 +124,10 @@ def lfusd_cli(*args) -> None:
         raise LfusdError(f"rendering the tiny dataset failed ({last}); render one yourself and pass --data")
 
 
-def tiny_dataset(dest: Path) -> Path:
-    """Render the tiny dataset into ``dest`` unless it already holds one; returns ``dest``."""
+def tiny_dataset(dest: Path, scene: tuple | None = None) -> Path:
+    """Render the tiny dataset (``scene``: see :func:`start`) into ``dest`` unless it already holds
+    one; returns ``dest``."""
+    stage_src, rig_args, render_args = scene or (TINY_STAGE, TINY_RIG, TINY_RENDER)
     if (dest / layout.MANIFEST).is_file():
         log.info("reusing the dataset in %s", dest)
         return dest
@@ -132,15 +136,18 @@ def tiny_dataset(dest: Path) -> Path:
     stage = dest.parent / f"{dest.name}_stage.usda"
     if stage.exists():
         stage.unlink()
-    lfusd_cli("rig", "add", TINY_STAGE, *TINY_RIG, "-o", stage)
-    lfusd_cli("render-video", stage, "-o", dest, *TINY_RENDER, "--overwrite")
+    if rig_args is None:
+        stage = stage_src
+    else:
+        lfusd_cli("rig", "add", stage_src, *rig_args, "-o", stage)
+    lfusd_cli("render-video", stage, "-o", dest, *render_args, "--overwrite")
     log.info("rendered the tiny dataset into %s in %.1f s", dest, time.time() - t0)
     return dest
 
 
-def resolve_data(a) -> Path:
+def resolve_data(a, tiny_scene: tuple | None = None) -> Path:
     if a.tiny:
-        return tiny_dataset(Path(a.data) if a.data else Path(a.out) / "tiny_data")
+        return tiny_dataset(Path(a.data) if a.data else Path(a.out) / "tiny_data", tiny_scene)
     if not a.data:
         raise LfusdError("no dataset: give --data OUT (a folder written by lfusd render-video) or --tiny")
     if not (Path(a.data) / layout.MANIFEST).is_file():

@@ -7,7 +7,8 @@
   view at offset s), the colour variance across views is box-filtered, the best d is taken per
   pixel and refined with a parabola through its neighbours' costs.
 - :func:`dis_flow`: optical flow with OpenCV's DIS (Kroeger et al. 2016).
-- :func:`scene_flow_from`: 3-D scene flow from disparity at t, disparity at t+1 and optical flow.
+- :func:`scene_flow_from`: 3-D scene flow from disparity at t, disparity at t+1 and optical flow;
+  :func:`scene_flow_from_change` the same from disparity at t, disparity change and optical flow.
 - :func:`interpolate_views`: view synthesis (e.g. 2x2 -> 7x7) by a plane sweep at each virtual
   view over the input views, and :func:`blend_views`, angular bilinear blending.
 - :func:`run_baselines`: all of them on a dataset with the lfusd.evaluation.metrics results.
@@ -192,16 +193,31 @@ def scene_flow_from(disp0, disp1, flow, K, cam_to_world0, cam_to_world1, baselin
     disp0, disp1, flow = (np.asarray(a, np.float64) for a in (disp0, disp1, flow))
     if disp0.shape != disp1.shape or flow.shape != disp0.shape + (2,):
         raise LfusdError(f"scene flow needs disparities and flow of one size, got {disp0.shape}, {disp1.shape}, {flow.shape}")
+    h, w = disp0.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    d1, inside = _bilinear(disp1, u + flow[..., 0], v + flow[..., 1])
+    sf, valid = scene_flow_from_change(disp0, d1 - disp0, flow, K, cam_to_world0, cam_to_world1, baseline)
+    valid &= inside
+    sf = np.where(valid[..., None], sf, np.nan)
+    return sf.astype(np.float32), np.where(valid, d1 - disp0, np.nan).astype(np.float32), valid
+
+
+def scene_flow_from_change(disp0, dchange, flow, K, cam_to_world0, cam_to_world1, baseline: float):
+    """Scene flow (H,W,3, world frame, metres) and validity of one view from its disparity at t,
+    the disparity change of each pixel's point (t -> t+1, lfusd's ``disparity_change``) and its
+    forward optical flow: the point seen at (u, v) with disparity d is at (u, v) + flow with
+    disparity d + dchange at t+1; both are back-projected (z = f_px * b / d) and subtracted."""
+    disp0, dchange, flow = (np.asarray(a, np.float64) for a in (disp0, dchange, flow))
+    if disp0.shape != dchange.shape or flow.shape != disp0.shape + (2,):
+        raise LfusdError(f"scene flow needs disparity, disparity change and flow of one size, got {disp0.shape}, {dchange.shape}, {flow.shape}")
     K = np.asarray(K, np.float64)
     h, w = disp0.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    u1, v1 = u + flow[..., 0], v + flow[..., 1]
-    d1, inside = _bilinear(disp1, u1, v1)
+    d1 = disp0 + dchange
     x0 = backproject(disp0, u, v, K, baseline, np.asarray(cam_to_world0, np.float64))
-    x1 = backproject(d1, u1, v1, K, baseline, np.asarray(cam_to_world1, np.float64))
-    valid = inside & (disp0 > 0) & (d1 > 0) & np.all(np.isfinite(flow), -1)
-    sf = np.where(valid[..., None], x1 - x0, np.nan)
-    return sf.astype(np.float32), np.where(valid, d1 - disp0, np.nan).astype(np.float32), valid
+    x1 = backproject(d1, u + flow[..., 0], v + flow[..., 1], K, baseline, np.asarray(cam_to_world1, np.float64))
+    valid = (disp0 > 0) & (d1 > 0) & np.all(np.isfinite(flow), -1)
+    return np.where(valid[..., None], x1 - x0, np.nan).astype(np.float32), valid
 
 
 # ---- a first results table for a dataset -------------------------------------------------------
