@@ -1,0 +1,207 @@
+"""Light-field scene flow of the centre view with a trained SceneFlowNet (flow/train_sceneflow.py).
+
+    python flow/predict_sceneflow.py DATASET -o OUT --weights RUN/checkpoints/last.pt [--frames 1-9]
+    python flow/predict_sceneflow.py LF_T LF_T1 -o OUT --weights W
+
+DATASET is an lfusd dataset folder (lfusd render-video): for every frame t with t+1 (or those of
+--frames) OUT gets what `lfusd eval --task sceneflow --pred OUT --gt DATASET` scores, named
+<frame>_<row>_<col> after the centre view: ``.npy`` (H,W,3 world-frame scene flow in metres),
+``_disp.pfm`` (disparity at t), ``_disp2.pfm`` (disparity at t+1 of the point seen at t),
+``_flow.flo`` (optical flow), ``_dchange.pfm`` (disparity change) and ``_disp_next.pfm`` (disparity
+at t+1 of its own pixels).
+
+LF_T and LF_T1 are two folders in the HCI 4D benchmark layout (``input_Cam000.png`` ... of an
+NxN grid, row-major, Cam000 top left, as `lfusd export hci` writes), frames t and t+1. OUT gets
+``flow.flo``, ``disparity.pfm``, ``disparity_next.pfm``, ``disparity_change.pfm`` (HCI's PFM
+orientation and lfusd's disparity, pixels per view step) for the view HCI takes as centre and, when
+LF_T holds a ``parameters.cfg`` (focal length, sensor, baseline), ``scene_flow.npy``: metres in the
+camera frame of t (x right, y down, z forward), assuming the rig did not move between the frames.
+
+Weights (a checkpoint of train_sceneflow.py, or a file with its ``model`` and ``config``) are
+loaded with ``torch.load(weights_only=True)``: a crafted file cannot run code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import training  # noqa: E402
+import train_sceneflow as tsf  # noqa: E402
+from lfusd import LfusdError  # noqa: E402
+
+log = logging.getLogger("lfusd.flow")
+NAME = "predict_sceneflow"
+DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "sceneflow.pt"
+CAM = re.compile(r"^input_Cam(\d{3})\.png$")
+
+
+def load_model(path) -> tuple[torch.nn.Module, dict]:
+    """The SceneFlowNet of a weights file (``model`` state dict and ``config``), read with
+    ``weights_only=True``; LfusdError when it is missing or not such a file."""
+    import pickle
+
+    path = Path(path)
+    if not path.is_file():
+        raise LfusdError(f"no weights at {path}; train with flow/train_sceneflow.py and pass --weights RUN/checkpoints/last.pt")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as e:
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        raise LfusdError(f"{path} is not a weights file of train_sceneflow.py ({why}); pass its checkpoints/last.pt") from None
+    if not isinstance(state, dict) or not isinstance(state.get("model"), dict) or not isinstance(state.get("config"), dict):
+        raise LfusdError(f"{path} lacks 'model' or 'config'; pass a checkpoint of train_sceneflow.py (RUN/checkpoints/last.pt)")
+    config = state["config"]
+    try:
+        model = tsf.build(config)
+        model.load_state_dict(state["model"])
+    except (KeyError, RuntimeError, TypeError) as e:
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        raise LfusdError(f"{path} does not hold a SceneFlowNet of train_sceneflow.py ({why}); pass one of its checkpoints") from None
+    model.eval()
+    return model, config
+
+
+def grid_offsets(n: int) -> np.ndarray:
+    """(sx, sy) of the views of a uniform n x n grid, row-major, relative to its centre (lfusd's
+    RigSpec.offsets: x right, y down, in view steps)."""
+    k = np.arange(n) - (n - 1) / 2.0
+    sy, sx = np.meshgrid(k, k, indexing="ij")
+    return np.stack([sx.ravel(), sy.ravel()], 1)
+
+
+def read_hci(folder) -> tuple[torch.Tensor, int]:
+    """The views of an HCI-layout folder as [N*N, 3, H, W] float in [0, 1] and N."""
+    from lfusd.data import formats
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise LfusdError(f"{folder} is not a folder; give an lfusd dataset or two HCI-layout folders (input_Cam000.png ...)")
+    cams = sorted((int(m.group(1)), p) for p in folder.iterdir() if (m := CAM.match(p.name)))
+    n = int(round(len(cams) ** 0.5))
+    if not cams or n * n != len(cams) or [i for i, _ in cams] != list(range(len(cams))):
+        raise LfusdError(f"{folder} holds {len(cams)} input_CamNNN.png files; the HCI layout needs input_Cam000.png ... of an NxN grid, numbered without gaps")
+    imgs = [np.asarray(formats.read_png(p))[..., :3] for _, p in cams]
+    if len({a.shape for a in imgs}) != 1:
+        raise LfusdError(f"the views in {folder} differ in size; every input_CamNNN.png must have one size")
+    a = np.stack(imgs).astype(np.float32)
+    if imgs[0].dtype == np.uint8:
+        a /= 255.0
+    elif imgs[0].dtype == np.uint16:
+        a /= 65535.0
+    return torch.from_numpy(a).permute(0, 3, 1, 2).contiguous(), n
+
+
+def hci_camera(folder, width: int, height: int) -> tuple[np.ndarray, float] | None:
+    """K and baseline (metres) from the folder's parameters.cfg (HCI's f_px = focal / sensor *
+    max(W, H); pixel centres at integers as lfusd), or None when it has none."""
+    from lfusd.data import formats
+
+    cfg = Path(folder) / "parameters.cfg"
+    if not cfg.is_file():
+        return None
+    p = formats.read_hci_config(cfg)
+    f = p["focal_length_mm"] / p["sensor_size_mm"] * max(width, height)
+    K = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return K, p["baseline_mm"] / 1000.0
+
+
+def check_grid(config: dict, n: int, where) -> None:
+    if config["ang"] != n:
+        raise LfusdError(f"the weights are for {config['ang']}x{config['ang']} views and {where} has {n}x{n}; use weights trained on that grid")
+
+
+def predict_hci(model, config: dict, lf0, lf1, out: Path) -> list[Path]:
+    """Flow, disparities, disparity change (and scene flow with parameters.cfg) of two HCI folders."""
+    from lfusd.data import formats
+
+    v0, n = read_hci(lf0)
+    v1, n1 = read_hci(lf1)
+    if n1 != n or v0.shape != v1.shape:
+        raise LfusdError(f"{lf0} and {lf1} differ ({n}x{n} views of {tuple(v0.shape[-2:])} and {n1}x{n1} of {tuple(v1.shape[-2:])}); give two frames of one light field")
+    check_grid(config, n, lf0)
+    ref = int(n * n / 2)  # the view the HCI toolkit takes as centre (lfusd.exports.hci.hci_centre_view)
+    off = grid_offsets(n)
+    rel = torch.from_numpy(off - off[ref]).to(torch.float32)
+    res = tsf.predict(model, v0, v1, rel, ref)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, key in (("disparity", "disparity"), ("disparity_next", "disparity_next"), ("disparity_change", "disparity_change")):
+        formats.write_pfm(out / f"{name}.pfm", res[key])
+        written.append(out / f"{name}.pfm")
+    formats.write_flo(out / "flow.flo", res["flow"])
+    written.append(out / "flow.flo")
+    cam = hci_camera(lf0, v0.shape[-1], v0.shape[-2])
+    if cam is None:
+        log.info("%s has no parameters.cfg: no focal length or baseline, so no scene_flow.npy", lf0)
+    else:
+        sf = tsf.scene_flow(res, cam[0], np.eye(4), np.eye(4), cam[1])
+        np.save(out / "scene_flow.npy", sf)
+        written.append(out / "scene_flow.npy")
+    return written
+
+
+def predict_dataset(model, config: dict, data, out: Path, frames=None, rig=None) -> list[Path]:
+    """Every frame t with t+1 (or ``frames``) of an lfusd dataset, in `lfusd eval`'s layout."""
+    from lfusd.data.dataset import open_dataset
+
+    ds = open_dataset(data, rig)
+    if ds.rig.rows != ds.rig.cols:
+        raise LfusdError(f"the network needs a square grid of views and {data} has {ds.rig.rows}x{ds.rig.cols}")
+    check_grid(config, ds.rig.rows, data)
+    all_frames = list(ds.frames)
+    frames = frames or [t for t in all_frames if t + 1 in all_frames]
+    bad = [t for t in frames if t not in all_frames or t + 1 not in all_frames]
+    if bad or not frames:
+        raise LfusdError(f"frames {bad or frames} have no next frame in {data} ({all_frames[0]}..{all_frames[-1]}); pick --frames t with t+1 in the dataset")
+    centre = tuple(ds.rig.centre_view)
+    views = [tuple(v) for v in ds.views]
+    rel = torch.tensor(np.array([np.subtract(ds.rig.offsets(v), ds.rig.offsets(centre)) for v in views]), dtype=torch.float32)
+    K = ds.intrinsics(centre)
+    written = []
+    for t in frames:
+        v0, v1 = tsf.load_pair(ds, t, views)
+        res = tsf.predict(model, v0, v1, rel, views.index(centre))
+        sf = tsf.scene_flow(res, K, ds.cam_to_world(t, centre), ds.cam_to_world(t + 1, centre), ds.rig.baseline)
+        written += tsf.write_prediction(out, training.pred_name(t, centre), res, sf)
+        log.info("frame %d -> %d: written", t, t + 1)
+    return written
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("inputs", nargs="+", help="an lfusd dataset folder, or two HCI-layout folders (frame t and t+1)")
+    p.add_argument("-o", "--out", required=True, help="output folder")
+    p.add_argument("--weights", default=str(DEFAULT_WEIGHTS), help="a checkpoint of train_sceneflow.py (default: %(default)s)")
+    p.add_argument("--frames", default=None, help="dataset frames t to predict (t -> t+1), e.g. 1-5 (default: every frame with a next one)")
+    p.add_argument("--rig", default=None, help="rig name, for a dataset with several rigs")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads of torch")
+    a = p.parse_args(argv)
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    model, config = load_model(a.weights)
+    out = Path(a.out)
+    from lfusd import layout
+
+    if len(a.inputs) == 1:
+        if not (Path(a.inputs[0]) / layout.MANIFEST).is_file():
+            raise LfusdError(f"{a.inputs[0]} is not an lfusd dataset ({layout.MANIFEST} missing); give a dataset folder or two HCI-layout folders (frame t and t+1)")
+        written = predict_dataset(model, config, a.inputs[0], out, training.parse_frames(a.frames), a.rig)
+    elif len(a.inputs) == 2:
+        written = predict_hci(model, config, a.inputs[0], a.inputs[1], out)
+    else:
+        raise LfusdError(f"got {len(a.inputs)} inputs; give one lfusd dataset folder or two HCI-layout folders (frame t and t+1)")
+    log.info("%d files in %s", len(written), out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(training.main_wrapper(NAME, main))
