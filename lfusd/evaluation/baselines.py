@@ -214,10 +214,12 @@ def scene_flow_from_change(disp0, dchange, flow, K, cam_to_world0, cam_to_world1
     h, w = disp0.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     d1 = disp0 + dchange
-    x0 = backproject(disp0, u, v, K, baseline, np.asarray(cam_to_world0, np.float64))
-    x1 = backproject(d1, u + flow[..., 0], v + flow[..., 1], K, baseline, np.asarray(cam_to_world1, np.float64))
+    with np.errstate(invalid="ignore"):  # no surface (disparity 0): infinite points, masked below
+        x0 = backproject(disp0, u, v, K, baseline, np.asarray(cam_to_world0, np.float64))
+        x1 = backproject(d1, u + flow[..., 0], v + flow[..., 1], K, baseline, np.asarray(cam_to_world1, np.float64))
+        sf = x1 - x0
     valid = (disp0 > 0) & (d1 > 0) & np.all(np.isfinite(flow), -1)
-    return np.where(valid[..., None], x1 - x0, np.nan).astype(np.float32), valid
+    return np.where(valid[..., None], sf, np.nan).astype(np.float32), valid
 
 
 # ---- a first results table for a dataset -------------------------------------------------------

@@ -27,6 +27,16 @@ def _script(name: str, *args) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(ROOT / "flow" / f"{name}.py"), *map(str, args)], env=env, capture_output=True, text=True, timeout=300)
 
 
+def _train_main():
+    import importlib.util
+
+    sys.path.insert(0, str(ROOT / "flow"))
+    spec = importlib.util.spec_from_file_location("flow_train_sceneflow", ROOT / "flow" / "train_sceneflow.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.main
+
+
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
     """The moving boxes of tests/support/scenes.py seen by a moving 3x3 rig, 4 frames at 40x32, 1 sample."""
@@ -51,6 +61,18 @@ def weights(video, tmp_path_factory):
     return run / "checkpoints" / "last.pt"
 
 
+def _quantisation_bound(d1, flow, K, baseline):
+    """How far (m) the point at t+1 may move when its disparity and the flow are off by the 2^-9 px
+    that lfusd's storage of flow_fwd and disparity_change allows (CONVENTIONS.md), with 50 % slack
+    for the first-order expansion, plus scene_flow's own 2^-17 m steps."""
+    e, f = 2.0**-9, K[0, 0]
+    h, w = d1.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    z1 = f * baseline / d1
+    ray = np.sqrt(((u + flow[..., 0] - K[0, 2]) / f) ** 2 + ((v + flow[..., 1] - K[1, 2]) / K[1, 1]) ** 2 + 1)
+    return 1.5 * e * (z1**2 / (f * baseline) * ray + z1 * np.sqrt(2) / f) + 2.0**-16
+
+
 @pytest.mark.render
 def test_composition_of_true_flow_disparity_and_change_is_the_scene_flow_key(video):
     """scene_flow_from_change (what the network's outputs go through) on the dataset's own flow,
@@ -71,12 +93,11 @@ def test_composition_of_true_flow_disparity_and_change_is_the_scene_flow_key(vid
         sf, ok = scene_flow_from_change(disp, dch, flow, K, p0, p1, ds.rig.baseline)
         assert ok[valid].all()
         err = np.linalg.norm(sf - gt, axis=-1)[valid]
-        scale = np.linalg.norm(gt, axis=-1)[valid]
-        # disparity change is stored in steps of 2^-8 px: the depth error that makes is ~z/d * 2^-9
-        assert np.percentile(err, 99) < 2e-3 and err.max() < 0.02, (t, np.percentile(err, 99), err.max())
-        assert np.median(scale) > 0.03  # the test sees real motion (a few cm per frame)
+        bound = _quantisation_bound(disp + dch, flow, K, ds.rig.baseline)[valid]
+        assert (err <= bound).all(), (t, np.max(err / bound), np.median(bound))
+        assert (np.linalg.norm(gt, axis=-1)[valid] > 0.05).sum() > 50  # the boxes move (the ground stays: zero scene flow)
         still, _ = scene_flow_from_change(disp, dch, flow, K, p0, p0, ds.rig.baseline)
-        assert np.median(np.linalg.norm(still - gt, axis=-1)[valid]) > 0.02
+        assert (np.linalg.norm(still - gt, axis=-1)[valid] > bound).mean() > 0.5
         n += int(valid.sum())
     assert n > 1500, n
 
@@ -85,12 +106,15 @@ def test_composition_of_true_flow_disparity_and_change_is_the_scene_flow_key(vid
 def test_resumed_training_ends_where_an_uninterrupted_one_does(video, tmp_path):
     """3 steps, then --resume to 6: the same weights, optimiser state and losses as 6 steps in one go."""
     once, twice = tmp_path / "once", tmp_path / "twice"
-    common = ("--tiny", "--data", video, "--no-baselines", "--quiet", "--save-every", 1)
-    assert _script("train_sceneflow", *common, "--out", once, "--steps", 6).returncode == 0
-    r = _script("train_sceneflow", *common, "--out", twice, "--steps", 3)
-    assert r.returncode == 0, r.stderr
-    r = _script("train_sceneflow", "--out", twice, "--resume", "--steps", 6, "--quiet", "--no-baselines")
-    assert r.returncode == 0, r.stderr
+    common = ["--tiny", "--data", str(video), "--no-baselines", "--quiet"]
+    train = _train_main()  # in this process: three runs of the script's main (no interpreter start-ups)
+    threads = torch.get_num_threads()  # --tiny sets one thread; the other tests keep theirs
+    try:
+        assert train([*common, "--out", str(once), "--steps", "6"]) == 0
+        assert train([*common, "--out", str(twice), "--steps", "3"]) == 0
+        assert train(["--out", str(twice), "--resume", "--steps", "6", "--quiet", "--no-baselines"]) == 0
+    finally:
+        torch.set_num_threads(threads)
     a, b = (torch.load(p / "checkpoints" / "last.pt", map_location="cpu", weights_only=True) for p in (once, twice))
     assert a["step"] == b["step"] == 6
     for k in a["model"]:
