@@ -45,7 +45,7 @@ def test_a_pickle_payload_checkpoint_does_not_run_with_resume(tmp_path):
     (run / "checkpoints").mkdir(parents=True)
     torch.save({**_good_state(), "config": Payload(marker)}, run / "checkpoints" / "last.pt")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    for script in ("train_disparity", "train_asr"):
+    for script in ("train_disparity", "train_asr", "train_sceneflow"):
         r = subprocess.run([sys.executable, str(ROOT / "flow" / f"{script}.py"), "--out", run, "--resume", "--data", tmp_path],
                            env=env, capture_output=True, text=True, timeout=300)
         assert r.returncode == 2, r.stderr

@@ -220,3 +220,18 @@ def test_flow_network_pieces_follow_their_definitions():
     big = _resize_flow(lin, (7, 11))  # a flow linear in position stays (u, v) in the new pixels
     yy, xx = torch.meshgrid(torch.arange(7.0), torch.arange(11.0), indexing="ij")
     assert torch.allclose(big[0, 0], xx, atol=1e-5) and torch.allclose(big[0, 1], yy, atol=1e-5)
+
+
+def test_weights_with_a_pickle_payload_do_not_run(tmp_path):
+    """predict_sceneflow.py loads weights with weights_only=True: a crafted file is refused, its code not run."""
+    class Payload:  # unpickling it writes the marker (what an attacker's file would do)
+        def __reduce__(self):
+            return (exec, (f"open({str(marker)!r}, 'w').write('payload ran')",))
+
+    marker = tmp_path / "pwned.txt"
+    torch.save({"model": {}, "config": Payload()}, tmp_path / "w.pt")
+    r = _script("predict_sceneflow", tmp_path, tmp_path, "-o", tmp_path / "o", "--weights", tmp_path / "w.pt")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "not a weights file" in r.stderr, r.stderr
+    assert not marker.exists()
+    torch.load(tmp_path / "w.pt", weights_only=False)  # the file's payload is real
+    assert marker.exists()
