@@ -7,7 +7,7 @@
 Reads pairs of frames (t, t+1) of the light field through lfusd.torch (clips of two frames, all
 views of a square grid, random crops, the augmentations of lfusd.data.augment that keep the ground
 truth consistent: refocus, flips, colour, noise) from a dataset folder or a training cache (`lfusd
-export cache`). The network predicts the centre view's optical flow (PWC-lite), the disparity at t
+export cache`, given with --cache; evaluation reads --data). The network predicts the centre view's optical flow (PWC-lite), the disparity at t
 and t+1 (DisparityNet on each light field) and the disparity change (the disparity at t+1 sampled
 where the flow carries each pixel, minus the one at t); the loss is the L1 error of the disparity
 at t and t+1 over every pixel plus the end-point error of the flow and the L1 error of the
@@ -78,6 +78,23 @@ def clips(data, frames, crop, random_crop, rig=None):
     return LightFieldVideoDataset(data, keys=KEYS, views="all", frames=frames, clip=2, crop=crop, random_crop=random_crop, rig=rig)
 
 
+def training_source(cache, ds, data):
+    """What the training samples are read from: the training cache of the dataset when given (its
+    rig and the motion keys checked), else the dataset folder."""
+    if not cache:
+        return data
+    from lfusd.data.cache import TrainingCache
+
+    c = TrainingCache(cache)
+    missing = [k for k in KEYS if k not in c.keys]
+    if missing:
+        raise LfusdError(f"the training cache {cache} lacks {', '.join(missing)}; make it with 'lfusd export cache {data} {cache}' (all keys)")
+    a, b = c.rig, ds.rig
+    if (a.rows, a.cols, a.width, a.height) != (b.rows, b.cols, b.width, b.height) or c.rig_name != getattr(ds, "rig_name", b.name):
+        raise LfusdError(f"the training cache {cache} holds rig {c.rig_name} ({a.rows}x{a.cols} at {a.width}x{a.height}), not the dataset's; make it from {data}")
+    return c
+
+
 def centre_index(item_views, centre) -> int:
     return [tuple(v) for v in item_views.tolist()].index(tuple(centre))
 
@@ -108,6 +125,7 @@ def main(argv=None) -> int:
     p.add_argument("--flow-levels", type=int, default=None, help="pyramid levels of the flow network")
     p.add_argument("--radius", type=int, default=None, help="search radius of the flow correlation in pixels of each level")
     p.add_argument("--refocus", type=int, default=None, help="largest refocus shift k of the augmentation (disparity d -> d - k); 0: none")
+    p.add_argument("--cache", default=None, help="read the training samples from this training cache of --data (lfusd export cache DATA CACHE): memory maps, no decoding")
     a = p.parse_args(argv)
     t_start = time.time()
     run, state, device, data, ds, _, _ = training.start(a, NAME, TINY, FULL, TINY_SCENE)
@@ -131,7 +149,9 @@ def main(argv=None) -> int:
     my, mx = refocus_margin(offsets, config["refocus"])
     crop = (min(config["crop"] + 2 * my, r.height), min(config["crop"] + 2 * mx, r.width))
     augment = dict(refocus=config["refocus"], flip=True, brightness=0.2, contrast=0.2, saturation=0.2, noise=0.02)
-    train = Samples(clips(data, config["train_frames"], crop, True, a.rig), a.seed, augment)
+    source = training_source(a.cache or config.get("cache"), ds, data)
+    config["cache"] = a.cache or config.get("cache")
+    train = Samples(clips(source, config["train_frames"], crop, True, a.rig), a.seed, augment)
     model = build(config).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
     start = 0
