@@ -129,21 +129,22 @@ def test_resumed_training_ends_where_an_uninterrupted_one_does(video, tmp_path):
 
 @pytest.mark.render
 def test_training_from_the_cache_is_training_from_the_folder(video, tmp_path):
-    """--cache (lfusd export cache) reads the same samples: two steps give the same weights."""
+    """--cache (lfusd export cache) reads the same samples: two steps (refocus augmentation on)
+    give the same weights."""
     from lfusd.cli import main
 
     cache = tmp_path / "cache"
     assert main(["export", "cache", str(video), str(cache)]) == 0
     train = _train_main()
     threads = torch.get_num_threads()
-    common = ["--tiny", "--data", str(video), "--no-baselines", "--quiet", "--steps", "2"]
+    common = ["--tiny", "--data", str(video), "--no-baselines", "--quiet", "--steps", "2", "--refocus", "1"]
     try:
         assert train([*common, "--out", str(tmp_path / "folder")]) == 0
         assert train([*common, "--out", str(tmp_path / "cached"), "--cache", str(cache)]) == 0
     finally:
         torch.set_num_threads(threads)
     a, b = (torch.load(tmp_path / n / "checkpoints" / "last.pt", weights_only=True) for n in ("folder", "cached"))
-    assert b["config"]["cache"] == str(cache)
+    assert b["config"]["cache"] == str(cache) and b["config"]["refocus"] == 1
     for k in a["model"]:
         assert torch.allclose(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6), k
 
