@@ -68,7 +68,8 @@ def _quantisation_bound(d1, flow, K, baseline):
     e, f = 2.0**-9, K[0, 0]
     h, w = d1.shape
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    z1 = f * baseline / d1
+    with np.errstate(divide="ignore"):  # no surface: an infinite bound, and such pixels are not valid
+        z1 = f * baseline / d1
     ray = np.sqrt(((u + flow[..., 0] - K[0, 2]) / f) ** 2 + ((v + flow[..., 1] - K[1, 2]) / K[1, 1]) ** 2 + 1)
     return 1.5 * e * (z1**2 / (f * baseline) * ray + z1 * np.sqrt(2) / f) + 2.0**-16
 
