@@ -7,9 +7,10 @@
 Reads pairs of frames (t, t+1) of the light field through lfusd.torch (clips of two frames, all
 views of a square grid, random crops, the augmentations of lfusd.data.augment that keep the ground
 truth consistent: refocus, flips, colour, noise) from a dataset folder or a training cache (`lfusd
-export cache`, given with --cache; evaluation reads --data). The network predicts the centre view's optical flow (PWC-lite), the disparity at t
-and t+1 (DisparityNet on each light field) and the disparity change (the disparity at t+1 sampled
-where the flow carries each pixel, minus the one at t); the loss is the L1 error of the disparity
+export cache`, given with --cache; evaluation reads --data). The network predicts the centre
+view's optical flow (PWC-lite), the disparity at t and t+1 (DisparityNet on each light field) and
+the disparity change (the disparity at t+1 sampled where the flow carries each pixel, minus the
+one at t); the loss is the L1 error of the disparity
 at t and t+1 over every pixel plus the end-point error of the flow and the L1 error of the
 disparity change over the pixels with valid forward motion. Scene flow follows through the camera
 (lfusd.evaluation.baselines.scene_flow_from_change). The model is scored on the evaluation frames
@@ -67,7 +68,7 @@ def split_pairs(ds, a) -> tuple[list[int], list[int]]:
     if bad_t or bad_e or not train or not evalf:
         raise LfusdError(f"scene flow trains on frames t with t+1 and t+2 and evaluates frames t with t+1 in the dataset "
                          f"({frames[0]}..{frames[-1]}, {len(frames)} frames); {bad_t + bad_e or 'none are left'}: "
-                         "render at least 4 frames or pick --train-frames/--eval-frames inside it")
+                         "render at least 3 frames or pick --train-frames/--eval-frames inside it")
     return train, evalf
 
 
