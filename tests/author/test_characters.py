@@ -376,3 +376,23 @@ def test_biped_shapes_are_recognised_without_names(layout):
     for side in "lr":
         want.update({f"{side}_{j}": f"{side}_{j}" for j in ("hip", "knee", "ankle", "toe", "shoulder", "elbow", "wrist")})
     assert {r: got.get(r) for r in want} == want
+
+
+def test_brainstem_arms_are_recognised_from_its_shape():
+    """Issue 39.16: glTF's BrainStem (anonymous joints) has a 0.19 m upper arm and a 0.41 m forearm
+    with hand, its right forearm joint a leaf (no hand joint): its arms are not two long bones of
+    similar length, yet each is a shoulder and an elbow (and the left a hand's joint) off the chest."""
+    from lfusd.author.skeletons import recognise_biped
+    from support.characters import brainstem_joints
+
+    joints, world = brainstem_joints()
+    nodes = [int(j.split("_")[-1]) for j in joints]
+    parents = [nodes.index(int(j.split("/")[-2].split("_")[-1])) if "/" in j else -1 for j in joints]
+    yup_to_zup = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # the skeleton is Y-up, facing +Z
+    pos = np.array([world[n][:3, 3] for n in nodes]) @ yup_to_zup.T
+    roles = recognise_biped(joints, np.array(parents), pos)
+    got = {role: nodes[i] for role, i in roles.items()}
+    want = {"pelvis": 3, "chest": 12, "head": 20, "l_hip": 4, "l_knee": 5, "l_ankle": 6, "l_toe": 7, "r_hip": 8,
+            "r_knee": 9, "r_ankle": 10, "r_toe": 11, "l_shoulder": 13, "l_elbow": 14, "r_shoulder": 18, "r_elbow": 19}
+    assert {r: got.get(r) for r in want} == want
+    assert got.get("l_wrist") in (15, 16, 17) and "r_wrist" not in got  # the left hand ends in finger joints

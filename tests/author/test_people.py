@@ -531,6 +531,29 @@ def test_a_t_posed_character_walks_with_its_arms_down(tmp_path, monkeypatch):
         assert v[:, 2].max() - v[:, 2].min() > 1.6  # still a standing person
 
 
+def test_a_brainstem_shaped_character_walks_with_its_arms_down(tmp_path):
+    """Issue 39.16: BrainStem walked with its arms straight out (2.41 m wide at every frame): its
+    T-posed arms (a short upper arm, a long forearm with hand, the right forearm joint a leaf)
+    were not recognised, so they kept their rest pose. Authored as its glTF -> USD conversion is
+    (anonymous joints, the glTF's transforms above the skeleton), it walks with its hands at its
+    sides: the skinned points' width across its path stays far under the T-pose span."""
+    from support import characters
+
+    char = tmp_path / "brainstem.usda"
+    hands = characters.brainstem_like(char)
+    span = float(np.linalg.norm(hands[0] - hands[1]))  # 2.03 m between the hands' joints, T-posed
+    stage = slope_stage(tmp_path / "stage.usda", last=48)
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], gait="walk", speed=1.3, character=char)
+    geo = StageGeometry(stage)
+    body = [g for g in geo.gprims if g.GetPath().HasPrefix(prim.GetPath())]
+    for f in (1, 12, 24, 36, 48):
+        v = np.concatenate([geo.mesh(g, f).vertices for g in body])
+        across = v[:, 1].max() - v[:, 1].min()  # walking along +X: its width is along Y
+        # arms down: the shoulders' 0.84 m plus the arms' boxes and A-pose hang, about 1.1 m
+        assert across < 0.6 * span, (f, across, span)
+        assert v[:, 2].max() - v[:, 2].min() > 1.6  # still a standing robot
+
+
 def test_a_character_whose_arms_are_not_recognised_is_said_to_keep_them(tmp_path):
     """Issue 39.16: where the skeleton's shape gives no arm (here its upper arms are missing), the
     arms cannot be brought down for the gait: add-person says so instead of walking it silently."""
