@@ -4,6 +4,7 @@ Stages here are written with plain pxr and closed-form ground heights, so every 
 and frame is computed independently of lfusd.
 """
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -591,3 +592,53 @@ def test_a_character_with_a_broken_reference_is_one_warning_line_not_pxr_output(
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert all(ln.startswith("lfusd: ") for ln in lines), lines  # nothing of pxr's own output
     assert sum("missing_prop.usda" in ln for ln in lines) == 1, lines
+
+
+def _refusal_stage(tmp_path, case, name=None):
+    """A flat-ground stage of 24 frames where a person's path from (-6, 0) to (-1, 0) is refused:
+    over water ('water'), out of the stage's lfusd:bounds ('bounds'), into a still 1 m box
+    ('obstacle'), or under that box held 2 m up ('overhead': not refused)."""
+    stage = river_stage(tmp_path / f"{name or case}.usda", last=24)
+    if case == "bounds":  # the ground spans x -10..3, the bounds stop at x = -5.5
+        stage.GetDefaultPrim().CreateAttribute("lfusd:bounds", Sdf.ValueTypeNames.Double3Array, custom=True).Set(
+            Vt.Vec3dArray([Gf.Vec3d(-5.5, -10, -1), Gf.Vec3d(12, 10, 5)]))
+    if case in ("obstacle", "overhead"):
+        box = UsdGeom.Cube.Define(stage, "/World/Crate")
+        box.CreateSizeAttr(1.0)
+        box.AddTranslateOp().Set(Gf.Vec3d(-5.8, 0.0, 0.5 if case == "obstacle" else 2.5))
+        set_class_label(box.GetPrim(), "crate")
+    return stage
+
+
+@pytest.mark.parametrize("case, says", [
+    ("water", "crosses water (/World/River"),
+    ("bounds", "leaves the stage bounds (lfusd:bounds of /World) at frame 1"),
+    ("obstacle", "runs into /World/Crate (class crate) at frame 1"),
+])
+def test_an_impossible_placement_is_refused_before_the_gait(tmp_path, monkeypatch, case, says):
+    """Issue 39.19: a refused placement took 3.5 minutes before its error (the gait, the skinning
+    and the rulebook's check of the finished person ran first). What the root's path alone makes
+    certain is refused before the gait is computed, and the rulebook agrees: without the early
+    check the finished person is refused by the same rule."""
+    import lfusd.author.gait as gait
+    import lfusd.author.people as people
+
+    path = [(4.0, 0.0), (5.0, 0.0)] if case == "water" else [(-6.0, 0.0), (-1.0, 0.0)]  # the river: x 3..6
+    with monkeypatch.context() as m:
+        m.setattr(gait, "bake", lambda *a, **k: pytest.fail("the gait was computed for a placement refused anyway"))
+        with pytest.raises(LfusdError, match=re.escape(says)):
+            add_person(_refusal_stage(tmp_path, case), path, speed=1.3)
+    if case == "water":  # refused before the gait already; the rulebook's agreement is shown for the new checks
+        return
+    monkeypatch.setattr(people, "_refuse_path_early", lambda *a, **k: None)
+    with pytest.raises(LfusdError, match="would break the stage's rules") as err:
+        add_person(_refusal_stage(tmp_path, case, "unchecked"), path, speed=1.3)
+    assert {"bounds": "in_bounds", "obstacle": "no_interpenetration"}[case] in str(err.value), err.value
+
+
+def test_a_path_under_a_still_object_is_not_refused_early(tmp_path):
+    """The early check refuses only what is certain: a path under a box held 2 m up is walked (and
+    passes the rulebook's check of the finished person)."""
+    stage = _refusal_stage(tmp_path, "overhead")
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], speed=1.3)
+    assert prim.IsValid() and class_label(prim) == "person"
