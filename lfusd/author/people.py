@@ -580,7 +580,9 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     over water or over no support at some frame (naming the first such frame). Support and water
     classes default to the rulebook's ``person`` rule. With ``check``, the finished person is
     checked with the rulebook (lfusd.author.rules) at every frame and removed again if it breaks
-    a rule; a run's flight phase is allowed by authoring the person's support ``tolerance``.
+    a rule (what the path alone makes certain, the root out of the stage's bounds or the body's
+    axis through a still object, is refused before the gait is computed); a run's flight phase is
+    allowed by authoring the person's support ``tolerance``.
     A walk or run on a stage with no time range (one frame) is refused: it would not move.
     ``progress(what)`` is told each phase as it starts (a character's can take a minute).
     """
@@ -637,10 +639,10 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
             raise LfusdError(
                 f"person path crosses water ({own[0]}, class {own[1]}) at frame {f}; route the path over a bridge or around it"
             )
-    # The rulebook's refusals that the root's path alone makes certain, before the gait and the
-    # skinning (minutes on a large set) and the rulebook's check of the finished person.
-    stature = character.rig.height if character is not None else spec.height
-    _refuse_path_early(stage, geometry, float(start), frames, route.at(dist)[0], z, stature, axes)
+    if check:  # the rulebook's refusals that the root's path alone makes certain, before the gait,
+        # the skinning and the rulebook's check of the finished person (minutes on a large set)
+        stature = character.rig.height if character is not None else spec.height
+        _refuse_path_early(stage, geometry, float(start), frames, route.at(dist)[0], z, stature, axes)
 
     prim_path = Sdf.Path(path) if path else _next_person_path(stage)
     if not stage.GetPrimAtPath(PEOPLE_SCOPE) and str(prim_path).startswith(PEOPLE_SCOPE + "/"):

@@ -642,3 +642,10 @@ def test_a_path_under_a_still_object_is_not_refused_early(tmp_path):
     stage = _refusal_stage(tmp_path, "overhead")
     prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], speed=1.3)
     assert prim.IsValid() and class_label(prim) == "person"
+
+
+def test_the_early_refusal_follows_check(tmp_path, monkeypatch):
+    """Generated scenes place people with check=False (no rulebook): no early refusal either."""
+    stage = _refusal_stage(tmp_path, "obstacle")
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], speed=1.3, check=False)
+    assert prim.IsValid()
