@@ -654,7 +654,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
         armless = [name for side, name in (("l", "left"), ("r", "right"))
                    if f"{side}_shoulder" not in rig.roles or f"{side}_elbow" not in rig.roles]
         if armless and gait != "idle":  # its arms cannot be brought down to its sides: say so, not silently
-            log.warning("character %s: no %s arm recognised (a shoulder-elbow-wrist chain leaving the spine sideways), so it "
+            log.warning("character %s: no %s arm recognised (a shoulder and elbow joint chain leaving the spine sideways), so it "
                         "keeps its rest pose while the person %ss (a T-posed arm stays held out)",
                         character.path.name, " or ".join(armless), gait)
     else:

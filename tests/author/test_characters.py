@@ -396,3 +396,27 @@ def test_brainstem_arms_are_recognised_from_its_shape():
             "r_knee": 9, "r_ankle": 10, "r_toe": 11, "l_shoulder": 13, "l_elbow": 14, "r_shoulder": 18, "r_elbow": 19}
     assert {r: got.get(r) for r in want} == want
     assert got.get("l_wrist") in (15, 16, 17) and "r_wrist" not in got  # the left hand ends in finger joints
+
+
+def test_a_t_posed_arm_without_hand_joints_starts_at_the_shoulder_not_the_clavicle():
+    """Issue 39.16: an arm of fewer than two long bones (T-posed clavicle, upper arm, and a forearm
+    joint with no hand below it) is its own joints from the first one out at the side of the
+    torso: the clavicle (0.05 m from the spine) is no shoulder, or the gait would turn it down."""
+    from lfusd.author.skeletons import recognise_biped
+
+    spec = {"hips": (None, (0.0, 0.0, 0.95))}
+    for side, x in (("l", -0.1), ("r", 0.1)):
+        _legs(spec, side, x, "hips")
+    spec["spine"] = ("hips", (0.0, 0.0, 1.1))
+    spec["chest"] = ("spine", (0.0, 0.0, 1.3))
+    for side, x in (("l", -1.0), ("r", 1.0)):
+        spec[f"{side}_clav"] = ("chest", (0.05 * x, 0.0, 1.4))
+        spec[f"{side}_shoulder"] = (f"{side}_clav", (0.17 * x, 0.0, 1.4))
+        spec[f"{side}_elbow"] = (f"{side}_shoulder", (0.45 * x, 0.0, 1.4))  # a leaf: no forearm end, no hand
+    spec["neck"] = ("chest", (0.0, 0.0, 1.45))
+    spec["head"] = ("neck", (0.0, 0.0, 1.55))
+    names, paths, parents, pos = _skeleton(spec)
+    got = {role: names[i] for role, i in recognise_biped(paths, parents, pos).items()}
+    for side in "lr":
+        assert (got.get(f"{side}_shoulder"), got.get(f"{side}_elbow")) == (f"{side}_shoulder", f"{side}_elbow")
+        assert f"{side}_wrist" not in got
