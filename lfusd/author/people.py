@@ -29,7 +29,7 @@ from ..errors import LfusdError
 from .geometry import StageGeometry
 from .labels import TAXONOMY, class_label, labelled_ancestor, set_class_label
 from .stage import frame_range, world_frame
-from .vocabulary import GROUND, WATER
+from .vocabulary import ANY, GROUND, WATER
 
 log = logging.getLogger(__name__)
 
@@ -480,6 +480,85 @@ def _character_prims(character: Character) -> tuple[Usd.Prim, list[Sdf.Path]]:
     return top, needed
 
 
+def _person_rules(stage: Usd.Stage) -> dict:
+    """The rules in force for a person added now, resolved as the rulebook resolves them for a
+    moving object of class ``person`` (default rulebook < the stage's class rules; 'any' < class)."""
+    from . import rules as constraints
+
+    out: dict = {}
+    for layer in (constraints.DEFAULT_RULES, constraints.stage_class_rules(stage)):
+        for key in (ANY, "person"):
+            out.update(layer.get(key, {}))
+    return {k: v for k, v in out.items() if v not in ((), [], False, None)}
+
+
+def _refuse_path_early(stage: Usd.Stage, geometry: StageGeometry, time: float, frames: np.ndarray, root_xy: np.ndarray,
+                       ground_z: np.ndarray, stature: float, axes: np.ndarray) -> None:
+    """Refuse, in one line naming the frame, what the rulebook would refuse once the person is
+    made, where the root's path (``root_xy``, ``ground_z`` per frame, lfusd's world) alone makes
+    it certain: the root outside the stage's ``lfusd:bounds`` (``in_bounds``: the body lies around
+    its root), and a still object of a class the person must not intersect crossed by the body's
+    axis between 55 % and 65 % of its stature (``no_interpenetration``: the torso encloses that
+    segment, whatever the gait's sway and lean)."""
+    from .labels import object_prim, object_table
+    from .rules import _time_varying, _world_box
+    from .vocabulary import BOUNDS, SURFACES
+
+    rules = _person_rules(stage)
+    default = stage.GetDefaultPrim()
+    attr = default.GetAttribute(BOUNDS) if default else None
+    if rules.get("in_bounds") and attr and attr.HasAuthoredValue():
+        lo, hi = _world_box(geometry.frame, *np.array(attr.Get(), float))
+        out = np.nonzero(np.any((root_xy < lo[:2]) | (root_xy > hi[:2]), axis=1))[0]
+        if len(out):
+            x, y = axes.T @ root_xy[out[0]]
+            raise LfusdError(f"person path leaves the stage bounds (lfusd:bounds of {default.GetPath()}) at frame {frames[out[0]]} "
+                             f"(at {x:.2f},{y:.2f}); keep the path inside them")
+    classes = set(rules.get("no_interpenetration", ()))
+    if not classes:
+        return
+    import open3d as o3d
+
+    objects, _ = object_table(stage)
+    still = [o for o in objects if o.label and o.label not in SURFACES and (ANY in classes or o.label in classes)
+             and "[" not in o.prim_path and not _time_varying(object_prim(stage, o.prim_path))]
+    # Only objects whose bounds reach the path's extent are meshed (a large set has thousands).
+    bbox = UsdGeom.BBoxCache(Usd.TimeCode(time), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render, UsdGeom.Tokens.proxy])
+    plo, phi = root_xy.min(0), root_xy.max(0)
+
+    def near(o) -> bool:
+        box = bbox.ComputeWorldBound(object_prim(stage, o.prim_path)).ComputeAlignedRange()
+        if box.IsEmpty():
+            return True
+        corners = geometry.frame.points(np.array([[a[0], b[1], c[2]] for a in (box.GetMin(), box.GetMax())
+                                                  for b in (box.GetMin(), box.GetMax()) for c in (box.GetMin(), box.GetMax())]))
+        return bool(np.all(corners.min(0)[:2] <= phi + 0.01) and np.all(corners.max(0)[:2] >= plo - 0.01))
+
+    scene, info = o3d.t.geometry.RaycastingScene(), []
+    for o in filter(near, still):
+        for g in geometry.parts_of(o.prim_path):
+            try:
+                m = geometry.mesh(g, time)
+            except LfusdError:  # geometry lfusd cannot mesh: left to the rulebook's check
+                continue
+            if len(m.triangles):
+                scene.add_triangles(m.vertices.astype(np.float32), m.triangles.astype(np.uint32))
+                info.append(o)
+    if not info:
+        return
+    rays = np.zeros((len(frames), 6), np.float32)
+    rays[:, :2], rays[:, 2], rays[:, 5] = root_xy, ground_z + 0.55 * stature, 1.0
+    ans = scene.cast_rays(o3d.core.Tensor(rays))
+    t, gid = ans["t_hit"].numpy(), ans["geometry_ids"].numpy()
+    hit = np.nonzero(np.isfinite(t) & (t <= 0.1 * stature))[0]
+    if len(hit):
+        k = hit[0]
+        o = info[int(gid[k])]
+        x, y = axes.T @ root_xy[k]
+        raise LfusdError(f"person path runs into {o.prim_path} (class {o.label}) at frame {frames[k]} (at {x:.2f},{y:.2f}): "
+                         "the person would intersect it; route the path around it")
+
+
 def _next_person_path(stage: Usd.Stage) -> Sdf.Path:
     i = 0
     while stage.GetPrimAtPath(f"{PEOPLE_SCOPE}/Person_{i:02d}"):
@@ -501,7 +580,9 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
     over water or over no support at some frame (naming the first such frame). Support and water
     classes default to the rulebook's ``person`` rule. With ``check``, the finished person is
     checked with the rulebook (lfusd.author.rules) at every frame and removed again if it breaks
-    a rule; a run's flight phase is allowed by authoring the person's support ``tolerance``.
+    a rule (what the path alone makes certain, the root out of the stage's bounds or the body's
+    axis through a still object, is refused before the gait is computed); a run's flight phase is
+    allowed by authoring the person's support ``tolerance``.
     A walk or run on a stage with no time range (one frame) is refused: it would not move.
     ``progress(what)`` is told each phase as it starts (a character's can take a minute).
     """
@@ -536,7 +617,8 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
 
     route = SmoothPath(pts)
     phase(f"finding the ground under the path over {len(frames)} frames")
-    surfaces = SupportSurfaces(stage, float(start), support, water)
+    geometry = StageGeometry(stage)
+    surfaces = SupportSurfaces(stage, float(start), support, water, geometry)
     if gait == "walk" and speed > _gait._SPEED_LIMITS["walk"] or speed > _gait._SPEED_LIMITS["run"]:
         _gait.gait_params(gait, speed)  # raises the one-line error for too high a speed
     if gait == "idle":  # standing at the first point, facing along the path
@@ -557,6 +639,10 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
             raise LfusdError(
                 f"person path crosses water ({own[0]}, class {own[1]}) at frame {f}; route the path over a bridge or around it"
             )
+    if check:  # the rulebook's refusals that the root's path alone makes certain, before the gait,
+        # the skinning and the rulebook's check of the finished person (minutes on a large set)
+        stature = character.rig.height if character is not None else spec.height
+        _refuse_path_early(stage, geometry, float(start), frames, route.at(dist)[0], z, stature, axes)
 
     prim_path = Sdf.Path(path) if path else _next_person_path(stage)
     if not stage.GetPrimAtPath(PEOPLE_SCOPE) and str(prim_path).startswith(PEOPLE_SCOPE + "/"):
@@ -568,7 +654,7 @@ def add_person(stage: Usd.Stage, points, gait: str = "walk", speed: float = 1.3,
         armless = [name for side, name in (("l", "left"), ("r", "right"))
                    if f"{side}_shoulder" not in rig.roles or f"{side}_elbow" not in rig.roles]
         if armless and gait != "idle":  # its arms cannot be brought down to its sides: say so, not silently
-            log.warning("character %s: no %s arm recognised (a shoulder-elbow-wrist chain leaving the spine sideways), so it "
+            log.warning("character %s: no %s arm recognised (a shoulder and elbow joint chain leaving the spine sideways), so it "
                         "keeps its rest pose while the person %ss (a T-posed arm stays held out)",
                         character.path.name, " or ".join(armless), gait)
     else:

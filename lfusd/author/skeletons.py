@@ -127,6 +127,7 @@ _ANKLE_BAND = 0.12  # an ankle lies this close to the lowest joint (a split shin
 _HIP_REACH = 0.9  # a hip lies at least this fraction of the leg's longest reach above its ankle
 _LONG_BONE = 0.6  # a limb's long bones (thigh, shin; upper arm, forearm): this fraction of its longest or more
 _ARM_REACH = 0.08  # an arm reaches this far sideways from the spine (hands hang ~0.12 out in an A-pose)
+_SHOULDER_OUT = 0.06  # a shoulder lies this far sideways from the spine (a human's ~0.1, a clavicle's root ~0.03)
 
 
 class NotABiped(ValueError):
@@ -178,7 +179,7 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
     first joint near the ground, its hip the lowest of its own joints about a leg's length above,
     its knee the joint between them nearest the middle; toes are the foot's forward branch;
     the chest is where the two arms leave the spine, and the upper arm, forearm and wrist
-    follow from the arms' long bones. Left is the side to the left of where the toes point;
+    follow from the arms' long bones (an arm without two: its first joints in order). Left is the side to the left of where the toes point;
     without toe joints, the side that joint names give (``L``/``left`` words). Raises
     :class:`NotABiped` naming what is missing."""
     pos = np.asarray(pos, np.float64)
@@ -282,9 +283,23 @@ def recognise_biped(joints: list[str], parents, pos) -> dict[str, int]:
     if len(arms) == 2:
         chest = _lca([arms["l"][0], arms["r"][0]], parents)
         for key, (_, tip, _) in arms.items():
-            bones = _long_bones(_path(chest, tip, parents), pos)
+            chain = _path(chest, tip, parents)
+            bones = _long_bones(chain, pos)
             if len(bones) >= 2 and not {bones[0][0], bones[0][1], bones[1][1]} & on_spine:
                 roles[f"{key}_shoulder"], roles[f"{key}_elbow"], roles[f"{key}_wrist"] = bones[0][0], bones[0][1], bones[1][1]
+            else:
+                # Not two long bones of a human's proportions (glTF's BrainStem: a 0.19 m upper arm,
+                # a 0.41 m forearm and hand, its right forearm joint a leaf): the arm's own joints in
+                # order from the first one out at the side of the torso (a clavicle starts at the
+                # spine), shoulder, elbow and, where there is one, the wrist (the gait then needs no
+                # more to bring a T-posed arm down).
+                side = left_dir / max(float(np.linalg.norm(left_dir)), 1e-12)
+                out = [j for j in chain if abs((pos[j, :2] - centre) @ side) >= _SHOULDER_OUT * span]
+                out = chain[chain.index(out[0]):] if out else []
+                if len(out) >= 2 and not set(out[:3]) & on_spine:
+                    roles[f"{key}_shoulder"], roles[f"{key}_elbow"] = out[0], out[1]
+                    if len(out) >= 3:
+                        roles[f"{key}_wrist"] = out[2]
         # Names as hints where the shape is ambiguous: an arm split into more bones (rigify's
         # upper_arm and upper_arm.001) takes its named upper arm, forearm and hand when they form
         # one chain on that side of the body.

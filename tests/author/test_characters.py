@@ -376,3 +376,47 @@ def test_biped_shapes_are_recognised_without_names(layout):
     for side in "lr":
         want.update({f"{side}_{j}": f"{side}_{j}" for j in ("hip", "knee", "ankle", "toe", "shoulder", "elbow", "wrist")})
     assert {r: got.get(r) for r in want} == want
+
+
+def test_brainstem_arms_are_recognised_from_its_shape():
+    """Issue 39.16: glTF's BrainStem (anonymous joints) has a 0.19 m upper arm and a 0.41 m forearm
+    with hand, its right forearm joint a leaf (no hand joint): its arms are not two long bones of
+    similar length, yet each is a shoulder and an elbow (and the left a hand's joint) off the chest."""
+    from lfusd.author.skeletons import recognise_biped
+    from support.characters import brainstem_joints
+
+    joints, world = brainstem_joints()
+    nodes = [int(j.split("_")[-1]) for j in joints]
+    parents = [nodes.index(int(j.split("/")[-2].split("_")[-1])) if "/" in j else -1 for j in joints]
+    yup_to_zup = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # the skeleton is Y-up, facing +Z
+    pos = np.array([world[n][:3, 3] for n in nodes]) @ yup_to_zup.T
+    roles = recognise_biped(joints, np.array(parents), pos)
+    got = {role: nodes[i] for role, i in roles.items()}
+    want = {"pelvis": 3, "chest": 12, "head": 20, "l_hip": 4, "l_knee": 5, "l_ankle": 6, "l_toe": 7, "r_hip": 8,
+            "r_knee": 9, "r_ankle": 10, "r_toe": 11, "l_shoulder": 13, "l_elbow": 14, "r_shoulder": 18, "r_elbow": 19}
+    assert {r: got.get(r) for r in want} == want
+    assert got.get("l_wrist") in (15, 16, 17) and "r_wrist" not in got  # the left hand ends in finger joints
+
+
+def test_a_t_posed_arm_without_hand_joints_starts_at_the_shoulder_not_the_clavicle():
+    """Issue 39.16: an arm of fewer than two long bones (T-posed clavicle, upper arm, and a forearm
+    joint with no hand below it) is its own joints from the first one out at the side of the
+    torso: the clavicle (0.05 m from the spine) is no shoulder, or the gait would turn it down."""
+    from lfusd.author.skeletons import recognise_biped
+
+    spec = {"hips": (None, (0.0, 0.0, 0.95))}
+    for side, x in (("l", -0.1), ("r", 0.1)):
+        _legs(spec, side, x, "hips")
+    spec["spine"] = ("hips", (0.0, 0.0, 1.1))
+    spec["chest"] = ("spine", (0.0, 0.0, 1.3))
+    for side, x in (("l", -1.0), ("r", 1.0)):
+        spec[f"{side}_clav"] = ("chest", (0.05 * x, 0.0, 1.4))
+        spec[f"{side}_shoulder"] = (f"{side}_clav", (0.17 * x, 0.0, 1.4))
+        spec[f"{side}_elbow"] = (f"{side}_shoulder", (0.45 * x, 0.0, 1.4))  # a leaf: no forearm end, no hand
+    spec["neck"] = ("chest", (0.0, 0.0, 1.45))
+    spec["head"] = ("neck", (0.0, 0.0, 1.55))
+    names, paths, parents, pos = _skeleton(spec)
+    got = {role: names[i] for role, i in recognise_biped(paths, parents, pos).items()}
+    for side in "lr":
+        assert (got.get(f"{side}_shoulder"), got.get(f"{side}_elbow")) == (f"{side}_shoulder", f"{side}_elbow")
+        assert f"{side}_wrist" not in got

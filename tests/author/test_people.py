@@ -4,6 +4,7 @@ Stages here are written with plain pxr and closed-form ground heights, so every 
 and frame is computed independently of lfusd.
 """
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -531,6 +532,29 @@ def test_a_t_posed_character_walks_with_its_arms_down(tmp_path, monkeypatch):
         assert v[:, 2].max() - v[:, 2].min() > 1.6  # still a standing person
 
 
+def test_a_brainstem_shaped_character_walks_with_its_arms_down(tmp_path):
+    """Issue 39.16: BrainStem walked with its arms straight out (2.41 m wide at every frame): its
+    T-posed arms (a short upper arm, a long forearm with hand, the right forearm joint a leaf)
+    were not recognised, so they kept their rest pose. Authored as its glTF -> USD conversion is
+    (anonymous joints, the glTF's transforms above the skeleton), it walks with its hands at its
+    sides: the skinned points' width across its path stays far under the T-pose span."""
+    from support import characters
+
+    char = tmp_path / "brainstem.usda"
+    hands = characters.brainstem_like(char)
+    span = float(np.linalg.norm(hands[0] - hands[1]))  # 2.03 m between the hands' joints, T-posed
+    stage = slope_stage(tmp_path / "stage.usda", last=48)
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], gait="walk", speed=1.3, character=char)
+    geo = StageGeometry(stage)
+    body = [g for g in geo.gprims if g.GetPath().HasPrefix(prim.GetPath())]
+    for f in (1, 12, 24, 36, 48):
+        v = np.concatenate([geo.mesh(g, f).vertices for g in body])
+        across = v[:, 1].max() - v[:, 1].min()  # walking along +X: its width is along Y
+        # arms down: the shoulders' 0.84 m plus the arms' boxes and A-pose hang, about 1.1 m
+        assert across < 0.6 * span, (f, across, span)
+        assert v[:, 2].max() - v[:, 2].min() > 1.6  # still a standing robot
+
+
 def test_a_character_whose_arms_are_not_recognised_is_said_to_keep_them(tmp_path):
     """Issue 39.16: where the skeleton's shape gives no arm (here its upper arms are missing), the
     arms cannot be brought down for the gait: add-person says so instead of walking it silently."""
@@ -568,3 +592,60 @@ def test_a_character_with_a_broken_reference_is_one_warning_line_not_pxr_output(
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert all(ln.startswith("lfusd: ") for ln in lines), lines  # nothing of pxr's own output
     assert sum("missing_prop.usda" in ln for ln in lines) == 1, lines
+
+
+def _refusal_stage(tmp_path, case, name=None):
+    """A flat-ground stage of 24 frames where a person's path from (-6, 0) to (-1, 0) is refused:
+    over water ('water'), out of the stage's lfusd:bounds ('bounds'), into a still 1 m box
+    ('obstacle'), or under that box held 2 m up ('overhead': not refused)."""
+    stage = river_stage(tmp_path / f"{name or case}.usda", last=24)
+    if case == "bounds":  # the ground spans x -10..3, the bounds stop at x = -5.5
+        stage.GetDefaultPrim().CreateAttribute("lfusd:bounds", Sdf.ValueTypeNames.Double3Array, custom=True).Set(
+            Vt.Vec3dArray([Gf.Vec3d(-5.5, -10, -1), Gf.Vec3d(12, 10, 5)]))
+    if case in ("obstacle", "overhead"):
+        box = UsdGeom.Cube.Define(stage, "/World/Crate")
+        box.CreateSizeAttr(1.0)
+        box.AddTranslateOp().Set(Gf.Vec3d(-5.8, 0.0, 0.5 if case == "obstacle" else 2.5))
+        set_class_label(box.GetPrim(), "crate")
+    return stage
+
+
+@pytest.mark.parametrize("case, says", [
+    ("water", "crosses water (/World/River"),
+    ("bounds", "leaves the stage bounds (lfusd:bounds of /World) at frame 1"),
+    ("obstacle", "runs into /World/Crate (class crate) at frame 1"),
+])
+def test_an_impossible_placement_is_refused_before_the_gait(tmp_path, monkeypatch, case, says):
+    """Issue 39.19: a refused placement took 3.5 minutes before its error (the gait, the skinning
+    and the rulebook's check of the finished person ran first). What the root's path alone makes
+    certain is refused before the gait is computed, and the rulebook agrees: without the early
+    check the finished person is refused by the same rule."""
+    import lfusd.author.gait as gait
+    import lfusd.author.people as people
+
+    path = [(4.0, 0.0), (5.0, 0.0)] if case == "water" else [(-6.0, 0.0), (-1.0, 0.0)]  # the river: x 3..6
+    with monkeypatch.context() as m:
+        m.setattr(gait, "bake", lambda *a, **k: pytest.fail("the gait was computed for a placement refused anyway"))
+        with pytest.raises(LfusdError, match=re.escape(says)):
+            add_person(_refusal_stage(tmp_path, case), path, speed=1.3)
+    if case == "water":  # refused before the gait already; the rulebook's agreement is shown for the new checks
+        return
+    monkeypatch.setattr(people, "_refuse_path_early", lambda *a, **k: None)
+    with pytest.raises(LfusdError, match="would break the stage's rules") as err:
+        add_person(_refusal_stage(tmp_path, case, "unchecked"), path, speed=1.3)
+    assert {"bounds": "in_bounds", "obstacle": "no_interpenetration"}[case] in str(err.value), err.value
+
+
+def test_a_path_under_a_still_object_is_not_refused_early(tmp_path):
+    """The early check refuses only what is certain: a path under a box held 2 m up is walked (and
+    passes the rulebook's check of the finished person)."""
+    stage = _refusal_stage(tmp_path, "overhead")
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], speed=1.3)
+    assert prim.IsValid() and class_label(prim) == "person"
+
+
+def test_the_early_refusal_follows_check(tmp_path, monkeypatch):
+    """Generated scenes place people with check=False (no rulebook): no early refusal either."""
+    stage = _refusal_stage(tmp_path, "obstacle")
+    prim = add_person(stage, [(-6.0, 0.0), (-1.0, 0.0)], speed=1.3, check=False)
+    assert prim.IsValid()

@@ -290,3 +290,105 @@ def yup_cm_set(path: Path) -> None:
     stage = write_world_stage(path, "Y", 0.01)
     stage.SetEndTimeCode(72)
     stage.Save()
+
+
+# BrainStem (Khronos glTF-Sample-Models 2.0/BrainStem/glTF/BrainStem.gltf, COLLADA2GLTF output): its
+# node tree, unnamed nodes, glTF translation and rotation (x, y, z, w) per node as the file gives
+# them (scales ~1 dropped). Above the skeleton: node 0, a Z-up -> Y-up matrix, and node 2, a rotation
+# of +90 degrees about X; joints are nodes 3-20. Its rest pose is a T-pose (hands 1 m out, a
+# 2 m span) on a robot's proportions: shoulders 0.42 m out from the chest joint, a 0.19 m upper arm,
+# a 0.41 m forearm and hand whose left ends in three finger joints and whose right ends at the
+# forearm joint (no hand joint), legs hip - thigh - shin - foot - toe, chest - head.
+_BRAINSTEM = {  # node: (parent node, translation, rotation xyzw)
+    3: (None, (0.0, 0.9148268, 0.0), (0.0, -0.00067961, 0.0, -0.99999976)),  # hip
+    4: (3, (0.1415491, -0.0393192, 0.0), (0.73884153, 1.437e-7, -0.67168546, -0.05441156)),  # left thigh
+    5: (4, (0.0, 0.3586178, 0.0), (0.02620056, -0.52830058, 0.01508804, -0.84851897)),  # left shin
+    6: (5, (0.0, 0.3968967, 0.0), (0.45504338, -0.16150843, -0.07667787, -0.87233657)),  # left foot
+    7: (6, (0.0, 0.1285487, 0.0), (0.90336329, 0.0, 0.0, -0.42887634)),  # left toe
+    8: (3, (-0.1415491, -0.0393192, 0.0), (0.73884153, -1.437e-7, 0.67168546, -0.05441156)),
+    9: (8, (0.0, 0.3586178, 0.0), (0.02620056, 0.52830058, -0.01508804, -0.84851897)),
+    10: (9, (0.0, 0.3968967, 0.0), (0.45504338, 0.16150843, 0.07667787, -0.87233657)),
+    11: (10, (0.0, 0.1285487, 0.0), (0.90336329, 0.0, 0.0, -0.42887634)),
+    12: (3, (0.0, 0.1074722, -0.0235915), (0.0, 0.0, 0.0, -1.0)),  # chest
+    13: (12, (0.4194048, 0.3407668, -0.0131064), (0.00977804, 4.916e-7, 0.69207245, -0.72176194)),  # left shoulder
+    14: (13, (0.0, 0.1857225, 0.0), (-0.00977802, -4.71e-7, -0.69207239, -0.72176188)),  # left forearm
+    15: (14, (0.4125711, -0.0216771, 0.0550150), (0.0, 0.0, 0.0, -1.0)),  # thumb
+    16: (14, (0.4119341, 0.0215858, 0.0576437), (0.0, 0.0, 0.0, -1.0)),  # pinky
+    17: (14, (0.4094892, 0.0027068, 0.0157277), (0.0, 0.0, 0.0, -1.0)),  # middle finger
+    18: (12, (-0.4194049, 0.3407665, -0.0131063), (0.00934915, -4.43e-8, -0.68245828, -0.7308647)),  # right shoulder
+    19: (18, (0.0, 0.1918197, 0.0), (-0.00934914, 3.41e-8, 0.68245828, -0.7308647)),  # right forearm (no hand joint)
+    20: (12, (0.0, 0.5242561, -0.0157277), (0.0, 0.0, 0.0, -1.0)),  # head
+}
+
+
+def _quat(xyzw) -> np.ndarray:
+    x, y, z, w = np.asarray(xyzw, float) / np.linalg.norm(xyzw)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def brainstem_joints() -> tuple[list[str], dict[int, np.ndarray]]:
+    """(joint paths 'node_3/node_12/...', node -> skeleton-space rest matrix (4x4, column vectors))
+    of the BrainStem-shaped skeleton."""
+    world, paths = {}, {}
+    for node, (parent, t, q) in _BRAINSTEM.items():
+        local = np.eye(4)
+        local[:3, :3], local[:3, 3] = _quat(q), t
+        world[node] = world[parent] @ local if parent else local
+        paths[node] = f"{paths[parent]}/node_{node}" if parent else f"node_{node}"
+    return [paths[n] for n in _BRAINSTEM], world
+
+
+def brainstem_like(path) -> np.ndarray:
+    """Write a character shaped like BrainStem as a glTF -> USD converter writes it: a Y-up metre
+    stage, the glTF's node 0 matrix and node 2 rotation on Xforms above the SkelRoot, anonymous joint
+    names (node_N), bind = rest = the glTF's node transforms (arms straight out), a box per bone
+    rigidly skinned to its joint (the right hand's box beyond its last joint, mirroring the left).
+    Returns the skeleton-space T-pose hand joints' positions (2, 3: left, right)."""
+    joints, world = brainstem_joints()
+    nodes = list(_BRAINSTEM)
+    P = {n: world[n][:3, 3] for n in nodes}
+    P[21] = P[17] * [-1.0, 1.0, 1.0]  # the right hand's end, where the left's middle finger is mirrored
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    top = UsdGeom.Xform.Define(stage, "/Root")
+    stage.SetDefaultPrim(top.GetPrim())
+    top.AddTransformOp().Set(_gf(np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1.0]])))  # node 0
+    node2 = UsdGeom.Xform.Define(stage, "/Root/node_2")
+    node2.AddTransformOp().Set(_gf(np.block([[_quat((-0.70710665, 0.00048056, 0.00048056, -0.70710653)), np.zeros((3, 1))],
+                                             [np.zeros((1, 3)), np.ones((1, 1))]])))
+    root = UsdSkel.Root.Define(stage, "/Root/node_2/BrainStem")
+    skel = UsdSkel.Skeleton.Define(stage, root.GetPath().AppendChild("Skeleton"))
+    skel.CreateJointsAttr(Vt.TokenArray(joints))
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_gf(world[n]) for n in nodes]))
+    rest = [np.linalg.inv(world[_BRAINSTEM[n][0]]) @ world[n] if _BRAINSTEM[n][0] else world[n] for n in nodes]
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_gf(m) for m in rest]))
+    # (joint node, from, to, half width) of each box: torso, head, limbs, feet
+    bones = [(3, 3, 12, 0.15), (12, 12, 20, 0.2), (20, 20, 20, 0.12), (13, 13, 14, 0.08), (14, 14, 17, 0.06),
+             (18, 18, 19, 0.08), (19, 19, 21, 0.06)]
+    for thigh, shin, foot, toe in ((4, 5, 6, 7), (8, 9, 10, 11)):
+        bones += [(thigh, thigh, shin, 0.07), (shin, shin, foot, 0.05), (foot, foot, toe, 0.05)]
+    pts, counts, idx, ji = [], [], [], []
+    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    for joint, a, b, w in bones:
+        lo, hi = np.minimum(P[a], P[b]) - w, np.maximum(P[a], P[b]) + w
+        lo[1] = max(lo[1], 0.0)  # soles on the ground (y = 0)
+        base = len(pts)
+        pts += [[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+        counts += [4] * 6
+        idx += [base + v for f in faces for v in f]
+        ji += [nodes.index(joint)] * 8
+    mesh = UsdGeom.Mesh.Define(stage, root.GetPath().AppendChild("Body"))
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.array(pts, np.float32)))
+    mesh.CreateFaceVertexCountsAttr(counts)
+    mesh.CreateFaceVertexIndicesAttr(idx)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray(ji))
+    binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(ji)))
+    binding.CreateGeomBindTransformAttr(_gf(np.eye(4)))
+    stage.Save()
+    return np.array([P[17], P[21]])
