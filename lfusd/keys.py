@@ -30,6 +30,9 @@ STATIC = "derived static"  # computed on read from one view's stored keys and th
 MOTION = "derived motion"  # derived from frames t-1, t, t+1 (lfusd.truth.motion), stored in motion.exr
 STAGES = (IMAGE, RAW, STATIC, MOTION)
 
+# Camera effects that add keys (lfusd.render.request.RenderRequest): "sensor" (--iso, lfusd.data.sensor).
+EFFECTS = ("sensor",)
+
 # Units of the verification accuracies, as lfusd.truth.verify reports them.
 _ACCURACY_UNITS = {"rel": "relative", "px": "px", "m": "m", "frac": "of pixels disagree"}  # for markdown_table
 
@@ -91,6 +94,7 @@ class Key:
     step: int = 0  # +1 / -1: describes the motion to frame t+1 / t-1 and is defined only where that frame exists
     accuracy: float | None = None  # verification limit on the p99 error (lfusd.truth.verify)
     accuracy_unit: str | None = None  # 'rel', 'px', 'm' or 'frac'
+    effect: str | None = None  # the camera effect (EFFECTS) a render must turn on to make this key; None: always made
 
     def full_shape(self, height: int, width: int) -> tuple[int, ...]:
         """The array shape of this key in an image of ``height`` x ``width`` pixels."""
@@ -104,6 +108,9 @@ _TABLE = (
         storage=Storage("computed", sources=("rgb_linear",))),  # rgb.png instead when rgb_linear is not asked for
     Key("rgb_linear", "float32", (3,), "linear RGB", "the rendered image, linear (scene-referred) RGB", _RGB, IMAGE,
         storage=Storage("image")),
+    Key("rgb_noisy", "uint8", (3,), "sRGB", "the image a sensor would record: the sensor model of docs/CONVENTIONS.md applied to "
+        "`rgb_linear` (noise, gain, vignetting, colour response, optional JPEG), reproducible for the seed", _RGB, IMAGE,
+        storage=Storage("computed", sources=("rgb_linear",)), effect="sensor"),
     Key("depth", "float32", (), "m", "planar z-depth along the optical axis; `inf` where no surface", _GT, RAW,
         accuracy=1e-4, accuracy_unit="rel", storage=Storage("float32")),
     Key("normal", "float32", (3,), "unitless", "unit surface normal, world frame: the mesh's shading normal (its normals interpolated), without normal or bump maps; NaN where no surface", _GT, RAW,
@@ -225,15 +232,22 @@ def stored(wanted) -> tuple[str, ...]:
 _AOV_KEYS = tuple(p.key for p in MOTION_AOVS)
 
 
-def check_wanted(wanted, motion: bool, keep_raw: bool) -> tuple[str, ...]:
+_EFFECT_OPTION = {"sensor": "--iso"}
+
+
+def check_wanted(wanted, motion: bool, keep_raw: bool, effects=()) -> tuple[str, ...]:
     """The keys a render writes, validated (``--keys``): LfusdError in one line naming the first
-    unknown key, a motion key without render-video or a raw pass without ``--keep-raw``.
-    ``wanted`` None: every key the render makes (raw passes with ``keep_raw``)."""
+    unknown key, a motion key without render-video, a raw pass without ``--keep-raw`` or a key of a
+    camera effect (:data:`EFFECTS`) the render does not turn on (``effects``).
+    ``wanted`` None: every key the render makes (raw passes with ``keep_raw``, effects' keys with them)."""
+    effects = set(effects)
     if wanted is None:
         return tuple(k.name for k in _TABLE if (motion or k.stage != MOTION) and (keep_raw or k.storage.encoding != "raw")
-                     and (motion or k.name not in _AOV_KEYS))
+                     and (motion or k.name not in _AOV_KEYS) and (k.effect is None or k.effect in effects))
     for name in wanted:
         k = get(name)
+        if k.effect is not None and k.effect not in effects:
+            raise LfusdError(f"--keys {name}: made only with {_EFFECT_OPTION[k.effect]}; add it or drop the key")
         if k.stage == MOTION and not motion:
             raise LfusdError(f"--keys {name}: motion keys need 'lfusd render-video'; drop it or render a video")
         if k.storage.encoding == "raw" and not keep_raw:

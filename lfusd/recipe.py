@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from . import layout
+from .data.sensor import SensorModel
 from .errors import LfusdError
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,7 @@ class Recipe:
     stats_views: str = "centre"
     thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
     catalogues: tuple[str, ...] = ()  # dataset.catalogues: asset catalogue files (lfusd.author.catalogue), resolved
+    sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
 
 
 @dataclass(frozen=True)
@@ -134,7 +136,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues"}
+             "catalogues", "sensor"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -239,7 +241,25 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
-                  tuple(sorted(thresholds)), tuple(catalogues))
+                  tuple(sorted(thresholds)), tuple(catalogues), _sensor(ds.get("sensor"), source))
+
+
+def _sensor(table, source: str) -> SensorModel | None:
+    """[dataset.sensor]: any of SensorModel's fields (lfusd.data.sensor); the table turns the sensor on."""
+    if table is None:
+        return None
+    fields = SensorModel.__dataclass_fields__
+    if not isinstance(table, dict):
+        raise _bad(source, "dataset.sensor", table, f"must be a table of {', '.join(fields)}")
+    for k, v in table.items():
+        if k not in fields:
+            raise LfusdError(f"recipe {source}: unknown field dataset.sensor.{k}; use one of {', '.join(fields)}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (k in ("jpeg", "seed") and not isinstance(v, int)):
+            raise _bad(source, f"dataset.sensor.{k}", v, "must be an integer" if k in ("jpeg", "seed") else "must be a number")
+    try:
+        return SensorModel(**table).check()
+    except LfusdError as e:
+        raise LfusdError(f"recipe {source}: dataset.{e}") from None
 
 
 def load_recipe(path) -> Recipe:
@@ -413,7 +433,7 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
         generate(spec.template, stage, spec.seed, frames=spec.frames, rigs=spec.rigs, grid=spec.grid,
                  resolution=spec.resolution, dynamic=spec.dynamic, catalogues=spec.catalogues)
     req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
-                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet)
+                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor)
     if spec.dynamic:
         render_video(req)
     else:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import passes, store
+from . import passes, sensor, store
 from .. import cpu_account, layout
 from .folder import FrameMeta, Manifest, ObjectTable, read_frame_meta, read_manifest, read_objects
 from .integrity import complete_frames
@@ -95,6 +95,15 @@ class Dataset:
         return self.rig.views
 
     @property
+    def sensor(self) -> "sensor.SensorModel":
+        """The sensor model of the ``rgb_noisy`` key (lfusd.data.sensor); LfusdError where the render had none."""
+        doc = self.record.settings.get("sensor")
+        if not isinstance(doc, dict):
+            raise LfusdError(f"{self.root} was rendered without a sensor model, so it has no rgb_noisy; "
+                             "render it again with --iso (e.g. --iso 800) into another folder")
+        return sensor.SensorModel.from_dict(doc)
+
+    @property
     def baseline(self) -> float:
         return float(self.rig.baseline)
 
@@ -149,6 +158,8 @@ class Dataset:
             if not (d / layout.RGB_EXR).is_file():
                 raise LfusdError(f"{d} has no {layout.RGB_EXR} for key {key!r}; rerun the render command to repair the view")
             rgb = passes.read_rgb_linear(d / layout.RGB_EXR)
+            if key == "rgb_noisy":
+                return sensor.noisy_srgb(self.sensor, rgb, tuple(view), frame)
             return rgb if key == "rgb_linear" else passes.linear_to_srgb8(rgb)
         if k.stage == MOTION:
             return self._motion(d, key)

@@ -8,6 +8,7 @@ import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..data.sensor import SensorModel
 from ..errors import LfusdError
 
 DEVICES = ("auto", "cpu", "cuda", "optix")
@@ -50,6 +51,7 @@ class RenderRequest:
     light: str = "auto"  # one of LIGHTS
     keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
     keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
+    sensor: SensorModel | None = None  # --iso ...: the noisy image's sensor model (lfusd.data.sensor); None: no rgb_noisy
 
     def check(self) -> None:
         """Raise LfusdError naming the first impossible setting."""
@@ -65,13 +67,19 @@ class RenderRequest:
             raise LfusdError(f"unknown --light {self.light!r}; use one of {', '.join(LIGHTS)}")
         if self.ray_address and self.executor != "ray":
             raise LfusdError("--ray-address needs --executor ray")
+        if self.sensor is not None:
+            self.sensor.check()
         self.stored_keys()
 
     def stored_keys(self) -> tuple[str, ...]:
         """The keys this render writes (``--keys``, validated against lfusd.keys; LfusdError in one line)."""
         from ..keys import check_wanted
 
-        return check_wanted(self.keys, self.motion, self.keep_raw)
+        return check_wanted(self.keys, self.motion, self.keep_raw, self.effects())
+
+    def effects(self) -> tuple[str, ...]:
+        """The camera effects (lfusd.keys.EFFECTS) this render turns on."""
+        return ("sensor",) if self.sensor is not None else ()
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""
