@@ -28,10 +28,14 @@ IMAGE = "image"  # the beauty render
 RAW = "raw pass"  # Blender's data passes, converted to the conventions on read
 STATIC = "derived static"  # computed on read from one view's stored keys and the metadata
 MOTION = "derived motion"  # derived from frames t-1, t, t+1 (lfusd.truth.motion), stored in motion.exr
-STAGES = (IMAGE, RAW, STATIC, MOTION)
+CAST = "ray cast"  # cast through the frame's rendered triangles (geometry.npz, render-video) when gt.exr is written
+STAGES = (IMAGE, RAW, STATIC, MOTION, CAST)
 
-# Camera effects that add keys (lfusd.render.request.RenderRequest): "sensor" (--iso, lfusd.data.sensor).
-EFFECTS = ("sensor",)
+# Camera effects that add keys (lfusd.render.request.RenderRequest): "sensor" (--iso, lfusd.data.sensor),
+# "materials" (--materials: the first surface's material flags, from the worker's MATERIAL_AOV).
+EFFECTS = ("sensor", "materials")
+# Bits of the raw `material` pass: what the first surface's material is (lfusd.render.worker.material_flags).
+TRANSMISSIVE, MIRROR, EMISSIVE = 1, 2, 4
 
 # Units of the verification accuracies, as lfusd.truth.verify reports them.
 _ACCURACY_UNITS = {"rel": "relative", "px": "px", "m": "m", "frac": "of pixels disagree"}  # for markdown_table
@@ -125,6 +129,19 @@ _TABLE = (
         _RAW, RAW),
     Key("prev_position", "float32", (3,), "m", "world position at t-1 of the surface point seen at t; NaN where unknown (render-video)",
         _RAW, RAW),
+    Key("material", "int32", (), "flags", "the first surface's material: bit 1 transmissive, 2 mirror-like, 4 emissive (render-video --materials)",
+        _RAW, RAW, effect="materials"),
+    Key("transmissive", "bool", (), "mask", "the first surface's material lets light through (opacity or alpha below 1, transmission, "
+        "a glass or transparent BSDF): the image shows what lies behind it (render-video --materials)", _GT, RAW,
+        storage=Storage("mask", 5), effect="materials"),
+    Key("mirror", "bool", (), "mask", "the first surface's material is mirror-like: roughness at most 0.2 and metallic at least 0.5 "
+        "or specular at least 0.5: the image shows reflections (render-video --materials)", _GT, RAW, storage=Storage("mask", 6),
+        effect="materials"),
+    Key("emissive", "bool", (), "mask", "the first surface's material emits light (render-video --materials)", _GT, RAW,
+        storage=Storage("mask", 7), effect="materials"),
+    Key("depth_behind", "float32", (), "m", "planar z-depth of the first surface along the pixel's ray that is not transmissive: "
+        "`depth` where the first surface is opaque, what lies behind where it is transmissive; `inf` where none "
+        "(render-video --materials)", _GT, CAST, storage=Storage("float32"), effect="materials"),
     Key("semantic", "int32", (), "id", "class id listed in the class table (0 = unlabelled)", _GT, STATIC,
         storage=Storage("computed", sources=("instance",))),
     Key("disparity", "float32", (), "px", "pixels per unit baseline step, d = f_px * b / z (planar, parallel rigs); 0 where no surface",
@@ -181,6 +198,7 @@ class RawPass:
     switch: str | None = None
     neighbour: str | None = None
     required: bool = True
+    aov: bool = False  # an AOV of the data material (a COLOR group), not a render pass
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -194,12 +212,14 @@ RAW_PASSES = (
     RawPass("position", "Position", "XYZ", "float32", "use_pass_position"),
     RawPass("instance", "Object Index", "X", "int32", "use_pass_object_index"),  # a float holding the pass index
     RawPass("vector", "Vector", "XYZW", "float32", "use_pass_vector", required=False),
-    RawPass("next_position", "next_position", "XYZ", "float32", neighbour="next", required=False),  # a COLOR AOV (RGBA)
-    RawPass("prev_position", "prev_position", "XYZ", "float32", neighbour="prev", required=False),
+    RawPass("next_position", "next_position", "XYZ", "float32", neighbour="next", required=False, aov=True),  # a COLOR AOV (RGBA)
+    RawPass("prev_position", "prev_position", "XYZ", "float32", neighbour="prev", required=False, aov=True),
+    RawPass("material", "lfusd_material", "X", "int32", required=False, aov=True),  # --materials: the flags as a float, in R
 )
 RAW_PASS: dict[str, RawPass] = {p.key: p for p in RAW_PASSES}
 PASS_SWITCHES = tuple(p.switch for p in RAW_PASSES if p.switch)  # the ViewLayer switches of the data render
 MOTION_AOVS = tuple(p for p in RAW_PASSES if p.neighbour)  # rendered only by render-video
+MATERIAL_AOV = RAW_PASS["material"]  # rendered only with --materials
 
 
 def names(*stages: str) -> tuple[str, ...]:
@@ -232,7 +252,7 @@ def stored(wanted) -> tuple[str, ...]:
 _AOV_KEYS = tuple(p.key for p in MOTION_AOVS)
 
 
-_EFFECT_OPTION = {"sensor": "--iso"}
+_EFFECT_OPTION = {"sensor": "--iso", "materials": "--materials"}
 
 
 def check_wanted(wanted, motion: bool, keep_raw: bool, effects=()) -> tuple[str, ...]:

@@ -76,6 +76,7 @@ class Recipe:
     stats_views: str = "centre"
     thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
     catalogues: tuple[str, ...] = ()  # dataset.catalogues: asset catalogue files (lfusd.author.catalogue), resolved
+    materials: bool = False  # dataset.materials: the material masks and depth_behind (render-video --materials)
     sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
 
 
@@ -136,7 +137,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues", "sensor"}
+             "catalogues", "sensor", "materials"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -241,7 +242,8 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
-                  tuple(sorted(thresholds)), tuple(catalogues), _sensor(ds.get("sensor"), source))
+                  tuple(sorted(thresholds)), tuple(catalogues), _get(ds, "materials", bool, source, w, "must be true or false", False),
+                  _sensor(ds.get("sensor"), source))
 
 
 def _sensor(table, source: str) -> SensorModel | None:
@@ -433,7 +435,8 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
         generate(spec.template, stage, spec.seed, frames=spec.frames, rigs=spec.rigs, grid=spec.grid,
                  resolution=spec.resolution, dynamic=spec.dynamic, catalogues=spec.catalogues)
     req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
-                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor)
+                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor,
+                        materials=recipe.materials and spec.dynamic)  # the masks need render-video's triangles
     if spec.dynamic:
         render_video(req)
     else:

@@ -127,13 +127,21 @@ def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
     p.add_argument("--keep-raw", action="store_true", help="keep Blender's raw passes (passes.exr) beside the stored keys")
 
 
-def add_sensor_options(p: argparse.ArgumentParser) -> None:
-    """The sensor model's options (lfusd.data.sensor): ``--iso`` turns it on and adds the key rgb_noisy."""
-    g = p.add_argument_group("sensor model (the rgb_noisy key; docs/CONVENTIONS.md)")
+def add_effect_options(p: argparse.ArgumentParser) -> None:
+    """The camera effects' options (docs/CONVENTIONS.md, "Camera effects"), all off by default:
+    ``--materials`` and the sensor model's (lfusd.data.sensor; ``--iso`` turns it on and adds rgb_noisy)."""
+    g = p.add_argument_group("camera effects (off by default; docs/CONVENTIONS.md)")
+    g.add_argument("--materials", action="store_true",
+                   help="add the material masks transmissive, mirror, emissive and depth_behind (the first opaque surface's depth)")
     g.add_argument("--iso", type=float, default=None, help="add rgb_noisy: the image of a sensor at this ISO (e.g. 800; default: none)")
     g.add_argument("--jpeg", type=int, default=0, metavar="QUALITY", help="JPEG-compress rgb_noisy at this quality 1-100 (default 0: none)")
     g.add_argument("--vignetting", type=float, default=0.3, help="mean corner fall-off of rgb_noisy's cameras, 0-0.95 (default 0.3)")
     g.add_argument("--sensor-seed", type=int, default=0, help="seed of the cameras' variation and the noise (default 0)")
+
+
+def effect_fields(args: argparse.Namespace) -> dict:
+    """The `RenderRequest` fields of :func:`add_effect_options`' options."""
+    return dict(materials=args.materials, sensor=sensor_model(args))
 
 
 def sensor_model(args: argparse.Namespace):

@@ -233,7 +233,7 @@ class Dataset:
         if self.version >= 2 and gt.is_file():
             return _cached(self._file_cache, str(gt), 4, lambda: store.read(gt))
         raw = self._raw(view_dir)
-        return raw if self.version == 1 else {k: raw[k] for k in GT_RAW}
+        return raw if self.version == 1 else {k: raw[k] for k in GT_RAW if k in raw}  # the material masks only with --materials
 
     def _motion(self, d: Path, key: str) -> np.ndarray:
         """One motion key of a view: from motion.exr (format version 2) or motion.npz (version 1)."""

@@ -24,7 +24,7 @@ import OpenEXR
 
 from ..camera import Camera, backproject, pixel_grid, ray_lengths
 from ..errors import LfusdError
-from ..keys import BACKGROUND_DEPTH, MOTION_AOVS, RAW_PASS, RAW_PASSES
+from ..keys import BACKGROUND_DEPTH, EMISSIVE, MATERIAL_AOV, MIRROR, MOTION_AOVS, RAW_PASS, RAW_PASSES, TRANSMISSIVE
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
@@ -297,7 +297,7 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     depth[background] = np.inf
     raw = {"depth": depth}
     for p in RAW_PASSES:
-        if p.key == "depth" or p.neighbour:
+        if p.key == "depth" or p.aov:
             continue
         if not p.required and _find(ch, p.channel_names[0]) is None:
             continue  # the vector pass: Dataset.raw_passes names its absence
@@ -315,6 +315,13 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
         if arr is not None:
             raw[p.key] = a = np.array(arr[..., : len(p.channels)], p.dtype, order="C")
             a[background] = np.nan
+    arr = next((a for n, a in ch.items() if n.endswith("." + MATERIAL_AOV.layer)), None)
+    if arr is not None:  # --materials: the flags of lfusd.keys (TRANSMISSIVE, MIRROR, EMISSIVE), a small integer as a float
+        flags = np.rint(arr[..., 0]).astype(np.int32)
+        flags[background] = 0
+        raw["material"] = flags
+        for key, bit in (("transmissive", TRANSMISSIVE), ("mirror", MIRROR), ("emissive", EMISSIVE)):
+            raw[key] = (flags & bit) != 0
     return raw
 
 

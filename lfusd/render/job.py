@@ -85,6 +85,7 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         "keep_raw": req.keep_raw,
         # camera effects, recorded only when on (a dataset rendered without them resumes as before)
         **({"sensor": req.sensor.to_dict()} if req.sensor is not None else {}),
+        **({"materials": True} if req.materials else {}),
     }
 
 

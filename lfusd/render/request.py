@@ -51,6 +51,7 @@ class RenderRequest:
     light: str = "auto"  # one of LIGHTS
     keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
     keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
+    materials: bool = False  # --materials: the material masks and depth_behind (render-video)
     sensor: SensorModel | None = None  # --iso ...: the noisy image's sensor model (lfusd.data.sensor); None: no rgb_noisy
 
     def check(self) -> None:
@@ -69,6 +70,8 @@ class RenderRequest:
             raise LfusdError("--ray-address needs --executor ray")
         if self.sensor is not None:
             self.sensor.check()
+        if self.materials and not self.motion:
+            raise LfusdError("--materials needs the frame's triangles that only 'lfusd render-video' writes; render a video")
         self.stored_keys()
 
     def stored_keys(self) -> tuple[str, ...]:
@@ -79,7 +82,7 @@ class RenderRequest:
 
     def effects(self) -> tuple[str, ...]:
         """The camera effects (lfusd.keys.EFFECTS) this render turns on."""
-        return ("sensor",) if self.sensor is not None else ()
+        return (("sensor",) if self.sensor is not None else ()) + (("materials",) if self.materials else ())
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""

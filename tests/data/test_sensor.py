@@ -183,7 +183,7 @@ def test_render_video_options_build_the_sensor_model_and_refuse_its_options_with
     from lfusd.commands import args as argtypes
 
     p = argtypes.Parser()
-    argtypes.add_sensor_options(p)
+    argtypes.add_effect_options(p)
     assert argtypes.sensor_model(p.parse_args([])) is None
     assert argtypes.sensor_model(p.parse_args(["--iso", "400", "--jpeg", "80", "--sensor-seed", "2"])) == SensorModel(iso=400, jpeg=80, seed=2)
     with pytest.raises(LfusdError, match="--iso"):
