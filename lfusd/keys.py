@@ -36,6 +36,7 @@ STAGES = (IMAGE, RAW, STATIC, MOTION, CAST)
 EFFECTS = ("sensor", "materials")
 # Bits of the raw `material` pass: what the first surface's material is (lfusd.render.worker.material_flags).
 TRANSMISSIVE, MIRROR, EMISSIVE = 1, 2, 4
+MATERIAL_MASKS = {"transmissive": TRANSMISSIVE, "mirror": MIRROR, "emissive": EMISSIVE}  # mask key -> its bit
 
 # Units of the verification accuracies, as lfusd.truth.verify reports them.
 _ACCURACY_UNITS = {"rel": "relative", "px": "px", "m": "m", "frac": "of pixels disagree"}  # for markdown_table

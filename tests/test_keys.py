@@ -43,7 +43,10 @@ def test_producers_and_consumers_take_their_key_lists_from_the_registry():
     assert verify.THRESHOLDS == keys.accuracies() and set(verify.UNITS) == set(verify.THRESHOLDS)
     assert set(verify.THRESHOLDS) <= set(verify.KEYS)
     assert keys.names() == tuple(keys.KEYS)
-    assert set(keys.names(keys.IMAGE, keys.RAW, keys.STATIC, keys.MOTION)) == set(keys.KEYS)
+    assert set(keys.names(keys.IMAGE, keys.RAW, keys.STATIC, keys.MOTION, keys.CAST)) == set(keys.KEYS)
+    from lfusd.truth.derive import CAST_KEYS
+
+    assert set(CAST_KEYS) == set(keys.names(keys.CAST))
 
 
 def test_torch_dataset_accepts_every_key():

@@ -24,7 +24,7 @@ import OpenEXR
 
 from ..camera import Camera, backproject, pixel_grid, ray_lengths
 from ..errors import LfusdError
-from ..keys import BACKGROUND_DEPTH, EMISSIVE, MATERIAL_AOV, MIRROR, MOTION_AOVS, RAW_PASS, RAW_PASSES, TRANSMISSIVE
+from ..keys import BACKGROUND_DEPTH, MATERIAL_AOV, MATERIAL_MASKS, MOTION_AOVS, RAW_PASS, RAW_PASSES
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
@@ -316,11 +316,11 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
             raw[p.key] = a = np.array(arr[..., : len(p.channels)], p.dtype, order="C")
             a[background] = np.nan
     arr = next((a for n, a in ch.items() if n.endswith("." + MATERIAL_AOV.layer)), None)
-    if arr is not None:  # --materials: the flags of lfusd.keys (TRANSMISSIVE, MIRROR, EMISSIVE), a small integer as a float
+    if arr is not None:  # --materials: the flags of lfusd.keys.MATERIAL_MASKS, a small integer as a float in R
         flags = np.rint(arr[..., 0]).astype(np.int32)
         flags[background] = 0
         raw["material"] = flags
-        for key, bit in (("transmissive", TRANSMISSIVE), ("mirror", MIRROR), ("emissive", EMISSIVE)):
+        for key, bit in MATERIAL_MASKS.items():
             raw[key] = (flags & bit) != 0
     return raw
 

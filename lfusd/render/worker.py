@@ -700,7 +700,7 @@ def write_geometry(path: str, meshes: list) -> None:
 # per material of Blender's scene (what the beauty renders), written on every mesh as a face attribute
 # that the data material's AOV reads (exact per pixel: constant over a face), and per triangle into
 # geometry.npz (the ray cast of depth_behind skips transmissive triangles).
-MATERIAL_ATTRIBUTE = "lfusd_material"
+MATERIAL_ATTRIBUTE = "lfusd_material_flags"
 MIRROR_ROUGHNESS = 0.2  # mirror-like: roughness at most this, and metallic or specular at least MIRROR_REFLECT
 MIRROR_REFLECT = 0.5
 MATERIALS: dict | None = None  # material name -> flags, once mark_materials ran (None: --materials off)
