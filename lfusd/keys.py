@@ -32,8 +32,9 @@ CAST = "ray cast"  # cast through the frame's rendered triangles (geometry.npz, 
 STAGES = (IMAGE, RAW, STATIC, MOTION, CAST)
 
 # Camera effects that add keys (lfusd.render.request.RenderRequest): "sensor" (--iso, lfusd.data.sensor),
-# "materials" (--materials: the first surface's material flags, from the worker's MATERIAL_AOV).
-EFFECTS = ("sensor", "materials")
+# "materials" (--materials: the first surface's material flags, from the worker's MATERIAL_AOV),
+# "blur" (--shutter: Cycles' motion blur in the image, its extent per pixel in the key blur).
+EFFECTS = ("sensor", "materials", "blur")
 # Bits of the raw `material` pass: what the first surface's material is (lfusd.render.worker.material_flags).
 TRANSMISSIVE, MIRROR, EMISSIVE = 1, 2, 4
 MATERIAL_MASKS = {"transmissive": TRANSMISSIVE, "mirror": MIRROR, "emissive": EMISSIVE}  # mask key -> its bit
@@ -159,6 +160,10 @@ _TABLE = (
         step=1, accuracy=1e-3, accuracy_unit="m", storage=Storage("fixed", 17)),
     Key("disparity_change", "float32", (), "px", "disparity of that point at t+1 minus its disparity at t", _MOTION, MOTION,
         step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
+    Key("blur", "float32", (), "px", "length of the image-space path of the surface point seen at (u, v) over the shutter "
+        "(t - s/2 to t + s/2, render-video --shutter s): how far Cycles' motion blur smears it, the point and the camera moving "
+        "linearly between their poses at t-1, t and t+1; 0 where no surface; NaN where t-1 or t+1 is not in the dataset or the "
+        "point's motion is unknown", _MOTION, MOTION, storage=_FLOW, effect="blur"),
     Key("valid_fwd", "bool", (), "mask", "where the forward motion ground truth is defined", _MOTION, MOTION, step=1,
         storage=Storage("mask", 0)),
     Key("valid_bwd", "bool", (), "mask", "where the backward motion ground truth is defined", _MOTION, MOTION, step=-1,
@@ -253,7 +258,7 @@ def stored(wanted) -> tuple[str, ...]:
 _AOV_KEYS = tuple(p.key for p in MOTION_AOVS)
 
 
-_EFFECT_OPTION = {"sensor": "--iso", "materials": "--materials"}
+_EFFECT_OPTION = {"sensor": "--iso", "materials": "--materials", "blur": "--shutter"}
 
 
 def check_wanted(wanted, motion: bool, keep_raw: bool, effects=()) -> tuple[str, ...]:

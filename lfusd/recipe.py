@@ -76,6 +76,7 @@ class Recipe:
     stats_views: str = "centre"
     thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
     catalogues: tuple[str, ...] = ()  # dataset.catalogues: asset catalogue files (lfusd.author.catalogue), resolved
+    shutter: float = 0.0  # dataset.shutter: motion blur over this fraction of a frame and the key blur (render-video --shutter)
     materials: bool = False  # dataset.materials: the material masks and depth_behind (render-video --materials)
     sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
 
@@ -137,7 +138,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues", "sensor", "materials"}
+             "catalogues", "sensor", "materials", "shutter"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -242,8 +243,16 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
-                  tuple(sorted(thresholds)), tuple(catalogues), _get(ds, "materials", bool, source, w, "must be true or false", False),
+                  tuple(sorted(thresholds)), tuple(catalogues), _shutter(ds, source),
+                  _get(ds, "materials", bool, source, w, "must be true or false", False),
                   _sensor(ds.get("sensor"), source))
+
+
+def _shutter(ds: dict, source: str) -> float:
+    v = ds.get("shutter", 0.0)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
+        raise _bad(source, "dataset.shutter", v, "must be a fraction of a frame in 0-1 (e.g. 0.5)")
+    return float(v)
 
 
 def _sensor(table, source: str) -> SensorModel | None:
@@ -436,7 +445,8 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
                  resolution=spec.resolution, dynamic=spec.dynamic, catalogues=spec.catalogues)
     req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
                         executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor,
-                        materials=recipe.materials and spec.dynamic)  # the masks need render-video's triangles
+                        # the masks need render-video's triangles, the blur key its neighbouring frames
+                        materials=recipe.materials and spec.dynamic, shutter=recipe.shutter if spec.dynamic else 0.0)
     if spec.dynamic:
         render_video(req)
     else:

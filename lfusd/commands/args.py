@@ -131,6 +131,8 @@ def add_effect_options(p: argparse.ArgumentParser) -> None:
     """The camera effects' options (docs/CONVENTIONS.md, "Camera effects"), all off by default:
     ``--materials`` and the sensor model's (lfusd.data.sensor; ``--iso`` turns it on and adds rgb_noisy)."""
     g = p.add_argument_group("camera effects (off by default; docs/CONVENTIONS.md)")
+    g.add_argument("--shutter", type=float, default=0.0, metavar="FRACTION",
+                   help="Cycles' motion blur over this fraction of a frame, centred on it (e.g. 0.5), and the key blur (default 0: none)")
     g.add_argument("--materials", action="store_true",
                    help="add the material masks transmissive, mirror, emissive and depth_behind (the first opaque surface's depth)")
     g.add_argument("--iso", type=float, default=None, help="add rgb_noisy: the image of a sensor at this ISO (e.g. 800; default: none)")
@@ -141,7 +143,7 @@ def add_effect_options(p: argparse.ArgumentParser) -> None:
 
 def effect_fields(args: argparse.Namespace) -> dict:
     """The `RenderRequest` fields of :func:`add_effect_options`' options."""
-    return dict(materials=args.materials, sensor=sensor_model(args))
+    return dict(materials=args.materials, shutter=args.shutter, sensor=sensor_model(args))
 
 
 def sensor_model(args: argparse.Namespace):

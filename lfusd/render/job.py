@@ -86,6 +86,7 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         # camera effects, recorded only when on (a dataset rendered without them resumes as before)
         **({"sensor": req.sensor.to_dict()} if req.sensor is not None else {}),
         **({"materials": True} if req.materials else {}),
+        **({"shutter": req.shutter} if req.shutter else {}),
     }
 
 

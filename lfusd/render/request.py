@@ -52,6 +52,7 @@ class RenderRequest:
     keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
     keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
     materials: bool = False  # --materials: the material masks and depth_behind (render-video)
+    shutter: float = 0.0  # --shutter: Cycles' motion blur over this fraction of a frame, centred on it; 0: none (render-video)
     sensor: SensorModel | None = None  # --iso ...: the noisy image's sensor model (lfusd.data.sensor); None: no rgb_noisy
 
     def check(self) -> None:
@@ -70,6 +71,10 @@ class RenderRequest:
             raise LfusdError("--ray-address needs --executor ray")
         if self.sensor is not None:
             self.sensor.check()
+        if not (isinstance(self.shutter, (int, float)) and 0 <= self.shutter <= 1):
+            raise LfusdError(f"--shutter {self.shutter!r} is not a fraction of a frame in 0-1 (e.g. 0.5)")
+        if self.shutter and not self.motion:
+            raise LfusdError("--shutter needs the neighbouring frames that only 'lfusd render-video' renders; render a video")
         if self.materials and not self.motion:
             raise LfusdError("--materials needs the frame's triangles that only 'lfusd render-video' writes; render a video")
         self.stored_keys()
@@ -82,7 +87,7 @@ class RenderRequest:
 
     def effects(self) -> tuple[str, ...]:
         """The camera effects (lfusd.keys.EFFECTS) this render turns on."""
-        return (("sensor",) if self.sensor is not None else ()) + (("materials",) if self.materials else ())
+        return (("sensor",) if self.sensor is not None else ()) + (("materials",) if self.materials else ()) + (("blur",) if self.shutter else ())
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""

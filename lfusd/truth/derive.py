@@ -59,7 +59,13 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
         occluders["here"] = occluders_of(ds, frame, view)
         cur = ds.raw_passes(frame, view)
         memo = memo_for((str(ds.root), ds.rig_name, tuple(view)), *cur.shape) if occluders["here"] is not None else None
-        return derive_motion(cur, nxt, prv, baseline=ds.baseline, occluders=occluders, memo=memo)
+        keys = derive_motion(cur, nxt, prv, baseline=ds.baseline, occluders=occluders, memo=memo)
+        shutter = ds.record.settings.get("shutter")
+        if shutter:  # --shutter: the blur key (lfusd.truth.blur)
+            from .blur import blur_extent
+
+            keys["blur"] = blur_extent(cur, nxt, prv, float(shutter))
+        return keys
     except LfusdError as e:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
 

@@ -34,7 +34,7 @@ import numpy as np
 from ..camera import Camera, project, ray_directions
 from ..errors import LfusdError
 from ..layout import MANIFEST, MOTION_FILE
-from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
+from ..keys import BACKGROUND_DEPTH, KEYS as KEY_TABLE, MOTION, accuracies, accuracy_units, names
 
 # The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
 # occlusion the fraction of interior (foreground) pixels that disagree.
@@ -611,7 +611,7 @@ def compare_view(
 
 # The dataset's keys that verification reads ("mixed", an annotation of the footprint, is tested
 # against closed-form geometry in tests/truth/test_occlusion.py, not traced here).
-KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed"))
+KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed" and KEY_TABLE[k].effect is None))  # blur: a camera effect's
 
 
 def _read_optional(ds, frame, view, key):
