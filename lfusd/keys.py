@@ -33,8 +33,9 @@ STAGES = (IMAGE, RAW, STATIC, MOTION, CAST)
 
 # Camera effects that add keys (lfusd.render.request.RenderRequest): "sensor" (--iso, lfusd.data.sensor),
 # "materials" (--materials: the first surface's material flags, from the worker's MATERIAL_AOV),
-# "blur" (--shutter: Cycles' motion blur in the image, its extent per pixel in the key blur).
-EFFECTS = ("sensor", "materials", "blur")
+# "blur" (--shutter: Cycles' motion blur in the image, its extent per pixel in the key blur),
+# "defocus" (--fstop, --focus: Cycles' thin lens in the image, the circle of confusion in the key coc).
+EFFECTS = ("sensor", "materials", "blur", "defocus")
 # Bits of the raw `material` pass: what the first surface's material is (lfusd.render.worker.material_flags).
 TRANSMISSIVE, MIRROR, EMISSIVE = 1, 2, 4
 MATERIAL_MASKS = {"transmissive": TRANSMISSIVE, "mirror": MIRROR, "emissive": EMISSIVE}  # mask key -> its bit
@@ -151,6 +152,9 @@ _TABLE = (
     Key("depth_euclidean", "float32", (), "m",
         "distance along the pixel's ray from the camera centre to the surface, depth * ||K^-1 [u, v, 1]||; `inf` where no surface",
         _GT, STATIC, storage=Storage("computed", sources=("depth",))),
+    Key("coc", "float32", (), "px", "diameter of the circle of confusion: the disc the lens spreads the pixel's surface point over "
+        "(render-video --fstop N --focus S), f_px * (f / N) * |1/S - 1/depth| (Cycles' thin lens, f the focal length)",
+        _GT, STATIC, storage=Storage("computed", sources=("depth",)), effect="defocus"),
     Key("flow_fwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t+1", _MOTION, MOTION,
         step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
     Key("flow_bwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t-1", _MOTION, MOTION,
@@ -258,7 +262,7 @@ def stored(wanted) -> tuple[str, ...]:
 _AOV_KEYS = tuple(p.key for p in MOTION_AOVS)
 
 
-_EFFECT_OPTION = {"sensor": "--iso", "materials": "--materials", "blur": "--shutter"}
+_EFFECT_OPTION = {"sensor": "--iso", "materials": "--materials", "blur": "--shutter", "defocus": "--fstop"}
 
 
 def check_wanted(wanted, motion: bool, keep_raw: bool, effects=()) -> tuple[str, ...]:

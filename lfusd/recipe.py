@@ -76,6 +76,7 @@ class Recipe:
     stats_views: str = "centre"
     thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
     catalogues: tuple[str, ...] = ()  # dataset.catalogues: asset catalogue files (lfusd.author.catalogue), resolved
+    lens: tuple[float, float] = (0.0, 0.0)  # dataset.fstop, dataset.focus: every view's thin lens (render-video --fstop --focus)
     shutter: float = 0.0  # dataset.shutter: motion blur over this fraction of a frame and the key blur (render-video --shutter)
     materials: bool = False  # dataset.materials: the material masks and depth_behind (render-video --materials)
     sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
@@ -138,7 +139,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues", "sensor", "materials", "shutter"}
+             "catalogues", "sensor", "materials", "shutter", "fstop", "focus"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -243,9 +244,21 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
-                  tuple(sorted(thresholds)), tuple(catalogues), _shutter(ds, source),
+                  tuple(sorted(thresholds)), tuple(catalogues), _lens(ds, source), _shutter(ds, source),
                   _get(ds, "materials", bool, source, w, "must be true or false", False),
                   _sensor(ds.get("sensor"), source))
+
+
+def _lens(ds: dict, source: str) -> tuple[float, float]:
+    values = []
+    for k in ("fstop", "focus"):
+        v = ds.get(k, 0.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+            raise _bad(source, "dataset." + k, v, "must be a non-negative number")
+        values.append(float(v))
+    if bool(values[0]) != bool(values[1]):
+        raise _bad(source, "dataset.fstop", values[0], "and dataset.focus go together (e.g. fstop = 2.8, focus = 3.0)")
+    return values[0], values[1]
 
 
 def _shutter(ds: dict, source: str) -> float:
@@ -446,7 +459,8 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
     req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
                         executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor,
                         # the masks need render-video's triangles, the blur key its neighbouring frames
-                        materials=recipe.materials and spec.dynamic, shutter=recipe.shutter if spec.dynamic else 0.0)
+                        materials=recipe.materials and spec.dynamic, shutter=recipe.shutter if spec.dynamic else 0.0,
+                        fstop=recipe.lens[0], focus=recipe.lens[1])
     if spec.dynamic:
         render_video(req)
     else:

@@ -133,6 +133,9 @@ def add_effect_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("camera effects (off by default; docs/CONVENTIONS.md)")
     g.add_argument("--shutter", type=float, default=0.0, metavar="FRACTION",
                    help="Cycles' motion blur over this fraction of a frame, centred on it (e.g. 0.5), and the key blur (default 0: none)")
+    g.add_argument("--fstop", type=float, default=0.0, metavar="N",
+                   help="render through a thin lens of this f-number (with --focus), and add the key coc (default 0: a pinhole)")
+    g.add_argument("--focus", type=float, default=0.0, metavar="METRES", help="the distance every view focuses at (with --fstop)")
     g.add_argument("--materials", action="store_true",
                    help="add the material masks transmissive, mirror, emissive and depth_behind (the first opaque surface's depth)")
     g.add_argument("--iso", type=float, default=None, help="add rgb_noisy: the image of a sensor at this ISO (e.g. 800; default: none)")
@@ -143,7 +146,7 @@ def add_effect_options(p: argparse.ArgumentParser) -> None:
 
 def effect_fields(args: argparse.Namespace) -> dict:
     """The `RenderRequest` fields of :func:`add_effect_options`' options."""
-    return dict(materials=args.materials, shutter=args.shutter, sensor=sensor_model(args))
+    return dict(materials=args.materials, shutter=args.shutter, fstop=args.fstop, focus=args.focus, sensor=sensor_model(args))
 
 
 def sensor_model(args: argparse.Namespace):

@@ -104,6 +104,16 @@ class Dataset:
         return sensor.SensorModel.from_dict(doc)
 
     @property
+    def defocus(self) -> tuple[float, float]:
+        """(aperture diameter, focus distance) in metres of the render's thin lens (``--fstop``, ``--focus``):
+        the focal length over the f-number; LfusdError where the render was a pinhole."""
+        doc = self.record.settings.get("defocus")
+        if not isinstance(doc, dict) or not all(isinstance(doc.get(k), (int, float)) and doc[k] > 0 for k in ("fstop", "focus")):
+            raise LfusdError(f"{self.root} was rendered with a pinhole camera, so it has no coc; "
+                             "render it again with --fstop and --focus (e.g. --fstop 2.8 --focus 3) into another folder")
+        return float(self.rig.focal_length_mm) * 1e-3 / float(doc["fstop"]), float(doc["focus"])
+
+    @property
     def baseline(self) -> float:
         return float(self.rig.baseline)
 
@@ -167,7 +177,8 @@ class Dataset:
         if key in stored:
             return stored[key].copy()  # the cache must not be mutated by callers
         if k.stage == STATIC:
-            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance, self.cam_to_world(frame, view))
+            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance, self.cam_to_world(frame, view),
+                                   self.defocus if key == "coc" else None)
             return passes.DERIVED[key](stored, info)
         raw = self._raw(str(d))
         if key not in raw:

@@ -383,14 +383,25 @@ def position(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> np.n
     return np.where(fg[..., None], p, np.nan).astype(np.float32)
 
 
+def circle_of_confusion(depth: np.ndarray, focal_px: float, aperture_m: float, focus_m: float) -> np.ndarray:
+    """The ``coc`` key: the diameter in pixels of the disc a point at planar depth z is spread over by a
+    thin lens of aperture diameter A focused on the plane at planar depth S, as Cycles renders it
+    (its image plane at the focal length): f_px * A * |1/S - 1/z|; f_px * A / S where no surface (z = inf)."""
+    with np.errstate(divide="ignore"):
+        inv = np.where(np.isfinite(depth), 1.0 / depth.astype(np.float64), 0.0)
+    return (focal_px * aperture_m * np.abs(1.0 / focus_m - inv)).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class ViewInfo:
-    """What a derived static key needs beside the stored keys: the view's K and pose, the rig baseline, the class table."""
+    """What a derived static key needs beside the stored keys: the view's K and pose, the rig baseline, the class
+    table, and the lens's (aperture diameter, focus distance) in metres for a render with --fstop."""
 
     K: np.ndarray
     baseline: float
     class_of_instance: np.ndarray
     cam_to_world: np.ndarray | None = None
+    defocus: tuple[float, float] | None = None
 
 
 # Derived static keys (lfusd.keys.STATIC): name -> f(stored keys {depth, instance, ...}, ViewInfo).
@@ -399,6 +410,7 @@ DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
     "semantic": lambda raw, info: semantic(raw["instance"], info.class_of_instance),
     "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
     "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),
+    "coc": lambda raw, info: circle_of_confusion(raw["depth"], float(info.K[0, 0]), *info.defocus),
 }
 
 

@@ -87,6 +87,7 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         **({"sensor": req.sensor.to_dict()} if req.sensor is not None else {}),
         **({"materials": True} if req.materials else {}),
         **({"shutter": req.shutter} if req.shutter else {}),
+        **({"defocus": {"fstop": req.fstop, "focus": req.focus}} if req.fstop else {}),
     }
 
 

@@ -826,6 +826,21 @@ def _shift_lenses(scene, on: bool) -> None:
         cam.shift_y = -SAMPLE_OFFSET_PX[1] / w if on else 0.0
 
 
+def _use_lens(scene, fstop: float, focus: float) -> None:
+    """--fstop / --focus: every view's camera a thin lens (Cycles' depth of field, a round aperture of
+    diameter lens / fstop, focused on the plane at planar depth ``focus`` metres); 0: a pinhole."""
+    for view in scene.render.views:
+        if not view.use:
+            continue
+        dof = bpy.data.objects[VIEW_PREFIX + view.camera_suffix].data.dof
+        dof.use_dof = fstop > 0
+        if fstop > 0:
+            dof.focus_object = None
+            dof.focus_distance = focus
+            dof.aperture_fstop = fstop
+            dof.aperture_blades = 0  # a disc
+
+
 def data_material(motion: bool, materials: bool = False):
     """The one material of the data render (a view-layer override): opaque black, with the t+/-1
     position AOVs when ``motion`` and the first surface's material flags (MaterialFlags) when ``materials``.
@@ -965,6 +980,7 @@ def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> No
     if job.shutter > 0:
         scene.render.motion_blur_shutter = job.shutter
         scene.render.motion_blur_position = "CENTER"
+    _use_lens(scene, job.fstop, job.focus)
     _render(scene, os.path.join(scratch, "rgb"), "beauty")
 
 
@@ -990,6 +1006,7 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     im.use_exr_interleave = True
     _shift_lenses(scene, True)
     scene.render.use_motion_blur = False  # every data pass at the frame's instant (Cycles' vector pass needs it off too)
+    _use_lens(scene, 0.0, 0.0)  # and through the lens centre
     _render(scene, os.path.join(scratch, "passes"), "data")
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t
     phases["data_cpu"] = phases.get("data_cpu", 0.0) + time.process_time() - c

@@ -23,7 +23,7 @@ def tiny_video(tmp_path_factory):
     write_motion_stage(stage, RIG, 3)
     out = root / "out"
     assert main(["render-video", str(stage), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw",
-                 "--materials", "--iso", "400"]) == 0  # every camera effect that adds keys: every key of the registry
+                 "--materials", "--iso", "400", "--shutter", "0.5", "--fstop", "2", "--focus", "5"]) == 0  # every camera effect: every key
     return out
 
 
