@@ -656,6 +656,21 @@ def _plots(root: Path, card: dict, records: dict, specs: list[SceneSpec]) -> lis
     return names
 
 
+def effects_text(r: dict) -> str:
+    """The camera effects of a recipe (card.json's ``recipe``) in words: what the card says the dataset has."""
+    on = []
+    if r.get("shutter"):
+        on.append(f"motion blur over {r['shutter']:g} of a frame (key blur, dynamic scenes)")
+    if (r.get("lens") or (0, 0))[0]:
+        on.append(f"defocus at f/{r['lens'][0]:g} focused at {r['lens'][1]:g} m (key coc)")
+    if r.get("sensor"):
+        sn = r["sensor"]
+        on.append(f"sensor noise at ISO {sn['iso']:g}, seed {sn['seed']}" + (f", JPEG {sn['jpeg']}" if sn["jpeg"] else "") + " (key rgb_noisy)")
+    if r.get("materials"):
+        on.append("material masks and depth_behind (dynamic scenes)")
+    return "; ".join(on) if on else "none (sharp, noiseless pinhole images)"
+
+
 def card_markdown(card: dict, plots: list[str]) -> str:
     r = card["recipe"]
     lines = [f"# Dataset card: {card['name']}", "",
@@ -663,6 +678,7 @@ def card_markdown(card: dict, plots: list[str]) -> str:
              f"{r['samples']} samples; verification: {r['verify']} ({'all passed' if card['verified'] else 'SOME FAILED'}"
              f"{', limits replaced: ' + ', '.join(f'{k} {v:g}' for k, v in r['thresholds']) if r['thresholds'] else ''}). "
              f"Statistics over the {card['stats_views']} view(s) of every rig and frame: {card['pixels']} pixels.", "",
+             f"Camera effects: {effects_text(r)}.", "",
              "## Scenes", "", "| scene | part | template | seed | rigs | frames | verified | px compared | disparity (px) | motion: frames moving / >= 5 % / mean |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for s in card["scenes"]:

@@ -191,3 +191,18 @@ def test_render_video_options_build_the_sensor_model_and_refuse_its_options_with
     with pytest.raises(LfusdError, match="sensor jpeg"):
         argtypes.sensor_model(p.parse_args(["--iso", "400", "--jpeg", "200"]))
     assert isinstance(p, argparse.ArgumentParser)
+
+
+def test_the_card_says_which_camera_effects_the_dataset_has():
+    from dataclasses import asdict
+    import tomllib
+
+    from lfusd.recipe import effects_text, parse_recipe
+
+    plain = json.loads(json.dumps(asdict(parse_recipe(tomllib.loads(RECIPE.format(sensor=""))))))
+    assert effects_text(plain).startswith("none")
+    text = RECIPE.format(sensor="shutter = 0.5\nfstop = 2.8\nfocus = 3.0\nmaterials = true\n[dataset.sensor]\niso = 800\njpeg = 90\n")
+    r = json.loads(json.dumps(asdict(parse_recipe(tomllib.loads(text)))))
+    said = effects_text(r)
+    for part in ("motion blur over 0.5", "f/2.8 focused at 3 m", "ISO 800", "JPEG 90", "material masks"):
+        assert part in said, said
