@@ -27,7 +27,7 @@ def rendered(tmp_path_factory):
     write_material_stage(stage)
     out = root / "out"
     assert main(["render-video", str(stage), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu", "--materials",
-                 "--verify"]) == 0  # --verify: exit 0 only when lfusd verify passes with the effect on
+                 "--iso", "800", "--verify"]) == 0  # --verify: exit 0 only when lfusd verify passes with the effects on
     return out
 
 
@@ -81,3 +81,15 @@ def test_depth_behind_is_the_ray_cast_that_skips_transmissive_surfaces(rendered)
         assert np.allclose(got[glass], behind[glass], rtol=1e-5)
         assert (got[glass] > ds.read(1, view, "depth")[glass] + 1).all()  # behind the pane: the wall 1.5 m further
         assert np.array_equal(got[~glass], ds.read(1, view, "depth")[~glass])  # elsewhere the first surface itself
+
+
+def test_preview_shows_the_effects_the_dataset_has(rendered, tmp_path):
+    from lfusd.data.formats import read_png
+    from lfusd.evaluation.preview import preview
+
+    ds = Dataset(rendered)
+    names = {p.name for p in preview(ds, tmp_path / "preview", video=False)}
+    assert {"rgb_noisy_0001.png", "materials_0001.png", "depth_behind_0001.png"} <= names, names
+    assert not {"blur_0001.png", "coc_0001.png"} & names  # rendered without --shutter and --fstop
+    noisy = read_png(tmp_path / "preview" / "rgb_noisy_0001.png")
+    assert np.array_equal(noisy, ds.read(1, tuple(ds.rig.centre_view), "rgb_noisy"))
