@@ -543,6 +543,9 @@ def realize_instances(scene, job: WorkUnit) -> None:
     for name in anchors:
         bpy.data.objects[name].hide_render = True
     frames = sorted({g for f in job.frames for g in (f - 1, f, f + 1) if first <= g <= last})
+    # keys interpolate linearly between frames, as USD's samples do: what --shutter's motion blur
+    # sees between them (the keys themselves are exact at every frame whatever the interpolation)
+    bpy.context.preferences.edit.keyframe_new_interpolation_type = "LINEAR"
     for f in frames:
         scene.frame_set(f)
         for inst in bpy.context.evaluated_depsgraph_get().object_instances:
