@@ -28,7 +28,17 @@ IMAGE = "image"  # the beauty render
 RAW = "raw pass"  # Blender's data passes, converted to the conventions on read
 STATIC = "derived static"  # computed on read from one view's stored keys and the metadata
 MOTION = "derived motion"  # derived from frames t-1, t, t+1 (lfusd.truth.motion), stored in motion.exr
-STAGES = (IMAGE, RAW, STATIC, MOTION)
+CAST = "ray cast"  # cast through the frame's rendered triangles (geometry.npz, render-video) when gt.exr is written
+STAGES = (IMAGE, RAW, STATIC, MOTION, CAST)
+
+# Camera effects that add keys (lfusd.render.request.RenderRequest): "sensor" (--iso, lfusd.data.sensor),
+# "materials" (--materials: the first surface's material flags, from the worker's MATERIAL_AOV),
+# "blur" (--shutter: Cycles' motion blur in the image, its extent per pixel in the key blur),
+# "defocus" (--fstop, --focus: Cycles' thin lens in the image, the circle of confusion in the key coc).
+EFFECTS = ("sensor", "materials", "blur", "defocus")
+# Bits of the raw `material` pass: what the first surface's material is (lfusd.render.worker.material_flags).
+TRANSMISSIVE, MIRROR, EMISSIVE = 1, 2, 4
+MATERIAL_MASKS = {"transmissive": TRANSMISSIVE, "mirror": MIRROR, "emissive": EMISSIVE}  # mask key -> its bit
 
 # Units of the verification accuracies, as lfusd.truth.verify reports them.
 _ACCURACY_UNITS = {"rel": "relative", "px": "px", "m": "m", "frac": "of pixels disagree"}  # for markdown_table
@@ -91,6 +101,7 @@ class Key:
     step: int = 0  # +1 / -1: describes the motion to frame t+1 / t-1 and is defined only where that frame exists
     accuracy: float | None = None  # verification limit on the p99 error (lfusd.truth.verify)
     accuracy_unit: str | None = None  # 'rel', 'px', 'm' or 'frac'
+    effect: str | None = None  # the camera effect (EFFECTS) a render must turn on to make this key; None: always made
 
     def full_shape(self, height: int, width: int) -> tuple[int, ...]:
         """The array shape of this key in an image of ``height`` x ``width`` pixels."""
@@ -104,6 +115,9 @@ _TABLE = (
         storage=Storage("computed", sources=("rgb_linear",))),  # rgb.png instead when rgb_linear is not asked for
     Key("rgb_linear", "float32", (3,), "linear RGB", "the rendered image, linear (scene-referred) RGB", _RGB, IMAGE,
         storage=Storage("image")),
+    Key("rgb_noisy", "uint8", (3,), "sRGB", "the image a sensor would record: the sensor model of docs/CONVENTIONS.md applied to "
+        "`rgb_linear` (noise, gain, vignetting, colour response, optional JPEG), reproducible for the seed", _RGB, IMAGE,
+        storage=Storage("computed", sources=("rgb_linear",)), effect="sensor"),
     Key("depth", "float32", (), "m", "planar z-depth along the optical axis; `inf` where no surface", _GT, RAW,
         accuracy=1e-4, accuracy_unit="rel", storage=Storage("float32")),
     Key("normal", "float32", (3,), "unitless", "unit surface normal, world frame: the mesh's shading normal (its normals interpolated), without normal or bump maps, on the side the camera sees (negated where the ray meets a triangle's back, as Cycles does); NaN where no surface", _GT, RAW,
@@ -118,6 +132,19 @@ _TABLE = (
         _RAW, RAW),
     Key("prev_position", "float32", (3,), "m", "world position at t-1 of the surface point seen at t; NaN where unknown (render-video)",
         _RAW, RAW),
+    Key("material", "int32", (), "flags", "the first surface's material: bit 1 transmissive, 2 mirror-like, 4 emissive (render-video --materials)",
+        _RAW, RAW, effect="materials"),
+    Key("transmissive", "bool", (), "mask", "the first surface's material lets light through (opacity or alpha below 1, transmission, "
+        "a glass or transparent BSDF): the image shows what lies behind it (render-video --materials)", _GT, RAW,
+        storage=Storage("mask", 5), effect="materials"),
+    Key("mirror", "bool", (), "mask", "the first surface's material is mirror-like: roughness at most 0.2 and metallic at least 0.5 "
+        "or specular at least 0.5: the image shows reflections (render-video --materials)", _GT, RAW, storage=Storage("mask", 6),
+        effect="materials"),
+    Key("emissive", "bool", (), "mask", "the first surface's material emits light (render-video --materials)", _GT, RAW,
+        storage=Storage("mask", 7), effect="materials"),
+    Key("depth_behind", "float32", (), "m", "planar z-depth of the first surface along the pixel's ray that is not transmissive: "
+        "`depth` where the first surface is opaque, what lies behind where it is transmissive; `inf` where none "
+        "(render-video --materials)", _GT, CAST, storage=Storage("float32"), effect="materials"),
     Key("semantic", "int32", (), "id", "class id listed in the class table (0 = unlabelled)", _GT, STATIC,
         storage=Storage("computed", sources=("instance",))),
     Key("disparity", "float32", (), "px", "pixels per unit baseline step, d = f_px * b / z (planar, parallel rigs); 0 where no surface",
@@ -125,6 +152,9 @@ _TABLE = (
     Key("depth_euclidean", "float32", (), "m",
         "distance along the pixel's ray from the camera centre to the surface, depth * ||K^-1 [u, v, 1]||; `inf` where no surface",
         _GT, STATIC, storage=Storage("computed", sources=("depth",))),
+    Key("coc", "float32", (), "px", "diameter of the circle of confusion: the disc the lens spreads the pixel's surface point over "
+        "(render-video --fstop N --focus S), f_px * (f / N) * |1/S - 1/depth| (Cycles' thin lens, f the focal length)",
+        _GT, STATIC, storage=Storage("computed", sources=("depth",)), effect="defocus"),
     Key("flow_fwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t+1", _MOTION, MOTION,
         step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
     Key("flow_bwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t-1", _MOTION, MOTION,
@@ -134,6 +164,10 @@ _TABLE = (
         step=1, accuracy=1e-3, accuracy_unit="m", storage=Storage("fixed", 17)),
     Key("disparity_change", "float32", (), "px", "disparity of that point at t+1 minus its disparity at t", _MOTION, MOTION,
         step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),
+    Key("blur", "float32", (), "px", "length of the image-space path of the surface point seen at (u, v) over the shutter "
+        "(t - s/2 to t + s/2, render-video --shutter s): how far Cycles' motion blur smears it, the point and the camera moving "
+        "linearly between their poses at t-1, t and t+1; 0 where no surface; NaN where t-1 or t+1 is not in the dataset or the "
+        "point's motion is unknown", _MOTION, MOTION, storage=_FLOW, effect="blur"),
     Key("valid_fwd", "bool", (), "mask", "where the forward motion ground truth is defined", _MOTION, MOTION, step=1,
         storage=Storage("mask", 0)),
     Key("valid_bwd", "bool", (), "mask", "where the backward motion ground truth is defined", _MOTION, MOTION, step=-1,
@@ -174,6 +208,7 @@ class RawPass:
     switch: str | None = None
     neighbour: str | None = None
     required: bool = True
+    aov: bool = False  # an AOV of the data material (a COLOR group), not a render pass
 
     @property
     def channel_names(self) -> tuple[str, ...]:
@@ -187,12 +222,14 @@ RAW_PASSES = (
     RawPass("position", "Position", "XYZ", "float32", "use_pass_position"),
     RawPass("instance", "Object Index", "X", "int32", "use_pass_object_index"),  # a float holding the pass index
     RawPass("vector", "Vector", "XYZW", "float32", "use_pass_vector", required=False),
-    RawPass("next_position", "next_position", "XYZ", "float32", neighbour="next", required=False),  # a COLOR AOV (RGBA)
-    RawPass("prev_position", "prev_position", "XYZ", "float32", neighbour="prev", required=False),
+    RawPass("next_position", "next_position", "XYZ", "float32", neighbour="next", required=False, aov=True),  # a COLOR AOV (RGBA)
+    RawPass("prev_position", "prev_position", "XYZ", "float32", neighbour="prev", required=False, aov=True),
+    RawPass("material", "lfusd_material", "X", "int32", required=False, aov=True),  # --materials: the flags as a float, in R
 )
 RAW_PASS: dict[str, RawPass] = {p.key: p for p in RAW_PASSES}
 PASS_SWITCHES = tuple(p.switch for p in RAW_PASSES if p.switch)  # the ViewLayer switches of the data render
 MOTION_AOVS = tuple(p for p in RAW_PASSES if p.neighbour)  # rendered only by render-video
+MATERIAL_AOV = RAW_PASS["material"]  # rendered only with --materials
 
 
 def names(*stages: str) -> tuple[str, ...]:
@@ -225,15 +262,22 @@ def stored(wanted) -> tuple[str, ...]:
 _AOV_KEYS = tuple(p.key for p in MOTION_AOVS)
 
 
-def check_wanted(wanted, motion: bool, keep_raw: bool) -> tuple[str, ...]:
+_EFFECT_OPTION = {"sensor": "--iso", "materials": "--materials", "blur": "--shutter", "defocus": "--fstop"}
+
+
+def check_wanted(wanted, motion: bool, keep_raw: bool, effects=()) -> tuple[str, ...]:
     """The keys a render writes, validated (``--keys``): LfusdError in one line naming the first
-    unknown key, a motion key without render-video or a raw pass without ``--keep-raw``.
-    ``wanted`` None: every key the render makes (raw passes with ``keep_raw``)."""
+    unknown key, a motion key without render-video, a raw pass without ``--keep-raw`` or a key of a
+    camera effect (:data:`EFFECTS`) the render does not turn on (``effects``).
+    ``wanted`` None: every key the render makes (raw passes with ``keep_raw``, effects' keys with them)."""
+    effects = set(effects)
     if wanted is None:
         return tuple(k.name for k in _TABLE if (motion or k.stage != MOTION) and (keep_raw or k.storage.encoding != "raw")
-                     and (motion or k.name not in _AOV_KEYS))
+                     and (motion or k.name not in _AOV_KEYS) and (k.effect is None or k.effect in effects))
     for name in wanted:
         k = get(name)
+        if k.effect is not None and k.effect not in effects:
+            raise LfusdError(f"--keys {name}: made only with {_EFFECT_OPTION[k.effect]}; add it or drop the key")
         if k.stage == MOTION and not motion:
             raise LfusdError(f"--keys {name}: motion keys need 'lfusd render-video'; drop it or render a video")
         if k.storage.encoding == "raw" and not keep_raw:

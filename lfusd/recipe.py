@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from . import layout
+from .data.sensor import SensorModel
 from .errors import LfusdError
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,10 @@ class Recipe:
     stats_views: str = "centre"
     thresholds: tuple[tuple[str, float], ...] = ()  # [dataset.thresholds]: verify limits replaced (KEY = VALUE)
     catalogues: tuple[str, ...] = ()  # dataset.catalogues: asset catalogue files (lfusd.author.catalogue), resolved
+    lens: tuple[float, float] = (0.0, 0.0)  # dataset.fstop, dataset.focus: every view's thin lens (render-video --fstop --focus)
+    shutter: float = 0.0  # dataset.shutter: motion blur over this fraction of a frame and the key blur (render-video --shutter)
+    materials: bool = False  # dataset.materials: the material masks and depth_behind (render-video --materials)
+    sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
 
 
 @dataclass(frozen=True)
@@ -134,7 +139,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues"}
+             "catalogues", "sensor", "materials", "shutter", "fstop", "focus"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -239,7 +244,46 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
-                  tuple(sorted(thresholds)), tuple(catalogues))
+                  tuple(sorted(thresholds)), tuple(catalogues), _lens(ds, source), _shutter(ds, source),
+                  _get(ds, "materials", bool, source, w, "must be true or false", False),
+                  _sensor(ds.get("sensor"), source))
+
+
+def _lens(ds: dict, source: str) -> tuple[float, float]:
+    values = []
+    for k in ("fstop", "focus"):
+        v = ds.get(k, 0.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0:
+            raise _bad(source, "dataset." + k, v, "must be a non-negative number")
+        values.append(float(v))
+    if bool(values[0]) != bool(values[1]):
+        raise _bad(source, "dataset.fstop", values[0], "and dataset.focus go together (e.g. fstop = 2.8, focus = 3.0)")
+    return values[0], values[1]
+
+
+def _shutter(ds: dict, source: str) -> float:
+    v = ds.get("shutter", 0.0)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1:
+        raise _bad(source, "dataset.shutter", v, "must be a fraction of a frame in 0-1 (e.g. 0.5)")
+    return float(v)
+
+
+def _sensor(table, source: str) -> SensorModel | None:
+    """[dataset.sensor]: any of SensorModel's fields (lfusd.data.sensor); the table turns the sensor on."""
+    if table is None:
+        return None
+    fields = SensorModel.__dataclass_fields__
+    if not isinstance(table, dict):
+        raise _bad(source, "dataset.sensor", table, f"must be a table of {', '.join(fields)}")
+    for k, v in table.items():
+        if k not in fields:
+            raise LfusdError(f"recipe {source}: unknown field dataset.sensor.{k}; use one of {', '.join(fields)}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or (k in ("jpeg", "seed") and not isinstance(v, int)):
+            raise _bad(source, f"dataset.sensor.{k}", v, "must be an integer" if k in ("jpeg", "seed") else "must be a number")
+    try:
+        return SensorModel(**table).check()
+    except LfusdError as e:
+        raise LfusdError(f"recipe {source}: dataset.{e}") from None
 
 
 def load_recipe(path) -> Recipe:
@@ -416,7 +460,10 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
         generate(spec.template, stage, spec.seed, frames=spec.frames, rigs=spec.rigs, grid=spec.grid,
                  resolution=spec.resolution, dynamic=spec.dynamic, catalogues=spec.catalogues)
     req = RenderRequest(stage=stage, out=out, rig="all", samples=recipe.samples, device=recipe.device, workers=recipe.workers,
-                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet)
+                        executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor,
+                        # the masks need render-video's triangles, the blur key its neighbouring frames
+                        materials=recipe.materials and spec.dynamic, shutter=recipe.shutter if spec.dynamic else 0.0,
+                        fstop=recipe.lens[0], focus=recipe.lens[1])
     if spec.dynamic:
         render_video(req)
     else:
@@ -625,6 +672,21 @@ def _plots(root: Path, card: dict, records: dict, specs: list[SceneSpec]) -> lis
     return names
 
 
+def effects_text(r: dict) -> str:
+    """The camera effects of a recipe (card.json's ``recipe``) in words: what the card says the dataset has."""
+    on = []
+    if r.get("shutter"):
+        on.append(f"motion blur over {r['shutter']:g} of a frame (key blur, dynamic scenes)")
+    if (r.get("lens") or (0, 0))[0]:
+        on.append(f"defocus at f/{r['lens'][0]:g} focused at {r['lens'][1]:g} m (key coc)")
+    if r.get("sensor"):
+        sn = r["sensor"]
+        on.append(f"sensor noise at ISO {sn['iso']:g}, seed {sn['seed']}" + (f", JPEG {sn['jpeg']}" if sn["jpeg"] else "") + " (key rgb_noisy)")
+    if r.get("materials"):
+        on.append("material masks and depth_behind (dynamic scenes)")
+    return "; ".join(on) if on else "none (sharp, noiseless pinhole images)"
+
+
 def card_markdown(card: dict, plots: list[str]) -> str:
     r = card["recipe"]
     lines = [f"# Dataset card: {card['name']}", "",
@@ -632,6 +694,7 @@ def card_markdown(card: dict, plots: list[str]) -> str:
              f"{r['samples']} samples; verification: {r['verify']} ({'all passed' if card['verified'] else 'SOME FAILED'}"
              f"{', limits replaced: ' + ', '.join(f'{k} {v:g}' for k, v in r['thresholds']) if r['thresholds'] else ''}). "
              f"Statistics over the {card['stats_views']} view(s) of every rig and frame: {card['pixels']} pixels.", "",
+             f"Camera effects: {effects_text(r)}.", "",
              "## Scenes", "", "| scene | part | template | seed | rigs | frames | verified | px compared | disparity (px) | motion: frames moving / >= 5 % / mean |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for s in card["scenes"]:

@@ -39,11 +39,14 @@ def test_producers_and_consumers_take_their_key_lists_from_the_registry():
     from lfusd.truth.motion import MOTION_KEYS
 
     assert set(passes.DERIVED) == set(keys.names(keys.STATIC))
-    assert MOTION_KEYS == keys.names(keys.MOTION)
+    assert MOTION_KEYS == tuple(k for k in keys.names(keys.MOTION) if keys.KEYS[k].effect is None)  # blur: lfusd.truth.blur
     assert verify.THRESHOLDS == keys.accuracies() and set(verify.UNITS) == set(verify.THRESHOLDS) | set(verify.EXACT)
     assert set(verify.THRESHOLDS) | set(verify.EXACT) <= set(verify.KEYS + verify.CHECKED) <= set(keys.KEYS)
     assert keys.names() == tuple(keys.KEYS)
-    assert set(keys.names(keys.IMAGE, keys.RAW, keys.STATIC, keys.MOTION)) == set(keys.KEYS)
+    assert set(keys.names(keys.IMAGE, keys.RAW, keys.STATIC, keys.MOTION, keys.CAST)) == set(keys.KEYS)
+    from lfusd.truth.derive import CAST_KEYS
+
+    assert set(CAST_KEYS) == set(keys.names(keys.CAST))
 
 
 def test_torch_dataset_accepts_every_key():

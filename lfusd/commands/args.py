@@ -127,6 +127,39 @@ def add_render_options(p: argparse.ArgumentParser, samples_help: str) -> None:
     p.add_argument("--keep-raw", action="store_true", help="keep Blender's raw passes (passes.exr) beside the stored keys")
 
 
+def add_effect_options(p: argparse.ArgumentParser) -> None:
+    """The camera effects' options (docs/CONVENTIONS.md, "Camera effects"), all off by default:
+    ``--materials`` and the sensor model's (lfusd.data.sensor; ``--iso`` turns it on and adds rgb_noisy)."""
+    g = p.add_argument_group("camera effects (off by default; docs/CONVENTIONS.md)")
+    g.add_argument("--shutter", type=float, default=0.0, metavar="FRACTION",
+                   help="Cycles' motion blur over this fraction of a frame, centred on it (e.g. 0.5), and the key blur (default 0: none)")
+    g.add_argument("--fstop", type=float, default=0.0, metavar="N",
+                   help="render through a thin lens of this f-number (with --focus), and add the key coc (default 0: a pinhole)")
+    g.add_argument("--focus", type=float, default=0.0, metavar="METRES", help="the distance every view focuses at (with --fstop)")
+    g.add_argument("--materials", action="store_true",
+                   help="add the material masks transmissive, mirror, emissive and depth_behind (the first opaque surface's depth)")
+    g.add_argument("--iso", type=float, default=None, help="add rgb_noisy: the image of a sensor at this ISO (e.g. 800; default: none)")
+    g.add_argument("--jpeg", type=int, default=0, metavar="QUALITY", help="JPEG-compress rgb_noisy at this quality 1-100 (default 0: none)")
+    g.add_argument("--vignetting", type=float, default=0.3, help="mean corner fall-off of rgb_noisy's cameras, 0-0.95 (default 0.3)")
+    g.add_argument("--sensor-seed", type=int, default=0, help="seed of the cameras' variation and the noise (default 0)")
+
+
+def effect_fields(args: argparse.Namespace) -> dict:
+    """The `RenderRequest` fields of :func:`add_effect_options`' options."""
+    return dict(materials=args.materials, shutter=args.shutter, fstop=args.fstop, focus=args.focus, sensor=sensor_model(args))
+
+
+def sensor_model(args: argparse.Namespace):
+    """The `RenderRequest.sensor` of :func:`add_sensor_options`' options (None without --iso)."""
+    from ..data.sensor import SensorModel
+
+    if args.iso is None:
+        if args.jpeg or args.sensor_seed or args.vignetting != 0.3:
+            raise LfusdError("--jpeg, --vignetting and --sensor-seed shape rgb_noisy, made only with --iso; add --iso (e.g. --iso 800)")
+        return None
+    return SensorModel(iso=args.iso, jpeg=args.jpeg, vignetting=args.vignetting, seed=args.sensor_seed).check()
+
+
 def run_help(parser: argparse.ArgumentParser):
     """The handler of a command group given no action: its help, exit 2."""
 

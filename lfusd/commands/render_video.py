@@ -15,6 +15,7 @@ def register(sub) -> None:
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (default: start a local Ray)")
     p.add_argument("--verify", action="store_true", help="run 'lfusd verify' on the result")
     argtypes.add_render_options(p, "the RGB images")
+    argtypes.add_effect_options(p)
     p.set_defaults(func=run)
 
 
@@ -23,7 +24,7 @@ def run(args) -> int:
 
     req = RenderRequest(
         frames=list(range(args.frames[0], args.frames[1] + 1)) if args.frames else None, resolution=args.resolution,
-        executor=args.executor, ray_address=args.ray_address, **argtypes.render_request_fields(args),
+        executor=args.executor, ray_address=args.ray_address, **argtypes.effect_fields(args), **argtypes.render_request_fields(args),
     )
     result = render_video(req)
     first, last = result.frames[0], result.frames[-1]

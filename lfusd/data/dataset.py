@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import passes, store
+from . import passes, sensor, store
 from .. import cpu_account, layout
 from .folder import FrameMeta, Manifest, ObjectTable, read_frame_meta, read_manifest, read_objects
 from .integrity import check_claims, complete_frames
@@ -97,6 +97,25 @@ class Dataset:
         return self.rig.views
 
     @property
+    def sensor(self) -> "sensor.SensorModel":
+        """The sensor model of the ``rgb_noisy`` key (lfusd.data.sensor); LfusdError where the render had none."""
+        doc = self.record.settings.get("sensor")
+        if not isinstance(doc, dict):
+            raise LfusdError(f"{self.root} was rendered without a sensor model, so it has no rgb_noisy; "
+                             "render it again with --iso (e.g. --iso 800) into another folder")
+        return sensor.SensorModel.from_dict(doc)
+
+    @property
+    def defocus(self) -> tuple[float, float]:
+        """(aperture diameter, focus distance) in metres of the render's thin lens (``--fstop``, ``--focus``):
+        the focal length over the f-number; LfusdError where the render was a pinhole."""
+        doc = self.record.settings.get("defocus")
+        if not isinstance(doc, dict) or not all(isinstance(doc.get(k), (int, float)) and doc[k] > 0 for k in ("fstop", "focus")):
+            raise LfusdError(f"{self.root} was rendered with a pinhole camera, so it has no coc; "
+                             "render it again with --fstop and --focus (e.g. --fstop 2.8 --focus 3) into another folder")
+        return float(self.rig.focal_length_mm) * 1e-3 / float(doc["fstop"]), float(doc["focus"])
+
+    @property
     def baseline(self) -> float:
         return float(self.rig.baseline)
 
@@ -159,6 +178,8 @@ class Dataset:
             if not (d / layout.RGB_EXR).is_file():
                 raise LfusdError(f"{d} has no {layout.RGB_EXR} for key {key!r}; rerun the render command to repair the view")
             rgb = passes.read_rgb_linear(d / layout.RGB_EXR)
+            if key == "rgb_noisy":
+                return sensor.noisy_srgb(self.sensor, rgb, tuple(view), frame)
             return rgb if key == "rgb_linear" else passes.linear_to_srgb8(rgb)
         if k.stage == MOTION:
             return self._motion(d, key)
@@ -166,7 +187,8 @@ class Dataset:
         if key in stored:
             return stored[key].copy()  # the cache must not be mutated by callers
         if k.stage == STATIC:
-            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance, self.cam_to_world(frame, view))
+            info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance, self.cam_to_world(frame, view),
+                                   self.defocus if key == "coc" else None)
             return passes.DERIVED[key](stored, info)
         raw = self._raw(str(d))
         if key not in raw:
@@ -232,7 +254,7 @@ class Dataset:
         if self.version >= 2 and gt.is_file():
             return _cached(self._file_cache, str(gt), 4, lambda: store.read(gt))
         raw = self._raw(view_dir)
-        return raw if self.version == 1 else {k: raw[k] for k in GT_RAW}
+        return raw if self.version == 1 else {k: raw[k] for k in GT_RAW if k in raw}  # the material masks only with --materials
 
     def _motion(self, d: Path, key: str) -> np.ndarray:
         """One motion key of a view: from motion.exr (format version 2) or motion.npz (version 1)."""

@@ -24,7 +24,7 @@ import OpenEXR
 
 from ..camera import Camera, backproject, pixel_grid, ray_lengths
 from ..errors import LfusdError
-from ..keys import BACKGROUND_DEPTH, MOTION_AOVS, RAW_PASS, RAW_PASSES
+from ..keys import BACKGROUND_DEPTH, MATERIAL_AOV, MATERIAL_MASKS, MOTION_AOVS, RAW_PASS, RAW_PASSES
 
 
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
@@ -297,7 +297,7 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
     depth[background] = np.inf
     raw = {"depth": depth}
     for p in RAW_PASSES:
-        if p.key == "depth" or p.neighbour:
+        if p.key == "depth" or p.aov:
             continue
         if not p.required and _find(ch, p.channel_names[0]) is None:
             continue  # the vector pass: Dataset.raw_passes names its absence
@@ -315,6 +315,13 @@ def read_raw(path: str | Path) -> dict[str, np.ndarray]:
         if arr is not None:
             raw[p.key] = a = np.array(arr[..., : len(p.channels)], p.dtype, order="C")
             a[background] = np.nan
+    arr = next((a for n, a in ch.items() if n.endswith("." + MATERIAL_AOV.layer)), None)
+    if arr is not None:  # --materials: the flags of lfusd.keys.MATERIAL_MASKS, a small integer as a float in R
+        flags = np.rint(arr[..., 0]).astype(np.int32)
+        flags[background] = 0
+        raw["material"] = flags
+        for key, bit in MATERIAL_MASKS.items():
+            raw[key] = (flags & bit) != 0
     return raw
 
 
@@ -376,14 +383,25 @@ def position(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> np.n
     return np.where(fg[..., None], p, np.nan).astype(np.float32)
 
 
+def circle_of_confusion(depth: np.ndarray, focal_px: float, aperture_m: float, focus_m: float) -> np.ndarray:
+    """The ``coc`` key: the diameter in pixels of the disc a point at planar depth z is spread over by a
+    thin lens of aperture diameter A focused on the plane at planar depth S, as Cycles renders it
+    (its image plane at the focal length): f_px * A * |1/S - 1/z|; f_px * A / S where no surface (z = inf)."""
+    with np.errstate(divide="ignore"):
+        inv = np.where(np.isfinite(depth), 1.0 / depth.astype(np.float64), 0.0)
+    return (focal_px * aperture_m * np.abs(1.0 / focus_m - inv)).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class ViewInfo:
-    """What a derived static key needs beside the stored keys: the view's K and pose, the rig baseline, the class table."""
+    """What a derived static key needs beside the stored keys: the view's K and pose, the rig baseline, the class
+    table, and the lens's (aperture diameter, focus distance) in metres for a render with --fstop."""
 
     K: np.ndarray
     baseline: float
     class_of_instance: np.ndarray
     cam_to_world: np.ndarray | None = None
+    defocus: tuple[float, float] | None = None
 
 
 # Derived static keys (lfusd.keys.STATIC): name -> f(stored keys {depth, instance, ...}, ViewInfo).
@@ -392,6 +410,7 @@ DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
     "semantic": lambda raw, info: semantic(raw["instance"], info.class_of_instance),
     "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
     "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),
+    "coc": lambda raw, info: circle_of_confusion(raw["depth"], float(info.K[0, 0]), *info.defocus),
 }
 
 

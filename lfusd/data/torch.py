@@ -3,7 +3,7 @@
 One item is one frame (or a clip of ``clip`` consecutive frames) with a chosen subset of views and
 ground-truth keys, all views cropped with one window:
 
-- any key of lfusd.keys, channels first: ``rgb`` float32 [V,3,h,w] in [0, 1]; other float keys
+- any key of lfusd.keys, channels first: ``rgb`` (and ``rgb_noisy``) float32 [V,3,h,w] in [0, 1]; other float keys
   float32 [V,h,w] or [V,C,h,w] (``depth`` [V,h,w], ``flow_fwd`` [V,2,h,w], ``scene_flow`` [V,3,h,w]);
   integer keys (``instance``, ``semantic``) int64 [V,h,w]; masks (``valid_*``, ``occlusion_*``) bool [V,h,w].
   With ``clip > 1`` every key gains a leading time axis T.
@@ -124,7 +124,7 @@ def _to_tensor(key: str, a: np.ndarray, uint8_rgb: bool = False) -> torch.Tensor
     a = np.asarray(a)
     if not a.flags.writeable:  # e.g. images decoded by Pillow; torch wants writable memory
         a = a.copy()
-    if key == "rgb":
+    if key in ("rgb", "rgb_noisy"):  # 8-bit sRGB images
         t = torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)
         if uint8_rgb and a.dtype == np.uint8:
             return t

@@ -251,6 +251,18 @@ def preview(ds, dest, frame: int | None = None, video: bool = True, fps: float =
     for key in ("instance", "semantic"):
         lab = _try(ds.read, t, c, key)
         save(f"{key}_{t:04d}.png", None if lab is None else segmentation_overlay(rgb, lab))
+    # camera effects (docs/CONVENTIONS.md), where the dataset has them: the sensor's image, the
+    # material masks over the image (1 transmissive, 2 mirror-like, 4 emissive, as label colours),
+    # the depth behind transmissive surfaces, the motion-blur extent and the circle of confusion
+    save(f"rgb_noisy_{t:04d}.png", _try(ds.read, t, c, "rgb_noisy"))
+    masks = [_try(ds.read, t, c, k) for k in ("transmissive", "mirror", "emissive")]
+    if all(m is not None for m in masks):
+        save(f"materials_{t:04d}.png", segmentation_overlay(rgb, masks[0] * 1 + masks[1] * 2 + masks[2] * 4))
+    behind = _try(ds.read, t, c, "depth_behind")
+    save(f"depth_behind_{t:04d}.png", None if behind is None else depth_image(behind))
+    for key in ("blur", "coc"):
+        px = _try(ds.read, t, c, key)
+        save(f"{key}_{t:04d}.png", None if px is None else colormap(px, vmin=0.0, name="turbo", valid=np.isfinite(px)))
     flow_max = None
     flows = {}
     for tt in frames:

@@ -62,7 +62,7 @@ def grid_step(height: int, width: int, budget: int) -> int:
 def _read(ds, frame, view, key):
     try:
         return ds.read(frame, view, key)
-    except LfusdError:
+    except (LfusdError, KeyError):  # KeyError: a reader (DatasetLike) that has no such key at all
         return None
 
 
@@ -129,7 +129,7 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
     """Log one rig of a dataset to rerun recording ``rec``; returns counts of what was logged and
     the arrow scale used (``arrow_scale`` None: :func:`auto_arrow_scale`). ``lossless``: the
     images as raw pixels instead of JPEG."""
-    from .preview import flow_to_color
+    from .preview import colormap, flow_to_color
 
     rr = _rr()
     centre = tuple(ds.rig.centre_view)
@@ -161,6 +161,17 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
             flow, valid = _read(ds, t, centre, "flow_fwd"), _read(ds, t, centre, "valid_fwd")
             if flow is not None and valid is not None and np.asarray(valid).any():
                 rec.log(entity(rig, centre, "flow"), rr.Image(flow_to_color(flow, valid=np.asarray(valid, bool))))
+            # camera effects (docs/CONVENTIONS.md), where the dataset has them
+            noisy = _read(ds, t, centre, "rgb_noisy")
+            if noisy is not None:
+                rec.log(entity(rig, centre, "rgb_noisy"), rr.Image(noisy))
+            masks = [_read(ds, t, centre, k) for k in ("transmissive", "mirror", "emissive")]
+            if all(m is not None for m in masks):  # label 1 transmissive, 2 mirror-like, 4 emissive, summed
+                rec.log(entity(rig, centre, "materials"), rr.SegmentationImage((masks[0] * 1 + masks[1] * 2 + masks[2] * 4).astype(np.uint16)))
+            for key in ("blur", "coc"):
+                px = _read(ds, t, centre, key)
+                if px is not None:
+                    rec.log(entity(rig, centre, key), rr.Image(colormap(px, vmin=0.0, valid=np.isfinite(px))))
             pos = _read(ds, t, centre, "position")
             if pos is not None:
                 s = grid_step(h, w, max_points)

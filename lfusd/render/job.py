@@ -83,6 +83,11 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         "format_version": FORMAT_VERSION,
         "keys": list(req.stored_keys()),
         "keep_raw": req.keep_raw,
+        # camera effects, recorded only when on (a dataset rendered without them resumes as before)
+        **({"sensor": req.sensor.to_dict()} if req.sensor is not None else {}),
+        **({"materials": True} if req.materials else {}),
+        **({"shutter": req.shutter} if req.shutter else {}),
+        **({"defocus": {"fstop": req.fstop, "focus": req.focus}} if req.fstop else {}),
     }
 
 

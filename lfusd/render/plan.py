@@ -127,6 +127,10 @@ class WorkUnit:
     raw_codec: str = "ZIP"  # Blender's codec for the data passes (lfusd.render.request.raw_codec)
     beauty: bool = True  # False: the data passes alone (a repair that needs no image: Plan.raw_only)
     physical_sky: bool = False  # a DomeLight asks for Blender's physical sky (lfusd:sky = "physical")
+    fstop: float = 0.0  # --fstop / --focus: the beauty's thin lens (0: a pinhole); the data passes stay pinhole
+    focus: float = 0.0
+    shutter: float = 0.0  # --shutter: the beauty's motion blur (fraction of a frame, centred); the data passes stay sharp
+    materials: bool = False  # --materials: the material-flags AOV and per-triangle flags (lfusd.render.worker.mark_materials)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -221,6 +225,7 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                         width=width, height=height, samples=req.samples, device=req.device,
                         # Locally, workers share the cores; on Ray, Blender takes what the node has.
                         threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,
-                        motion=req.motion, render_pixels=RENDER_PIXELS, raw_codec=raw_codec, beauty=beauty, **asdict(setup),
+                        motion=req.motion, render_pixels=RENDER_PIXELS, raw_codec=raw_codec, beauty=beauty, materials=req.materials, shutter=req.shutter, fstop=req.fstop, focus=req.focus,
+                        **asdict(setup),
                     ))
     return units

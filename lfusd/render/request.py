@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import logging
+import math
 import os
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..data.sensor import SensorModel
 from ..errors import LfusdError
 
 DEVICES = ("auto", "cpu", "cuda", "optix")
@@ -50,6 +52,11 @@ class RenderRequest:
     light: str = "auto"  # one of LIGHTS
     keys: tuple[str, ...] | None = None  # --keys: the ground-truth keys to store (None: every key the render makes)
     keep_raw: bool = False  # --keep-raw: keep Blender's raw passes.exr beside the stored keys
+    materials: bool = False  # --materials: the material masks and depth_behind (render-video)
+    fstop: float = 0.0  # --fstop: the beauty through a thin lens of this f-number (0: a pinhole)
+    focus: float = 0.0  # --focus: the distance in metres every view of every rig focuses at (with --fstop)
+    shutter: float = 0.0  # --shutter: Cycles' motion blur over this fraction of a frame, centred on it; 0: none (render-video)
+    sensor: SensorModel | None = None  # --iso ...: the noisy image's sensor model (lfusd.data.sensor); None: no rgb_noisy
 
     def check(self) -> None:
         """Raise LfusdError naming the first impossible setting."""
@@ -65,13 +72,31 @@ class RenderRequest:
             raise LfusdError(f"unknown --light {self.light!r}; use one of {', '.join(LIGHTS)}")
         if self.ray_address and self.executor != "ray":
             raise LfusdError("--ray-address needs --executor ray")
+        if self.sensor is not None:
+            self.sensor.check()
+        if not (isinstance(self.shutter, (int, float)) and 0 <= self.shutter <= 1):
+            raise LfusdError(f"--shutter {self.shutter!r} is not a fraction of a frame in 0-1 (e.g. 0.5)")
+        for name, value in (("--fstop", self.fstop), ("--focus", self.focus)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise LfusdError(f"{name} {value!r} is not a non-negative number")
+        if bool(self.fstop) != bool(self.focus):
+            raise LfusdError("--fstop and --focus go together (a lens's f-number and the distance it focuses at, e.g. --fstop 2.8 --focus 3)")
+        if self.shutter and not self.motion:
+            raise LfusdError("--shutter needs the neighbouring frames that only 'lfusd render-video' renders; render a video")
+        if self.materials and not self.motion:
+            raise LfusdError("--materials needs the frame's triangles that only 'lfusd render-video' writes; render a video")
         self.stored_keys()
 
     def stored_keys(self) -> tuple[str, ...]:
         """The keys this render writes (``--keys``, validated against lfusd.keys; LfusdError in one line)."""
         from ..keys import check_wanted
 
-        return check_wanted(self.keys, self.motion, self.keep_raw)
+        return check_wanted(self.keys, self.motion, self.keep_raw, self.effects())
+
+    def effects(self) -> tuple[str, ...]:
+        """The camera effects (lfusd.keys.EFFECTS) this render turns on."""
+        on = {"sensor": self.sensor is not None, "materials": self.materials, "blur": bool(self.shutter), "defocus": bool(self.fstop)}
+        return tuple(name for name, yes in on.items() if yes)
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""

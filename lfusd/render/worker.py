@@ -33,7 +33,7 @@ import numpy as np
 from lfusd import cpu_account
 from lfusd.data.folder import atomic_write
 from lfusd.data.formats import link_or_copy
-from lfusd.keys import MOTION_AOVS, PASS_SWITCHES
+from lfusd.keys import EMISSIVE, MATERIAL_AOV, MIRROR, MOTION_AOVS, PASS_SWITCHES, TRANSMISSIVE
 from lfusd.processes import PARENT_PID_ENV, die_with_parent
 from lfusd.render.plan import WorkUnit, view_chunks
 
@@ -543,6 +543,9 @@ def realize_instances(scene, job: WorkUnit) -> None:
     for name in anchors:
         bpy.data.objects[name].hide_render = True
     frames = sorted({g for f in job.frames for g in (f - 1, f, f + 1) if first <= g <= last})
+    # keys interpolate linearly between frames, as USD's samples do: what --shutter's motion blur
+    # sees between them (the keys themselves are exact at every frame whatever the interpolation)
+    bpy.context.preferences.edit.keyframe_new_interpolation_type = "LINEAR"
     for f in frames:
         scene.frame_set(f)
         for inst in bpy.context.evaluated_depsgraph_get().object_instances:
@@ -663,9 +666,9 @@ def write_geometry(path: str, meshes: list) -> None:
     lfusd.truth.motion casts the visibility rays of exact occlusion against them.
 
     npz: ``vertices`` (N,3) float32 metres in lfusd's world, ``triangles`` (M,3) int32,
-    ``instance`` (M,) int32."""
+    ``instance`` (M,) int32; with --materials ``material`` (M,) int32, each triangle's flags (MaterialFlags)."""
     dg = bpy.context.evaluated_depsgraph_get()
-    verts, tris, inst, base = [], [], [], 0
+    verts, tris, inst, flags, base = [], [], [], [], 0
     for obj in meshes:
         if obj.hide_render or not obj.visible_get():
             continue
@@ -677,16 +680,143 @@ def write_geometry(path: str, meshes: list) -> None:
         t = np.empty(len(me.loop_triangles) * 3, np.int32)
         me.loop_triangles.foreach_get("vertices", t)
         m = np.array(ev.matrix_world, dtype=np.float64)
-        ev.to_mesh_clear()
         if not len(t):
+            ev.to_mesh_clear()
             continue
         verts.append((co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]).astype(np.float32))
         tris.append(t.reshape(-1, 3) + base)
         inst.append(np.full(len(t) // 3, obj.pass_index, np.int32))
         base += len(co) // 3
+        if MATERIALS is not None:
+            slot = np.empty(len(t) // 3, np.int32)
+            me.loop_triangles.foreach_get("material_index", slot)
+            per_slot = _slot_flags(obj)
+            flags.append(per_slot[np.clip(slot, 0, len(per_slot) - 1)])
+        ev.to_mesh_clear()
     cat = lambda parts, shape, dtype: np.concatenate(parts) if parts else np.zeros(shape, dtype)  # noqa: E731
+    extra = {"material": cat(flags, (0,), np.int32)} if MATERIALS is not None else {}  # --materials: each triangle's flags
     atomic_write(path, lambda tmp: np.savez(tmp, vertices=cat(verts, (0, 3), np.float32), triangles=cat(tris, (0, 3), np.int32),
-                                            instance=cat(inst, (0,), np.int32)), suffix=".npz")
+                                            instance=cat(inst, (0,), np.int32), **extra), suffix=".npz")
+
+
+# --materials: what the first surface's material is, as flags (lfusd.keys TRANSMISSIVE, MIRROR, EMISSIVE)
+# per material of Blender's scene (what the beauty renders), written on every mesh as a face attribute
+# that the data material's AOV reads (exact per pixel: constant over a face), and per triangle into
+# geometry.npz (the ray cast of depth_behind skips transmissive triangles).
+MATERIAL_ATTRIBUTE = "lfusd_material_flags"
+MIRROR_ROUGHNESS = 0.2  # mirror-like: roughness at most this, and metallic or specular at least MIRROR_REFLECT
+MIRROR_REFLECT = 0.5
+MATERIALS: dict | None = None  # material name -> flags, once mark_materials ran (None: --materials off)
+_COMPONENT = {"Red": 0, "Green": 1, "Blue": 2, "R": 0, "G": 1, "B": 2, "X": 0, "Y": 1, "Z": 2}
+_AFFINE = {"MULTIPLY_ADD": lambda a, b, c: a * b + c, "MULTIPLY": lambda a, b, c: a * b, "ADD": lambda a, b, c: a + b,
+           "SUBTRACT": lambda a, b, c: a - b}
+
+
+def _mean_value(sock, depth: int = 0) -> np.ndarray | None:
+    """The mean over the surface of a shader input, (3,): its value, or what an image texture feeds it
+    through channel splits and affine math (the importer's UsdUVTexture scale and bias; the mean of an
+    affine map is the map of the mean). None where the chain holds anything else."""
+    if not sock.is_linked:
+        v = sock.default_value
+        try:
+            return np.resize(np.array(v[:3], np.float64), 3)
+        except TypeError:
+            return np.full(3, float(v))
+    if depth > 8:
+        return None
+    link = sock.links[0]
+    node, out = link.from_node, link.from_socket.name
+    kind = node.bl_idname
+    if kind == "ShaderNodeTexImage":
+        image = node.image
+        if image is None or tuple(image.size) == (0, 0):
+            return None
+        px = np.empty(len(image.pixels), np.float32)
+        image.pixels.foreach_get(px)
+        mean = px.reshape(-1, image.channels).mean(axis=0).astype(np.float64)
+        return np.full(3, mean[3]) if out == "Alpha" and image.channels == 4 else np.resize(mean[:3], 3)
+    if kind in ("ShaderNodeSeparateColor", "ShaderNodeSeparateXYZ", "ShaderNodeSeparateRGB"):
+        c = _mean_value(node.inputs[0], depth + 1)
+        return None if c is None or out not in _COMPONENT else np.full(3, c[_COMPONENT[out]])
+    if kind in ("ShaderNodeMath", "ShaderNodeVectorMath") and node.operation in _AFFINE:
+        args = [_mean_value(i, depth + 1) for i in list(node.inputs)[:3]]
+        if any(a is None for a in args[:2]) or (node.operation == "MULTIPLY_ADD" and args[2] is None):
+            return None
+        return _AFFINE[node.operation](*args)
+    return None
+
+
+def _level(node, name: str, mat) -> float | None:
+    """The mean of one input of ``node`` (0 where the node has no such input); None, with a warning, where unknown."""
+    sock = node.inputs.get(name)
+    if sock is None:
+        return 0.0
+    v = _mean_value(sock)
+    if v is None:
+        warn_once(f"material {mat.name}: lfusd cannot evaluate the {name} that its nodes compute; its masks take it as 0")
+        return None
+    return float(v.mean()) if name.endswith("Color") else float(v[0])
+
+
+def material_flags(mat) -> int:
+    """The flags of one material from its nodes: TRANSMISSIVE (a Principled BSDF with alpha below 1 or
+    transmission above 0, a glass, transparent or refraction BSDF), MIRROR (a Principled BSDF with roughness
+    at most MIRROR_ROUGHNESS and metallic or specular at least MIRROR_REFLECT, a glossy BSDF that smooth),
+    EMISSIVE (emission strength and colour above 0)."""
+    if mat is None or mat.node_tree is None:
+        return 0
+    flags = 0
+    for node in mat.node_tree.nodes:
+        kind = node.bl_idname
+        if kind in ("ShaderNodeBsdfGlass", "ShaderNodeBsdfTransparent", "ShaderNodeBsdfRefraction"):
+            flags |= TRANSMISSIVE
+        elif kind in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic"):
+            rough = _level(node, "Roughness", mat)
+            if rough is not None and rough <= MIRROR_ROUGHNESS:
+                flags |= MIRROR
+        elif kind == "ShaderNodeEmission":
+            if (_level(node, "Strength", mat) or 0.0) > 0 and (_level(node, "Color", mat) or 0.0) > 0:
+                flags |= EMISSIVE
+        elif kind == "ShaderNodeBsdfPrincipled":
+            alpha, transmission = _level(node, "Alpha", mat), _level(node, "Transmission Weight", mat)
+            if (alpha is not None and alpha < 1.0 - 1e-6) or (transmission or 0.0) > 0:
+                flags |= TRANSMISSIVE
+            rough = _level(node, "Roughness", mat)
+            reflect = max(_level(node, "Metallic", mat) or 0.0, _level(node, "Specular IOR Level", mat) or 0.0)
+            if rough is not None and rough <= MIRROR_ROUGHNESS and reflect >= MIRROR_REFLECT:
+                flags |= MIRROR
+            if (_level(node, "Emission Strength", mat) or 0.0) > 0 and (_level(node, "Emission Color", mat) or 0.0) > 0:
+                flags |= EMISSIVE
+    return flags
+
+
+def _slot_flags(obj) -> np.ndarray:
+    """Flags per material slot of ``obj`` (at least one entry: a mesh without materials is 0)."""
+    return np.array([MATERIALS.get(s.material.name, 0) if s.material else 0 for s in obj.material_slots] or [0], np.int32)
+
+
+def mark_materials(scene) -> None:
+    """--materials: classify every material (MATERIALS) and give every mesh the face attribute
+    MATERIAL_ATTRIBUTE (its faces' flags, by material slot) and the view layer the AOV that shows it."""
+    global MATERIALS
+    MATERIALS = {m.name: material_flags(m) for m in bpy.data.materials}
+    for obj in scene.objects:
+        if obj.type != "MESH":
+            continue
+        if obj.data.users > 1:  # attributes live on mesh data: give each object its own (its slots may differ)
+            obj.data = obj.data.copy()
+        mesh = obj.data
+        slot = np.empty(len(mesh.polygons), np.int32)
+        mesh.polygons.foreach_get("material_index", slot)
+        per_slot = _slot_flags(obj)
+        values = per_slot[np.clip(slot, 0, len(per_slot) - 1)].astype(np.float32)
+        attr = mesh.attributes.get(MATERIAL_ATTRIBUTE) or mesh.attributes.new(MATERIAL_ATTRIBUTE, "FLOAT", "FACE")
+        attr.data.foreach_set("value", values)
+        mesh.update()
+    vl = scene.view_layers[0]
+    if MATERIAL_AOV.layer not in vl.aovs:
+        aov = vl.aovs.add()
+        aov.name, aov.type = MATERIAL_AOV.layer, "COLOR"
 
 
 def _shift_lenses(scene, on: bool) -> None:
@@ -699,9 +829,24 @@ def _shift_lenses(scene, on: bool) -> None:
         cam.shift_y = -SAMPLE_OFFSET_PX[1] / w if on else 0.0
 
 
-def data_material(motion: bool):
+def _use_lens(scene, fstop: float, focus: float) -> None:
+    """--fstop / --focus: every view's camera a thin lens (Cycles' depth of field, a round aperture of
+    diameter lens / fstop, focused on the plane at planar depth ``focus`` metres); 0: a pinhole."""
+    for view in scene.render.views:
+        if not view.use:
+            continue
+        dof = bpy.data.objects[VIEW_PREFIX + view.camera_suffix].data.dof
+        dof.use_dof = fstop > 0
+        if fstop > 0:
+            dof.focus_object = None
+            dof.focus_distance = focus
+            dof.aperture_fstop = fstop
+            dof.aperture_blades = 0  # a disc
+
+
+def data_material(motion: bool, materials: bool = False):
     """The one material of the data render (a view-layer override): opaque black, with the t+/-1
-    position AOVs when ``motion``.
+    position AOVs when ``motion`` and the first surface's material flags (MaterialFlags) when ``materials``.
 
     No data pass depends on a surface's shading, so the scene's own materials (textures, BSDF
     layers, transparency chains) need not be evaluated: measured, a quarter less CPU time for the
@@ -724,6 +869,12 @@ def data_material(motion: bool):
         aov = nodes.new("ShaderNodeOutputAOV")
         aov.aov_name = aov_name
         links.new(attr.outputs["Vector"], aov.inputs["Color"])
+    if materials:  # the face attribute of MaterialFlags: constant per face, so exact at the pixel centre
+        attr = nodes.new("ShaderNodeAttribute")
+        attr.attribute_type, attr.attribute_name = "GEOMETRY", MATERIAL_ATTRIBUTE
+        aov = nodes.new("ShaderNodeOutputAOV")
+        aov.aov_name = MATERIAL_AOV.layer
+        links.new(attr.outputs["Fac"], aov.inputs["Color"])
     return mat
 
 
@@ -734,10 +885,10 @@ class Lighting:
     No data pass depends on light; with lights and world gone Cycles traces no shadow rays and
     samples no light at the first hit (measured: 0.97 -> 0.55 s of CPU for 3 views at 512x512)."""
 
-    def __init__(self, scene, motion: bool):
+    def __init__(self, scene, motion: bool, materials: bool = False):
         self.scene, self.world = scene, scene.world
         self.lights = [o for o in scene.objects if o.type == "LIGHT" and not o.hide_render]
-        self.material = data_material(motion)
+        self.material = data_material(motion, materials)
 
     def set(self, on: bool) -> None:
         for o in self.lights:
@@ -827,6 +978,12 @@ def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> No
     im.color_depth = "16"
     im.exr_codec = "ZIP"
     _shift_lenses(scene, False)
+    # --shutter: Cycles' motion blur, centred on the frame, in the beauty only (the data render turns it off)
+    scene.render.use_motion_blur = job.shutter > 0
+    if job.shutter > 0:
+        scene.render.motion_blur_shutter = job.shutter
+        scene.render.motion_blur_position = "CENTER"
+    _use_lens(scene, job.fstop, job.focus)
     _render(scene, os.path.join(scratch, "rgb"), "beauty")
 
 
@@ -851,6 +1008,8 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     # (measured on the default scene at 1024x1024, uncompressed: 0.14-0.16 -> 0.05-0.06 core-s per view)
     im.use_exr_interleave = True
     _shift_lenses(scene, True)
+    scene.render.use_motion_blur = False  # every data pass at the frame's instant (Cycles' vector pass needs it off too)
+    _use_lens(scene, 0.0, 0.0)  # and through the lens centre
     _render(scene, os.path.join(scratch, "passes"), "data")
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t
     phases["data_cpu"] = phases.get("data_cpu", 0.0) + time.process_time() - c
@@ -923,7 +1082,9 @@ def main() -> int:
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
         cpu_account.startup()
         emit("ready", device=device, seconds=time.time() - t0)
-        lighting = Lighting(scene, motion is not None)
+        if job.materials:
+            mark_materials(scene)
+        lighting = Lighting(scene, motion is not None, job.materials)
         for frame in job.frames:
             render_frame(scene, job, frame, suffixes, motion, lighting)
             _test_kill_hook(frame)

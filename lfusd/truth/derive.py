@@ -36,7 +36,7 @@ from ..data.folder import atomic_write
 from ..data.dataset import Dataset
 from ..camera import View
 from ..errors import LfusdError
-from ..keys import KEYS, MOTION, STATIC, RAW, stored
+from ..keys import CAST, KEYS, MOTION, STATIC, RAW, TRANSMISSIVE, stored
 from ..layout import GEOMETRY, GT_FILE, MOTION_FILE, MOTION_FILE_V1, PASSES_EXR, RGB_EXR, RGB_PNG, frame_dir, view_key
 
 log = logging.getLogger(__name__)
@@ -60,7 +60,13 @@ def derive_view(ds: Dataset, frame: int, view: View) -> dict[str, np.ndarray]:
         occluders["here"] = occluders_of(ds, frame, view)
         cur = ds.raw_passes(frame, view)
         memo = memo_for((str(ds.root), ds.rig_name, tuple(view)), *cur.shape) if occluders["here"] is not None else None
-        return derive_motion(cur, nxt, prv, baseline=ds.baseline, occluders=occluders, memo=memo)
+        keys = derive_motion(cur, nxt, prv, baseline=ds.baseline, occluders=occluders, memo=memo)
+        shutter = ds.record.settings.get("shutter")
+        if shutter:  # --shutter: the blur key (lfusd.truth.blur)
+            from .blur import blur_extent
+
+            keys["blur"] = blur_extent(cur, nxt, prv, float(shutter))
+        return keys
     except LfusdError as e:
         raise LfusdError(f"{ds.root} frame {frame} view {view[0]},{view[1]}: {e}") from None
 
@@ -134,10 +140,13 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
         # recorded before chunk digests (integrity.file_entry): the neighbours' motion records name
         # these passes by their pixels (a re-render keeps them)
         annotate[PASSES_EXR] = {"pixels": integrity.pixels_digest(ds._raw(str(d)))}
-    gt_keys = [k for k in keep if KEYS[k].file == GT_FILE and KEYS[k].stage in (RAW, STATIC)]
+    gt_keys = [k for k in keep if KEYS[k].file == GT_FILE and KEYS[k].stage in (RAW, STATIC, CAST)]
     if gt_keys and not integrity.present(rec, GT_FILE):
         raw = ds._raw(str(d))
-        arrays = {k: raw[k] for k in gt_keys}
+        missing = [k for k in gt_keys if KEYS[k].stage == RAW and k not in raw]
+        if missing:
+            raise LfusdError(f"{d / PASSES_EXR} has no {missing[0]} pass; rerun the render command to repair the view")
+        arrays = {k: raw[k] if KEYS[k].stage != CAST else CAST_KEYS[k](ds, frame, view, raw) for k in gt_keys}
         path, checked = store.write_checked(d / GT_FILE, arrays)
         add[GT_FILE] = {"checked": checked}
         log.debug("%s: static keys read back as written (%d pixels compared)", path, checked)
@@ -158,6 +167,39 @@ def write_static(ds: Dataset, frame: int, view: View) -> int:
         for name in remove:
             (d / name).unlink(missing_ok=True)
     return checked
+
+
+def depth_behind(ds: Dataset, frame: int, view: View, raw: dict[str, np.ndarray]) -> np.ndarray:
+    """The ``depth_behind`` key of one view: ``depth`` where the first surface is not transmissive, and
+    where it is, the planar depth of the first non-transmissive triangle of the frame (geometry.npz, each
+    triangle's material flags) on the ray through the pixel centre; inf where that ray leaves the scene."""
+    from ..camera import Camera, ray_directions
+    from .visibility import _scene
+
+    import open3d as o3d
+
+    out = np.array(raw["depth"], np.float32)
+    transmissive = raw.get("transmissive")
+    if transmissive is None or not transmissive.any():
+        return out
+    path = frame_dir(ds.root, ds.rig_name, frame) / view_key(view) / GEOMETRY
+    try:
+        with np.load(path) as z:
+            vertices, triangles, flags = z["vertices"], z["triangles"], z["material"]
+    except (OSError, KeyError, ValueError) as e:
+        raise LfusdError(f"{path} holds no triangles with material flags ({e}); rerun 'lfusd render-video --materials' to repair it") from None
+    with cpu_account.phase("layers"):
+        scene = _scene(vertices, triangles[(flags & TRANSMISSIVE) == 0])
+        v, u = np.nonzero(transmissive)
+        cam = Camera(ds.intrinsics(view), ds.cam_to_world(frame, view))
+        dirs = ray_directions(u.astype(np.float64), v.astype(np.float64), cam)  # camera-frame z = 1: the ray parameter is planar depth
+        origins = np.broadcast_to(cam.world_to_cam()[1], dirs.shape)
+        rays = np.ascontiguousarray(np.concatenate([origins, dirs], axis=-1), np.float32)
+        out[v, u] = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    return out
+
+
+CAST_KEYS = {"depth_behind": depth_behind}  # the ray-cast keys of lfusd.keys (stage CAST), by name
 
 
 def _pixels_unrecorded(rec: dict) -> bool:

@@ -66,7 +66,8 @@ from ..data.passes import RawPasses  # noqa: F401  (the input of derive_motion, 
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH, KEYS, MOTION, names
 
-MOTION_KEYS = names(MOTION)
+# what derive_motion derives: every motion key but a camera effect's (blur: lfusd.truth.blur, added by lfusd.truth.derive)
+MOTION_KEYS = tuple(k for k in names(MOTION) if KEYS[k].effect is None)
 FB_ABS = 0.05  # px: forward-backward consistency slack
 FB_REL = 0.01  # fraction of the flow magnitude added to the slack
 DEPTH_REL = 1e-3  # relative inverse-depth slack of the depth test

@@ -43,7 +43,7 @@ import numpy as np
 from ..camera import Camera, project, ray_directions
 from ..errors import LfusdError
 from ..layout import MANIFEST, MOTION_FILE
-from ..keys import BACKGROUND_DEPTH, MOTION, accuracies, accuracy_units, names
+from ..keys import BACKGROUND_DEPTH, KEYS as KEY_TABLE, MOTION, accuracies, accuracy_units, names
 
 # The accuracy of each verified key lives in lfusd.keys: relative depth, px, m, or for instance and
 # occlusion the fraction of interior (foreground) pixels that disagree.
@@ -842,8 +842,9 @@ def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.nd
 # -- datasets --------------------------------------------------------------------------------
 
 # The dataset's keys that verification reads and a dataset with motion must hold (``mixed``, in
-# CHECKED, is compared where present: datasets derived before it lack it).
-KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed"))
+# CHECKED, is compared where present: datasets derived before it lack it; a camera effect's keys,
+# such as ``blur``, are not ground truth to trace).
+KEYS = ("depth", "instance", *(k for k in names(MOTION) if k != "mixed" and KEY_TABLE[k].effect is None))
 
 
 # Keys checked when the dataset holds them: the normal's side, the semantic class, mixed.

@@ -220,7 +220,8 @@ def test_a_format_version_1_dataset_still_reads(tmp_path):
     rgb = rng.uniform(0, 1, (h, w, 3)).astype(np.float16)
     OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, {"RGB": rgb}).write(str(d / layout.RGB_EXR))
     write_png(d / layout.RGB_PNG, passes.linear_to_srgb8(rgb.astype(np.float32)))
-    motion = {k: truth[k] for k in keys.names(keys.MOTION) if k != "mixed"}  # format version 1 predates mixed
+    # format version 1 predates mixed and the camera effects (blur)
+    motion = {k: truth[k] for k in keys.names(keys.MOTION) if k != "mixed" and keys.KEYS[k].effect is None}
     np.savez(d / layout.MOTION_FILE_V1, **motion)
     files = {n: integrity.file_entry(d / n) for n in (layout.RGB_PNG, layout.RGB_EXR, layout.PASSES_EXR, layout.MOTION_FILE_V1)}
     (d / layout.VIEW_RECORD).write_text(json.dumps({"version": 1, "files": files}))

@@ -265,3 +265,29 @@ def test_view_of_a_still_dataset_with_two_rigs(tmp_path, box_dataset, capsys):
         assert f"{rig}: {len(ds.frames)} frames, {len(ds.frames) * len(ds.views)} images" in printed
         check_cameras_and_cloud(ds, rec, rig, ds.frames, ds.views, 500)
         assert (entity(rig, None, "scene_flow"), "Arrows3D:origins") not in rec
+
+
+def test_the_recording_shows_the_camera_effects_the_dataset_has(tmp_path):
+    class Effects(FakeDataset):
+        def read(self, frame, view, key):
+            depth = super().read(frame, view, "depth")
+            if key == "rgb_noisy":
+                return 255 - super().read(frame, view, "rgb")
+            if key in ("transmissive", "emissive"):
+                return np.isfinite(depth) & (np.arange(depth.shape[1]) < depth.shape[1] // 2)
+            if key == "mirror":
+                return np.zeros(depth.shape, bool)
+            if key == "coc":
+                return np.abs(1 / 2.0 - 1 / depth).astype(np.float32)
+            return super().read(frame, view, key)  # blur: none (KeyError), like a render without --shutter
+
+    ds = Effects(rows=1, cols=1, width=24, height=20, frames=(1, 2))
+    ds.resolution = (24, 20)
+    record(ds, tmp_path / "fx.rrd")
+    rec = read_rrd(tmp_path / "fx.rrd")
+    centre = tuple(ds.rig.centre_view)
+    for key in ("rgb_noisy", "materials", "coc"):
+        assert any(e == entity("main", centre, key) for e, _ in rec), key
+    assert not any(e == entity("main", centre, "blur") for e, _ in rec)
+    labels = np.array(rec[(entity("main", centre, "materials"), "SegmentationImage:buffer")][1], np.uint8)
+    assert set(np.unique(labels)) <= {0, 5}  # transmissive (1) and emissive (4) together

@@ -22,7 +22,8 @@ def tiny_video(tmp_path_factory):
     stage = root / "movers.usda"
     write_motion_stage(stage, RIG, 3)
     out = root / "out"
-    assert main(["render-video", str(stage), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw"]) == 0
+    assert main(["render-video", str(stage), "-o", str(out), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw",
+                 "--materials", "--iso", "400", "--shutter", "0.5", "--fstop", "2", "--focus", "5"]) == 0  # every camera effect: every key
     return out
 
 

@@ -189,7 +189,7 @@ def test_a_views_motion_decodes_only_its_own_raw_passes(video, tmp_path, monkeyp
     import shutil
 
     from lfusd.data import passes
-    from lfusd.keys import MOTION, names
+    from lfusd.truth.motion import MOTION_KEYS
     from lfusd.truth.derive import write_motion
 
     _, reference = video
@@ -205,7 +205,7 @@ def test_a_views_motion_decodes_only_its_own_raw_passes(video, tmp_path, monkeyp
             write_motion(Dataset(out), f, v)
             assert decoded == [str(Dataset(out).view_dir(f, v) / "passes.exr")], (f, v)
             a = Dataset(out)
-            for key in names(MOTION):
+            for key in MOTION_KEYS:  # every motion key a render without camera effects makes
                 x, y = a.read(f, v, key), b.read(f, v, key)
                 assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), (f, v, key)
 
@@ -217,7 +217,7 @@ def test_a_lane_decodes_each_raw_pass_once_for_static_keys_and_motion(video, tmp
     import shutil
 
     from lfusd.data import integrity, passes
-    from lfusd.keys import MOTION, names
+    from lfusd.truth.motion import MOTION_KEYS
     from lfusd.truth.derive import derive_if_stale
 
     _, reference = video
@@ -240,7 +240,7 @@ def test_a_lane_decodes_each_raw_pass_once_for_static_keys_and_motion(video, tmp
     a = Dataset(out)
     for f in range(1, FRAMES + 1):
         assert not integrity.render_problems(a.view_dir(f, v))
-        for key in names(MOTION) + ("depth", "instance", "normal"):
+        for key in MOTION_KEYS + ("depth", "instance", "normal"):
             x, y = a.read(f, v, key), b.read(f, v, key)
             assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), (f, key)
 

@@ -13,7 +13,7 @@ from support.scenes import write_motion_stage
 from lfusd import Dataset, LfusdError, layout
 from lfusd.camera import RigSpec
 from lfusd.data import integrity
-from lfusd.keys import MOTION, names
+from lfusd.truth.motion import MOTION_KEYS
 
 pytestmark = pytest.mark.render
 
@@ -42,7 +42,7 @@ def test_default_render_stores_the_keys_checks_them_and_drops_the_raw_passes(sta
         rec = integrity.read_record(layout.frame_dir(out, "main", f) / "00_01")
         # read back and compared before the raw passes went: one count per key and pixel
         assert rec["files"][layout.GT_FILE]["checked"] == 3 * RIG.width * RIG.height
-        assert rec["files"][layout.MOTION_FILE]["checked"] == len(names(MOTION)) * RIG.width * RIG.height  # every motion key
+        assert rec["files"][layout.MOTION_FILE]["checked"] == len(MOTION_KEYS) * RIG.width * RIG.height  # every motion key (no camera effect's)
         assert rec["files"][layout.PASSES_EXR]["removed"] and rec["files"][layout.PASSES_EXR]["pixels"]
     manifest = json.loads((out / layout.MANIFEST).read_text())
     assert manifest["version"] == 2 and manifest["settings"]["keep_raw"] is False and "flow_fwd" in manifest["settings"]["keys"]

@@ -116,6 +116,10 @@ class FakeDataset:
             return np.broadcast_to(r2w[:3, :3] @ np.array([0.0, 0.0, -1.0]), pts.shape).astype(np.float32).copy()
         if key in ("instance", "semantic"):
             return ids.astype(np.int32)
+        from lfusd.keys import KEYS
+
+        if key in KEYS and KEYS[key].effect is not None:  # rendered without camera effects, like a dataset without them
+            raise KeyError(key)
         step = 1 if key.endswith("fwd") or key in ("scene_flow", "disparity_change") else -1
         defined = (t + step) in self.frames
         vel = np.where(fg[..., None], step * V, 0.0)
