@@ -11,7 +11,7 @@ step d = f_px * b / y spans ``D`` pixels at the stage's resolution. A sensor shi
 view step (``k`` the integer nearest the middle of the span) makes it
 HCI's signed disparity d - k, within +-``range_px`` (4 px, as the HCI 4D scenes; 16 px for
 ``things_large``) and of both signs: an *anchor* shape lies wholly in front of the zero plane
-y = f_px * b / k inside every view, and the backdrop lies behind it. lfusd renders unshifted
+y = f_px * b / k inside every rig's centre view, and the backdrop lies behind it. lfusd renders unshifted
 parallel rigs, so the shift is applied to the images: translating view (r, c) by ``k`` times its
 grid offset (sx, sy) in pixels is exactly that sensor shift (integer pixels, no resampling), and
 a point at disparity d in the rendered views is at d - k in the shifted ones (docs/CONVENTIONS.md's
@@ -142,7 +142,8 @@ def _author(scene: Scene, thing: Thing, pos, rot) -> str:
     else:
         for part, data, texture in thing.parts:
             roughness, metallic = _finish(rng)
-            if texture == "" or rng.random() < 0.7:  # mostly re-textured: props are shapes like any other here
+            # mostly re-textured (props are shapes like any other here); glass always: nothing transparent
+            if texture not in TEXTURES or rng.random() < 0.7:
                 texture = TEXTURES[int(rng.integers(len(TEXTURES)))]
             b.mesh(f"{path}/{part}", data, texture, roughness=roughness, metallic=metallic)
     p = np.asarray(pos, float)
@@ -188,13 +189,13 @@ def _things(scene: Scene, range_px: float) -> ThingsSite:
     scene.placed.append(Placed("/World/Backdrop", np.array([-hx, far, EYE - hz]), np.array([hx, far + BACK, EYE + hz])))
 
     flyers = []
-    # The anchor: a shape wholly nearer than the zero plane and inside every view of every rig.
+    # The anchor: a shape wholly nearer than the zero plane and inside the centre view of every rig.
     for _ in range(200):
         y = float(rng.uniform(near, min(zero, near * 1.5)))
         radius = float(rng.uniform(0.15, 0.35)) * y * tan_x
         if y - radius < near or y + radius >= zero:
             continue
-        room_x, room_z = (y - radius) * tan_x - reach - radius, (y - radius) * tan_z - reach - radius
+        room_x, room_z = (y - radius) * tan_x - jitter - radius, (y - radius) * tan_z - jitter - radius
         if room_x <= 0 or room_z <= 0:
             continue
         pos = (float(rng.uniform(-room_x, room_x)), y, EYE + float(rng.uniform(-room_z, room_z)))
@@ -248,15 +249,12 @@ def _things(scene: Scene, range_px: float) -> ThingsSite:
     return ThingsSite(rig_position, look_at, near, far, tuple(flyers), f_px)
 
 
-FLYING = {"shape"} | {cls for cls, _ in PROPS}
-
-
-@template("things", seed_key=4, labels={"shape", "wall"}, movers=FLYING, rules=RULES)
+@template("things", seed_key=4, labels={"shape", "wall"}, movers={"shape"}, rules=RULES)
 def things(scene: Scene) -> ThingsSite:
     return _things(scene, 4.0)
 
 
-@template("things_large", seed_key=5, labels={"shape", "wall"}, movers=FLYING, rules=RULES)
+@template("things_large", seed_key=5, labels={"shape", "wall"}, movers={"shape"}, rules=RULES)
 def things_large(scene: Scene) -> ThingsSite:
     return _things(scene, 16.0)
 
