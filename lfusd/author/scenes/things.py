@@ -21,7 +21,6 @@ near_m, far_m, zero_m, baseline_m, width_px) for training code to shift with.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
