@@ -110,6 +110,17 @@ BAD = [
     ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 1\nframes = 1\ndynamic = true\n",
      "part.a.frames", "at least 2"),
     ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n", "[[part]]", "add at least one"),
+    # splits: a known name, all parts or none, no scene (template, seed) in two splits, held-out templates in test parts only
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'dev'\n", "part.a.split", "train, val, test"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 5\n", "part.b.split", "must be set when other parts"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['room', 'street']\nscenes = 2\nfirst_seed = 1\nsplit = 'test'\n", "part.b.first_seed",
+     "out of part a (train): both make room seed 1"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['street']\n[[part]]\nname = 'a'\ntemplates = ['room', 'street']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['street']\nscenes = 2\nfirst_seed = 9\nsplit = 'test'\n",
+     "part.a.templates", "held-out template 'street' in a train part"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['street']\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\n", "dataset.held_out", "needs parts with a split"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['mixed']\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['street']\nscenes = 2\nfirst_seed = 0\nsplit = 'test'\n", "dataset.held_out",
+     "a test part uses"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['castle']\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'test'\n", "dataset.held_out", "must list templates"),
     ("[dataset\nname = 't'\n", "not valid TOML", "fix the syntax"),
 ]
 
