@@ -153,3 +153,27 @@ def test_errors_are_one_line(tmp_path, weights):
     r = _script(tmp_path / "few", "-o", tmp_path / "d.pfm", "--weights", tmp_path / "bad.pt")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "not a weights file" in r.stderr
     assert not (tmp_path / "d.pfm").exists()
+
+
+@pytest.mark.render
+def test_an_lfusd_dataset_and_its_hci_export_give_the_same_pfm(tmp_path):
+    """The script on a rendered dataset folder (its HCI centre view, frame 1) writes what it writes on the
+    folder `lfusd export hci` makes of that frame: same views in the same order, same offsets."""
+    from lfusd.author.scenes import generate
+    from lfusd.cli import main
+
+    td = _load("train_disparity")
+    generate("things", tmp_path / "s.usda", 3, frames=1, rigs=1, grid=(3, 3), resolution=(32, 32))
+    assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "ds"), "--rig", "rig_00", "--samples", "1",
+                 "--device", "cpu", "--quiet"]) == 0
+    assert main(["export", "hci", str(tmp_path / "ds"), str(tmp_path / "hci")]) == 0
+    torch.manual_seed(1)
+    config = {"ang": 3, "d_min": 0.0, "d_max": 8.0, "disparities": 9, "channels": 4, "blocks": 1, "cost_channels": 4}
+    torch.save({"model": td.build(config).state_dict(), "config": config}, tmp_path / "w.pt")
+    (folder,) = (tmp_path / "hci").iterdir()
+    for src, out in ((tmp_path / "ds", tmp_path / "a.pfm"), (folder, tmp_path / "b.pfm")):
+        r = _script(src, "-o", out, "--weights", tmp_path / "w.pt", "--threads", 1)
+        assert r.returncode == 0, r.stderr
+    a, b = formats.read_pfm(tmp_path / "a.pfm"), formats.read_pfm(tmp_path / "b.pfm")
+    assert a.shape == b.shape == formats.read_pfm(folder / "gt_disp_lowres.pfm").shape == (32, 32)
+    assert np.abs(a - b).max() < 1e-5
