@@ -410,8 +410,9 @@ def split_scenes(root) -> dict[str, list[Path]]:
     out: dict[str, list[Path]] = {}
     for spec in scene_specs(recipe):
         rec = _read_record(root / layout.RECIPE_SCENES / f"{spec.name}.json")
-        if spec.split and rec and rec["spec"] == _spec_dict(spec) and rec["verified"]:
-            out.setdefault(spec.split, []).append(root / layout.RECIPE_SCENES / spec.name)
+        folder = root / layout.RECIPE_SCENES / spec.name
+        if spec.split and rec and rec["spec"] == _spec_dict(spec) and rec["verified"] and (folder / layout.MANIFEST).is_file():
+            out.setdefault(spec.split, []).append(folder)
     return out
 
 
