@@ -481,9 +481,24 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
     else:
         render(req)
     ok, compared, failures = (True, {}, []) if recipe.verify == "none" else _verify_scene(out, recipe.verify, dict(recipe.thresholds))
+    design = disparity_design(stage)
     return {"version": RECORD_VERSION, "spec": _spec_dict(spec), "verified": ok, "verify": recipe.verify,
-            "thresholds": dict(recipe.thresholds),
+            "thresholds": dict(recipe.thresholds), **({"disparity_design": design} if design else {}),
             "compared": compared, "failures": failures, "certificate": _certificate(out), "stats": scene_stats(out, recipe.stats_views)}
+
+
+def disparity_design(stage_path) -> dict | None:
+    """The stage's disparity design (customData ``lfusd:disparity`` of a ``things`` stage: shift_px,
+    range_px, ...; lfusd.author.scenes.things), kept in the scene's record so that training code
+    finds it without opening the stage; None when the stage has none."""
+    from pxr import Usd
+
+    from .author.vocabulary import DISPARITY
+
+    stage = Usd.Stage.Open(str(stage_path))
+    prim = stage.GetDefaultPrim() if stage else None
+    design = prim.GetCustomDataByKey(DISPARITY) if prim else None
+    return json.loads(json.dumps(dict(design))) if design else None
 
 
 def check_recipe_size(recipe: Recipe, root: Path) -> None:

@@ -156,3 +156,15 @@ def test_a_tiny_render_verifies_and_its_disparity_has_both_signs_in_range(tmp_pa
         assert d.size > 0.9 * 32 * 32  # the backdrop fills what the things leave
         assert -4.0 <= d.min() < 0 < d.max() <= 4.0, (d.min(), d.max())
         assert (d < 0).mean() > 0.05 and (d > 0).mean() > 0.05
+
+
+def test_a_recipe_scene_record_keeps_the_disparity_design(tmp_path):
+    from lfusd.recipe import disparity_design
+
+    stage = generate("things", tmp_path / "t.usda", 4, frames=1, rigs=1, grid=(9, 9), resolution=(256, 256))
+    design = disparity_design(tmp_path / "t.usda")
+    assert design == dict(stage.GetDefaultPrim().GetCustomDataByKey(DISPARITY)) and isinstance(design["shift_px"], int)
+    fb = rigs(stage)["rig_00"].spec.focal_px * rigs(stage)["rig_00"].spec.baseline
+    assert design["zero_m"] == pytest.approx(fb / design["shift_px"], rel=1e-5)
+    generate("room", tmp_path / "r.usda", 4, frames=1, rigs=1, grid=(1, 1), resolution=(32, 32))
+    assert disparity_design(tmp_path / "r.usda") is None
