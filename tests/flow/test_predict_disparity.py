@@ -31,6 +31,13 @@ def _load(name: str):
     return mod
 
 
+def _main(capsys, *args) -> tuple[int, str]:
+    """The script's main in this process (as its command line runs it): exit code and stderr."""
+    pdm = _load("predict_disparity")
+    code = pdm.training.main_wrapper(pdm.NAME, pdm.main, [str(a) for a in args])
+    return code, capsys.readouterr().err
+
+
 def _script(*args) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     return subprocess.run([sys.executable, str(ROOT / "flow" / "predict_disparity.py"), *map(str, args)], env=env,
@@ -109,7 +116,7 @@ def test_the_views_it_reads_follow_hcis_grid_convention(tmp_path):
     assert spread(aligned) < 0.01 < 0.5 * spread(wrong), (spread(aligned), spread(wrong))
 
 
-def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights):
+def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights, capsys):
     pdm = _load("predict_disparity")
     td = _load("train_disparity")
     rng = np.random.default_rng(2)
@@ -121,8 +128,13 @@ def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights):
     for d in (-1.5, 1.5):
         folder = write_hci(tmp_path / f"lf{d}", plane_views(d, rng))
         out = tmp_path / f"disp{d}.pfm"
-        r = _script(folder, "-o", out, "--weights", weights, "--tile", 16, "--overlap", 8, "--threads", 1)
-        assert r.returncode == 0, r.stderr
+        args = (folder, "-o", out, "--weights", weights, "--tile", 16, "--overlap", 8, "--threads", 1)
+        if d < 0:  # the command line once, in its own process
+            r = _script(*args)
+            assert r.returncode == 0, r.stderr
+        else:
+            code, err = _main(capsys, *args)
+            assert code == 0, err
         got = formats.read_pfm(out)  # the reader of HCI's gt_disp_lowres.pfm
         assert got.shape == (SIZE, SIZE) and got.dtype == np.float32
         # byte for byte what `lfusd export hci` writes for this array: 'Pf', W H, -1 (little-endian), rows bottom-up
@@ -134,24 +146,24 @@ def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights):
         # the numbers are the network's on these views (tiles stitched where they belong)
         views, offsets, _ = pdm.read_hci_views(folder)
         whole = pdm.predict(model, views, offsets, tile=128, overlap=0)
-        assert np.abs(pdm.predict(model, views, offsets, tile=8, overlap=64) - whole).max() < 1e-5
+        assert np.abs(pdm.predict(model, views, offsets, tile=12, overlap=24) - whole).max() < 1e-5
         inner = got[6:-6, 6:-6]
         means[d] = float(inner.mean())
     # a few steps of training already give the right sign on a plane of each sign
     assert means[-1.5] < 0 < means[1.5], means
 
 
-def test_errors_are_one_line(tmp_path, weights):
-    r = _script(tmp_path, "-o", tmp_path / "d.pfm")
+def test_errors_are_one_line(tmp_path, weights, capsys):
+    r = _script(tmp_path, "-o", tmp_path / "d.pfm")  # the command line's exit status
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         "predict_disparity: error: no --weights given and no shipped weights yet; train with flow/train_disparity.py "
         "and pass --weights OUT/checkpoints/last.pt"]
     lf = write_hci(tmp_path / "few", plane_views(0.5, np.random.default_rng(3))[:80])  # one view short of 9x9
-    r = _script(lf, "-o", tmp_path / "d.pfm", "--weights", weights)
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "N*N of them" in r.stderr
+    code, err = _main(capsys, lf, "-o", tmp_path / "d.pfm", "--weights", weights)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "N*N of them" in err
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
-    r = _script(tmp_path / "few", "-o", tmp_path / "d.pfm", "--weights", tmp_path / "bad.pt")
-    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "not a weights file" in r.stderr
+    code, err = _main(capsys, tmp_path / "few", "-o", tmp_path / "d.pfm", "--weights", tmp_path / "bad.pt")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "not a weights file" in err
     assert not (tmp_path / "d.pfm").exists()
 
 
