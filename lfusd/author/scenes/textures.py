@@ -293,16 +293,19 @@ def _pattern(index: int):
         elif kind == 1:  # stripes, warped
             period = int(rng.choice([8, 16, 32, 64]))
             t = 0.5 + 0.5 * np.sin(2 * np.pi * (xx + 24 * n) / period)
-        elif kind == 2:  # checks
+        elif kind == 2:  # checks (edges a quarter period off the wrap: no hard edge at the seam)
             period = int(rng.choice([16, 32, 64]))
-            t = (((xx // period) + (yy // period)) % 2).astype(float) * 0.8 + 0.2 * n
+            q = period // 4
+            t = ((((xx + q) // period) + ((yy + q) // period)) % 2).astype(float) * 0.8 + 0.2 * n
         elif kind == 3:  # dots
             period = int(rng.choice([16, 32, 64]))
             gx, gy = (xx % period) - period / 2, (yy % period) - period / 2
             t = (np.hypot(gx, gy) < period * float(rng.uniform(0.2, 0.45))).astype(float) * 0.85 + 0.15 * n
         elif kind == 4:  # cells of random shades
             cells = int(rng.choice([4, 8, 16]))
-            t = 0.7 * rng.random((cells, cells))[(yy * cells) // SIZE, (xx * cells) // SIZE] + 0.3 * n
+            half = SIZE // (2 * cells)  # cell edges half a cell off the wrap, as the checks'
+            shade = rng.random((cells, cells))
+            t = 0.7 * shade[((yy + half) * cells // SIZE) % cells, ((xx + half) * cells // SIZE) % cells] + 0.3 * n
         else:  # speckle over noise
             t = np.clip(0.6 * n + 0.4 * rng.random((SIZE, SIZE)), 0, 1)
         img = _mix(colours[0], colours[1], t)
