@@ -168,3 +168,25 @@ def test_a_recipe_scene_record_keeps_the_disparity_design(tmp_path):
     assert design["zero_m"] == pytest.approx(fb / design["shift_px"], rel=1e-5)
     generate("room", tmp_path / "r.usda", 4, frames=1, rigs=1, grid=(1, 1), resolution=(32, 32))
     assert disparity_design(tmp_path / "r.usda") is None
+
+
+def test_catalogue_assets_fly_too_and_the_design_holds(tmp_path, capsys):
+    """A catalogue's cars stand in for the kit's (at their own size, where one fits): they fly like the
+    other things, lfusd's rules hold at every frame and so do the disparity bounds."""
+    from support.catalogue_assets import write_car
+    from support.cli import run_cli
+
+    from lfusd.author.vocabulary import ASSET
+
+    lib = tmp_path / "library"
+    write_car(lib)
+    assert run_cli(capsys, "assets", "add", lib)[0] == 0
+    found = []
+    for seed in range(4):
+        stage = generate("things", tmp_path / f"t{seed}.usda", seed, frames=4, rigs=1, grid=(9, 9), resolution=(512, 512),
+                         dynamic=True, catalogues=[lib / "catalogue.json"])
+        found += [o.prim_path for o in object_table(stage)[0] if stage.GetPrimAtPath(o.prim_path).HasAttribute(ASSET)]
+        assert [v.line() for v in Checker(stage).check()] == []
+        for lo, hi, positive, negative in disparity_bounds(stage).values():
+            assert -4.0 <= lo < 0 < hi <= 4.0 and positive and negative
+    assert found

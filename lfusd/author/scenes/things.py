@@ -208,20 +208,20 @@ def _things(scene: Scene, range_px: float) -> ThingsSite:
     for _ in range(int(rng.integers(14, 30))):
         for _ in range(20):
             d = float(rng.uniform(fb / (far - BACK), fb / near))
-            y = fb / d
-            radius = float(rng.uniform(0.08, 0.35)) * y * tan_x
+            share = float(rng.uniform(0.08, 0.35))  # its radius over the half width of the view at its depth
+            wanted = share * fb / d * tan_x
+            thing = _draw(scene, wanted, rng.random() < 0.55)
+            # a catalogue asset keeps its size: it goes where it has that share of the view
+            y = fb / d if thing.radius == wanted else thing.radius / (share * tan_x)
+            radius = thing.radius
             y = min(max(y, near + radius), far - CLEAR - radius)
             if y - radius < near or y + radius > far - CLEAR:
                 continue
             pos = np.array([rng.uniform(-1.1, 1.1) * (y * tan_x + reach), y, EYE + rng.uniform(-1.1, 1.1) * (y * tan_z + reach)])
             if scene.free(pos - radius, pos + radius, margin=CLEAR):
-                thing = _draw(scene, radius, rng.random() < 0.55)
-                if thing.radius > radius * 1.001 and not (y - thing.radius >= near and y + thing.radius <= far - CLEAR
-                                                         and scene.free(pos - thing.radius, pos + thing.radius, margin=CLEAR)):
-                    continue  # a catalogue asset too large for the spot
                 rot = tuple(float(v) for v in rng.uniform(0, 360, 3))
                 flyers.append((_author(scene, thing, tuple(float(v) for v in pos), rot), tuple(float(v) for v in pos), rot,
-                               thing.radius, False))
+                               radius, False))
                 break
 
     # Lamps behind the rigs (never in view) and the sky; a night makes them the light.
