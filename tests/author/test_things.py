@@ -155,7 +155,7 @@ def test_a_tiny_render_verifies_and_its_disparity_has_both_signs_in_range(tmp_pa
         d = np.asarray(ds.read(f, (1, 1), "disparity"), float)[np.isfinite(ds.read(f, (1, 1), "depth"))] - k
         assert d.size > 0.9 * 32 * 32  # the backdrop fills what the things leave
         assert -4.0 <= d.min() < 0 < d.max() <= 4.0, (d.min(), d.max())
-        assert (d < 0).mean() > 0.05 and (d > 0).mean() > 0.05
+        assert (d < 0).sum() >= 10 and (d > 0).sum() >= 10  # the anchor takes 2-10 % of the view
 
 
 def test_a_recipe_scene_record_keeps_the_disparity_design(tmp_path):
