@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_stage_new.py [--scenes 50] [--dynamic] [--out DIR]
 
-Scene k uses template TEMPLATES[k % 4] with seed k and the defaults of `lfusd stage new`
+Scene k uses template TEMPLATES[k % len(TEMPLATES)] with seed k and the defaults of `lfusd stage new`
 (150 frames, 10 rigs of 9x9 views at 1024x1024). Prints per-template and overall times and the
 number of scenes that pass the check; exits 1 if any fails. ``--dynamic`` generates the dynamic
 variants (goal: <= 5 s per scene) and also measures every rig's centre view from the stage

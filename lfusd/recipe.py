@@ -6,6 +6,12 @@ the rigs). Every scene is generated, rendered (``render-video`` for a dynamic pa
 its one frame for a static one; local processes or Ray), verified (lfusd.truth.verify) and
 measured; the dataset card (CARD.md, card.json, plots/*.png) sums the scenes' statistics.
 
+Splits (for training): a part may name its ``split`` (train, val or test; every part then does).
+A scene is its (template, seed) (the dynamic variant of a seed is its static scene plus movers), and
+no scene may be in two splits; ``dataset.held_out`` names templates that only test parts may use (a
+network is then scored on scenes of a kind it never saw). :func:`split_scenes` lists a made
+dataset's scene folders per split.
+
 Scene k of a part uses template ``templates[k % len(templates)]`` and seed ``first_seed + k``;
 a rig range ``[lo, hi]`` gives it ``lo + seed % (hi - lo + 1)`` rigs. Each finished scene leaves
 a record ``scenes/<scene>.json`` (its spec, verification and statistics), written last: a rerun
@@ -41,6 +47,7 @@ MOVING = 0.01  # px: lfusd.truth.coverage.THRESHOLD (not imported: truth's cover
 GOAL_COVERAGE = 0.05
 VERIFY_MODES = ("all", "centre", "none")
 STATS_VIEWS = ("centre", "all")
+SPLITS = ("train", "val", "test")
 EXECUTORS = ("local", "ray")
 RECORD_VERSION = 1
 # The most scenes one recipe makes: 1e8 scenes is a typo, refused before a list of them is made
@@ -59,6 +66,7 @@ class Part:
     rigs: tuple[int, int] = (1, 1)
     frames: int = 1
     dynamic: bool = False
+    split: str | None = None  # train, val or test (a recipe's parts name one each, or none does)
 
 
 @dataclass(frozen=True)
@@ -80,6 +88,7 @@ class Recipe:
     shutter: float = 0.0  # dataset.shutter: motion blur over this fraction of a frame and the key blur (render-video --shutter)
     materials: bool = False  # dataset.materials: the material masks and depth_behind (render-video --materials)
     sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
+    held_out: tuple[str, ...] = ()  # dataset.held_out: templates only test parts may use
 
 
 @dataclass(frozen=True)
@@ -97,6 +106,7 @@ class SceneSpec:
     resolution: tuple[int, int]
     samples: int
     catalogues: tuple[str, ...] = ()  # asset catalogues the template draws from (left out of a record when none)
+    split: str | None = None  # its part's split (left out of a record when none)
 
 
 # -- reading and checking a recipe ------------------------------------------------------------
@@ -139,7 +149,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues", "sensor", "materials", "shutter", "fstop", "focus"}
+             "catalogues", "sensor", "materials", "shutter", "fstop", "focus", "held_out"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -193,11 +203,16 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
         load_catalogue(p)  # a missing or foreign file: refused here, before any scene is made
         catalogues.append(str(p.resolve()))
 
+    held_out = _get(ds, "held_out", list, source, w, "must be a list of templates kept for test parts", [])
+    for t in held_out:
+        if t not in TEMPLATES:
+            raise _bad(source, w + "held_out", t, f"must list templates among {', '.join(TEMPLATES)}")
+
     raw_parts = data.get("part")
     if not isinstance(raw_parts, list) or not raw_parts:
         raise LfusdError(f"recipe {source}: no [[part]]; add at least one [[part]] with name, templates and scenes")
     parts, names = [], set()
-    part_known = {"name", "templates", "scenes", "first_seed", "rigs", "frames", "dynamic"}
+    part_known = {"name", "templates", "scenes", "first_seed", "rigs", "frames", "dynamic", "split"}
     for i, p in enumerate(raw_parts):
         w = f"part[{i}]."
         for k in p:
@@ -219,6 +234,9 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
         frames = _get(p, "frames", int, source, w, "must be a positive integer", 1)
         dynamic = _get(p, "dynamic", bool, source, w, "must be true or false", False)
         rigs = _pair(p, "rigs", source, w, "must be a rig count 1-10 or a range [LO, HI] within 1-10", default=1)
+        split = _get(p, "split", str, source, w, f"must be one of {', '.join(SPLITS)}", None)
+        if split is not None and split not in SPLITS:
+            raise _bad(source, w + "split", split, f"must be one of {', '.join(SPLITS)}")
         if scenes < 1:
             raise _bad(source, w + "scenes", scenes, "must be a positive integer")
         if first_seed < 0:
@@ -239,14 +257,15 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
                 raise _bad(source, w + "templates", static_only[0], "must have a dynamic variant in a dynamic part; remove it or set dynamic = false")
         elif frames != 1:
             raise _bad(source, w + "frames", frames, "must be 1 in a static part (set dynamic = true for a video)")
-        parts.append(Part(pname, tuple(templates), scenes, first_seed, rigs, frames, dynamic))
+        parts.append(Part(pname, tuple(templates), scenes, first_seed, rigs, frames, dynamic, split))
+    _check_splits(parts, held_out, source)
     from .camera import check_rig_size
 
     check_rig_size(grid, resolution)
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
                   tuple(sorted(thresholds)), tuple(catalogues), _lens(ds, source), _shutter(ds, source),
                   _get(ds, "materials", bool, source, w, "must be true or false", False),
-                  _sensor(ds.get("sensor"), source))
+                  _sensor(ds.get("sensor"), source), tuple(held_out))
 
 
 def _lens(ds: dict, source: str) -> tuple[float, float]:
@@ -286,6 +305,32 @@ def _sensor(table, source: str) -> SensorModel | None:
         raise LfusdError(f"recipe {source}: dataset.{e}") from None
 
 
+def _check_splits(parts: list[Part], held_out: list[str], source: str) -> None:
+    """Splits are all or none, disjoint in scenes (template, seed), and held-out templates are in test parts only."""
+    named = [p for p in parts if p.split is not None]
+    if named and len(named) != len(parts):
+        p = next(p for p in parts if p.split is None)
+        raise _bad(source, f"part.{p.name}.split", None, f"must be set when other parts name theirs ({', '.join(SPLITS)})")
+    if held_out and not named:
+        raise _bad(source, "dataset.held_out", held_out, "needs parts with a split (held-out templates go to test parts)")
+    owner: dict[tuple[str, int], tuple[str, str]] = {}
+    for p in named:
+        for t in held_out:
+            if t in p.templates and p.split != "test":
+                raise _bad(source, f"part.{p.name}.templates", t, f"must not hold the held-out template {t!r} in a {p.split} part; "
+                           "move it to a test part")
+        for k in range(p.scenes):
+            key = (p.templates[k % len(p.templates)], p.first_seed + k)
+            other = owner.setdefault(key, (p.split, p.name))
+            if other[0] != p.split:
+                raise _bad(source, f"part.{p.name}.first_seed", p.first_seed,
+                           f"must keep its scenes out of part {other[1]} ({other[0]}): both make {key[0]} seed {key[1]}; "
+                           "give the parts seed ranges that do not overlap")
+    for t in held_out:
+        if not any(t in p.templates for p in named):
+            raise _bad(source, "dataset.held_out", t, "must name templates that a test part uses")
+
+
 def load_recipe(path) -> Recipe:
     """Read and check the recipe file at ``path``."""
     path = Path(path)
@@ -308,7 +353,7 @@ def scene_specs(recipe: Recipe) -> list[SceneSpec]:
             template, seed = p.templates[k % len(p.templates)], p.first_seed + k
             lo, hi = p.rigs
             out.append(SceneSpec(f"{p.name}_{k:03d}_{template}_s{seed}", p.name, template, seed, lo + seed % (hi - lo + 1),
-                                 p.frames, p.dynamic, recipe.grid, recipe.resolution, recipe.samples, recipe.catalogues))
+                                 p.frames, p.dynamic, recipe.grid, recipe.resolution, recipe.samples, recipe.catalogues, p.split))
     return out
 
 
@@ -395,7 +440,24 @@ def _spec_dict(spec: SceneSpec) -> dict:
     d = asdict(spec)
     if not d["catalogues"]:
         del d["catalogues"]  # records of recipes without catalogues keep their identity
+    if d["split"] is None:
+        del d["split"]  # likewise records of recipes without splits
     return json.loads(json.dumps(d))  # tuples as lists, as they come back from a record
+
+
+def split_scenes(root) -> dict[str, list[Path]]:
+    """The scene folders of a made recipe dataset per split (``train``, ``val``, ``test``), in recipe
+    order, from the scenes' records: only scenes that are complete and verified (or made without
+    verification); {} for a recipe without splits."""
+    root = Path(root)
+    recipe = load_recipe(root / layout.RECIPE_COPY)
+    out: dict[str, list[Path]] = {}
+    for spec in scene_specs(recipe):
+        rec = _read_record(root / layout.RECIPE_SCENES / f"{spec.name}.json")
+        folder = root / layout.RECIPE_SCENES / spec.name
+        if spec.split and rec and rec["spec"] == _spec_dict(spec) and rec["verified"] and (folder / layout.MANIFEST).is_file():
+            out.setdefault(spec.split, []).append(folder)
+    return out
 
 
 def _read_record(path: Path) -> dict | None:
@@ -469,9 +531,24 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
     else:
         render(req)
     ok, compared, failures = (True, {}, []) if recipe.verify == "none" else _verify_scene(out, recipe.verify, dict(recipe.thresholds))
+    design = disparity_design(stage)
     return {"version": RECORD_VERSION, "spec": _spec_dict(spec), "verified": ok, "verify": recipe.verify,
-            "thresholds": dict(recipe.thresholds),
+            "thresholds": dict(recipe.thresholds), **({"disparity_design": design} if design else {}),
             "compared": compared, "failures": failures, "certificate": _certificate(out), "stats": scene_stats(out, recipe.stats_views)}
+
+
+def disparity_design(stage_path) -> dict | None:
+    """The stage's disparity design (customData ``lfusd:disparity`` of a ``things`` stage: shift_px,
+    range_px, ...; lfusd.author.scenes.things), kept in the scene's record so that training code
+    finds it without opening the stage; None when the stage has none."""
+    from pxr import Usd
+
+    from .author.vocabulary import DISPARITY
+
+    stage = Usd.Stage.Open(str(stage_path))
+    prim = stage.GetDefaultPrim() if stage else None
+    design = prim.GetCustomDataByKey(DISPARITY) if prim else None
+    return json.loads(json.dumps(dict(design))) if design else None
 
 
 def check_recipe_size(recipe: Recipe, root: Path) -> None:
@@ -596,7 +673,7 @@ def summarize(recipe: Recipe, specs: list[SceneSpec], records: dict[str, dict]) 
         for k, n in st["classes"].items():
             classes[k] = classes.get(k, 0) + n
         all_cov = [x for s in st["coverage"].values() for x in s]
-        scenes.append({"name": spec.name, "part": spec.part, "template": spec.template, "seed": spec.seed, "rigs": spec.rigs,
+        scenes.append({"name": spec.name, "part": spec.part, "split": spec.split, "template": spec.template, "seed": spec.seed, "rigs": spec.rigs,
                        "frames": spec.frames, "dynamic": spec.dynamic, "verified": rec["verified"], "compared": rec["compared"],
                        "certificate": rec.get("certificate") or {},
                        "disparity": [d["min"], d["max"]], "coverage": _coverage_summary(all_cov) if spec.dynamic else None})
@@ -694,8 +771,16 @@ def card_markdown(card: dict, plots: list[str]) -> str:
              f"{r['samples']} samples; verification: {r['verify']} ({'all passed' if card['verified'] else 'SOME FAILED'}"
              f"{', limits replaced: ' + ', '.join(f'{k} {v:g}' for k, v in r['thresholds']) if r['thresholds'] else ''}). "
              f"Statistics over the {card['stats_views']} view(s) of every rig and frame: {card['pixels']} pixels.", "",
-             f"Camera effects: {effects_text(r)}.", "",
-             "## Scenes", "", "| scene | part | template | seed | rigs | frames | verified | px compared | disparity (px) | motion: frames moving / >= 5 % / mean |",
+             f"Camera effects: {effects_text(r)}.", ""]
+    splits = {}
+    for s in card["scenes"]:
+        if s.get("split"):
+            splits.setdefault(s["split"], []).append(s)
+    if splits:
+        lines += ["Splits (disjoint scenes): " + "; ".join(
+            f"{k} {len(v)} scenes ({', '.join(sorted({x['template'] for x in v}))})" for k, v in splits.items())
+            + (f"; held out for test only: {', '.join(r['held_out'])}" if r.get("held_out") else "") + ".", ""]
+    lines += ["## Scenes", "", "| scene | part | template | seed | rigs | frames | verified | px compared | disparity (px) | motion: frames moving / >= 5 % / mean |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for s in card["scenes"]:
         cov = s["coverage"]

@@ -110,6 +110,17 @@ BAD = [
     ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 1\nframes = 1\ndynamic = true\n",
      "part.a.frames", "at least 2"),
     ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n", "[[part]]", "add at least one"),
+    # splits: a known name, all parts or none, no scene (template, seed) in two splits, held-out templates in test parts only
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'dev'\n", "part.a.split", "train, val, test"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 5\n", "part.b.split", "must be set when other parts"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['room', 'street']\nscenes = 2\nfirst_seed = 1\nsplit = 'test'\n", "part.b.first_seed",
+     "out of part a (train): both make room seed 1"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['street']\n[[part]]\nname = 'a'\ntemplates = ['room', 'street']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['street']\nscenes = 2\nfirst_seed = 9\nsplit = 'test'\n",
+     "part.a.templates", "held-out template 'street' in a train part"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['street']\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\n", "dataset.held_out", "needs parts with a split"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['mixed']\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'train'\n[[part]]\nname = 'b'\ntemplates = ['street']\nscenes = 2\nfirst_seed = 0\nsplit = 'test'\n", "dataset.held_out",
+     "a test part uses"),
+    ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['castle']\n[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nfirst_seed = 0\nsplit = 'test'\n", "dataset.held_out", "must list templates"),
     ("[dataset\nname = 't'\n", "not valid TOML", "fix the syntax"),
 ]
 
@@ -132,3 +143,43 @@ def test_the_committed_recipes_are_valid_and_the_default_has_the_papers_shape():
     assert len(static) == 50 and all(8 <= s.rigs <= 10 for s in static) and {s.rigs for s in static} == {8, 9, 10}
     assert all(s.frames == 150 for s in default if s.dynamic)
     assert len({s.name for s in default}) == len(default)
+
+
+def test_the_training_recipes_have_disjoint_splits_and_a_template_held_out_for_test():
+    for name, resolution in (("train_preview.toml", (128, 128)), ("train_full.toml", (512, 512))):
+        recipe = load_recipe(RECIPES / name)
+        assert recipe.grid == (9, 9) and recipe.resolution == resolution, name
+        specs = scene_specs(recipe)
+        scenes = {split: {(s.template, s.seed) for s in specs if s.split == split} for split in ("train", "val", "test")}
+        assert all(scenes.values()) and {s.split for s in specs} == {"train", "val", "test"}, name
+        assert not (scenes["train"] & scenes["val"] or scenes["train"] & scenes["test"] or scenes["val"] & scenes["test"]), name
+        held = set(recipe.held_out)
+        assert held and held <= {t for t, _ in scenes["test"]} and not held & {t for t, _ in scenes["train"] | scenes["val"]}, name
+        assert {t for t, _ in scenes["train"]} <= {"things", "things_large"}, name
+        assert all(s.dynamic and s.frames >= 2 for s in specs), name  # clips: scene flow trains on them too
+        assert len({s.name for s in specs}) == len(specs), name
+
+
+def test_split_scenes_lists_each_splits_verified_scene_folders(tmp_path):
+    from lfusd.recipe import _spec_dict, split_scenes
+
+    text = ("[dataset]\nname = 't'\ngrid = [2, 2]\nresolution = [32, 32]\nheld_out = ['street']\n"
+            "[[part]]\nname = 'a'\ntemplates = ['room']\nscenes = 2\nsplit = 'train'\n"
+            "[[part]]\nname = 'b'\ntemplates = ['room']\nscenes = 1\nfirst_seed = 5\nsplit = 'val'\n"
+            "[[part]]\nname = 'c'\ntemplates = ['street']\nscenes = 2\nsplit = 'test'\n")
+    (tmp_path / "recipe.toml").write_text(text)
+    (tmp_path / "scenes").mkdir()
+    specs = scene_specs(load_recipe(tmp_path / "recipe.toml"))
+    assert [s.split for s in specs] == ["train", "train", "val", "test", "test"]
+    for i, s in enumerate(specs):
+        if i == 1:
+            continue  # not made yet
+        record = {"version": 1, "spec": _spec_dict(s), "verified": i != 4}  # the last one failed verification
+        (tmp_path / "scenes" / f"{s.name}.json").write_text(json.dumps(record))
+        (tmp_path / "scenes" / s.name).mkdir()
+        (tmp_path / "scenes" / s.name / "manifest.json").write_text("{}")
+    got = split_scenes(tmp_path)
+    assert {k: [p.name for p in v] for k, v in got.items()} == {
+        "train": ["a_000_room_s0"], "val": ["b_000_room_s5"], "test": ["c_000_street_s0"]}
+    # a recipe without splits keeps its records' identity: no split field in them
+    assert "split" not in _spec_dict(scene_specs(load_recipe(RECIPES / "tiny.toml"))[0])

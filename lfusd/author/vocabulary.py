@@ -23,7 +23,7 @@ GROUND = ("road", "pavement", "sidewalk", "ground", "grass", "floor", "bridge", 
 WATER = ("water", "river", "lake", "sea")
 SURFACES = frozenset(GROUND + WATER)
 OBJECTS = ("person", "boat", "car", "building", "tree", "street_light", "bench", "table", "chair", "cabinet",
-           "lamp", "bowl", "wall", "bin", "railing", "shelf")
+           "lamp", "bowl", "wall", "bin", "railing", "shelf", "shape")
 ANY = "any"  # in rules: every labelled object that is not a surface
 # (least, most) metres of a catalogue asset's longest side per class a template draws: an asset
 # outside is flagged when added (a car in centimetres read as metres is a 467 m car)
@@ -52,6 +52,7 @@ TEMPLATE = "lfusd:template"
 SEED = "lfusd:seed"
 DYNAMIC = "lfusd:dynamic"
 LIGHTING = "lfusd:lighting"  # dictionary: the drawn lighting setup ("setup": sun|overcast|night|indoor, and its parameters)
+DISPARITY = "lfusd:disparity"  # dictionary: the disparity design of a training stage (things: shift_px, range_px, ...)
 
 # -- customLayerData of a gait clip (animations/*.usda) ----------------------------------------
 GAIT = "lfusd:gait"

@@ -34,7 +34,7 @@ def plaza(scene: Scene) -> Site:
 
 
 def test_builtin_templates_keep_the_seed_keys_of_their_committed_stages():
-    assert {n: t.seed_key for n, t in scenes.TEMPLATES.items()} == {"street": 0, "river": 1, "room": 2, "mixed": 3}
+    assert {n: t.seed_key for n, t in scenes.TEMPLATES.items()} == {"street": 0, "river": 1, "room": 2, "mixed": 3, "things": 4, "things_large": 5}
     assert all(t.build and t.animate and t.labels and t.movers for t in scenes.TEMPLATES.values())
 
 
@@ -50,7 +50,7 @@ def test_a_new_template_registered_first_changes_no_other_templates_stage(tmp_pa
     new = template("plaza", seed_key=99, labels={"grass", "bench"}, rules={"bench": {"on": ["grass"]}})(plaza)
     for t in reversed(builtin):
         registry[t.name] = t
-    assert list(registry) == ["plaza", "mixed", "room", "river", "street"]
+    assert list(registry) == ["plaza", *reversed([t.name for t in builtin])]
     for t in builtin:
         generate(t.name, tmp_path / "after" / f"{t.name}.usda", 5, **SMALL)
         assert (tmp_path / "after" / f"{t.name}.usda").read_bytes() == before[t.name], t.name
@@ -91,7 +91,7 @@ def test_a_duplicate_name_or_seed_key_is_refused(monkeypatch):
     for bad in (-1, 1.5, "7"):
         with pytest.raises(LfusdError, match="non-negative integer"):
             template("plaza", seed_key=bad)(plaza)
-    assert list(registry) == names == ["street", "river", "room", "mixed"]  # nothing half-registered
+    assert list(registry) == names == ["street", "river", "room", "mixed", "things", "things_large"]  # nothing half-registered
 
 
 def test_sun_colour_warms_towards_the_horizon():

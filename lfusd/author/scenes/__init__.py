@@ -1,4 +1,4 @@
-"""The scene library: deterministic, constraint-aware stage templates (street, river, room, mixed).
+"""The scene library: deterministic, constraint-aware stage templates (street, river, room, mixed, things).
 
 ``generate(template, path, seed)`` writes a stage whose every labelled object satisfies the
 stage's rules by construction: objects are sampled only where their support surface lies
@@ -90,6 +90,8 @@ class Scene:
     assets: dict = field(default_factory=dict)  # class -> catalogue assets drawn instead of its generator (catalogue.draw_assets)
     assets_drawn: set = field(default_factory=set)  # classes of which a catalogue asset was drawn (Scene.draw)
     assets_placed: set = field(default_factory=set)  # ... and placed (Scene.add)
+    grid: tuple[int, int] = (9, 9)  # the rigs' views (rows, cols) and image size: a template may size its
+    resolution: tuple[int, int] = (1024, 1024)  # baseline to a disparity range in pixels (things)
 
     @property
     def stage(self) -> Usd.Stage:
@@ -354,7 +356,8 @@ def _build(t, path: Path, seed: int, frames: int, rigs: int, grid, resolution, d
     stage = new_stage(path, 1, frames)
     UsdGeom.Scope.Define(stage, "/World/Looks")
     UsdGeom.Xform.Define(stage, "/World/Lights")
-    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), t.seed_key]), assets=dict(assets or {}))
+    scene = Scene(Builder(stage, path), np.random.default_rng([int(seed), t.seed_key]), assets=dict(assets or {}),
+                  grid=tuple(grid), resolution=tuple(resolution))
     site = t.build(scene)
     if dynamic:
         from .dynamic import populate

@@ -275,6 +275,49 @@ TEXTURES = {
 }
 
 
+# Random patterns for training scenes (the ``things`` template): ``pattern_00`` ... each drawn from
+# its own index (not the name's bytes, which the family shares), two or three random colours
+# over one of several structures, so that a scene's textures differ in colour, scale and kind.
+PATTERNS = 48
+
+
+def _pattern(index: int):
+    def make(_rng):
+        rng = np.random.default_rng([0x7A77, index])
+        colours = rng.random((3, 3)) ** 1.5  # favour darker and saturated colours, as photographs have
+        kind = int(rng.integers(6))
+        yy, xx = np.mgrid[0:SIZE, 0:SIZE]
+        n = fbm(rng, base=int(rng.choice([2, 4, 8, 16])), octaves=int(rng.integers(2, 6)))
+        if kind == 0:  # smooth noise
+            t = n
+        elif kind == 1:  # stripes, warped
+            period = int(rng.choice([8, 16, 32, 64]))
+            t = 0.5 + 0.5 * np.sin(2 * np.pi * (xx + 24 * n) / period)
+        elif kind == 2:  # checks (edges a quarter period off the wrap: no hard edge at the seam)
+            period = int(rng.choice([16, 32, 64]))
+            q = period // 4
+            t = ((((xx + q) // period) + ((yy + q) // period)) % 2).astype(float) * 0.8 + 0.2 * n
+        elif kind == 3:  # dots
+            period = int(rng.choice([16, 32, 64]))
+            gx, gy = (xx % period) - period / 2, (yy % period) - period / 2
+            t = (np.hypot(gx, gy) < period * float(rng.uniform(0.2, 0.45))).astype(float) * 0.85 + 0.15 * n
+        elif kind == 4:  # cells of random shades
+            cells = int(rng.choice([4, 8, 16]))
+            half = SIZE // (2 * cells)  # cell edges half a cell off the wrap, as the checks'
+            shade = rng.random((cells, cells))
+            t = 0.7 * shade[((yy + half) * cells // SIZE) % cells, ((xx + half) * cells // SIZE) % cells] + 0.3 * n
+        else:  # speckle over noise
+            t = np.clip(0.6 * n + 0.4 * rng.random((SIZE, SIZE)), 0, 1)
+        img = _mix(colours[0], colours[1], t)
+        if rng.random() < 0.5:  # a third colour in blotches
+            img = img + (colours[2] - img) * (fbm(rng, base=4, octaves=2) > 0.65)[..., None] * 0.8
+        return img
+
+    return make
+
+
+TEXTURES.update({f"pattern_{i:02d}": _pattern(i) for i in range(PATTERNS)})
+
 # Surface detail maps beside each colour texture: ``<name>_normal.png`` (tangent-space normals,
 # OpenGL convention: +x along u, +y along v) and ``<name>_roughness.png`` (grey, variation about
 # the material's roughness). Both follow the colour's own structure (grout, planks, bark grooves

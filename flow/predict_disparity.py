@@ -1,0 +1,176 @@
+"""Predict the centre view's disparity of a light field with a trained DisparityNet (flow/models.py).
+
+    python flow/predict_disparity.py LF_DIR -o DISP.pfm --weights W
+    python flow/predict_disparity.py DATASET -o DISP.pfm --weights W [--frame 1] [--rig rig_00]
+
+LF_DIR holds input_Cam000.png ... input_Cam080.png in the HCI 4D benchmark layout (row-major,
+Cam000 top left; a parameters.cfg there is not read): an N x N grid of views, N*N files. Or an
+lfusd dataset folder: the views of one frame (--frame, default the first) of one rig (--rig).
+The output is the disparity of the view the HCI toolkit takes as centre (camera int(N*N/2), the
+true centre of odd grids) in pixels per view step, HCI's sign convention (a point at disparity d
+at (u, v) in the centre view is at (u - d*sx, v - d*sy) in the view at grid offset (sx, sy):
+docs/CONVENTIONS.md) and HCI's file format: a little-endian, bottom-up PFM, written by the same
+function as `lfusd export hci` writes gt_disp_lowres.pfm with.
+
+W is a checkpoint of flow/train_disparity.py (OUT/checkpoints/last.pt) or a file holding its
+``model`` (name -> tensor) and ``config``, loaded with torch.load(weights_only=True). The image is
+processed in overlapping tiles (--tile, --overlap), so memory stays flat at any size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import training  # noqa: E402
+from lfusd import LfusdError  # noqa: E402
+from lfusd.data import formats  # noqa: E402
+
+log = logging.getLogger("lfusd.flow")
+NAME = "predict_disparity"
+CONFIG_KEYS = ("ang", "d_min", "d_max", "disparities", "channels", "blocks", "cost_channels")
+
+
+def load_weights(path) -> tuple[dict, dict]:
+    """(config, state dict) of a DisparityNet from ``path`` (weights_only=True); one-line LfusdError otherwise."""
+    import pickle
+
+    path = Path(path)
+    if not path.is_file():
+        raise LfusdError(f"weights {path} not found; give --weights a checkpoint of flow/train_disparity.py (OUT/checkpoints/last.pt)")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as e:
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        raise LfusdError(f"{path} is not a weights file of flow/train_disparity.py ({why}); give its checkpoints/last.pt") from None
+    model, config = (state.get("model"), state.get("config")) if isinstance(state, dict) else (None, None)
+    if not isinstance(model, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in model.items()):
+        raise LfusdError(f"{path} holds no 'model' of named tensors; give a checkpoint of flow/train_disparity.py")
+    if not isinstance(config, dict) or any(k not in config for k in CONFIG_KEYS):
+        raise LfusdError(f"{path} lacks the network's config ({', '.join(CONFIG_KEYS)}); give a checkpoint of flow/train_disparity.py")
+    return config, model
+
+
+def read_hci_views(folder: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """(views [N*N, H, W, 3] float32 in [0, 1], offsets [N*N, 2] (sx, sy) from the centre, centre (row, col))."""
+    files = sorted(folder.glob("input_Cam*.png"))
+    n = math.isqrt(len(files))
+    names = [f"input_Cam{i:03d}.png" for i in range(n * n)]
+    if n < 2 or n * n != len(files) or [f.name for f in files] != names:
+        raise LfusdError(f"{folder} holds {len(files)} input_CamNNN.png files; an HCI light field needs N*N of them "
+                         "numbered from input_Cam000.png (e.g. 81 for 9x9)")
+    views = []
+    for f in files:
+        img = formats.read_png(f)
+        if img.ndim == 2:
+            img = np.repeat(img[..., None], 3, axis=2)
+        scale = 65535.0 if img.dtype == np.uint16 else 255.0
+        views.append(img[..., :3].astype(np.float32) / scale)
+    if len({v.shape for v in views}) != 1:
+        raise LfusdError(f"the views in {folder} differ in size; every input_CamNNN.png must have the same size")
+    centre = divmod(n * n // 2, n)  # the HCI toolkit's centre camera
+    rows, cols = np.divmod(np.arange(n * n), n)
+    offsets = np.stack([cols - centre[1], rows - centre[0]], 1).astype(np.float32)
+    return np.stack(views), offsets, centre
+
+
+def read_dataset_views(folder: Path, frame: int | None, rig: str | None) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """The same from an lfusd dataset: one frame's views of a uniform planar parallel rig (row-major)."""
+    from lfusd import Dataset
+    from lfusd.exports.common import check_planar_grid, frames_of
+    from lfusd.exports.hci import hci_centre_view
+
+    ds = Dataset(folder, rig=rig) if rig else Dataset(folder)
+    check_planar_grid(ds, "the disparity network")
+    t = frames_of(ds, frame)[0]
+    if ds.rig.rows != ds.rig.cols:
+        raise LfusdError(f"the disparity network needs a square grid of views, this dataset's is {ds.rig.rows}x{ds.rig.cols}")
+    views = sorted(tuple(v) for v in ds.views)
+    centre = hci_centre_view(ds)
+    imgs = np.stack([np.asarray(ds.read(t, v, "rgb"), np.float32)[..., :3] / 255.0 for v in views])
+    offsets = np.array([ds.rig.offsets(v) for v in views], np.float32) - np.array(ds.rig.offsets(centre), np.float32)
+    return imgs, offsets, centre
+
+
+@torch.no_grad()
+def predict(model, views: np.ndarray, offsets: np.ndarray, tile: int = 128, overlap: int = 32) -> np.ndarray:
+    """The reference view's disparity [H, W] float32: the network on overlapping tiles, each keeping its
+    centre part (``overlap`` pixels of context on every inner side)."""
+    n, h, w, _ = views.shape
+    x = torch.from_numpy(np.ascontiguousarray(views.transpose(0, 3, 1, 2)))[None]  # 1, N, 3, H, W
+    dev = next(model.parameters()).device
+    rel = torch.from_numpy(offsets)[None].to(dev)
+    out = np.zeros((h, w), np.float32)
+    step = max(tile, 1)
+    for y0 in range(0, h, step):
+        for x0 in range(0, w, step):
+            y1, x1 = min(y0 + step, h), min(x0 + step, w)
+            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
+            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
+            d = model(x[..., a0:a1, b0:b1].to(dev), rel)[0].cpu().numpy()
+            out[y0:y1, x0:x1] = d[y0 - a0 : y1 - a0, x0 - b0 : x1 - b0]
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("lf_dir", help="an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
+    p.add_argument("-o", "--output", required=True, help="the PFM file to write (HCI's gt_disp_lowres.pfm format)")
+    p.add_argument("--weights", default=None, help="a checkpoint of flow/train_disparity.py (required until weights ship)")
+    p.add_argument("--frame", type=int, default=None, help="frame of an lfusd dataset (default: its first)")
+    p.add_argument("--rig", default=None, help="rig of an lfusd dataset with several")
+    p.add_argument("--tile", type=int, default=128, help="tile side in pixels (default 128)")
+    p.add_argument("--overlap", type=int, default=32, help="context pixels around each tile (default 32)")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads of torch (default: torch's)")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
+    a = p.parse_args(argv)
+    if a.weights is None:
+        raise LfusdError("no --weights given and no shipped weights yet; train with flow/train_disparity.py and pass --weights OUT/checkpoints/last.pt")
+    if a.tile < 8 or a.overlap < 0:
+        raise LfusdError(f"--tile must be at least 8 and --overlap at least 0, got {a.tile} and {a.overlap}")
+    out = Path(a.output)
+    if out.suffix.lower() != ".pfm":
+        raise LfusdError(f"output {out} must end in .pfm (HCI's disparity format)")
+    folder = Path(a.lf_dir)
+    if not folder.is_dir():
+        raise LfusdError(f"{folder} is not a folder; give an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
+    config, state = load_weights(a.weights)
+    t0 = time.time()
+    if (folder / "input_Cam000.png").is_file():
+        views, offsets, centre = read_hci_views(folder)
+    else:
+        views, offsets, centre = read_dataset_views(folder, a.frame, a.rig)
+    n = math.isqrt(len(views))
+    if n != config["ang"]:
+        raise LfusdError(f"the weights are for a {config['ang']}x{config['ang']} grid, {folder} holds {n}x{n} views")
+    from train_disparity import build
+
+    model = build(config)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:
+        raise LfusdError(f"{a.weights} does not fit the network its config describes ({str(e).splitlines()[0][:160]})") from None
+    model.eval()
+    device = training.device_of(a.device, a.threads)
+    model.to(device)
+    disp = predict(model, views, offsets, a.tile, a.overlap)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    formats.write_pfm(out, disp)
+    log.info("%s: %dx%d views of %dx%d, centre view %s: disparity %.3f..%.3f px -> %s in %.1f s", folder, n, n, views.shape[2],
+             views.shape[1], centre, float(disp.min()), float(disp.max()), out, time.time() - t0)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(training.main_wrapper(NAME, main))
