@@ -1,0 +1,227 @@
+"""Ray flow: 3-D scene flow from light-field gradients, after Ma, Smith & Gupta, "3D Scene Flow from
+4D Light Field Gradients" (ECCV 2018). Our own NumPy/SciPy/OpenCV implementation of the method.
+
+The ray flow equation. A point P = (X, Y, Z) in the reference view's camera frame (OpenCV axes,
+units of the rig baseline b) is seen by the view at offset s (baselines, relative to the
+reference) at u_s = f (X - s_x) / Z + c_x, v_s = f (Y - s_y) / Z + c_y: the light field
+L(u, v, s_x, s_y). A displacement V = (V_X, V_Y, V_Z) of the point moves that ray by
+du = (f/Z) (V_X - x_s V_Z), dv = (f/Z) (V_Y - y_s V_Z), x_s = (u_s - c_x) / f, and brightness
+constancy along the ray gives, per ray,
+
+    L_X V_X + L_Y V_Y + L_Z V_Z + L_t = 0,
+    L_X = (f/Z) L_u = L_{s_x},  L_Y = (f/Z) L_v = L_{s_y},  L_Z = -(x_s L_X + y_s L_Y),
+
+where L_{s_x} = d L_u (d = f b / Z the disparity) is the angular light-field gradient: depth enters
+only through the light field's own structure. Ma et al. measure L_X, L_Y by finite differences
+over a lenslet camera's sub-pixel view spacing; a rendered rig's views are pixels of disparity
+apart, where a finite difference over one baseline step aliases, so here the angular gradient is
+taken through the light-field correspondence, L_{s} = d grad L, with the disparity d of a plane
+sweep (:func:`lfusd.evaluation.baselines.plane_sweep_disparity`).
+
+One equation per ray (and colour channel) constrains three unknowns; as in the paper, V is found
+from the rays of every view of one scene point (the correspondence structure of the light
+field) together with one of two regularisers borrowed from optical flow:
+
+- ``local`` (Lucas-Kanade ray flow): V is constant over a window; the 3x3 normal equations
+  (the light-field structure tensor) are box-filtered and solved per pixel;
+- ``global`` (Horn-Schunck ray flow): the data term of every pixel plus a smoothness term
+  lambda |grad V|^2, whose weights drop across disparity edges (structure-aware, like the
+  paper's combined method), solved as one sparse linear system.
+
+Both are iterated Gauss-Newton over a coarse-to-fine pyramid (the equation holds for differential
+motion; warping the t+1 light field by the current estimate extends it to motions of pixels), with
+a robust (Cauchy) weight per ray that discounts rays occluded in one view or frame.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..errors import LfusdError
+
+log = logging.getLogger(__name__)
+
+SOLVERS = ("local", "global")
+
+
+def _grey_stack(img) -> np.ndarray:
+    """(H,W,C) float64 in [0, 1] from uint8 or float RGB / grey."""
+    a = np.asarray(img)
+    f = a.astype(np.float64) / (255.0 if a.dtype == np.uint8 else 1.0)
+    return f[..., None] if f.ndim == 2 else f
+
+
+def _sample(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bilinear samples of (H,W,C) at float pixel coordinates (pixel centres at integers) and inside mask."""
+    import cv2
+
+    h, w = img.shape[:2]
+    out = cv2.remap(img.astype(np.float32), u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    return out.reshape(u.shape + (img.shape[2],)).astype(np.float64), inside
+
+
+def _gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference image gradients (H,W,C) along u and v."""
+    gu = np.zeros_like(img)
+    gv = np.zeros_like(img)
+    gu[:, 1:-1] = 0.5 * (img[:, 2:] - img[:, :-2])
+    gv[1:-1] = 0.5 * (img[2:] - img[:-2])
+    return gu, gv
+
+
+def _pyr_down(img: np.ndarray) -> np.ndarray:
+    import cv2
+
+    out = cv2.pyrDown(img.astype(np.float32))
+    return (out[..., None] if out.ndim == 2 else out).astype(np.float64)
+
+
+def _box(a: np.ndarray, window: int) -> np.ndarray:
+    import cv2
+
+    return cv2.blur(a.astype(np.float64), (window, window), borderType=cv2.BORDER_REFLECT)
+
+
+def _solve3(A: np.ndarray, b: np.ndarray, eps: np.ndarray) -> np.ndarray:
+    """Solve (A + eps I) x = b for stacks (...,3,3), (...,3)."""
+    return np.linalg.solve(A + eps[..., None, None] * np.eye(3), b[..., None])[..., 0]
+
+
+def _smoothness(h: int, w: int, disparity: np.ndarray, sigma: float):
+    """Weighted graph Laplacian (N,N) of the 4-neighbour pixel grid, weights exp(-|d_p - d_q| / sigma)."""
+    import scipy.sparse as sp
+
+    idx = np.arange(h * w).reshape(h, w)
+    rows, cols, wts = [], [], []
+    for a, b, da, db in ((idx[:, :-1], idx[:, 1:], disparity[:, :-1], disparity[:, 1:]), (idx[:-1], idx[1:], disparity[:-1], disparity[1:])):
+        wt = np.exp(-np.abs(da - db) / sigma).ravel()
+        rows.append(a.ravel())
+        cols.append(b.ravel())
+        wts.append(wt)
+    r, c, wt = np.concatenate(rows), np.concatenate(cols), np.concatenate(wts)
+    W = sp.coo_matrix((np.concatenate([wt, wt]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(h * w, h * w)).tocsr()
+    return sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+
+
+def _level_step(I0, I1, G1, d, rel, K, V, solver, window, lam, sigma_d, robust, iterations):
+    """Gauss-Newton iterations of the ray flow at one pyramid level; returns V (H,W,3), baseline units."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    fx, fy, cx, cy = K
+    h, w = d.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    dd = np.maximum(d, 1e-3)  # a point at (numerically) infinite depth: its rays do not move; V is left to the regulariser
+    Z = fx / dd
+    X, Y = (u - cx) / fx * Z, (v - cy) / fy * Z
+    # the rays of the reference pixel's point in every view at t: its light-field correspondence
+    ref = [_sample(I0[s], u - d * rel[s][0], v - d * rel[s][1]) for s in range(len(I0))]
+    lap = _smoothness(h, w, d, sigma_d) if solver == "global" else None
+    for _ in range(iterations):
+        A = np.zeros((h, w, 3, 3))
+        b = np.zeros((h, w, 3))
+        Zp = np.maximum(Z + V[..., 2], 1e-3 * Z)
+        for s in range(len(I0)):
+            # where the moved point's ray lands in view s at t+1, and the ray flow coefficients there
+            us = fx * (X + V[..., 0] - rel[s][0]) / Zp + cx
+            vs = fy * (Y + V[..., 1] - rel[s][1]) / Zp + cy
+            L1, inside = _sample(I1[s], us, vs)
+            gu, _ = _sample(G1[s][0], us, vs)
+            gv, _ = _sample(G1[s][1], us, vs)
+            L0, inside0 = ref[s]
+            Lt = L1 - L0  # (H,W,C)
+            LX, LY = fx / Zp[..., None] * gu, fy / Zp[..., None] * gv  # angular gradients d grad L (per channel)
+            LZ = -((us - cx) / fx)[..., None] * LX - ((vs - cy) / fy)[..., None] * LY
+            J = np.stack([LX, LY, LZ], -1)  # (H,W,C,3)
+            wgt = (inside & inside0)[..., None] / (1.0 + (Lt / robust) ** 2)  # Cauchy weights: occluded rays disagree
+            A += np.einsum("hwc,hwci,hwcj->hwij", wgt, J, J)
+            b += np.einsum("hwc,hwci,hwc->hwi", wgt, J, Lt)
+        scale = max(float(np.mean(np.trace(A, axis1=-2, axis2=-1))) / 3.0, 1e-12)
+        if solver == "local":
+            A = _box(A.reshape(h, w, 9), window).reshape(h, w, 3, 3)
+            b = _box(b, window)
+            delta = _solve3(A, -b, np.full((h, w), 1e-3 * scale * window * window))
+        else:
+            n = h * w
+            Ab = sp.bsr_matrix((A.reshape(n, 3, 3), np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n)).tocsr()
+            Lk = sp.kron(lap, sp.identity(3), format="csr")
+            M = Ab + lam * scale * Lk + 1e-6 * scale * sp.identity(3 * n)
+            rhs = -b.reshape(-1) - lam * scale * (Lk @ V.reshape(-1))
+            delta = spla.spsolve(M.tocsc(), rhs).reshape(h, w, 3)
+        V = V + delta
+        if float(np.max(np.abs(delta))) < 1e-4:
+            break
+    return V
+
+
+def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity, solver: str = "global", window: int = 7,
+             smoothness: float = 0.05, levels: int | None = None, iterations: int = 5, robust: float = 0.1, edge: float = 0.3) -> np.ndarray:
+    """3-D displacement of the point seen at every pixel of ``ref_view`` between t and t+1, in the
+    reference camera's frame (OpenCV axes, units of the baseline), as if the rig stood still.
+
+    ``images0`` / ``images1``: {view: (H,W,3) image} at t and t+1 (any views of a planar, parallel rig);
+    ``offsets``: {view: (sx, sy)} in baselines; ``K``: the 3x3 intrinsics shared by the views;
+    ``disparity``: (H,W) of the reference view at t, px per baseline step (d = f b / z).
+    ``solver``: 'local' (window ``window``) or 'global' (``smoothness`` lambda, relative to the mean
+    data term; ``edge``: px of disparity difference over which the smoothness weight falls by 1/e).
+    ``robust``: the Cauchy scale of the temporal difference, in [0, 1] intensity. Returns (H,W,3) float64.
+    """
+    if solver not in SOLVERS:
+        raise LfusdError(f"unknown ray flow solver {solver!r}; use one of {', '.join(SOLVERS)}")
+    views = [v for v in images0 if v in images1]
+    if not views or ref_view not in offsets:
+        raise LfusdError("ray flow needs the views at t and t+1 and the reference view's offset")
+    K = np.asarray(K, np.float64)
+    d = np.asarray(disparity, np.float64)
+    h, w = d.shape
+    I0 = [_grey_stack(images0[s]) for s in views]
+    I1 = [_grey_stack(images1[s]) for s in views]
+    if any(a.shape[:2] != (h, w) for a in I0 + I1):
+        raise LfusdError(f"ray flow needs every image at the disparity's size {w}x{h}")
+    rel = [(offsets[s][0] - offsets[ref_view][0], offsets[s][1] - offsets[ref_view][1]) for s in views]
+    if levels is None:
+        levels = max(1, int(np.floor(np.log2(min(h, w) / 16))) + 1)
+    pyr = [(I0, I1, d, (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))]
+    for _ in range(levels - 1):
+        a0, a1, dl, (fx, fy, cx, cy) = pyr[-1]
+        dl_small = _pyr_down(dl[..., None])[..., 0] * 0.5  # disparity is in pixels: it halves with the image
+        # pyrDown keeps pixel centres at integers: x' = (x + 0.5) / 2 - 0.5
+        pyr.append(([_pyr_down(a) for a in a0], [_pyr_down(a) for a in a1], dl_small, (fx / 2, fy / 2, (cx + 0.5) / 2 - 0.5, (cy + 0.5) / 2 - 0.5)))
+    V = np.zeros(pyr[-1][2].shape + (3,))
+    for lvl in range(levels - 1, -1, -1):
+        a0, a1, dl, Kl = pyr[lvl]
+        if V.shape[:2] != dl.shape:
+            import cv2
+
+            V = np.dstack([cv2.resize(V[..., i], (dl.shape[1], dl.shape[0]), interpolation=cv2.INTER_LINEAR) for i in range(3)])  # V is in baselines: no rescale
+        G1 = [_gradients(a) for a in a1]
+        V = _level_step(a0, a1, G1, dl, rel, Kl, V, solver, window, smoothness, edge * 0.5**lvl, robust, iterations)
+    return V
+
+
+def compose(disparity, motion, K, baseline: float, cam_to_world0, cam_to_world1):
+    """Submission arrays of one view from its disparity at t and the ray flow ``motion`` (camera
+    frame, baselines): (flow (H,W,2) px, disparity_change (H,W) px, scene_flow (H,W,3) world metres).
+    The world scene flow is C1 (P + V) - C0 P: the camera-frame motion plus the rig's own motion.
+    Where the disparity is not positive or the moved point is behind the camera, zero motion."""
+    d = np.asarray(disparity, np.float64)
+    K = np.asarray(K, np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    h, w = d.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    ok = d > 1e-3
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = np.where(ok, fx * baseline / d, 1.0)
+    P = np.stack([(u - cx) / fx * Z, (v - cy) / fy * Z, Z], -1)
+    P1 = P + np.asarray(motion, np.float64) * baseline
+    ok &= P1[..., 2] > 1e-6 * Z
+    z1 = np.where(ok, P1[..., 2], 1.0)
+    flow = np.stack([fx * P1[..., 0] / z1 + cx - u, fy * P1[..., 1] / z1 + cy - v], -1)
+    dchange = fx * baseline / z1 - d
+    c0, c1 = np.asarray(cam_to_world0, np.float64), np.asarray(cam_to_world1, np.float64)
+    sf = (P1 @ c1[:3, :3].T + c1[:3, 3]) - (P @ c0[:3, :3].T + c0[:3, 3])
+    flow = np.where(ok[..., None], flow, 0.0)
+    return flow, np.where(ok, dchange, 0.0), np.where(ok[..., None], sf, 0.0)
