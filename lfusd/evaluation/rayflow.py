@@ -54,13 +54,35 @@ def _grey_stack(img) -> np.ndarray:
 
 
 def _sample(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bilinear samples of (H,W,C) at float pixel coordinates (pixel centres at integers) and inside mask."""
-    import cv2
-
+    """Bilinear samples of (H,W,C) at float pixel coordinates (pixel centres at integers, clamped at the
+    border) and the inside mask. In float64: OpenCV's remap quantises the weights to 1/32 px, an error
+    a gradient method reads as motion."""
     h, w = img.shape[:2]
-    out = cv2.remap(img.astype(np.float32), u.astype(np.float32), v.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    return out.reshape(u.shape + (img.shape[2],)).astype(np.float64), inside
+    uc, vc = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
+    u0 = np.minimum(np.floor(uc).astype(np.intp), max(w - 2, 0))
+    v0 = np.minimum(np.floor(vc).astype(np.intp), max(h - 2, 0))
+    a, b = (uc - u0)[..., None], (vc - v0)[..., None]
+    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
+    out = (1 - b) * ((1 - a) * img[v0, u0] + a * img[v0, u1]) + b * ((1 - a) * img[v1, u0] + a * img[v1, u1])
+    return out, inside
+
+
+def _spline(img: np.ndarray) -> np.ndarray:
+    """Cubic B-spline coefficients of (H,W,C), per channel (scipy.ndimage.spline_filter)."""
+    from scipy import ndimage
+
+    return np.stack([ndimage.spline_filter(img[..., c], order=3, mode="mirror") for c in range(img.shape[2])], -1)
+
+
+def _sample_cubic(coef: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cubic-spline samples of the image whose coefficients :func:`_spline` made: a bilinear
+    resampling's error (several percent of a texture of 8 px wavelength) would read as motion."""
+    from scipy import ndimage
+
+    h, w = coef.shape[:2]
+    coords = np.stack([np.clip(v, 0, h - 1).ravel(), np.clip(u, 0, w - 1).ravel()])
+    return np.stack([ndimage.map_coordinates(coef[..., c], coords, order=3, mode="mirror", prefilter=False).reshape(u.shape) for c in range(coef.shape[2])], -1)
 
 
 def _gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -106,7 +128,7 @@ def _smoothness(h: int, w: int, disparity: np.ndarray, sigma: float):
     return sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
 
 
-def _level_step(I0, I1, G1, d, rel, K, V, solver, window, lam, sigma_d, robust, iterations):
+def _level_step(I0, I1, G1, S1, d, rel, K, V, solver, window, lam, sigma_d, robust, iterations):
     """Gauss-Newton iterations of the ray flow at one pyramid level; returns V (H,W,3), baseline units."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
@@ -118,7 +140,8 @@ def _level_step(I0, I1, G1, d, rel, K, V, solver, window, lam, sigma_d, robust, 
     Z = fx / dd
     X, Y = (u - cx) / fx * Z, (v - cy) / fy * Z
     # the rays of the reference pixel's point in every view at t: its light-field correspondence
-    ref = [_sample(I0[s], u - d * rel[s][0], v - d * rel[s][1]) for s in range(len(I0))]
+    ref = [(_sample_cubic(_spline(I0[s]), u - d * rel[s][0], v - d * rel[s][1]), _sample(I0[s][..., :1], u - d * rel[s][0], v - d * rel[s][1])[1])
+           for s in range(len(I0))]
     lap = _smoothness(h, w, d, sigma_d) if solver == "global" else None
     for _ in range(iterations):
         A = np.zeros((h, w, 3, 3))
@@ -128,7 +151,8 @@ def _level_step(I0, I1, G1, d, rel, K, V, solver, window, lam, sigma_d, robust, 
             # where the moved point's ray lands in view s at t+1, and the ray flow coefficients there
             us = fx * (X + V[..., 0] - rel[s][0]) / Zp + cx
             vs = fy * (Y + V[..., 1] - rel[s][1]) / Zp + cy
-            L1, inside = _sample(I1[s], us, vs)
+            _, inside = _sample(G1[s][0][..., :1], us, vs)
+            L1 = _sample_cubic(S1[s], us, vs)
             gu, _ = _sample(G1[s][0], us, vs)
             gv, _ = _sample(G1[s][1], us, vs)
             L0, inside0 = ref[s]
@@ -141,9 +165,11 @@ def _level_step(I0, I1, G1, d, rel, K, V, solver, window, lam, sigma_d, robust, 
             b += np.einsum("hwc,hwci,hwc->hwi", wgt, J, Lt)
         scale = max(float(np.mean(np.trace(A, axis1=-2, axis2=-1))) / 3.0, 1e-12)
         if solver == "local":
-            A = _box(A.reshape(h, w, 9), window).reshape(h, w, 3, 3)
-            b = _box(b, window)
-            delta = _solve3(A, -b, np.full((h, w), 1e-3 * scale * window * window))
+            # V constant over the window: each neighbour q's equations, linearised at its own V_q,
+            # are moved to V_p: sum_q A_q V_p = sum_q (A_q V_q - b_q) (the box filter averages)
+            AV = np.einsum("hwij,hwj->hwi", A, V)
+            Aw = _box(A.reshape(h, w, 9), window).reshape(h, w, 3, 3)
+            delta = _solve3(Aw, _box(AV - b, window), np.full((h, w), 1e-6 * scale)) - V
         else:
             n = h * w
             Ab = sp.bsr_matrix((A.reshape(n, 3, 3), np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n)).tocsr()
@@ -198,7 +224,8 @@ def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity
 
             V = np.dstack([cv2.resize(V[..., i], (dl.shape[1], dl.shape[0]), interpolation=cv2.INTER_LINEAR) for i in range(3)])  # V is in baselines: no rescale
         G1 = [_gradients(a) for a in a1]
-        V = _level_step(a0, a1, G1, dl, rel, Kl, V, solver, window, smoothness, edge * 0.5**lvl, robust, iterations)
+        S1 = [_spline(a) for a in a1]
+        V = _level_step(a0, a1, G1, S1, dl, rel, Kl, V, solver, window, smoothness, edge * 0.5**lvl, robust, iterations)
     return V
 
 
