@@ -130,6 +130,9 @@ def write_baseline(root, sub, n_planes: int = 48, window: int = 9, device=None, 
         raise LfusdError(f"unknown baseline {method!r}; use one of {', '.join(METHODS)}")
     root, sub = Path(root), Path(sub)
     rec = read_record(root)
+    if method == "rayflow":  # refuse before anything is written
+        for scene in rec["splits"]["test"]:
+            _check_parallel_rig(_inputs(root / layout.BENCH_PUBLIC / "test" / scene)[0])
     n = 0
     for scene in rec["splits"]["test"]:
         (sub / scene).mkdir(parents=True, exist_ok=True)

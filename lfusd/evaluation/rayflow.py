@@ -184,7 +184,7 @@ def _level_step(I0, I1, G1, S1, d, rel, K, V, solver, window, lam, sigma_d, robu
 
 
 def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity, solver: str = "global", window: int = 7,
-             smoothness: float = 0.05, levels: int | None = None, iterations: int = 5, robust: float = 0.1, edge: float = 0.3) -> np.ndarray:
+             smoothness: float = 1.0, levels: int | None = None, iterations: int = 5, robust: float = 0.1, edge: float = 1.0) -> np.ndarray:
     """3-D displacement of the point seen at every pixel of ``ref_view`` between t and t+1, in the
     reference camera's frame (OpenCV axes, units of the baseline), as if the rig stood still.
 
