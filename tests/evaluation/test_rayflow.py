@@ -114,3 +114,37 @@ def test_an_unknown_solver_is_refused(plane_pair):
     i0, i1 = plane_pair
     with pytest.raises(LfusdError, match="solver"):
         ray_flow(i0, i1, OFFSETS, (1, 1), K, np.ones((N, N)), solver="hs")
+
+
+def _step_view(offset, t):
+    """A static back plane at Z0 (disparity 2 px) and, in front of its right half, a half-plane at
+    4/3 m (disparity 3 px) moving by STEP_MOTION: each ray takes the front plane where it meets it
+    right of the plane's own edge (which moves with it), the back plane elsewhere."""
+    v, u = np.mgrid[0:N, 0:N].astype(np.float64)
+    z1 = STEP_Z + t * STEP_MOTION[2]
+    X1 = B * offset[0] + (u - C) / F * z1 - t * STEP_MOTION[0]
+    Y1 = B * offset[1] + (v - C) / F * z1 - t * STEP_MOTION[1]
+    X0, Y0 = B * offset[0] + (u - C) / F * Z0, B * offset[1] + (v - C) / F * Z0
+    front = X1 >= 0.0
+    return np.where(front[..., None], _texture(X1, Y1), _texture(X0 + 7.0, Y0 + 3.0)), front
+
+
+STEP_Z, STEP_MOTION = 4.0 / 3.0, np.array([0.02, -0.015, 0.05])
+
+
+@pytest.mark.parametrize("solver", ["global", "local"])
+def test_ray_flow_keeps_a_moving_surface_and_a_still_one_apart_at_a_depth_edge(solver):
+    i0 = {s: _step_view(o, 0)[0] for s, o in OFFSETS.items()}
+    i1 = {s: _step_view(o, 1)[0] for s, o in OFFSETS.items()}
+    front = _step_view(OFFSETS[(1, 1)], 0)[1]
+    d = np.where(front, F * B / STEP_Z, F * B / Z0)
+    motion = ray_flow(i0, i1, OFFSETS, (1, 1), K, d, solver=solver) * B
+    edge = int(np.argmax(front[N // 2]))  # the front plane's first column in the reference view
+    inner = motion[8:-8]
+    # 4 px either side of the edge (a window's half and the rays a view sees past the edge) each
+    # surface keeps its own motion: mean error per component under 1 mm (dX, dY) and 3 mm (dZ).
+    # Without the window-aggregated data term the global solver carried 17 mm of the front's dZ
+    # onto the still plane.
+    for part, truth in ((inner[:, 8:edge - 4], np.zeros(3)), (inner[:, edge + 4:-8], STEP_MOTION)):
+        err = np.abs(part - truth).reshape(-1, 3).mean(0)
+        assert err[0] < 1e-3 and err[1] < 1e-3 and err[2] < 3e-3, err
