@@ -49,7 +49,8 @@ def register(sub) -> None:
                    help="dis: baseline (a), DIS flow + plane sweep; rayflow: baseline (b), the ray flow of Ma, Smith & Gupta "
                         "(ECCV 2018) from the light-field gradients of every view (default dis)")
     b.add_argument("--solver", choices=("local", "global"), default="global",
-                   help="ray flow's regulariser: local (Lucas-Kanade window) or global (structure-aware Horn-Schunck) (default global)")
+                   help="ray flow's solver: local (Lucas-Kanade window) or global (that window's data term with a structure-aware "
+                        "Horn-Schunck smoothness) (default global)")
     b.set_defaults(func=run_baseline)
     p.set_defaults(func=argtypes.run_help(p))
 

@@ -227,15 +227,17 @@ def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity
     for _ in range(levels - 1):
         a0, a1, dl, (fx, fy, cx, cy) = pyr[-1]
         dl_small = _pyr_down(dl[..., None])[..., 0] * 0.5  # disparity is in pixels: it halves with the image
-        # pyrDown keeps pixel centres at integers: x' = (x + 0.5) / 2 - 0.5
-        pyr.append(([_pyr_down(a) for a in a0], [_pyr_down(a) for a in a1], dl_small, (fx / 2, fy / 2, (cx + 0.5) / 2 - 0.5, (cy + 0.5) / 2 - 0.5)))
+        # pyrDown's pixel x is the blurred source pixel 2x: x' = x / 2
+        pyr.append(([_pyr_down(a) for a in a0], [_pyr_down(a) for a in a1], dl_small, (fx / 2, fy / 2, cx / 2, cy / 2)))
     V = np.zeros(pyr[-1][2].shape + (3,))
     for lvl in range(levels - 1, -1, -1):
         a0, a1, dl, Kl = pyr[lvl]
         if V.shape[:2] != dl.shape:
             import cv2
 
-            V = np.dstack([cv2.resize(V[..., i], (dl.shape[1], dl.shape[0]), interpolation=cv2.INTER_LINEAR) for i in range(3)])  # V is in baselines: no rescale
+            # V is in baselines (no rescale) and smooth: resize's half-pixel grid, a quarter pixel
+            # off pyrDown's, only shifts the next level's starting point, which it then refines
+            V = np.dstack([cv2.resize(V[..., i], (dl.shape[1], dl.shape[0]), interpolation=cv2.INTER_LINEAR) for i in range(3)])
         G1 = [np.concatenate(_gradients(a), -1) for a in a1]
         S1 = [_spline(a) for a in a1]
         V = _level_step(a0, a1, G1, S1, dl, rel, Kl, V, solver, window if solver == "local" else global_window, smoothness, edge * 0.5**lvl, robust, iterations)
