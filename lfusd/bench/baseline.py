@@ -48,11 +48,17 @@ METHODS = ("dis", "rayflow")
 
 
 def _check_parallel_rig(cams: dict) -> None:
-    """Ray flow works in one camera frame for every view: the views of a frame must share one rotation."""
+    """Ray flow works in one camera frame for every view: the views of a frame must share one
+    rotation and sit at their offsets (x right, y down, in baselines) in its image plane."""
+    b = float(cams["baseline"])
     for f, per_view in cams["cam_to_world"].items():
-        rots = [np.asarray(m, np.float64)[:3, :3] for m in per_view.values()]
-        if any(np.abs(r - rots[0]).max() > 1e-5 for r in rots):
-            raise LfusdError(f"frame {f}: the views' cameras are not parallel; ray flow needs a planar, parallel rig (use --method dis)")
+        mats = {k: np.asarray(m, np.float64) for k, m in per_view.items()}
+        k0, m0 = next(iter(mats.items()))
+        for k, m in mats.items():
+            step = np.subtract(cams["offsets"][k], cams["offsets"][k0]) * b
+            expected = m0[:3, 3] + m0[:3, :3] @ np.array([step[0], step[1], 0.0])
+            if np.abs(m[:3, :3] - m0[:3, :3]).max() > 1e-5 or np.abs(m[:3, 3] - expected).max() > 1e-4 * max(b, 1e-9):
+                raise LfusdError(f"frame {f}: view {k} is not where a planar, parallel rig puts it; ray flow needs one (use --method dis)")
 
 
 def predict_scene_rayflow(scene_dir: Path, n_planes: int = 48, window: int = 9, device=None, solver: str = "global"):

@@ -12,6 +12,8 @@ import pytest
 
 from support.cli import assert_one_line_error, run_cli
 
+from lfusd.bench import baseline
+
 
 @pytest.mark.render
 @pytest.mark.parametrize("solver", ["global", "local"])
@@ -34,12 +36,23 @@ def test_baseline_b_ray_flow_writes_a_submission_from_the_public_inputs_alone(ti
     assert 0 < res["epe3d_m"] < 0.05 and 0 < res["epe_px"] < 0.5 and res["dchange_epe_px"] < 0.1, res
 
 
-def test_ray_flow_refuses_a_rig_whose_views_are_not_parallel(tmp_path, capsys, monkeypatch):
-    cams = {"cam_to_world": {"1": {"00_00": np.eye(4).tolist(), "00_01": np.diag([1.0, -1.0, -1.0, 1.0]).tolist()}}}
+def _pose(rot=np.eye(3), pos=(0.0, 0.0, 0.0)):
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = rot, pos
+    return m.tolist()
+
+
+@pytest.mark.parametrize("second", [_pose(np.diag([1.0, -1.0, -1.0])), _pose(pos=(0.5, 0.0, 0.1)), _pose(pos=(0.0, 0.5, 0.0))],
+                         ids=["turned", "off-plane", "off-offset"])
+def test_ray_flow_refuses_a_rig_that_is_not_planar_and_parallel(tmp_path, capsys, monkeypatch, second):
+    # view 00_01 belongs 0.5 m right of 00_00 (offset 1 baseline of 0.5 m)
+    cams = {"baseline": 0.5, "offsets": {"00_00": [-0.5, 0.0], "00_01": [0.5, 0.0]},
+            "cam_to_world": {"1": {"00_00": _pose(), "00_01": second}}}
     scene = tmp_path / "public" / "test" / "s"
     scene.mkdir(parents=True)
     (scene / "cameras.json").write_text(json.dumps(cams))
     monkeypatch.setattr("lfusd.bench.make.read_record", lambda root: {"splits": {"test": ["s"]}})
+    baseline._check_parallel_rig(cams | {"cam_to_world": {"1": {"00_00": _pose(), "00_01": _pose(pos=(0.5, 0.0, 0.0))}}})  # the right place passes
     code, _, err = run_cli(capsys, "bench", "baseline", tmp_path, "-o", tmp_path / "sub", "--method", "rayflow")
-    assert_one_line_error(code, err, "not parallel", "--method dis")
+    assert_one_line_error(code, err, "view 00_01", "planar, parallel rig", "--method dis")
     assert not (tmp_path / "sub").exists()  # refused before anything is written
