@@ -1,12 +1,19 @@
-"""Baseline (a) of the benchmark: per-view OpenCV DIS flow and plane-sweep disparity, composed into
-scene flow (lfusd.evaluation.baselines), written as a submission from the public test inputs only
+"""Baselines of the benchmark, written as a submission from the public test inputs only
 (``public/test/<scene>/cameras.json`` and ``rgb/``): what any method sees.
+
+Baseline (a), ``dis``: per-view OpenCV DIS flow and plane-sweep disparity, composed into scene flow
+(lfusd.evaluation.baselines).
 
 Per frame and view: disparity by a plane sweep from that view over the views of its row and
 column (``cameras.json``'s disparity range), DIS flow to the same view at t+1, and scene flow and
 disparity change from the two disparity maps and the flow (:func:`scene_flow_from`); where the
 composition has no value (the flow leaves the image, no positive disparity) it predicts zero
 motion and zero change, so every pixel is predicted.
+
+Baseline (b), ``rayflow``: the ray flow of Ma, Smith & Gupta (ECCV 2018; lfusd.evaluation.rayflow).
+Per frame and view: the same plane-sweep disparity, then the 3-D motion of every pixel's point
+from the light-field gradients of every view at t and t+1 (``local`` or ``global`` solver),
+composed into flow, disparity change and world scene flow with the cameras of both frames.
 """
 
 from __future__ import annotations
@@ -35,6 +42,52 @@ def _inputs(scene_dir: Path) -> tuple[dict, callable]:
         return read_png(scene_dir / layout.BENCH_RGB / f"{layout.bench_name(frame, view)}.png")
 
     return cams, rgb
+
+
+METHODS = ("dis", "rayflow")
+
+
+def _check_parallel_rig(cams: dict) -> None:
+    """Ray flow works in one camera frame for every view: the views of a frame must share one
+    rotation and sit at their offsets (x right, y down, in baselines) in its image plane."""
+    b = float(cams["baseline"])
+    for f, per_view in cams["cam_to_world"].items():
+        mats = {k: np.asarray(m, np.float64) for k, m in per_view.items()}
+        k0, m0 = next(iter(mats.items()))
+        for k, m in mats.items():
+            step = np.subtract(cams["offsets"][k], cams["offsets"][k0]) * b
+            expected = m0[:3, 3] + m0[:3, :3] @ np.array([step[0], step[1], 0.0])
+            if np.abs(m[:3, :3] - m0[:3, :3]).max() > 1e-5 or np.abs(m[:3, 3] - expected).max() > 1e-4 * max(b, 1e-9):
+                raise LfusdError(f"frame {f}: view {k} is not where a planar, parallel rig puts it; ray flow needs one (use --method dis)")
+
+
+def predict_scene_rayflow(scene_dir: Path, n_planes: int = 48, window: int = 9, device=None, solver: str = "global"):
+    """Yield (frame, view, arrays of a submission file) for every scored frame and view of one public
+    test scene with baseline (b), ray flow (lfusd.evaluation.rayflow)."""
+    from ..evaluation.baselines import plane_sweep_disparity
+    from ..evaluation.rayflow import compose, ray_flow
+    from ..layout import view_key
+
+    cams, rgb = _inputs(scene_dir)
+    _check_parallel_rig(cams)
+    views = [tuple(v) for v in cams["views"]]
+    offsets = {v: tuple(cams["offsets"][view_key(v)]) for v in views}
+    K = np.asarray(cams["intrinsics"], np.float64)
+    rng = tuple(cams["disparity_range"])
+    frames = cams["frames"]
+    for f in cams["scored_frames"]:
+        nxt = frames[frames.index(f) + 1]
+        i0 = {v: rgb(f, v) for v in views}
+        i1 = {v: rgb(nxt, v) for v in views}
+        for v in views:
+            group = {u: i0[u] for u in views if u[0] == v[0] or u[1] == v[1]}
+            d0 = plane_sweep_disparity(group, offsets, offsets[v], rng, n_planes, window, device=device)
+            motion = ray_flow(i0, i1, offsets, v, K, d0, solver=solver)
+            c0 = np.asarray(cams["cam_to_world"][str(f)][view_key(v)], np.float64)
+            c1 = np.asarray(cams["cam_to_world"][str(nxt)][view_key(v)], np.float64)
+            flow, dchange, sf = compose(d0, motion, K, cams["baseline"], c0, c1)
+            yield f, v, {"flow": flow.astype(np.float32), "disparity": np.asarray(d0, np.float32),
+                         "disparity_change": dchange.astype(np.float32), "scene_flow": sf.astype(np.float32)}
 
 
 def predict_scene(scene_dir: Path, n_planes: int = 48, window: int = 9, device=None):
@@ -72,18 +125,27 @@ def predict_scene(scene_dir: Path, n_planes: int = 48, window: int = 9, device=N
             disp.pop((f, v), None)  # frame f is done; t+1's maps are the next frame's t
 
 
-def write_baseline(root, sub, n_planes: int = 48, window: int = 9, device=None) -> int:
-    """Run baseline (a) on every public test scene of benchmark ``root``; write the submission into ``sub``."""
+def write_baseline(root, sub, n_planes: int = 48, window: int = 9, device=None, method: str = "dis", solver: str = "global") -> int:
+    """Run a baseline (``method`` 'dis': (a); 'rayflow': (b), with ``solver``) on every public test
+    scene of benchmark ``root``; write the submission into ``sub``."""
     from ..files import atomic_write
     from .make import read_record
     from .score import _savez, submission_path
 
+    if method not in METHODS:
+        raise LfusdError(f"unknown baseline {method!r}; use one of {', '.join(METHODS)}")
     root, sub = Path(root), Path(sub)
     rec = read_record(root)
+    if method == "rayflow":  # refuse before anything is written
+        for scene in rec["splits"]["test"]:
+            _check_parallel_rig(_inputs(root / layout.BENCH_PUBLIC / "test" / scene)[0])
     n = 0
     for scene in rec["splits"]["test"]:
         (sub / scene).mkdir(parents=True, exist_ok=True)
-        for f, v, arrays in predict_scene(root / layout.BENCH_PUBLIC / "test" / scene, n_planes, window, device):
+        scene_dir = root / layout.BENCH_PUBLIC / "test" / scene
+        preds = (predict_scene(scene_dir, n_planes, window, device) if method == "dis"
+                 else predict_scene_rayflow(scene_dir, n_planes, window, device, solver))
+        for f, v, arrays in preds:
             atomic_write(submission_path(sub, scene, f, v), lambda tmp, a=arrays: _savez(tmp, a), suffix=".npz")
             n += 1
         log.info("baseline: scene %s done", scene)

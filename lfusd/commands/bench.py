@@ -38,13 +38,19 @@ def register(sub) -> None:
     s.add_argument("--out", default=None, metavar="FOLDER", help="where to write the results (default: SUBMISSION)")
     s.add_argument("--method", default=None, help="the method's name in the leaderboard row (default: the submission folder's name)")
     s.set_defaults(func=run_score)
-    b = bsub.add_parser("baseline", help="baseline (a): per-view DIS flow and plane-sweep disparity composed into scene flow, as a submission",
+    b = bsub.add_parser("baseline", help="a baseline's submission: (a) DIS flow + plane-sweep disparity, or (b) ray flow (Ma et al. 2018)",
                         description="Reads only DIR/public/test (rgb and cameras) and writes a submission to SUB.")
     b.add_argument("bench", metavar="DIR", help="benchmark folder (`lfusd bench make -o DIR`)")
     b.add_argument("-o", "--out", required=True, metavar="SUB", help="submission folder to write")
     b.add_argument("--planes", type=int, default=48, help="disparity planes of the sweep (default 48)")
     b.add_argument("--window", type=int, default=9, help="cost aggregation window of the sweep in pixels (default 9)")
     b.add_argument("--device", default=None, help="torch device (default: cuda if available, else cpu)")
+    b.add_argument("--method", choices=("dis", "rayflow"), default="dis",
+                   help="dis: baseline (a), DIS flow + plane sweep; rayflow: baseline (b), the ray flow of Ma, Smith & Gupta "
+                        "(ECCV 2018) from the light-field gradients of every view (default dis)")
+    b.add_argument("--solver", choices=("local", "global"), default="global",
+                   help="ray flow's solver: local (Lucas-Kanade window) or global (that window's data term with a structure-aware "
+                        "Horn-Schunck smoothness) (default global)")
     b.set_defaults(func=run_baseline)
     p.set_defaults(func=argtypes.run_help(p))
 
@@ -86,6 +92,7 @@ def run_score(args) -> int:
 def run_baseline(args) -> int:
     from ..bench.baseline import write_baseline
 
-    n = write_baseline(args.bench, args.out, n_planes=args.planes, window=args.window, device=args.device)
-    print(f"lfusd: {args.out}: {n} files (baseline a: DIS flow + plane-sweep disparity)")
+    n = write_baseline(args.bench, args.out, n_planes=args.planes, window=args.window, device=args.device, method=args.method, solver=args.solver)
+    what = "baseline a: DIS flow + plane-sweep disparity" if args.method == "dis" else f"baseline b: ray flow, {args.solver} solver"
+    print(f"lfusd: {args.out}: {n} files ({what})")
     return 0
