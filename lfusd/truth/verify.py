@@ -295,7 +295,7 @@ def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
 
 TIE_PX = 1e-3  # least sub-pixel offset of the candidate rays of the tie rule (an edge near the sample)
 EPS32 = 2.0**-24  # float32 unit roundoff: Blender intersects rays with float32 geometry
-EDGE_ULPS = 64  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
+EDGE_ULPS = 8  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
 GRAZING_ULPS = 16  # depth error bound of a hit at incidence theta: this many roundoffs of max(|P|, |O|) / cos(theta)
 GRAZING_COS = 0.1  # ... for hits beyond 84 degrees (nearer the normal the bound is far under any limit)
 UNCHECKED_FRACTION = 1e-3  # verify fails when more than this fraction of the pixels lfusd calls valid cannot be checked

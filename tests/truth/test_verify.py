@@ -843,3 +843,42 @@ def test_verify_passes_on_grazing_floor_and_a_far_sphere_counting_no_failure(tmp
     assert rows[("flow_fwd", "ball")]["count"] > 100
     cert = report.certificate()
     assert all(set(k["tie_kinds"]) <= {"edge", "surface", "visibility", "grazing", "mixed"} for k in cert["keys"].values())
+
+
+def test_grazing_depth_ties_hold_only_within_the_float_bound_at_the_incidence():
+    """A depth 1.45e-4 off (Creases_SpinningPyramids' face at 89.8 degrees) is a grazing tie: float32
+    geometry of coordinates about the depth's size holds a hit that grazing to ~3e-4. The same error
+    at 60 degrees, or 1e-3 at 89.8 degrees, is not."""
+    from lfusd.truth.verify import _clear_grazing_ties
+
+    K = intrinsics(100.0, 8, 8)
+    ctx = {"K": K, "c2w": np.eye(4)}
+    d = np.array([0.0, 0.0, 1.0])  # the ray of pixel (u, v) = (cx, cy) = (4, 4)
+    W = 8
+    pix = np.array([4 * W + 4] * 4)
+    out = []
+    for angle, error in ((89.8, 1.45e-4), (60.0, 1.45e-4), (89.8, 1e-3), (89.8, 5e-5)):
+        a = np.radians(angle)
+        n = np.array([np.sin(a), 0.0, -np.cos(a)])  # at `angle` to the ray, facing the camera
+        st = {"normal": np.tile(n, (W * W, 1)), "position": np.tile(3.0 * d, (W * W, 1)), "depth": np.full(W * W, 3.0)}
+        err = {"depth": np.zeros(W * W)}
+        err["depth"][pix[0]] = error
+        accepted = _clear_grazing_ties(err, {}, st, ctx, {"depth": 1e-4}, W)
+        out.append(pix[0] in accepted)
+        assert (err["depth"][pix[0]] == 0) == out[-1]
+    assert out == [True, False, False, False]  # (5e-5 is under the limit: not a tie, nothing to accept)
+
+
+def test_edge_offsets_grow_with_the_coordinates_float_rounding():
+    """The candidate rays of an edge tie move TIE_PX in an ordinary scene, more where float32
+    coordinates far from the origin hold the edge only to a few of their roundoffs."""
+    from lfusd.truth.verify import EDGE_ULPS, EPS32, TIE_PX, _edge_step
+
+    K = intrinsics(1000.0, 64, 64)
+    u = v = np.array([32.0])
+    near = _edge_step({"K": K, "c2w": np.eye(4)}, u, v, np.array([5.0]))
+    assert near[0] == TIE_PX
+    far = np.eye(4)
+    far[:3, 3] = (1e4, 0.0, 0.0)  # a scene 10 km from its origin, seen at 10 m
+    step = _edge_step({"K": K, "c2w": far}, u, v, np.array([10.0]))
+    assert step[0] == pytest.approx(EDGE_ULPS * EPS32 * np.hypot(1e4, 10.0) / 10.0 * 1000.0, rel=1e-6) and step[0] > 100 * TIE_PX
