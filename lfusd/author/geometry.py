@@ -45,8 +45,9 @@ def triangulate(counts: np.ndarray, indices: np.ndarray, points: np.ndarray | No
     (the importer's winding), then each face is a fan from its first corner, except a quad whose
     diagonal 0-2 lies outside it (corners 1 and 3 on one side of it, Blender's
     is_quad_flip_v3_first_third_fast; needs ``points``), which is split along 1-3. A non-planar
-    quad's surface therefore follows its first corner, not its shorter diagonal. Faces of 5 or
-    more corners are fans (Blender's polyfill may split them otherwise: see docs/CONVENTIONS.md)."""
+    quad's surface therefore follows its first corner, not its shorter diagonal. A face of 5 or
+    more corners (with ``points``) is ear-clipped as Blender's polyfill does (:func:`_polyfill`);
+    without ``points``, every face is a fan."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -75,7 +76,65 @@ def triangulate(counts: np.ndarray, indices: np.ndarray, points: np.ndarray | No
     # Keep each polygon's triangles together, in face order, for stable triangle ids.
     tri = np.concatenate(tris)
     face = np.concatenate([np.nonzero(counts > k + 1)[0] for k in range(1, int(counts.max()) - 1)])
-    return tri[np.argsort(face, kind="stable")]
+    order = np.argsort(face, kind="stable")
+    tri, face = tri[order], face[order]
+    if points is not None:
+        P = np.asarray(points, np.float64)
+        first = np.concatenate([[0], np.cumsum(counts - 2)[:-1]])  # each face's first triangle
+        for f in np.flatnonzero(counts >= 5):
+            corners = indices[starts[f]:starts[f] + counts[f]]
+            tri[first[f]:first[f] + counts[f] - 2] = corners[_polyfill(P[corners])]
+    return tri
+
+
+def _polyfill(P: np.ndarray) -> np.ndarray:
+    """(n-2, 3) corner positions of the triangles Blender (bpy 5.0) makes of one face of n >= 5
+    corners ``P`` (n, 3). Measured on non-planar convex faces of 5 to 9 corners: ears are clipped
+    at corner 0, then at the corner two steps on along what remains (0, 2, 4, ..., wrapping
+    round). A corner that is no ear (reflex, or another corner inside its triangle, in the face's
+    plane) is passed over to the next, as Blender's ear search does (concave faces: not measured)."""
+    n = len(P)
+    normal = np.zeros(3)
+    for i in range(n):  # Newell's normal: the plane Blender projects the face onto
+        a, b = P[i], P[(i + 1) % n]
+        normal += ((a[1] - b[1]) * (a[2] + b[2]), (a[2] - b[2]) * (a[0] + b[0]), (a[0] - b[0]) * (a[1] + b[1]))
+    k = int(np.argmax(np.abs(normal)))
+    xy = P[:, [(1, 2), (2, 0), (0, 1)][k]].copy()  # the other two axes in cyclic order: counter-clockwise stays so
+    if normal[k] < 0:
+        xy[:, 0] *= -1
+    ring = list(range(n))
+    out = []
+    at = 0
+    while len(ring) > 3:
+        m = len(ring)
+        for step in range(m):
+            j = (at + step) % m
+            a, b, c = ring[j - 1], ring[j], ring[(j + 1) % m]
+            A, B, C = xy[a], xy[b], xy[c]
+            area = (B[0] - A[0]) * (C[1] - A[1]) - (B[1] - A[1]) * (C[0] - A[0])
+            if area <= 0:
+                continue  # reflex (or flat) tip
+            inside = False
+            for q in ring:
+                if q in (a, b, c):
+                    continue
+                Q = xy[q]
+                d1 = (B[0] - A[0]) * (Q[1] - A[1]) - (B[1] - A[1]) * (Q[0] - A[0])
+                d2 = (C[0] - B[0]) * (Q[1] - B[1]) - (C[1] - B[1]) * (Q[0] - B[0])
+                d3 = (A[0] - C[0]) * (Q[1] - C[1]) - (A[1] - C[1]) * (Q[0] - C[0])
+                if d1 >= 0 and d2 >= 0 and d3 >= 0:
+                    inside = True
+                    break
+            if not inside:
+                break
+        else:
+            j = at % m  # no ear (degenerate face): clip where we are
+            a, b, c = ring[j - 1], ring[j], ring[(j + 1) % m]
+        out.append((a, b, c))
+        del ring[j]
+        at = (j + 1) % len(ring)  # the corner after the next one (ring shifted by the removal)
+    out.append(tuple(ring))
+    return np.array(out, np.int64)
 
 
 def _transform(points: np.ndarray, matrix) -> np.ndarray:

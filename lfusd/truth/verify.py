@@ -205,9 +205,11 @@ def trace_motion(
     return full
 
 
-def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Any]:
+def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray, np.ndarray] | None = None,
+                 visibility: bool = True) -> dict[str, Any]:
     """:func:`trace_motion`'s values for rays through arbitrary pixel coordinates (u, v) (flat arrays);
-    ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray)."""
+    ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray);
+    ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False)."""
     s0, s1, K, H, W = ctx["s0"], ctx["s1"], ctx["K"], ctx["H"], ctx["W"]
     o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3)).copy()
     d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
@@ -236,7 +238,10 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
             valid[sel] = True
     cam1 = Camera(K, ctx["c2w1"])
     u1, v1, z1 = project(pos1, cam1)
-    vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W)
+    if visibility:
+        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W)
+    else:
+        vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
     baseline = ctx["baseline"]
     fb = float(K[0, 0]) * float(baseline) if baseline else np.nan
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -290,7 +295,7 @@ def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
 
 TIE_PX = 1e-3  # least sub-pixel offset of the candidate rays of the tie rule (an edge near the sample)
 EPS32 = 2.0**-24  # float32 unit roundoff: Blender intersects rays with float32 geometry
-EDGE_ULPS = 64  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
+EDGE_ULPS = 8  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
 GRAZING_ULPS = 16  # depth error bound of a hit at incidence theta: this many roundoffs of max(|P|, |O|) / cos(theta)
 GRAZING_COS = 0.1  # ... for hits beyond 84 degrees (nearer the normal the bound is far under any limit)
 UNCHECKED_FRACTION = 1e-3  # verify fails when more than this fraction of the pixels lfusd calls valid cannot be checked
@@ -664,9 +669,11 @@ def compare_view(
     st, fw, bw = flat(tr), flat(fwd), flat(bwd)
     idx = np.arange(H * W)
     err = _errors(ds, idx, st, fw, bw, ids, thr, classes)
-    kind = np.zeros(H * W, np.int8)  # 0: no tie; else 1 + index in TIE_KINDS
-    kind[_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)})] = 1 + TIE_KINDS.index("visibility")
-    kind[_clear_grazing_ties(err, ds, st, tr["ctx"], thr, W)] = 1 + TIE_KINDS.index("grazing")
+    kind = np.zeros(H * W, np.int8)  # ties of every key at a pixel (edge, surface): 0 none, else 1 + index in TIE_KINDS
+    own: dict[str, list] = {}  # ties of one key: key -> [(pixels, kind)]
+    vis = (_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)}), 1 + TIE_KINDS.index("visibility"))
+    own["occlusion_fwd"] = own["occlusion_bwd"] = [vis]
+    own["depth"] = [(_clear_grazing_ties(err, ds, st, tr["ctx"], thr, W), 1 + TIE_KINDS.index("grazing"))]
     bad = np.flatnonzero(_over(err, thr))
     if bad.size:
         v, u = np.divmod(bad, W)
@@ -690,8 +697,8 @@ def compare_view(
     if ds.get("mixed") is not None and (fwd is not None or bwd is not None):  # a lone frame has no motion keys derived
         base = fwd or bwd
         err["mixed"], tied = _mixed_errors(ds["mixed"], base["ctx"], fwd is not None, ids, H, W)
-        kind[tied & (kind == 0)] = 1 + TIE_KINDS.index("mixed")
-    ties = kind > 0
+        own["mixed"] = [(np.flatnonzero(tied), 1 + TIE_KINDS.index("mixed"))]
+    ties = kind > 0  # pixels whose errors are another surface's
     inst_tr = ids[st["mesh"]]
     d_ds = ds["depth"]
     fg_ds = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH)
@@ -724,15 +731,18 @@ def compare_view(
             over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
             j = int(np.flatnonzero(sel)[np.argmax(x)])
             worst = (j % W, j // W, float(x.max()))
-            counted = np.bincount(kind[sel & ties], minlength=len(TIE_KINDS) + 1)
+            kk = kind.copy() if key != "mixed" else np.zeros_like(kind)
+            for pix, k in own.get(key, []):
+                kk[pix[kk[pix] == 0]] = k
+            counted = np.bincount(kk[sel], minlength=len(TIE_KINDS) + 1)
             by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
+            n_ties = int(counted[1:].sum())
             if rate:
                 m = float(x.mean())
-                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst,
-                                by_kind))
+                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
             else:
                 rows.append(Row(frame, view, key, label, int(x.size), float(np.median(x)), float(np.percentile(x, 99)), float(x.max()),
-                                thr[key], over, int(in_class.sum()), int((ties & sel).sum()), worst, by_kind))
+                                thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
@@ -772,7 +782,7 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
 
     vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
     uc, vc = uc.ravel(), vc.ravel()
-    c = trace_pixels(ctx, uc, vc)
+    c = trace_pixels(ctx, uc, vc, visibility=False)
     ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
     flow = c["flow"] if carry else None
     lo, hi = MIXED_BAND
@@ -788,7 +798,7 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
         corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
         moved = np.zeros(len(uc), bool)
         for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
-            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv)["mesh"]
+            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)["mesh"]
             moved[corners] |= np.where(m >= 0, ids[m], -1) != ident[corners]
         edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
         wrong[bad[edge]] = False
