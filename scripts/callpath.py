@@ -1,7 +1,7 @@
 """Count the module hops and climbs of one tiny `render_video` request (issue 39 item 21).
 
-Runs `lfusd render-video --verify` (lfusd.cli.main) on a 1x2-view, 16x16-pixel, 2-frame stage (1 sample) under
-``sys.settrace`` and follows every call from one lfusd function into another in the parent
+Runs lfusd.render_video on a 1x2-view, 16x16-pixel, 2-frame stage (1 sample) under
+``sys.setprofile`` and follows every call from one lfusd function into another in the parent
 process (the render workers are not traced). A *hop* is a call into another lfusd module; a
 *climb* is a call into a module that is already further up the stack (a callback re-entering a
 module that called down); a *callback* is a call of a closure whose defining function is up the
@@ -9,6 +9,9 @@ stack but is not the caller (``then=finish`` handed to ``_render`` and called ba
 callee), and how many of them re-enter lfusd/render/job.py.
 
     PYTHONPATH=$PWD .venv/bin/python scripts/callpath.py
+
+(The certificate step is left out: traced, verify takes many minutes. That the render-video
+command calls one library function is checked statically, tests/render/test_job_structure.py.)
 """
 
 from __future__ import annotations
@@ -86,26 +89,23 @@ def main() -> int:
     from support.scenes import write_motion_stage
 
     from lfusd.camera import RigSpec
-    from lfusd.cli import main as cli
+    from lfusd.render.job import render_video
+    from lfusd.render.request import RenderRequest
 
     rig = RigSpec(name="main", rows=1, cols=2, width=16, height=16, baseline=0.1, at=(0.3, -5.0, 1.8), look_at=(0.0, 0.5, 0.6))
     with tempfile.TemporaryDirectory() as tmp:
         stage = Path(tmp) / "movers.usda"
         write_motion_stage(stage, rig, 2, (0.05, -0.03, 0.0))
-        argv = ["render-video", str(stage), "-o", str(Path(tmp) / "out"), "--samples", "1", "--device", "cpu", "--quiet",
-                "--workers", "1", "--verify"]
+        req = RenderRequest(stage=stage, out=Path(tmp) / "out", samples=1, device="cpu", quiet=True, workers=1)
         tracer = Tracer()
-        threading.settrace(tracer)  # 'call' events of Python frames only; no line tracing (returns None)
-        sys.settrace(tracer)
+        threading.setprofile(tracer)
+        sys.setprofile(tracer)
         try:
-            code = cli(argv)
+            render_video(req)
         finally:
-            sys.settrace(None)
-            threading.settrace(None)
-    assert code == 0, f"lfusd {' '.join(argv)} exited {code}"
-    cli_calls = sorted({b for a, b in tracer.hops if a.startswith("lfusd.commands.render_video.run")})
+            sys.setprofile(None)
+            threading.setprofile(None)
     job = sorted(c for c in tracer.climbs if c[1].startswith("lfusd.render.job."))
-    print(f"library functions lfusd/commands/render_video.py's run calls: {len(cli_calls)} ({', '.join(cli_calls)})")
     print(f"modules passed through: {len(tracer.modules)}")
     print(f"distinct hops (calls into another module): {len(tracer.hops)}")
     print(f"distinct climbs (calls into a module already up the stack): {len(tracer.climbs)}")
