@@ -26,20 +26,14 @@ def run(args) -> int:
         frames=list(range(args.frames[0], args.frames[1] + 1)) if args.frames else None, resolution=args.resolution,
         executor=args.executor, ray_address=args.ray_address, **argtypes.effect_fields(args), **argtypes.render_request_fields(args),
     )
-    result = render_video(req)
+    from .verify import progress, show
+
+    result = render_video(req, verify=args.verify, verify_progress=progress if getattr(args, "verbose", 0) else None)
     first, last = result.frames[0], result.frames[-1]
     print(f"lfusd: {args.out}: rig {', '.join(result.rigs)}, frames {first}-{last}, device {result.manifest['device']}, "
           f"motion derived for {result.derived} views")
     warn_exposure(args.out)
-    if args.verify:
-        from ..truth.verify import record_certificate, verify
-        from .verify import progress, show
-
-        reports = verify(args.out, rig=result.rigs[0] if len(result.rigs) == 1 else "all", frames=result.frames,
-                         progress=progress if getattr(args, "verbose", 0) else None)
-        record_certificate(args.out, reports)  # the dataset carries verify's figures (manifest.json "certificate")
-        return show(reports)
-    return 0
+    return show(result.reports) if result.reports is not None else 0
 
 
 def warn_exposure(out) -> None:

@@ -277,16 +277,34 @@ def render(req: RenderRequest, progress=None) -> dict:
     from ..truth.derive import derive_dataset
 
     req = req.capped()
-    return _render(req, open_stage(req.stage, render=True), progress, then=lambda names: derive_dataset(req.out, names, workers=req.workers, lock=False))[0]
+    setup = _plan_job(req, open_stage(req.stage, render=True))
+    with _open_folder(setup) as job:
+        manifest = job.run(progress)
+        derive_dataset(req.out, job.names, workers=req.workers, lock=False)  # the job holds the lock
+    return manifest
 
 
-def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, overlap=None) -> tuple[dict, list[str]]:
-    """(manifest, names of the rigs rendered); ``then(names)`` runs afterwards, still holding
-    the folder's lock. ``overlap(plan, rigs, dataset_frames)``, when given, returns a
-    lfusd.render.overlap.MotionScheduler told of every view as it is committed; it is stopped
-    on the way out. Everything that can refuse from the stage and the options (sizes, ranges,
-    geometry, the folder) runs before the folder is touched; a refusal after that, before any view
-    is rendered, puts the folder back as it was (:class:`_Undo`)."""
+@dataclass
+class _Setup:
+    """What the stage and the options fix before the folder is touched (:func:`_plan_job`)."""
+
+    req: RenderRequest
+    stage: Usd.Stage
+    rigs: list[StageRig]
+    frames: list[int]
+    files: dict
+    settings: dict
+    world: dict
+    sizes: list[tuple[str, int, int, int]]
+    objects: list[ObjectEntry]
+    classes: list[str]
+    plain: object
+    instanced: object
+
+
+def _plan_job(req: RenderRequest, stage: Usd.Stage) -> _Setup:
+    """Everything that can refuse from the stage and the options (sizes, ranges, geometry, the
+    folder), before the folder is touched."""
     from ..author.geometry import StageGeometry, check_geometry, render_instances
 
     req.check()
@@ -311,65 +329,95 @@ def _render(req: RenderRequest, stage: Usd.Stage, progress=None, then=None, over
     plain, instanced = render_instances(geometry, objects, frame_range(stage)[0])
     if existing is not None:
         _prepare_output(req, settings, files, remove=False)  # refuse before taking the lock (which writes OUT/.lock)
+    return _Setup(req, stage, rigs, frames, files, settings, world, sizes, objects, classes, plain, instanced)
+
+
+class _Job:
+    """A render job in its open folder (:func:`_open_folder`): the manifest written, the plan made.
+    ``scheduler``, when set (lfusd.render.overlap.MotionScheduler), is told of every view as it is
+    committed, and stopped when the folder closes."""
+
+    def __init__(self, setup: _Setup, undo: "_Undo", written: Manifest, plan: Plan):
+        self.setup, self.undo, self.written, self.plan = setup, undo, written, plan
+        self.names = [r.spec.name for r in setup.rigs]
+        self.scheduler = None
+
+    def run(self, progress=None) -> dict:
+        """Render the views the plan has left; write the manifest; return it as a dict. From here on
+        what is written is kept: a rerun resumes it."""
+        from .executors import run_units
+
+        s, req = self.setup, self.setup.req
+        self.undo.done()
+        device = None
+        if self.plan.remaining:
+            stage = s.stage
+            units = plan_units(
+                req, self.plan, {r.spec.name: r.cameras for r in s.rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in s.rigs},
+                StageSetup(s.plain, s.instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, s.frames)),
+                           _add_light(req, stage), s.world, physical_sky(stage)),
+                raw_codec(req, s.sizes),
+            )
+            report = progress or Progress(self.plan.total, self.plan.total - self.plan.remaining, req.quiet)
+            if self.scheduler is not None:
+                from .overlap import CommitReport
+
+                report = CommitReport(report, self.scheduler)
+            cpu_account.startup()  # imports, stage checks and planning: once per run
+            try:
+                device = run_units(units, req, report)
+            except BaseException:
+                # Record what did finish; a second failure here (a full disk) must not hide the first.
+                with contextlib.suppress(OSError):
+                    self._write_manifest(None)
+                raise
+            finally:
+                report.close()
+        return self._write_manifest(device).to_dict()
+
+    def _write_manifest(self, device: str | None) -> Manifest:
+        s = self.setup
+        return _write_manifest(s.req, s.settings, self.written, s.rigs, s.frames, device, s.files, s.world)
+
+
+@contextlib.contextmanager
+def _open_folder(setup: _Setup):
+    """Take OUT's lock, accept the folder (again: it may have changed before the lock), clean what a
+    killed run left, write the manifest and the frames' metadata, and plan: yields the :class:`_Job`.
+    A refusal before :meth:`_Job.run` puts the folder back as it was (:class:`_Undo`); an OSError
+    becomes one line (:func:`_io_error`); the scratch folder goes on the way out."""
+    req = setup.req
     undo = _Undo(req.out)
     try:
         req.out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise _io_error(req.out, e) from None
     with undo, output_lock(req.out):
-        previous = _prepare_output(req, settings, files)  # again: the folder may have changed before the lock
+        previous = _prepare_output(req, setup.settings, setup.files)
         undo.previous(previous)
-        names = [r.spec.name for r in rigs]
-        scheduler = None
+        job = None
         try:
+            names = [r.spec.name for r in setup.rigs]
             _clean_stale(req.out, sorted(set(names) | set(previous.rigs if previous else ())))
-            written = _write_manifest(req, settings, previous, rigs, frames, None, files, world)
-            _write_static_metadata(req, stage, rigs, frames, objects, classes, undo.frame_dirs)
+            written = _write_manifest(req, setup.settings, previous, setup.rigs, setup.frames, None, setup.files, setup.world)
+            _write_static_metadata(req, setup.stage, setup.rigs, setup.frames, setup.objects, setup.classes, undo.frame_dirs)
             from ..keys import KEYS, MOTION
 
             motion = req.motion and any(KEYS[k].stage == MOTION for k in req.stored_keys())
-            plan = Plan(req.out, {r.spec.name: r.spec.views for r in rigs}, frames, motion=motion,
+            plan = Plan(req.out, {r.spec.name: r.spec.views for r in setup.rigs}, setup.frames, motion=motion,
                         dataset_frames=list(written.frames))
-            device = None
             # imported before any child starts: a Ctrl-C then interrupts no import
-            from .executors import run_units
+            from .executors import run_units  # noqa: F401
 
-            if overlap is not None:
-                scheduler = overlap(plan, rigs, list(written.frames))
-            undo.done()  # from here on what is written is kept: a rerun resumes it
-            if plan.remaining:
-                units = plan_units(
-                    req, plan, {r.spec.name: r.cameras for r in rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in rigs},
-                    StageSetup(plain, instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, frames)),
-                               _add_light(req, stage), world, physical_sky(stage)),
-                    raw_codec(req, sizes),
-                )
-                report = progress or Progress(plan.total, plan.total - plan.remaining, req.quiet)
-                if scheduler is not None:
-                    from .overlap import CommitReport
-
-                    report = CommitReport(report, scheduler)
-                cpu_account.startup()  # imports, stage checks and planning: once per run
-                try:
-                    device = run_units(units, req, report)
-                except BaseException:
-                    # Record what did finish; a second failure here (a full disk) must not hide the first.
-                    with contextlib.suppress(OSError):
-                        _write_manifest(req, settings, written, rigs, frames, None, files, world)
-                    raise
-                finally:
-                    report.close()
-            manifest = _write_manifest(req, settings, written, rigs, frames, device, files, world).to_dict()
-            if then is not None:
-                then(names)
+            job = _Job(setup, undo, written, plan)
+            yield job
             cpu_account.flush("parent")
         except OSError as e:
             raise _io_error(req.out, e) from None
         finally:
-            if scheduler is not None:
-                scheduler.stop()
+            if job is not None and job.scheduler is not None:
+                job.scheduler.stop()
             shutil.rmtree(req.out / layout.SCRATCH, ignore_errors=True)
-    return manifest, names
 
 
 class _Undo:
@@ -429,22 +477,24 @@ class _Undo:
 
 @dataclass
 class VideoResult:
-    """What `render_video` did: the manifest, the rigs and frames it rendered, views derived."""
+    """What `render_video` did: the manifest, the rigs and frames it rendered, views derived, and
+    verify's reports ({rig: lfusd.truth.verify.VerifyReport}) when it certified the result."""
 
     manifest: dict
     rigs: list[str]
     frames: list[int]
     derived: int
+    reports: dict | None = None
 
 
-def render_video(req: RenderRequest) -> VideoResult:
+def render_video(req: RenderRequest, verify: bool = False, verify_progress=None) -> VideoResult:
     """Render a frame range (default: the stage's) with the motion AOVs and derive the motion keys
     of exactly the rigs and frames rendered (the folder may hold others): each view's frame as soon
     as it and its neighbours are committed, in ``req.workers`` derivation processes beside the
     renderer (lfusd.render.overlap.derivation_lanes of them); what is left (neighbours from earlier
-    runs, Ray units) at the end."""
-    from .overlap import MotionScheduler, derivation_lanes
-
+    runs, Ray units) at the end. With ``verify``, certify the result: lfusd.truth.verify on the
+    rigs and frames rendered, its figures recorded in the manifest (``verify_progress(frame, view)``
+    is called before each view). One pass down: plan, open the folder, run, derive, certify."""
     stage = open_stage(req.stage, render=True)
     if not req.frames:
         first, last = frame_range(stage)
@@ -453,23 +503,46 @@ def render_video(req: RenderRequest) -> VideoResult:
                              f"({layout.MAX_FRAMES}); give --frames A-B, or fix the stage's endTimeCode")
         req = replace(req, frames=list(range(first, last + 1)))
     req = replace(req, motion=True).capped()
-    state: dict = {}
+    setup = _plan_job(req, stage)
+    with _open_folder(setup) as job:
+        lanes = _motion_scheduler(job)
+        manifest = job.run()
+        derived = _derive_video(job, lanes)
+    reports = _certify(req.out, job.names, list(req.frames), verify_progress) if verify else None
+    return VideoResult(manifest, job.names, list(req.frames), derived, reports)
 
-    def overlap(plan: Plan, rigs: list[StageRig], dataset_frames: list[int]) -> MotionScheduler:
-        todo = {(rig, f, tuple(v)) for (rig, f), views in plan.todo.items() for v in views}
-        views_of = {r.spec.name: (list(r.spec.views), (r.spec.width, r.spec.height)) for r in rigs}
-        state["lanes"] = derivation_lanes(req.workers, req.device, max((len(v) for v, _ in views_of.values()), default=1))
-        state["scheduler"] = MotionScheduler(req.out, views_of, list(req.frames), dataset_frames, todo, lanes=state["lanes"])
-        return state["scheduler"]
 
-    def finish(names: list[str]) -> None:
-        from ..truth.derive import derive_dataset, drop_raw_near
+def _motion_scheduler(job: _Job) -> int:
+    """Start the job's lfusd.render.overlap.MotionScheduler (it derives each view's frame as soon as
+    it and its neighbours are committed); returns its derivation lanes."""
+    from .overlap import MotionScheduler, derivation_lanes
 
-        written, left = state["scheduler"].finish()
-        for rig, frames in sorted(left.items()):
-            written += derive_dataset(req.out, [rig], frames, workers=state["lanes"], lock=False)  # _render holds the lock
-        drop_raw_near(req.out, names, req.frames)  # the views derived early kept their raw passes
-        state["derived"] = written
+    req, plan = job.setup.req, job.plan
+    todo = {(rig, f, tuple(v)) for (rig, f), views in plan.todo.items() for v in views}
+    views_of = {r.spec.name: (list(r.spec.views), (r.spec.width, r.spec.height)) for r in job.setup.rigs}
+    lanes = derivation_lanes(req.workers, req.device, max((len(v) for v, _ in views_of.values()), default=1))
+    job.scheduler = MotionScheduler(req.out, views_of, list(req.frames), list(job.written.frames), todo, lanes=lanes)
+    return lanes
 
-    manifest, names = _render(req, stage, then=finish, overlap=overlap)
-    return VideoResult(manifest, names, list(req.frames), state["derived"])
+
+def _derive_video(job: _Job, lanes: int) -> int:
+    """Finish the job's scheduler, derive what it left (neighbours from earlier runs, Ray units) and
+    drop the raw passes no longer needed; the number of views derived."""
+    from ..truth.derive import derive_dataset, drop_raw_near
+
+    req = job.setup.req
+    written, left = job.scheduler.finish()
+    for rig, frames in sorted(left.items()):
+        written += derive_dataset(req.out, [rig], frames, workers=lanes, lock=False)  # the job holds the lock
+    drop_raw_near(req.out, job.names, req.frames)  # the views derived early kept their raw passes
+    return written
+
+
+def _certify(out: Path, rigs: list[str], frames: list[int], progress=None) -> dict:
+    """lfusd.truth.verify on the rigs and frames rendered, its figures recorded in the manifest
+    (``certificate``); returns the reports."""
+    from ..truth.verify import record_certificate, verify
+
+    reports = verify(out, rig=rigs[0] if len(rigs) == 1 else "all", frames=frames, progress=progress)
+    record_certificate(out, reports)  # the dataset carries verify's figures (manifest.json "certificate")
+    return reports
