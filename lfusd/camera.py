@@ -281,10 +281,22 @@ def parse_view(text: str) -> View:
 
 @dataclass
 class Camera:
-    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world."""
+    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world;
+    with ``dist`` (lens distortion), pixel coordinates are distorted ones: :func:`project` images a
+    point as cv2.projectPoints does, :func:`ray_directions` and :func:`backproject` take the ray the
+    lens images at a pixel."""
 
     K: np.ndarray
     cam_to_world: np.ndarray
+    dist: Distortion | None = None
+
+    def _undistorted(self, u, v):
+        """Pinhole pixel coordinates (of K) of pixel coordinates (u, v), in their float precision."""
+        if self.dist is None or self.dist.is_identity:
+            return u, v
+        dt = _float_dtype(np.asarray(u))
+        uu, vu = undistort_pixels(u, v, self.K, self.dist)
+        return uu.astype(dt), vu.astype(dt)
 
     def world_to_cam(self) -> tuple[np.ndarray, np.ndarray]:
         """(R, C): camera-frame point = R @ (world point - C)."""
@@ -327,13 +339,17 @@ def project(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np
     x = d @ M.T
     z = d @ R[2].astype(dt)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], z
+        u, v = x[..., 0] / x[..., 2], x[..., 1] / x[..., 2]
+    if cam.dist is not None and not cam.dist.is_identity:
+        u, v = (a.astype(dt) for a in distort_pixels(u, v, cam.K, cam.dist))
+    return u, v, z
 
 
 def ray_directions(u: np.ndarray, v: np.ndarray, cam: Camera) -> np.ndarray:
     """World directions (...,3) of the rays through pixel coordinates (u, v), scaled to camera-frame z = 1 (a ray parameter is then planar depth)."""
     u = np.asarray(u)
     A = cam._pixel_to_world(_float_dtype(u))
+    u, v = cam._undistorted(u, v)
     return np.stack([u, v, np.ones_like(u)], axis=-1) @ A.T
 
 
@@ -343,14 +359,15 @@ def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam: Camera) -> np.
     dt = _float_dtype(u)
     A = cam._pixel_to_world(dt)
     _, C = cam.world_to_cam()
+    u, v = cam._undistorted(u, v)
     x = np.stack([u, v, np.ones_like(u)], axis=-1) * z[..., None]
     return x @ A.T + C.astype(dt)
 
 
-def ray_lengths(K: np.ndarray, h: int, w: int) -> np.ndarray:
-    """||K^-1 [u, v, 1]|| per pixel centre (float64, H x W): the ray length per metre of planar depth."""
+def ray_lengths(K: np.ndarray, h: int, w: int, dist: Distortion | None = None) -> np.ndarray:
+    """||K^-1 [u, v, 1]|| per pixel centre (float64, H x W), (u, v) undistorted through ``dist``: the ray length per metre of planar depth."""
     u, v = pixel_grid(h, w, np.float64)
-    return np.linalg.norm(ray_directions(u, v, Camera(K, np.eye(4))), axis=-1)
+    return np.linalg.norm(ray_directions(u, v, Camera(K, np.eye(4), dist)), axis=-1)
 
 
 # -- lens distortion (Brown-Conrady, OpenCV's model) -----------------------------------------
@@ -474,15 +491,12 @@ def undistort_pixels(u: np.ndarray, v: np.ndarray, K: np.ndarray, dist: Distorti
 
 def project_distorted(points: np.ndarray, cam: Camera, dist: Distortion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(u, v, z) of world points in ``cam`` through the lens ``dist`` (float64): cv2.projectPoints' pixels, planar depth z."""
-    u, v, z = project(np.asarray(points, np.float64), cam)
-    ud, vd = distort_pixels(u, v, cam.K, dist)
-    return ud, vd, z
+    return project(np.asarray(points, np.float64), Camera(cam.K, cam.cam_to_world, dist))
 
 
 def distorted_ray_directions(u: np.ndarray, v: np.ndarray, cam: Camera, dist: Distortion) -> np.ndarray:
     """World directions (...,3, float64, camera-frame z = 1) of the rays the lens images at distorted pixels (u, v)."""
-    uu, vu = undistort_pixels(u, v, cam.K, dist)
-    return ray_directions(uu, vu, cam)
+    return ray_directions(np.asarray(u, np.float64), np.asarray(v, np.float64), Camera(cam.K, cam.cam_to_world, dist))
 
 
 def wide_intrinsics(K: np.ndarray, dist: Distortion, width: int, height: int, margin: float = 2.0) -> tuple[np.ndarray, int, int]:

@@ -85,7 +85,7 @@ def flow_distorted(point_next: np.ndarray, cam_next: Camera, dist_next: Distorti
     # only if undistorting its pixel gives its ray back
     K = np.asarray(cam_next.K, np.float64)
     with np.errstate(invalid="ignore"):
-        uu, vu, _ = project(np.asarray(point_next, np.float64), cam_next)
+        uu, vu, _ = project(np.asarray(point_next, np.float64), Camera(K, cam_next.cam_to_world))  # the pinhole of K
         ub, vb = undistort_pixels(np.where(ok, ud, K[0, 2]), np.where(ok, vd, K[1, 2]), K, dist_next)
         ok &= (np.abs(ub - uu) <= FOLD_TOL_PX) & (np.abs(vb - vu) <= FOLD_TOL_PX)
     flow = np.stack([ud - u, vd - v], axis=-1)

@@ -185,3 +185,25 @@ def test_each_view_draws_its_own_lens_reproducibly():
     a, b = view_distortion(base, (0, 0), seed=3, spread=0.1), view_distortion(base, (0, 1), seed=3, spread=0.1)
     assert a != b and a == view_distortion(base, (0, 0), seed=3, spread=0.1)
     assert a != view_distortion(base, (0, 0), seed=4, spread=0.1)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_a_camera_with_a_lens_projects_and_casts_through_it(dtype):
+    from lfusd.camera import backproject, project, ray_directions, ray_lengths
+
+    dist, cam = MODELS["all"], _camera()
+    lens = Camera(cam.K, cam.cam_to_world, dist)
+    u, v = pixel_grid(H, W, dtype)
+    z = np.linspace(1.0, 30.0, H * W).reshape(H, W).astype(dtype)
+    points = backproject(u, v, z, lens)
+    assert points.dtype == dtype
+    # the point the lens sees at each pixel is where OpenCV images it, at the planar depth asked for
+    tol = 0.01 if dtype == np.float32 else 1e-6
+    assert np.abs(_opencv(points.astype(np.float64), lens, dist) - np.stack([u, v], -1)).max() < tol
+    pu, pv, pz = project(points, lens)
+    assert np.abs(pu - u).max() < tol and np.abs(pv - v).max() < tol and np.abs(pz / z - 1).max() < 1e-5
+    dirs = ray_directions(u, v, lens)
+    assert np.abs(dirs @ cam.world_to_cam()[0][2] - 1).max() < 1e-5  # camera-frame z = 1
+    assert np.abs(ray_lengths(cam.K, H, W, dist) - np.linalg.norm(distorted_ray_directions(u.astype(np.float64), v.astype(np.float64), cam, dist), axis=-1)).max() < 1e-12
+    # without a lens the pinhole is unchanged
+    assert np.abs(project(points, cam)[0] - project(points, Camera(cam.K, cam.cam_to_world, Distortion()))[0]).max() == 0
