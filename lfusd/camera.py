@@ -281,10 +281,22 @@ def parse_view(text: str) -> View:
 
 @dataclass
 class Camera:
-    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world."""
+    """Pinhole camera: OpenCV K (pixel centres at integer coordinates) and 4x4 OpenCV cam_to_world;
+    with ``dist`` (lens distortion), pixel coordinates are distorted ones: :func:`project` images a
+    point as cv2.projectPoints does, :func:`ray_directions` and :func:`backproject` take the ray the
+    lens images at a pixel."""
 
     K: np.ndarray
     cam_to_world: np.ndarray
+    dist: Distortion | None = None
+
+    def _undistorted(self, u, v):
+        """Pinhole pixel coordinates (of K) of pixel coordinates (u, v), in their float precision."""
+        if self.dist is None or self.dist.is_identity:
+            return u, v
+        dt = _float_dtype(np.asarray(u))
+        uu, vu = undistort_pixels(u, v, self.K, self.dist)
+        return uu.astype(dt), vu.astype(dt)
 
     def world_to_cam(self) -> tuple[np.ndarray, np.ndarray]:
         """(R, C): camera-frame point = R @ (world point - C)."""
@@ -327,13 +339,17 @@ def project(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np
     x = d @ M.T
     z = d @ R[2].astype(dt)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return x[..., 0] / x[..., 2], x[..., 1] / x[..., 2], z
+        u, v = x[..., 0] / x[..., 2], x[..., 1] / x[..., 2]
+    if cam.dist is not None and not cam.dist.is_identity:
+        u, v = (a.astype(dt) for a in distort_pixels(u, v, cam.K, cam.dist))
+    return u, v, z
 
 
 def ray_directions(u: np.ndarray, v: np.ndarray, cam: Camera) -> np.ndarray:
     """World directions (...,3) of the rays through pixel coordinates (u, v), scaled to camera-frame z = 1 (a ray parameter is then planar depth)."""
     u = np.asarray(u)
     A = cam._pixel_to_world(_float_dtype(u))
+    u, v = cam._undistorted(u, v)
     return np.stack([u, v, np.ones_like(u)], axis=-1) @ A.T
 
 
@@ -343,11 +359,173 @@ def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, cam: Camera) -> np.
     dt = _float_dtype(u)
     A = cam._pixel_to_world(dt)
     _, C = cam.world_to_cam()
+    u, v = cam._undistorted(u, v)
     x = np.stack([u, v, np.ones_like(u)], axis=-1) * z[..., None]
     return x @ A.T + C.astype(dt)
 
 
-def ray_lengths(K: np.ndarray, h: int, w: int) -> np.ndarray:
-    """||K^-1 [u, v, 1]|| per pixel centre (float64, H x W): the ray length per metre of planar depth."""
+def ray_lengths(K: np.ndarray, h: int, w: int, dist: Distortion | None = None) -> np.ndarray:
+    """||K^-1 [u, v, 1]|| per pixel centre (float64, H x W), (u, v) undistorted through ``dist``: the ray length per metre of planar depth."""
     u, v = pixel_grid(h, w, np.float64)
-    return np.linalg.norm(ray_directions(u, v, Camera(K, np.eye(4))), axis=-1)
+    return np.linalg.norm(ray_directions(u, v, Camera(K, np.eye(4), dist)), axis=-1)
+
+
+# -- lens distortion (Brown-Conrady, OpenCV's model) -----------------------------------------
+
+DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # OpenCV's order of distCoeffs
+UNDISTORT_TOL = 1e-12  # Newton's stopping step in normalised coordinates (1e-9 px at f = 1000 px)
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """OpenCV's Brown-Conrady lens model (k1, k2, p1, p2, k3): a point at normalised pinhole
+    coordinates (x, y) = (X/Z, Y/Z), r^2 = x^2 + y^2, is imaged at K @ (xd, yd, 1) with
+    xd = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2) and
+    yd = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y (cv2.projectPoints)."""
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in DISTORTION_COEFFS:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise LfusdError(f"lens distortion {name} must be a finite number, got {v!r}")
+
+    @property
+    def coeffs(self) -> np.ndarray:
+        """OpenCV's distCoeffs (k1, k2, p1, p2, k3), float64."""
+        return np.array([getattr(self, n) for n in DISTORTION_COEFFS], np.float64)
+
+    @property
+    def is_identity(self) -> bool:
+        return not self.coeffs.any()
+
+    def to_dict(self) -> dict:
+        return {n: float(getattr(self, n)) for n in DISTORTION_COEFFS}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Distortion":
+        unknown = set(d) - set(DISTORTION_COEFFS)
+        if unknown:
+            raise LfusdError(f"lens distortion has unknown coefficient(s) {', '.join(sorted(unknown))}; use {', '.join(DISTORTION_COEFFS)}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+    # -- the model in normalised coordinates ---------------------------------------------
+    def distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distorted normalised coordinates of undistorted normalised (x, y)."""
+        k1, k2, p1, p2, k3 = self.coeffs
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xy = x * y
+        return x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+
+    def jacobian(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """d(xd, yd)/d(x, y) as (dxd/dx, dxd/dy, dyd/dx, dyd/dy)."""
+        k1, k2, p1, p2, k3 = self.coeffs
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+        a = radial + 2.0 * x * x * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+        b = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+        c = 2.0 * x * y * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+        d = radial + 2.0 * y * y * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+        return a, b, c, d
+
+    def undistort(self, xd: np.ndarray, yd: np.ndarray, iterations: int = 50) -> tuple[np.ndarray, np.ndarray]:
+        """Undistorted normalised (x, y) of distorted (xd, yd), by Newton's method to float64 precision
+        (OpenCV's undistortPoints stops after a few fixed-point steps); NaN where it does not converge."""
+        xd, yd = np.asarray(xd, np.float64), np.asarray(yd, np.float64)
+        x, y = xd.copy(), yd.copy()
+        for _ in range(iterations):
+            fx, fy = self.distort(x, y)
+            ex, ey = fx - xd, fy - yd
+            a, b, c, d = self.jacobian(x, y)
+            det = a * d - b * c
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sx, sy = (d * ex - b * ey) / det, (a * ey - c * ex) / det
+            x, y = x - sx, y - sy
+            if not np.nanmax(np.abs(np.concatenate([np.ravel(sx), np.ravel(sy), [0.0]]))) > UNDISTORT_TOL:
+                break
+        fx, fy = self.distort(x, y)
+        bad = ~(np.abs(fx - xd) + np.abs(fy - yd) <= 1e-10)
+        x, y = np.where(bad, np.nan, x), np.where(bad, np.nan, y)
+        return x, y
+
+
+def check_distortion(dist: Distortion, K: np.ndarray, width: int, height: int) -> None:
+    """Refuse a model that is not one-to-one over the image: its Jacobian must stay positive (the
+    image of every distorted pixel one ray) on a ray fan well past the image's corners."""
+    if dist.is_identity:
+        return
+    Kinv = np.linalg.inv(np.asarray(K, np.float64))
+    corners = np.array([[-0.5, -0.5, 1], [width - 0.5, -0.5, 1], [-0.5, height - 0.5, 1], [width - 0.5, height - 0.5, 1]]) @ Kinv.T
+    x, y = dist.undistort(corners[:, 0], corners[:, 1])
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
+        raise LfusdError(f"lens distortion {dist.to_dict()} folds over the image (no ray reaches its corners); use smaller coefficients")
+    r = 1.2 * float(np.hypot(x, y).max()) + 1e-6
+    gx, gy = np.meshgrid(np.linspace(-r, r, 257), np.linspace(-r, r, 257))
+    inside = np.hypot(gx, gy) <= r
+    a, b, c, d = dist.jacobian(gx[inside], gy[inside])
+    if (a * d - b * c).min() <= 0 or min(a.min(), d.min()) <= 0:
+        raise LfusdError(f"lens distortion {dist.to_dict()} folds over the image (two rays meet at one pixel); use smaller coefficients")
+
+
+def distort_pixels(u: np.ndarray, v: np.ndarray, K: np.ndarray, dist: Distortion) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted pixel coordinates of undistorted (pinhole) pixel coordinates of the same K."""
+    K = np.asarray(K, np.float64)
+    x, y = (np.asarray(u, np.float64) - K[0, 2]) / K[0, 0], (np.asarray(v, np.float64) - K[1, 2]) / K[1, 1]
+    xd, yd = dist.distort(x, y)
+    return xd * K[0, 0] + K[0, 2], yd * K[1, 1] + K[1, 2]
+
+
+def undistort_pixels(u: np.ndarray, v: np.ndarray, K: np.ndarray, dist: Distortion) -> tuple[np.ndarray, np.ndarray]:
+    """Undistorted (pinhole) pixel coordinates, in the same K, of distorted pixel coordinates."""
+    K = np.asarray(K, np.float64)
+    x, y = dist.undistort((np.asarray(u, np.float64) - K[0, 2]) / K[0, 0], (np.asarray(v, np.float64) - K[1, 2]) / K[1, 1])
+    return x * K[0, 0] + K[0, 2], y * K[1, 1] + K[1, 2]
+
+
+def project_distorted(points: np.ndarray, cam: Camera, dist: Distortion) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, z) of world points in ``cam`` through the lens ``dist`` (float64): cv2.projectPoints' pixels, planar depth z."""
+    return project(np.asarray(points, np.float64), Camera(cam.K, cam.cam_to_world, dist))
+
+
+def distorted_ray_directions(u: np.ndarray, v: np.ndarray, cam: Camera, dist: Distortion) -> np.ndarray:
+    """World directions (...,3, float64, camera-frame z = 1) of the rays the lens images at distorted pixels (u, v)."""
+    return ray_directions(np.asarray(u, np.float64), np.asarray(v, np.float64), Camera(cam.K, cam.cam_to_world, dist))
+
+
+def wide_intrinsics(K: np.ndarray, dist: Distortion, width: int, height: int, margin: float = 2.0) -> tuple[np.ndarray, int, int]:
+    """(K_wide, width_wide, height_wide): the pinhole with K's focal length whose image holds the
+    undistorted rays of every distorted pixel's footprint (its border at +-1/2 px) with ``margin``
+    pixels to spare for interpolation, grown by whole pixels on both sides (its principal point
+    stays at its image centre, as Blender's camera has it, on K's pixel lattice)."""
+    K = np.asarray(K, np.float64)
+    n = 64
+    us = np.concatenate([np.linspace(-0.5, width - 0.5, n), np.full(n, width - 0.5), np.linspace(-0.5, width - 0.5, n), np.full(n, -0.5)])
+    vs = np.concatenate([np.full(n, -0.5), np.linspace(-0.5, height - 0.5, n), np.full(n, height - 0.5), np.linspace(-0.5, height - 0.5, n)])
+    # the whole image, not only its border: a pincushion's undistorted extreme may lie inside
+    gu, gv = np.meshgrid(np.linspace(-0.5, width - 0.5, n), np.linspace(-0.5, height - 0.5, n))
+    uu, vu = undistort_pixels(np.concatenate([us, gu.ravel()]), np.concatenate([vs, gv.ravel()]), K, dist)
+    if not (np.isfinite(uu).all() and np.isfinite(vu).all()):
+        raise LfusdError(f"lens distortion {dist.to_dict()} folds over the image (no ray reaches its border); use smaller coefficients")
+    cx, cy = K[0, 2], K[1, 2]
+    pad_x = max(0, math.ceil(max(cx - uu.min(), uu.max() - cx) + margin - (width - 1) / 2.0))
+    pad_y = max(0, math.ceil(max(cy - vu.min(), vu.max() - cy) + margin - (height - 1) / 2.0))
+    Kw = K.copy()
+    Kw[0, 2], Kw[1, 2] = cx + pad_x, cy + pad_y
+    return Kw, width + 2 * pad_x, height + 2 * pad_y
+
+
+def view_distortion(base: Distortion, view: View, seed: int | None = None, spread: float = 0.0) -> Distortion:
+    """The lens of one view: ``base`` for every view, or with ``seed`` each coefficient scaled by
+    (1 + spread * N(0, 1)) drawn for the view (real arrays' lenses differ), reproducible per (seed, view)."""
+    if seed is None or spread == 0.0:
+        return base
+    rng = np.random.default_rng([int(seed), int(view[0]), int(view[1]), 0x1E45])
+    scale = 1.0 + float(spread) * rng.standard_normal(len(DISTORTION_COEFFS))
+    return Distortion(**{n: float(getattr(base, n) * s) for n, s in zip(DISTORTION_COEFFS, scale)})

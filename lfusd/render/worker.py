@@ -844,6 +844,30 @@ def _use_lens(scene, fstop: float, focus: float) -> None:
             dof.aperture_blades = 0  # a disc
 
 
+def distort_camera(cam_data, source: str) -> None:
+    """Lens distortion: make one Blender camera the OSL custom camera of ``source``
+    (lfusd.render.lens.osl_source), compiled here. bpy's module build lacks the ``oslquery`` module
+    that Blender's own update of a custom camera imports, so the shader is compiled with Cycles'
+    compiler directly and its bytecode stored on the camera (a shader without parameters needs no query)."""
+    from cycles import osl
+
+    text = bpy.data.texts.new(f"lfusd_lens_{cam_data.name}.osl")
+    text.write(source)
+    cam_data.type = "CUSTOM"
+    cam_data.custom_mode = "INTERNAL"
+    errors = []
+    try:
+        cam_data.custom_shader = text  # Blender's update fails without oslquery: compiled below instead
+    except ImportError:
+        pass
+    ok, _, bytecode, digest = osl.update_internal_script(lambda kind, msg: errors.append(msg), text)
+    if not ok or not bytecode:
+        raise RuntimeError(f"the lens shader of camera {cam_data.name} did not compile: {'; '.join(map(str, errors)) or 'see the log'}")
+    cam_data.custom_bytecode = bytecode
+    cam_data.custom_bytecode_hash = digest
+    cam_data.update_tag()
+
+
 def data_material(motion: bool, materials: bool = False):
     """The one material of the data render (a view-layer override): opaque black, with the t+/-1
     position AOVs when ``motion`` and the first surface's material flags (MaterialFlags) when ``materials``.
