@@ -27,7 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import training  # noqa: E402
-from models import DisparityNet  # noqa: E402
+from models import DisparityNet, StarDisparityNet  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
@@ -69,7 +69,17 @@ def disparity_range(ds, frames, margin=0.1) -> tuple[float, float]:
     return lo - pad, hi + pad
 
 
-def build(config: dict) -> DisparityNet:
+ARCHS = ("distg", "star")  # config "arch"; checkpoints from before it was recorded are "distg"
+
+
+def build(config: dict) -> DisparityNet | StarDisparityNet:
+    """The network a run's configuration describes (also what predict_disparity.py loads)."""
+    arch = config.get("arch", "distg")
+    if arch == "star":
+        return StarDisparityNet(config["ang"], config["d_min"], config["d_max"], config["disparities"], ch=config["channels"], n_blocks=config["blocks"],
+                                cost_ch=config["cost_channels"])
+    if arch != "distg":
+        raise LfusdError(f"unknown disparity network {arch!r} in the run's config; this code knows {', '.join(ARCHS)}")
     return DisparityNet(config["ang"], config["d_min"], config["d_max"], config["disparities"], ch=config["channels"], n_blocks=config["blocks"], cost_ch=config["cost_channels"])
 
 
