@@ -166,12 +166,14 @@ class StarDisparityNet(nn.Module):
     - the soft-argmin disparity is upsampled and corrected by a small full-resolution refinement
       that sees the reference view (coarse to fine).
 
-    Same forward contract as :class:`DisparityNet`; the rig's offsets ``rel`` of the views left
-    out are not used.
+    Same forward contract as :class:`DisparityNet` for odd grids whose reference is the centre view;
+    the offsets ``rel`` of the views left out are not used.
     """
 
     def __init__(self, ang: int, d_min: float, d_max: float, n_disp: int = 17, in_ch: int = 3, ch: int = 16, n_blocks: int = 3, cost_ch: int = 16):
         super().__init__()
+        if ang % 2 == 0:  # the star and the refinement need the reference at the grid's centre
+            raise ValueError(f"StarDisparityNet needs an odd grid (its reference is the centre view), got {ang}x{ang}")
         self.ang = ang
         self.register_buffer("views", torch.tensor(star_views(ang)), persistent=False)
         self.ref = ang * ang // 2
@@ -208,6 +210,8 @@ class StarDisparityNet(nn.Module):
     def forward(self, views: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
         if views.shape[1] != self.ang * self.ang:
             raise ValueError(f"StarDisparityNet({self.ang}x{self.ang}) got {views.shape[1]} views")
+        if rel[:, self.ref].abs().max() > 1e-6:
+            raise ValueError("StarDisparityNet's reference is the centre view: rel must be offsets from it")
         h, w = views.shape[-2:]
         d = F.interpolate(self.coarse(views, rel.to(views.dtype))[:, None], size=(h, w), mode="bilinear", align_corners=False)
         return (d + self.refine(torch.cat([views[:, self.ref], d], 1)))[:, 0]

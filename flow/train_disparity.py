@@ -195,6 +195,9 @@ def build(config: dict) -> DisparityNet | StarDisparityNet:
     """The network a run's configuration describes (also what predict_disparity.py loads)."""
     arch = config.get("arch", "distg")
     if arch == "star":
+        if config["ang"] % 2 == 0:
+            raise LfusdError(f"the star network needs an odd grid of views (its reference is the centre view), got {config['ang']}x{config['ang']}; "
+                             "render an odd grid or train with --arch distg")
         return StarDisparityNet(config["ang"], config["d_min"], config["d_max"], config["disparities"], ch=config["channels"], n_blocks=config["blocks"],
                                 cost_ch=config["cost_channels"])
     if arch != "distg":

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -19,6 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import models  # noqa: E402
 import train_disparity  # noqa: E402
 from test_predict_disparity import N, plane_views  # noqa: E402
+
+from lfusd import LfusdError  # noqa: E402
 
 
 def _rel() -> torch.Tensor:
@@ -42,6 +45,10 @@ def test_configs_build_their_network_and_old_checkpoints_stay_distg():
     net = train_disparity.build({**base, "arch": "star"})
     for h, w in [(16, 16), (17, 23)]:
         assert net(torch.rand(2, N * N, 3, h, w), _rel().expand(2, -1, -1)).shape == (2, h, w)
+    with pytest.raises(ValueError, match="centre view"):
+        net(torch.rand(1, N * N, 3, 8, 8), _rel() + 1)  # offsets from another reference
+    with pytest.raises(LfusdError, match="odd grid"):
+        train_disparity.build({**base, "ang": 4, "arch": "star"})
 
 
 def test_a_briefly_trained_star_network_gets_the_sign_of_planes_of_each_sign():
