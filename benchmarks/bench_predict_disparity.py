@@ -1,12 +1,16 @@
-"""Time of flow/predict_disparity.py's network pass on a 9x9 light field of 512x512 views (HCI's size),
-beside the 120 s budget of issue 36 (2 CPU cores).
+"""CPU time of the disparity networks of flow/train_disparity.py, old (``distg``: the DistgDisp-like
+DisparityNet) beside new (``star``: StarDisparityNet, issue 36), in one run:
 
-    .venv/bin/python benchmarks/bench_predict_disparity.py [--size 512] [--configs tiny full] [--tile 128 --overlap 32] [--threads 2]
+- flow/predict_disparity.py's network pass on a 9x9 light field of 512x512 views (HCI's size),
+  beside the 120 s budget of issue 36 (2 CPU cores);
+- one training step (forward, backward, Adam) at the preview recipe's batch and crop
+  (train_disparity.py's full-size defaults: batch 8, 64x64 crops of all 81 views).
 
-The network is flow/train_disparity.py's DisparityNet at its --tiny and full configurations, with
-random weights (the time does not depend on them), on random views. Prints per configuration the
-wall and process CPU seconds and wall / budget; the machine's load average is printed too, as a
-shared machine's wall time means little.
+    .venv/bin/python benchmarks/bench_predict_disparity.py [--size 512] [--configs distg star] [--tile 128 --overlap 32] [--threads 2]
+
+Full-size configurations (train_disparity.FULL_DISTG and FULL), random weights (the time does not
+depend on them), random views. Prints per network the wall and process CPU seconds and the ratio
+old / new; the machine's load average is printed too, as a shared machine's wall time means little.
 """
 
 from __future__ import annotations
@@ -28,32 +32,74 @@ import predict_disparity  # noqa: E402
 import train_disparity  # noqa: E402
 
 BUDGET_S = 120.0
+NET = ("disparities", "channels", "blocks", "cost_channels")
+
+
+def config_of(name: str, n: int) -> dict:
+    c = train_disparity.FULL_DISTG if name == "distg" else train_disparity.FULL
+    return {"ang": n, "d_min": -4.4, "d_max": 4.4, "arch": name, **{k: c[k] for k in NET}}
+
+
+def timed(fn) -> tuple[float, float]:
+    t0, c0 = time.time(), time.process_time()
+    fn()
+    return time.time() - t0, time.process_time() - c0
 
 
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--configs", nargs="+", default=["tiny", "full"], choices=["tiny", "full"])
+    ap.add_argument("--configs", nargs="+", default=["distg", "star"], choices=["distg", "star"])
     ap.add_argument("--tile", type=int, default=128)
     ap.add_argument("--overlap", type=int, default=32)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--steps", type=int, default=3, help="training steps timed (after one untimed)")
+    ap.add_argument("--no-predict", action="store_true", help="time the training step only")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
+    torch.manual_seed(0)
     n = 9
-    views = np.random.default_rng(0).random((n * n, a.size, a.size, 3), dtype=np.float32)
+    rng = np.random.default_rng(0)
     rows, cols = np.divmod(np.arange(n * n), n)
     offsets = np.stack([cols - 4, rows - 4], 1).astype(np.float32)
-    print(f"{n}x{n} views of {a.size}x{a.size}, tiles {a.tile} + {a.overlap} context, {a.threads} threads; "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    views = None if a.no_predict else rng.random((n * n, a.size, a.size, 3), dtype=np.float32)
+    b, crop = train_disparity.FULL["batch"], train_disparity.FULL["crop"]
+    print(f"{n}x{n} views of {a.size}x{a.size}, tiles {a.tile} + {a.overlap} context; training step: batch {b} of {crop}x{crop} crops; "
+          f"{a.threads} threads; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    res = {}
     for name in a.configs:
-        c = train_disparity.TINY if name == "tiny" else train_disparity.FULL
-        config = {"ang": n, "d_min": -4.4, "d_max": 4.4, **{k: c[k] for k in ("disparities", "channels", "blocks", "cost_channels")}}
-        model = train_disparity.build(config).eval()
-        t0, c0 = time.time(), time.process_time()
-        predict_disparity.predict(model, views, offsets, a.tile, a.overlap)
-        wall, cpu = time.time() - t0, time.process_time() - c0
-        print(f"{name:5s} {sum(p.numel() for p in model.parameters()):7d} parameters: wall {wall:7.1f} s, CPU {cpu:7.1f} s, "
-              f"wall / budget {wall / BUDGET_S:5.2f}x (load average now {os.getloadavg()[0]:.1f})", flush=True)
+        model = train_disparity.build(config_of(name, n))
+        params = sum(p.numel() for p in model.parameters())
+        x = torch.rand(b, n * n, 3, crop, crop)
+        rel = torch.from_numpy(offsets)[None].expand(b, -1, -1).contiguous()
+        gt = torch.rand(b, crop, crop) * 8 - 4
+        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+
+        def step():
+            loss = (model(x, rel) - gt).abs().mean()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+
+        model.train()
+        step()
+        w, c = timed(lambda: [step() for _ in range(a.steps)])
+        r = {"params": params, "step_wall": w / a.steps, "step_cpu": c / a.steps}
+        if views is not None:
+            model.eval()
+            r["pred_wall"], r["pred_cpu"] = timed(lambda: predict_disparity.predict(model, views, offsets, a.tile, a.overlap))
+        res[name] = r
+        line = f"{name:5s} {params:7d} parameters: train step wall {r['step_wall']:6.2f} s, CPU {r['step_cpu']:6.2f} s"
+        if views is not None:
+            line += f"; predict wall {r['pred_wall']:7.1f} s, CPU {r['pred_cpu']:7.1f} s, wall / budget {r['pred_wall'] / BUDGET_S:5.2f}x"
+        print(line + f" (load average now {os.getloadavg()[0]:.1f})", flush=True)
+    if len(res) == 2:
+        o, s = res["distg"], res["star"]
+        print(f"old / new CPU-s: training step {o['step_cpu'] / s['step_cpu']:.1f}x"
+              + ("" if views is None else f", predict {o['pred_cpu'] / s['pred_cpu']:.1f}x"))
+    if "star" in res:
+        s = res["star"]
+        print(f"star: 3 h of training on these cores is about {int(3 * 3600 / s['step_wall'])} steps at this step wall time")
     return 0
 
 

@@ -146,6 +146,77 @@ class DisparityNet(nn.Module):
         return (p * self.candidates[None, :, None, None]).sum(1)
 
 
+def star_views(ang: int) -> list[int]:
+    """Row-major indices of the views on the reference view's row, column and two diagonals of a
+    U x U grid (EPINet's four EPI directions; the reference is the HCI centre, index U*U // 2)."""
+    c = (ang * ang // 2) // ang, (ang * ang // 2) % ang
+    return [r * ang + q for r in range(ang) for q in range(ang) if r == c[0] or q == c[1] or abs(r - c[0]) == abs(q - c[1])]
+
+
+class StarDisparityNet(nn.Module):
+    """DisparityNet's idea (a learned angular "disparity-selective" projection of views sheared by
+    each candidate, 3-D aggregation, soft-argmin) at a fraction of its CPU cost (issue 36):
+
+    - only the views of the reference's row, column and diagonals (:func:`star_views`: 33 of 9x9);
+    - features per view by plain 2-D convolutions (shared weights) at half resolution;
+    - the angular projection is linear, so each view's features are projected to ``cost_ch``
+      channels once (its own weights, a grouped 1x1 convolution) and only then sheared and summed
+      per candidate: sum_i W_i shift_i(f_i) = sum_i shift_i(W_i f_i); the cost volume and its 3-D
+      aggregation are at half resolution;
+    - the soft-argmin disparity is upsampled and corrected by a small full-resolution refinement
+      that sees the reference view (coarse to fine).
+
+    Same forward contract as :class:`DisparityNet` for odd grids whose reference is the centre view;
+    the offsets ``rel`` of the views left out are not used.
+    """
+
+    def __init__(self, ang: int, d_min: float, d_max: float, n_disp: int = 17, in_ch: int = 3, ch: int = 16, n_blocks: int = 3, cost_ch: int = 16):
+        super().__init__()
+        if ang % 2 == 0:  # the star and the refinement need the reference at the grid's centre
+            raise ValueError(f"StarDisparityNet needs an odd grid (its reference is the centre view), got {ang}x{ang}")
+        self.ang = ang
+        self.register_buffer("views", torch.tensor(star_views(ang)), persistent=False)
+        self.ref = ang * ang // 2
+        n = len(self.views)
+        # kernel 4, stride 2, padding 1: half-resolution pixel i is centred on full-resolution i*2 + 0.5
+        self.stem = nn.Sequential(nn.Conv2d(in_ch, ch, 4, stride=2, padding=1), _act())
+        self.blocks = nn.ModuleList(nn.Sequential(nn.Conv2d(ch, ch, 3, padding=1), _act()) for _ in range(n_blocks))
+        self.project = nn.Conv2d(n * ch, n * cost_ch, 1, groups=n, bias=False)
+        self.aggregate = nn.Sequential(_act(), nn.Conv3d(cost_ch, cost_ch, 3, padding=1, bias=False), _act(), ResBlock3D(cost_ch),
+                                       nn.Conv3d(cost_ch, 1, 3, padding=1, bias=False))
+        self.refine = nn.Sequential(nn.Conv2d(in_ch + 1, ch, 3, padding=1), _act(), nn.Conv2d(ch, ch, 3, padding=2, dilation=2), _act(),
+                                    nn.Conv2d(ch, 1, 3, padding=1))
+        self.register_buffer("candidates", torch.linspace(float(d_min), float(d_max), int(n_disp)))
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.stem(x)
+        for b in self.blocks:
+            x = x + b(x)
+        return x
+
+    def coarse(self, views: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+        """Soft-argmin disparity [B, h, w] at half resolution (full-resolution pixels per view step)."""
+        b, _, c, h, w = views.shape
+        sel = views[:, self.views]
+        n = sel.shape[1]
+        f = self.features(sel.reshape(b * n, c, h, w))
+        hh, ww = f.shape[-2:]
+        g = self.project(f.reshape(b, -1, hh, ww)).reshape(b, n, -1, hh, ww)
+        r = rel[:, self.views] * 0.5  # half-resolution pixels (stride 2) per view step
+        costs = [shift_views(g, r, d).sum(1) for d in self.candidates.tolist()]
+        score = self.aggregate(torch.stack(costs, 2))[:, 0]  # B,D,h,w
+        return (torch.softmax(score, 1) * self.candidates[None, :, None, None]).sum(1)
+
+    def forward(self, views: torch.Tensor, rel: torch.Tensor) -> torch.Tensor:
+        if views.shape[1] != self.ang * self.ang:
+            raise ValueError(f"StarDisparityNet({self.ang}x{self.ang}) got {views.shape[1]} views")
+        if rel[:, self.ref].abs().max() > 1e-6:
+            raise ValueError("StarDisparityNet's reference is the centre view: rel must be offsets from it")
+        h, w = views.shape[-2:]
+        d = F.interpolate(self.coarse(views, rel.to(views.dtype))[:, None], size=(h, w), mode="bilinear", align_corners=False)
+        return (d + self.refine(torch.cat([views[:, self.ref], d], 1)))[:, 0]
+
+
 def blend_corners(corners: torch.Tensor, n: int) -> torch.Tensor:
     """Angular bilinear blend: corners [B, 4, C, H, W] ((0,0), (0,n-1), (n-1,0), (n-1,n-1)) -> [B, n*n, C, H, W]."""
     t = torch.linspace(0.0, 1.0, n, device=corners.device, dtype=corners.dtype)
