@@ -73,7 +73,9 @@ from .visibility import VISIBLE_EPS  # the tie rule of visibility, shared with t
 
 
 class TracedScene:
-    """Open3D ray-casting scene of all stage meshes at one time, with float64 copies of them."""
+    """Open3D ray-casting scene of all stage meshes at one time, with float64 copies of them: per mesh
+    (:attr:`meshes`) and concatenated (:attr:`V`, :attr:`T`: every mesh's triangles, indices into V;
+    mesh i's triangles start at ``tri_offset[i]``), so that hits on any mesh are resolved in one pass."""
 
     def __init__(self, geometry, time: float):
         import open3d as o3d
@@ -91,34 +93,53 @@ class TracedScene:
             )
             self.geom_ids.append(int(gid))
         self.by_gid = {g: i for i, g in enumerate(self.geom_ids) if g >= 0}
+        self.lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
+        for g, i in self.by_gid.items():
+            self.lut[g] = i
+        nv = np.array([len(m.vertices) for m in self.meshes], np.int64)
+        nt = np.array([len(m.triangles) for m in self.meshes], np.int64)
+        self.vert_offset = np.concatenate([[0], np.cumsum(nv)])
+        self.tri_offset = np.concatenate([[0], np.cumsum(nt)])
+        self.V = np.concatenate([np.asarray(m.vertices, np.float64).reshape(-1, 3) for m in self.meshes] + [np.zeros((0, 3))])
+        self.T = np.concatenate([np.asarray(m.triangles, np.int64).reshape(-1, 3) + o for m, o in zip(self.meshes, self.vert_offset)]
+                                + [np.zeros((0, 3), np.int64)])
+        self._same: dict[float, np.ndarray] = {}
+        self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
+
+    def same_topology(self, other: "TracedScene") -> np.ndarray:
+        """Per mesh: whether ``other`` (another time of the same stage) holds it with the same
+        vertices count and triangles (then a point keeps its barycentric coordinates)."""
+        if other.time not in self._same:
+            self._same[other.time] = np.array([m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles)
+                                               for m0, m1 in zip(self.meshes, other.meshes)] + [False], bool)
+        return self._same[other.time]
+
+    def _rays(self, origins: np.ndarray, dirs: np.ndarray):
+        import open3d as o3d
+
+        rays = np.empty((len(dirs), 6), np.float32)
+        rays[:, :3] = origins
+        rays[:, 3:] = dirs
+        return o3d.core.Tensor(rays)
+
+    def _mesh_of(self, gid: np.ndarray) -> np.ndarray:
+        return self.lut[np.clip(gid, 0, len(self.lut) - 1)]
 
     def all_hits(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every surface along each ray: (ray index, t_hit, mesh index, triangle id) per hit."""
-        import open3d as o3d
-
-        rays = np.concatenate([origins, dirs], axis=-1).reshape(-1, 6).astype(np.float32)
-        ans = self.scene.list_intersections(o3d.core.Tensor(rays))
+        ans = self.scene.list_intersections(self._rays(origins, dirs))
         splits = ans["ray_splits"].numpy().astype(np.int64)
         ray = np.repeat(np.arange(len(splits) - 1), np.diff(splits))
         gid = ans["geometry_ids"].numpy().astype(np.int64)
-        lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
-        for g, i in self.by_gid.items():
-            lut[g] = i
-        return ray, ans["t_hit"].numpy(), lut[np.clip(gid, 0, len(lut) - 1)], ans["primitive_ids"].numpy().astype(np.int64)
+        return ray, ans["t_hit"].numpy(), self._mesh_of(gid), ans["primitive_ids"].numpy().astype(np.int64)
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit float32 in units of |dir|, mesh index (-1 none), triangle id) per ray."""
-        import open3d as o3d
-
-        rays = np.concatenate([origins, dirs], axis=-1).reshape(-1, 6).astype(np.float32)
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(self._rays(origins, dirs))
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         prim = ans["primitive_ids"].numpy().astype(np.int64)
-        lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
-        for g, i in self.by_gid.items():
-            lut[g] = i
-        mesh = np.where(np.isfinite(t), lut[np.clip(gid, 0, len(lut) - 1)], -1)
+        mesh = np.where(np.isfinite(t), self._mesh_of(gid), -1)
         return t, mesh, prim
 
 
@@ -211,31 +232,42 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray);
     ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False)."""
     s0, s1, K, H, W = ctx["s0"], ctx["s1"], ctx["K"], ctx["H"], ctx["W"]
-    o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3)).copy()
-    d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
-    mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
     n = len(u)
-    depth = np.full(n, np.inf)
-    pos = np.full((n, 3), np.nan)
+    key = None
+    if hits is None and n == H * W:  # a full grid: the same surface for a view's traces to t+1 and t-1
+        key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), np.asarray(u).tobytes(), np.asarray(v).tobytes())
+    if key is not None and s0._surface is not None and s0._surface[0] == key:
+        o, d, mesh, tri, depth, pos, normal, b1, b2, g = s0._surface[1]
+    else:
+        o = np.broadcast_to(ctx["c2w"][:3, 3], (n, 3))
+        d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
+        mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+        depth = np.full(n, np.inf)
+        pos = np.full((n, 3), np.nan)
+        normal = np.full((n, 3), np.nan)
+        b1 = b2 = np.zeros(0)
+        g = np.flatnonzero(mesh >= 0)
+        if g.size:
+            tr = s0.T[s0.tri_offset[mesh[g]] + tri[g]]
+            A, B, C = (s0.V[tr[:, k]] for k in range(3))
+            t, P, b1, b2 = _hit_on_triangle(o[g], d[g], A, B, C)
+            depth[g] = t  # direction has camera-z 1, so the ray parameter is planar depth
+            pos[g] = P
+            nrm = np.cross(B - A, C - A)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+            normal[g] = np.where(((nrm * d[g]).sum(-1) > 0)[:, None], -nrm, nrm)  # the side the camera sees
+        if key is not None:
+            s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, b1, b2, g))
     pos1 = np.full((n, 3), np.nan)
-    normal = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
-    for i, (m0, m1) in enumerate(zip(s0.meshes, s1.meshes)):
-        sel = np.flatnonzero(mesh == i)
-        if sel.size == 0:
-            continue
-        tr = m0.triangles[tri[sel]]
-        t, P, b1, b2 = _hit_on_triangle(o[sel], d[sel], *(m0.vertices[tr[:, k]] for k in range(3)))
-        depth[sel] = t  # direction has camera-z 1, so the ray parameter is planar depth
-        pos[sel] = P
-        g = np.cross(m0.vertices[tr[:, 1]] - m0.vertices[tr[:, 0]], m0.vertices[tr[:, 2]] - m0.vertices[tr[:, 0]])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            g /= np.linalg.norm(g, axis=-1, keepdims=True)
-        normal[sel] = np.where(((g * d[sel]).sum(-1) > 0)[:, None], -g, g)  # the side the camera sees
-        if m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles):
-            V = m1.vertices[tr]
-            pos1[sel] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
-            valid[sel] = True
+    if g.size:
+        keep = s0.same_topology(s1)[mesh[g]]
+        gk = g[keep]
+        V = s1.V[s1.T[s1.tri_offset[mesh[gk]] + tri[gk]]]
+        w1, w2 = b1[keep][:, None], b2[keep][:, None]
+        pos1[gk] = (1 - w1 - w2) * V[:, 0] + w1 * V[:, 1] + w2 * V[:, 2]
+        valid[gk] = True
     cam1 = Camera(K, ctx["c2w1"])
     u1, v1, z1 = project(pos1, cam1)
     if visibility:
@@ -717,13 +749,20 @@ def compare_view(
                 valid = ds[f"valid_{name}"] & fg_ds
                 counts["valid"] = counts.get("valid", 0) + int(valid.sum())
                 counts["unchecked"] = counts.get("unchecked", 0) + int((valid & ~t["valid"] & (st["mesh"] >= 0)).sum())
+    # each pixel's label as an index into the sorted label names (no per-pixel string compares)
+    names_ = sorted(set(labels_of.tolist()))
+    code = np.array([names_.index(x) for x in labels_of.tolist()], np.int64)[cls]
+    of_label: dict[int, np.ndarray] = {}
     rows: list[Row] = []
     for key, e in err.items():
         rate = UNITS.get(key) == "frac"
         sel_all = ~np.isnan(e)
-        for label in [ALL] + sorted(set(labels_of[cls[sel_all]].tolist())):
-            sel = sel_all if label == ALL else sel_all & (labels_of[cls] == label)
-            in_class = fg if label == ALL else fg & (labels_of[cls] == label)
+        for c in [-1] + np.unique(code[sel_all]).tolist():
+            label = ALL if c < 0 else names_[c]
+            if c >= 0 and c not in of_label:
+                of_label[c] = code == c
+            sel = sel_all if c < 0 else sel_all & of_label[c]
+            in_class = fg if c < 0 else fg & of_label[c]
             x = e[sel]
             if x.size == 0:
                 rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=int(in_class.sum())))

@@ -1,0 +1,117 @@
+"""Cost of `lfusd verify` per view: an older verifier (default: main's) against this tree's, side by side.
+
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_verify.py [--dataset DIR] [--before main]
+        [--stage stages/street_dynamic_00.usda] [--rig rig_00] [--frames 68-70] [--resolution 96x96]
+        [--views 1,1] [--repeat 2]
+
+Without ``--dataset``, renders a small dataset of the default scene first (``lfusd render-video``, 1
+sample, CPU) into a temporary folder. The older verifier is ``lfusd/truth/verify.py`` as committed at
+``--before`` (``git show REV:lfusd/truth/verify.py``), loaded as a module of this tree's
+``lfusd.truth`` package: its relative imports resolve to this tree's modules, so the two differ only in
+verify.py itself. Both verify the same frames and views in one process, interleaved (before, after,
+before, ...), each ``--repeat`` times; the best of each is reported.
+
+Prints per verifier: core-seconds per view (process CPU time: every thread of Open3D's ray casts
+counted), wall seconds per view, and core-seconds per 1024x1024 view extrapolated linearly in pixels
+(verify's work is per pixel: a cast per pixel, per corner and per neighbour frame), the ratio
+before / after, and whether both reports agree (verdict and failure lines). The issue-37 budget: at
+most 1 core-s per 1024x1024 view.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_verifier(rev: str):
+    """lfusd/truth/verify.py at git revision ``rev``, as a module inside this tree's lfusd.truth."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/truth/verify.py"], capture_output=True, text=True, check=True).stdout
+    name = f"lfusd.truth._verify_at_{rev.replace('/', '_').replace('-', '_')}"
+    path = Path(tempfile.mkdtemp(prefix="bench_verify_")) / "verify.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__package__ = "lfusd.truth"
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def render(stage: str, rig: str, frames: str, resolution: str, out: Path) -> None:
+    cmd = [sys.executable, "-m", "lfusd", "render-video", stage, "-o", str(out), "--rig", rig, "--frames", frames,
+           "--resolution", resolution, "--samples", "1", "--device", "cpu", "--quiet"]
+    subprocess.run(cmd, check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def run(mod, path: Path, frames, views):
+    from lfusd import Dataset
+
+    ds = Dataset(path)
+    c0, w0 = time.process_time(), time.perf_counter()
+    rep = mod.verify_dataset(ds, frames=frames, views=views)
+    return time.process_time() - c0, time.perf_counter() - w0, rep
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--dataset", type=Path, help="a rendered dataset (default: render one)")
+    p.add_argument("--before", default="main", help="git revision of the older verifier (default main)")
+    p.add_argument("--stage", default=str(ROOT / "stages" / "street_dynamic_00.usda"))
+    p.add_argument("--rig", default="rig_00")
+    p.add_argument("--frames", default="68-70", help="rendered frames A-B; the middle ones are verified (both neighbours)")
+    p.add_argument("--resolution", default="96x96")
+    p.add_argument("--views", default=None, help="views to verify, e.g. '1,1;0,0' (default: all)")
+    p.add_argument("--repeat", type=int, default=2)
+    a = p.parse_args()
+
+    from lfusd.truth import verify as after
+
+    before = load_verifier(a.before)
+    tmp = None
+    path = a.dataset
+    if path is None:
+        tmp = tempfile.TemporaryDirectory(prefix="bench_verify_")
+        path = Path(tmp.name) / "ds"
+        render(a.stage, a.rig, a.frames, a.resolution, path)
+    from lfusd import Dataset
+
+    ds = Dataset(path)
+    frames = ds.frames[1:-1] if len(ds.frames) > 2 else ds.frames
+    views = [tuple(int(x) for x in v.split(",")) for v in a.views.split(";")] if a.views else list(ds.views)
+    H, W = ds.read(frames[0], views[0], "depth").shape[:2]
+    n = len(frames) * len(views)
+    best = {"before": (float("inf"), float("inf")), "after": (float("inf"), float("inf"))}
+    reports = {}
+    for _ in range(a.repeat):
+        for name, mod in (("before", before), ("after", after)):
+            cpu, wall, rep = run(mod, path, frames, views)
+            best[name] = (min(best[name][0], cpu), min(best[name][1], wall))
+            reports[name] = rep
+    scale = 1024 * 1024 / (H * W)
+    print(f"dataset {path}: {W}x{H}, frames {frames[0]}-{frames[-1]}, {len(views)} views: {n} views verified, best of {a.repeat}")
+    print(f"{'verifier':<28}{'core-s/view':>12}{'wall-s/view':>12}{'core-s/1024^2 view':>20}  ok")
+    for name, label in (("before", f"before ({a.before})"), ("after", "after (this tree)")):
+        cpu, wall = best[name]
+        print(f"{label:<28}{cpu / n:>12.3f}{wall / n:>12.3f}{cpu / n * scale:>20.2f}  {reports[name].ok}")
+    print(f"ratio before/after: core-s {best['before'][0] / best['after'][0]:.2f}x, wall {best['before'][1] / best['after'][1]:.2f}x")
+    fb, fa = reports["before"].failures(), reports["after"].failures()
+    print("reports agree (verdict and failure lines):", reports["before"].ok == reports["after"].ok and fb == fa)
+    for line in fa[:10]:
+        print("  after:", line)
+    for line in fb[:10]:
+        print("  before:", line)
+    if tmp is not None:
+        tmp.cleanup()
+
+
+if __name__ == "__main__":
+    main()
