@@ -231,43 +231,33 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     """:func:`trace_motion`'s values for rays through arbitrary pixel coordinates (u, v) (flat arrays);
     ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray);
     ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False)."""
+    from . import _verify_numba as _numba  # the per-ray arithmetic, compiled
+
     s0, s1, K, H, W = ctx["s0"], ctx["s1"], ctx["K"], ctx["H"], ctx["W"]
     n = len(u)
     key = None
     if hits is None and n == H * W:  # a full grid: the same surface for a view's traces to t+1 and t-1
         key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), np.asarray(u).tobytes(), np.asarray(v).tobytes())
     if key is not None and s0._surface is not None and s0._surface[0] == key:
-        o, d, mesh, tri, depth, pos, normal, b1, b2, g = s0._surface[1]
+        o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
-        o = np.broadcast_to(ctx["c2w"][:3, 3], (n, 3))
+        o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
         d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
         mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+        mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth = np.full(n, np.inf)
         pos = np.full((n, 3), np.nan)
         normal = np.full((n, 3), np.nan)
-        b1 = b2 = np.zeros(0)
+        bary = np.zeros((n, 2))
         g = np.flatnonzero(mesh >= 0)
         if g.size:
-            tr = s0.T[s0.tri_offset[mesh[g]] + tri[g]]
-            A, B, C = (s0.V[tr[:, k]] for k in range(3))
-            t, P, b1, b2 = _hit_on_triangle(o[g], d[g], A, B, C)
-            depth[g] = t  # direction has camera-z 1, so the ray parameter is planar depth
-            pos[g] = P
-            nrm = np.cross(B - A, C - A)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
-            normal[g] = np.where(((nrm * d[g]).sum(-1) > 0)[:, None], -nrm, nrm)  # the side the camera sees
+            _numba.surface(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
         if key is not None:
-            s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, b1, b2, g))
+            s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
     pos1 = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
     if g.size:
-        keep = s0.same_topology(s1)[mesh[g]]
-        gk = g[keep]
-        V = s1.V[s1.T[s1.tri_offset[mesh[gk]] + tri[gk]]]
-        w1, w2 = b1[keep][:, None], b2[keep][:, None]
-        pos1[gk] = (1 - w1 - w2) * V[:, 0] + w1 * V[:, 1] + w2 * V[:, 2]
-        valid[gk] = True
+        _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, pos1, valid)
     cam1 = Camera(K, ctx["c2w1"])
     u1, v1, z1 = project(pos1, cam1)
     if visibility:
@@ -793,22 +783,12 @@ def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | Non
     """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
     the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
     ``flow``) in forward flow by more than ``flow_px``."""
-    wc = W + 1
-    a = (np.arange(H)[:, None] * wc + np.arange(W)[None, :]).ravel()
-    c = np.stack([a, a + 1, a + wc, a + wc + 1], 1)
-    ids = ident[c]
-    out = (ids != ids[:, :1]).any(1)
-    D = depth[c]
-    with np.errstate(invalid="ignore"):
-        lo, hi = D.min(1), D.max(1)
-        out |= np.isfinite(hi) & (hi - lo > depth_rel * lo)
-        if flow is not None:
-            F = flow[c]
-            gap = np.zeros(len(a))
-            for x in range(4):
-                for y in range(x + 1, 4):
-                    gap = np.fmax(gap, np.linalg.norm(F[:, x] - F[:, y], axis=-1))  # NaN (unknown motion) counts as none
-            out |= (ids[:, 0] >= 0) & (gap > flow_px)
+    from . import _verify_numba as _numba
+
+    out = np.zeros(H * W, bool)
+    f = np.zeros((0, 2)) if flow is None else np.ascontiguousarray(flow, np.float64)
+    _numba.mixed_decision(np.ascontiguousarray(ident, np.int64), np.ascontiguousarray(depth, np.float64), f, flow is not None, H, W,
+                          float(depth_rel), float(flow_px), out)
     return out
 
 
