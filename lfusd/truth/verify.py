@@ -770,7 +770,8 @@ def compare_view(
                 m = float(x.mean())
                 rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
             else:
-                rows.append(Row(frame, view, key, label, int(x.size), float(np.median(x)), float(np.percentile(x, 99)), float(x.max()),
+                med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
+                rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x.max()),
                                 thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
