@@ -103,6 +103,8 @@ class TracedScene:
         self.V = np.concatenate([np.asarray(m.vertices, np.float64).reshape(-1, 3) for m in self.meshes] + [np.zeros((0, 3))])
         self.T = np.concatenate([np.asarray(m.triangles, np.int64).reshape(-1, 3) + o for m, o in zip(self.meshes, self.vert_offset)]
                                 + [np.zeros((0, 3), np.int64)])
+        self.prim_paths = [m.prim_path for m in self.meshes]
+        self.bounds = _bounds(self.meshes)
         self._same: dict[float, np.ndarray] = {}
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
 
@@ -261,7 +263,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     cam1 = Camera(K, ctx["c2w1"])
     u1, v1, z1 = project(pos1, cam1)
     if visibility:
-        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W)
+        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1))
     else:
         vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
     baseline = ctx["baseline"]
@@ -270,8 +272,8 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         dchange = fb / z1 - fb / depth
     return {
         "depth": depth, "position": pos, "normal": normal, "mesh": mesh, "triangle": tri,
-        "prim_paths": [m.prim_path for m in s0.meshes],
-        "mesh_bounds": _bounds(s0.meshes),
+        "prim_paths": s0.prim_paths,
+        "mesh_bounds": s0.bounds,
         "flow": np.stack([u1 - u, v1 - v], -1),
         "scene_flow": pos1 - pos,
         "next_position": pos1,
@@ -283,10 +285,11 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
 
 
 def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: np.ndarray, H: int, W: int,
-                  eps: float = VISIBLE_EPS) -> tuple[np.ndarray, np.ndarray]:
+                  eps: float = VISIBLE_EPS, uvz: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(visible, first-hit ray parameter) of world points at the scene's time: inside the image and
-    no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule)."""
-    u1, v1, z1 = project(points, cam)
+    no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule);
+    ``uvz``: the points' projection in ``cam`` when the caller has it."""
+    u1, v1, z1 = project(points, cam) if uvz is None else uvz
     inside = valid & (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
     C1 = np.asarray(cam.cam_to_world, np.float64)[:3, 3]
     t_hit = np.full(len(points), np.nan)
