@@ -895,3 +895,24 @@ def test_edge_offsets_grow_with_the_coordinates_float_rounding():
     far[:3, 3] = (1e4, 0.0, 0.0)  # a scene 10 km from its origin, seen at 10 m
     step = _edge_step({"K": K, "c2w": far}, u, v, np.array([10.0]))
     assert step[0] == pytest.approx(EDGE_ULPS * EPS32 * np.hypot(1e4, 10.0) / 10.0 * 1000.0, rel=1e-6) and step[0] > 100 * TIE_PX
+
+
+def test_mixed_rule_on_corner_rays_by_hand():
+    """The compiled mixed rule on a hand-made corner grid: corners of another object, a depth step
+    over the limit, a flow step over the limit (a NaN flow, unknown motion, counts as none), and
+    background corners whose flows differ (not mixed: no surface moves there)."""
+    from lfusd.truth.verify import _mixed_decision
+
+    H, W, rel, px = 1, 3, 0.01, 0.5  # corners (H+1) x (W+1); pixel x has corners x, x+1, x+4, x+5
+    ident = np.array([1, 1, 1, 2, 1, 1, 1, 1])
+    depth = np.full(8, 2.0)
+    depth[0] = 2.0 * (1 + 2 * rel)  # pixel 0: a depth step of twice the limit
+    flow = np.zeros((8, 2))
+    flow[5] = np.nan  # pixel 1 (corners 1, 2, 5, 6): unknown motion, no step
+    assert _mixed_decision(ident, depth, None, H, W, rel, px).tolist() == [True, False, True]
+    assert _mixed_decision(ident, depth, flow, H, W, rel, px).tolist() == [True, False, True]
+    depth[0] = 2.0 * (1 + rel / 2)  # under the limit
+    flow[6] = (2 * px, 0.0)  # pixel 1 and 2: a flow step of twice the limit
+    assert _mixed_decision(ident, depth, flow, H, W, rel, px).tolist() == [False, True, True]
+    miss = _mixed_decision(np.full(4, -1), np.full(4, np.inf), np.array([[0.0, 0], [5, 0], [0, 0], [0, 0]]), 1, 1, rel, px)
+    assert miss.tolist() == [False]
