@@ -43,9 +43,11 @@ def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: n
 
 
 @njit(cache=True, error_model="numpy")
-def carry(mesh, tri, bary, same, V1, T1, toff1, pos1, valid):  # pragma: no cover - compiled
+def carry(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, pos1, valid, u1, v1, z1):  # pragma: no cover - compiled
     """Per ray whose mesh keeps its topology (same[mesh]): the point of the same barycentric
-    coordinates on the same triangle at the other time."""
+    coordinates on the same triangle at the other time, and its projection (u1, v1, planar depth
+    z1) in the camera of centre C, M = K @ R and R2 its world-to-camera rotation's third row (as
+    lfusd.camera.project: the centre subtracted first)."""
     for i in range(mesh.size):
         m = mesh[i]
         if m < 0 or not same[m]:
@@ -57,7 +59,12 @@ def carry(mesh, tri, bary, same, V1, T1, toff1, pos1, valid):  # pragma: no cove
         for j in range(3):
             pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
         valid[i] = True
-
+        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
+        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+        u1[i], v1[i] = x0 / x2, x1 / x2
+        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
 
 @njit(cache=True, error_model="numpy")
 def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):  # pragma: no cover - compiled

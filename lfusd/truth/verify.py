@@ -258,10 +258,12 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
             s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
     pos1 = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
-    if g.size:
-        _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, pos1, valid)
     cam1 = Camera(K, ctx["c2w1"])
-    u1, v1, z1 = project(pos1, cam1)
+    R, C = cam1.world_to_cam()
+    u1, v1, z1 = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    if g.size:
+        _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, np.ascontiguousarray(K @ R, np.float64),
+                     np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), pos1, valid, u1, v1, z1)
     if visibility:
         vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1))
     else:
