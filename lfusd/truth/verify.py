@@ -748,36 +748,37 @@ def compare_view(
     names_ = sorted(set(labels_of.tolist()))
     code = np.array([names_.index(x) for x in labels_of.tolist()], np.int64)[cls]
     of_label: dict[int, np.ndarray] = {}
+    fg_of: dict[int, int] = {-1: int(fg.sum())}  # foreground pixels per label
     rows: list[Row] = []
     for key, e in err.items():
         rate = UNITS.get(key) == "frac"
         sel_all = ~np.isnan(e)
+        kk = kind.copy() if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
+        for pix, k in own.get(key, []):
+            kk[pix[kk[pix] == 0]] = k
         for c in [-1] + np.unique(code[sel_all]).tolist():
             label = ALL if c < 0 else names_[c]
             if c >= 0 and c not in of_label:
                 of_label[c] = code == c
+                fg_of[c] = int((fg & of_label[c]).sum())
             sel = sel_all if c < 0 else sel_all & of_label[c]
-            in_class = fg if c < 0 else fg & of_label[c]
             x = e[sel]
             if x.size == 0:
-                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=int(in_class.sum())))
+                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_of[c]))
                 continue
             over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
             j = int(np.flatnonzero(sel)[np.argmax(x)])
             worst = (j % W, j // W, float(x.max()))
-            kk = kind.copy() if key != "mixed" else np.zeros_like(kind)
-            for pix, k in own.get(key, []):
-                kk[pix[kk[pix] == 0]] = k
             counted = np.bincount(kk[sel], minlength=len(TIE_KINDS) + 1)
             by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
             n_ties = int(counted[1:].sum())
             if rate:
                 m = float(x.mean())
-                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
+                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, fg_of[c], n_ties, worst, by_kind))
             else:
                 med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
                 rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x.max()),
-                                thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
+                                thr[key], over, fg_of[c], n_ties, worst, by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
