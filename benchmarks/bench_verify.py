@@ -1,7 +1,7 @@
 """Cost of `lfusd verify` per view: an older verifier (default: main's) against this tree's, side by side.
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_verify.py [--dataset DIR] [--before main]
-        [--stage stages/street_dynamic_00.usda] [--rig rig_00] [--frames 68-70] [--resolution 96x96]
+        [--stage stages/street_dynamic_00.usda] [--rig rig_00] [--grid 1x2] [--frames 68-70] [--resolution 96x96]
         [--check 69-69] [--views '1,1;0,0'] [--repeat 2]
 
 Without ``--dataset``, renders a small dataset of the default scene first (``lfusd render-video``, 1
@@ -70,6 +70,8 @@ def main() -> None:
     p.add_argument("--before", default="main", help="git revisions of older verifiers, comma-separated (default main)")
     p.add_argument("--stage", default=str(ROOT / "stages" / "street_dynamic_00.usda"))
     p.add_argument("--rig", default="rig_00")
+    p.add_argument("--grid", default=None, help="ROWSxCOLS: render a rig of this shape at --rig's pose instead (bench_reference.py's "
+                   "reference rig), e.g. 1x2 with --resolution 1024x1024 --frames 69-71: issue 37's acceptance case")
     p.add_argument("--frames", default="68-70", help="rendered frames A-B; the middle ones are verified (both neighbours)")
     p.add_argument("--resolution", default="96x96")
     p.add_argument("--check", default=None, help="frames to verify A-B (default: every rendered frame but the first and last)")
@@ -85,7 +87,15 @@ def main() -> None:
     if path is None:
         tmp = tempfile.TemporaryDirectory(prefix="bench_verify_")
         path = Path(tmp.name) / "ds"
-        render(a.stage, a.rig, a.frames, a.resolution, path)
+        stage, rig = a.stage, a.rig
+        if a.grid:
+            sys.path.insert(0, str(ROOT / "benchmarks"))
+            from bench_reference import reference_layer
+
+            stage, rig = str(Path(tmp.name) / "reference.usda"), "reference"
+            reference_layer(Path(a.stage).resolve(), a.rig, Path(stage), tuple(int(x) for x in a.grid.split("x")),
+                            tuple(int(x) for x in a.resolution.split("x")))
+        render(stage, rig, a.frames, a.resolution, path)
     from lfusd import Dataset
 
     ds = Dataset(path)
