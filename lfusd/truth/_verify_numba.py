@@ -1,6 +1,7 @@
 """Compiled per-pixel arithmetic of :mod:`lfusd.truth.verify` (numba): the hit on its triangle in
-float64 and the same point carried to the other time, one pass per ray instead of a dozen NumPy
-temporaries. Same formulas as verify's NumPy path (:func:`lfusd.truth.verify._hit_on_triangle`)."""
+float64 (ray-plane parameter, barycentric coordinates by the dot-product solve), the same point
+carried to the other time and projected, and the mixed rule on corner rays: one pass per ray
+instead of a dozen NumPy temporaries."""
 
 from __future__ import annotations
 

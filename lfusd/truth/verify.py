@@ -151,23 +151,6 @@ def _rays(K: np.ndarray, cam_to_world: np.ndarray, H: int, W: int) -> tuple[np.n
     return np.broadcast_to(np.asarray(cam_to_world, np.float64)[:3, 3], d.shape).copy(), d
 
 
-def _hit_on_triangle(o, d, A, B, C):
-    """Ray-plane hit parameter and barycentric (b1, b2) on triangles ABC, in float64."""
-    e1, e2 = B - A, C - A
-    n = np.cross(e1, e2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = ((A - o) * n).sum(-1) / (d * n).sum(-1)
-        P = o + t[:, None] * d
-        # Barycentric coordinates of P by the standard dot-product solve.
-        w = P - A
-        d00, d01, d11 = (e1 * e1).sum(-1), (e1 * e2).sum(-1), (e2 * e2).sum(-1)
-        d20, d21 = (w * e1).sum(-1), (w * e2).sum(-1)
-        den = d00 * d11 - d01 * d01
-        b1 = (d11 * d20 - d01 * d21) / den
-        b2 = (d00 * d21 - d01 * d20) / den
-    return t, P, b1, b2
-
-
 def _bounds(meshes) -> np.ndarray:
     """(n, 2, 3): each mesh's world-space min and max corner at the traced time (NaN when empty)."""
     out = np.full((len(meshes), 2, 3), np.nan)
