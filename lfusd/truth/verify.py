@@ -19,7 +19,9 @@ valid cannot be checked (their mesh changes topology in the stage). Ties (:data:
 pixel over a limit is accepted when a second surface its sample may have hit within float
 tolerance agrees on every key: a ray moved by the float bound of an edge near the sample
 (:func:`_edge_step`: at least ``TIE_PX``, 1e-3 px; more where coordinates are large against the
-depth), or a second hit along its own ray within ``VISIBLE_EPS`` (1e-4) of the distance; for
+depth), the second hit within ``VISIBLE_EPS`` of such a ray moved by ``EDGE_FRACTIONS`` of that
+bound (a back face sharing a silhouette edge), or a second hit along its own ray within
+``VISIBLE_EPS`` (1e-4) of the distance; for
 occlusion, also a surface within [eps/10, 10 eps] in front of the point at t+-1; for depth, an
 error within the float32 bound of a grazing hit (:func:`_clear_grazing_ties`).
 Ties are counted and reported. :meth:`VerifyReport.certificate` is what a dataset records.
@@ -305,6 +307,7 @@ def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
 
 TIE_PX = 1e-3  # least sub-pixel offset of the candidate rays of the tie rule (an edge near the sample)
 EPS32 = 2.0**-24  # float32 unit roundoff: Blender intersects rays with float32 geometry
+EDGE_FRACTIONS = (1.0, 0.25, 0.0625)  # offsets (of the edge step) of the rays whose second surface is a candidate
 EDGE_ULPS = 8  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
 GRAZING_ULPS = 16  # depth error bound of a hit at incidence theta: this many roundoffs of max(|P|, |O|) / cos(theta)
 GRAZING_COS = 0.1  # ... for hits beyond 84 degrees (nearer the normal the bound is far under any limit)
@@ -460,7 +463,7 @@ class VerifyReport:
                 key = e["key"][:-len(BIAS)]
                 if key not in bias or e["max"] / e["threshold"] > bias[key]["max"] / bias[key]["threshold"]:
                     bias[key] = {"object": e["label"], "max": e["max"], "threshold": e["threshold"], "over": e["over"]}
-        return {"ok": self.ok, "rules": {"unchecked_fraction": UNCHECKED_FRACTION, "tie_px": TIE_PX, "edge_ulps": EDGE_ULPS,
+        return {"ok": self.ok, "rules": {"unchecked_fraction": UNCHECKED_FRACTION, "tie_px": TIE_PX, "edge_ulps": EDGE_ULPS, "edge_fractions": list(EDGE_FRACTIONS),
                                          "grazing_ulps": GRAZING_ULPS, "visible_eps": VISIBLE_EPS,
                                          "bias_fraction": BIAS_FRACTION, "bias_min_px": BIAS_MIN_PX},
                 "valid": self.valid, "unchecked": self.unchecked, "keys": keys, "bias": bias}
@@ -559,27 +562,44 @@ def _edge_step(ctx: dict, u: np.ndarray, v: np.ndarray, depth: np.ndarray) -> np
     return np.where(np.isfinite(step), np.maximum(step, TIE_PX), TIE_PX)
 
 
-def _candidates(traces: list, u: np.ndarray, v: np.ndarray, step: np.ndarray | float = TIE_PX):
-    """Other surfaces a pixel's sample may have hit within float tolerance: rays offset by ``step``
-    (px, per pixel: :func:`_edge_step`), and a second hit along the pixel's own ray within
-    VISIBLE_EPS of the first. Yields per candidate its kind (TIE_KINDS) and the traces (one per
-    direction in ``traces``) at those pixels."""
-    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        yield "edge", [trace_pixels(t["ctx"], u + du * step, v + dv * step) for t in traces]
-    ctx = traces[0]["ctx"]
-    o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3)).copy()
+def _second_hits(ctx: dict, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per ray through (u, v): (mesh, triangle) of a second surface within VISIBLE_EPS of the first
+    hit's distance (mesh -1 where none); None when no ray has one."""
+    o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3))
     d = ray_directions(u, v, Camera(ctx["K"], ctx["c2w"]))
     ray, t, mesh, tri = ctx["s0"].all_hits(o, d)
     if ray.size == 0:
-        return
+        return None
     first = np.full(len(u), np.inf)
     np.minimum.at(first, ray, t)
     alt = (t > first[ray]) & (t <= first[ray] * (1 + VISIBLE_EPS))
     if not alt.any():
-        return
+        return None
     m, k = np.full(len(u), -1), np.zeros(len(u), np.int64)
     m[ray[alt]], k[ray[alt]] = mesh[alt], tri[alt]
-    yield "surface", [trace_pixels(t_["ctx"], u, v, hits=(m, k)) for t_ in traces]
+    return m, k
+
+
+def _candidates(traces: list, u: np.ndarray, v: np.ndarray, step: np.ndarray | float = TIE_PX):
+    """Other surfaces a pixel's sample may have hit within float tolerance: rays offset by ``step``
+    (px, per pixel: :func:`_edge_step`), a second hit along the pixel's own ray within
+    VISIBLE_EPS of the first, and a second hit so near along an offset ray (the back-facing
+    triangle that shares a silhouette edge: Blender's ray may meet it at the edge, and Cycles then
+    negates the normal). Yields per candidate its kind (TIE_KINDS) and the traces (one per
+    direction in ``traces``) at those pixels."""
+    moves = ((1, 0), (-1, 0), (0, 1), (0, -1))
+    for du, dv in moves:
+        yield "edge", [trace_pixels(t["ctx"], u + du * step, v + dv * step) for t in traces]
+    ctx = traces[0]["ctx"]
+    hits = _second_hits(ctx, u, v)
+    if hits is not None:
+        yield "surface", [trace_pixels(t_["ctx"], u, v, hits=hits) for t_ in traces]
+    for frac in EDGE_FRACTIONS:  # nearer the edge too: the back face lies within VISIBLE_EPS only there
+        for du, dv in moves:
+            uu, vv = u + du * frac * step, v + dv * frac * step
+            hits = _second_hits(ctx, uu, vv)
+            if hits is not None:
+                yield "edge", [trace_pixels(t_["ctx"], uu, vv, hits=hits) for t_ in traces]
 
 
 def _clear_visibility_ties(err: dict, traces: dict) -> np.ndarray:

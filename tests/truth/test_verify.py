@@ -916,3 +916,33 @@ def test_mixed_rule_on_corner_rays_by_hand():
     assert _mixed_decision(ident, depth, flow, H, W, rel, px).tolist() == [False, True, True]
     miss = _mixed_decision(np.full(4, -1), np.full(4, np.inf), np.array([[0.0, 0], [5, 0], [0, 0], [0, 0]]), 1, 1, rel, px)
     assert miss.tolist() == [False]
+
+
+def test_an_edge_tie_finds_the_back_face_that_shares_a_silhouette_edge(tmp_path):
+    """A ridge seen edge-on 2e-4 px beside a pixel centre: the front face A and, behind it, a
+    grazing face B share the ridge. Blender's ray may meet B at the ridge (Cycles then negates the
+    normal; the default scene's person showed it at 1024x1024). Among the tie candidates, a ray
+    moved towards the ridge within the edge step must offer B: its second hit within VISIBLE_EPS,
+    which only a ray nearer the ridge than the full step has (the full step's gap is 1.8e-4)."""
+    from lfusd.truth.verify import VISIBLE_EPS, _candidates, _edge_step
+
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 2)
+    ridge = [(0.0, -1.0, 5.0), (0.0, 1.0, 5.0)]
+    for name, apex in (("A", (-1.0, 0.0, 3.0)), ("B", (-0.05, 0.0, 6.0))):  # A towards the camera, B away and grazing
+        m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        m.CreatePointsAttr([*ridge, apex])
+        m.CreateFaceVertexCountsAttr([3])
+        m.CreateFaceVertexIndicesAttr([0, 1, 2])
+        m.CreateSubdivisionSchemeAttr("none")
+    stage.Save()
+    u0 = v0 = 32
+    K = np.array([[100.0, 0, u0 - 2e-4], [0, 100.0, v0], [0, 0, 1]])  # the ridge (x = 0) at u = u0 - 2e-4
+    tr = trace_motion(stage, 1, K, np.eye(4), np.eye(4), 64, 64)
+    assert tr["mesh"][v0, u0] == -1 and tr["mesh"][v0, u0 - 1] >= 0  # the centre misses, its left neighbour hits
+    b = tr["prim_paths"].index("/World/B")
+    u, v = np.array([float(u0)]), np.array([float(v0)])
+    step = _edge_step(tr["ctx"], u, v, np.array([5.0]))
+    kinds = [(kind, int(c[0]["mesh"][0])) for kind, c in _candidates([tr], u, v, step)]
+    assert ("edge", b) in kinds, kinds
+    assert all(m != b for _, m in kinds[:4]) and ("surface", b) not in kinds  # the four moved rays' first hits and the centre's own rays never meet B
+    assert VISIBLE_EPS == 1e-4
