@@ -806,7 +806,9 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     """(error 0/1 per pixel, tie per pixel) of the dataset's ``mixed`` against the rule decided on
     verify's own rays through the pixel corners (the trace at t, carried to t+1 when ``carry``).
     Either value is accepted where the decision changes within MIXED_BAND of its limits, or where
-    a corner's ray moved TIE_PX sees another object (a corner on an edge)."""
+    a corner's ray moved TIE_PX sees another object, or a depth or flow that differs from the
+    corner's by more than the rule's lower limits (a corner on an edge, the same object's
+    included: a fold of a person in front of its own body)."""
     from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
 
     vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
@@ -821,14 +823,20 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     wrong = (got & ~maybe) | (~got & surely)
     tie = (surely != maybe) & (got == maybe)
     bad = np.flatnonzero(wrong)
-    if bad.size:  # corners on an edge: another object TIE_PX away
+    if bad.size:  # corners on an edge: TIE_PX away, another object, or a depth or flow step the rule counts
         wc = W + 1
         a = (bad // W) * wc + bad % W
         corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
         moved = np.zeros(len(uc), bool)
+        z0 = c["depth"][corners]
         for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
-            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)["mesh"]
-            moved[corners] |= np.where(m >= 0, ids[m], -1) != ident[corners]
+            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)
+            step = np.where(m["mesh"] >= 0, ids[m["mesh"]], -1) != ident[corners]
+            with np.errstate(invalid="ignore"):
+                step |= np.abs(m["depth"] - z0) > MIXED_DEPTH_REL * lo * np.fmin(m["depth"], z0)
+                if carry:
+                    step |= np.linalg.norm(m["flow"] - flow[corners], axis=-1) > MIXED_FLOW_PX * lo
+            moved[corners] |= step
         edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
         wrong[bad[edge]] = False
         tie[bad[edge]] = True

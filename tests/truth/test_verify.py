@@ -946,3 +946,29 @@ def test_an_edge_tie_finds_the_back_face_that_shares_a_silhouette_edge(tmp_path)
     assert ("edge", b) in kinds, kinds
     assert all(m != b for _, m in kinds[:4]) and ("surface", b) not in kinds  # the four moved rays' first hits and the centre's own rays never meet B
     assert VISIBLE_EPS == 1e-4
+
+
+def test_a_corner_on_an_edge_of_the_same_object_makes_mixed_a_tie(tmp_path):
+    """One mesh, a near quad over half of a far one: its edge lies 2e-4 px beside a pixel corner.
+    Verify's corner ray sees the far quad (a depth step: mixed), Blender's may see the near one
+    (not mixed): either value is a tie, though both surfaces are one object (a person's fold in
+    front of its own body at 1024x1024). A pixel away from the edge stays decided."""
+    from lfusd.truth.verify import _mixed_errors
+
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 2)
+    m = UsdGeom.Mesh.Define(stage, "/World/S")
+    m.CreatePointsAttr([(0, -5, 5), (5, -5, 5), (5, 5, 5), (0, 5, 5), (-5, -5, 4), (0, -5, 4), (0, 5, 4), (-5, 5, 4)])
+    m.CreateFaceVertexCountsAttr([4, 4])
+    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3, 4, 5, 6, 7])
+    m.CreateSubdivisionSchemeAttr("none")
+    stage.Save()
+    H = W = 64
+    K = np.array([[100.0, 0, 31.5 - 2e-4], [0, 100.0, 31.5], [0, 0, 1]])  # the near quad's edge (x = 0) at u = 31.5 - 2e-4
+    tr = trace_motion(stage, 1, K, np.eye(4), np.eye(4), H, W)
+    ids = np.zeros(len(tr["prim_paths"]) + 1, np.int64)
+    mixed = np.zeros(H * W, bool)  # pixel 31 (corners u = 30.5, 31.5) as Blender may see it: both corners near
+    err, tie = _mixed_errors(mixed, tr["ctx"], False, ids, H, W)
+    assert err[20 * W + 31] == 0 and tie[20 * W + 31]
+    mixed[20 * W + 10] = True  # far from any edge: wrong, and no tie
+    err, tie = _mixed_errors(mixed, tr["ctx"], False, ids, H, W)
+    assert err[20 * W + 10] == 1 and not tie[20 * W + 10]
