@@ -19,7 +19,9 @@ valid cannot be checked (their mesh changes topology in the stage). Ties (:data:
 pixel over a limit is accepted when a second surface its sample may have hit within float
 tolerance agrees on every key: a ray moved by the float bound of an edge near the sample
 (:func:`_edge_step`: at least ``TIE_PX``, 1e-3 px; more where coordinates are large against the
-depth), or a second hit along its own ray within ``VISIBLE_EPS`` (1e-4) of the distance; for
+depth), the second hit within ``VISIBLE_EPS`` of such a ray moved by ``EDGE_FRACTIONS`` of that
+bound (a back face sharing a silhouette edge), or a second hit along its own ray within
+``VISIBLE_EPS`` (1e-4) of the distance; for
 occlusion, also a surface within [eps/10, 10 eps] in front of the point at t+-1; for depth, an
 error within the float32 bound of a grazing hit (:func:`_clear_grazing_ties`).
 Ties are counted and reported. :meth:`VerifyReport.certificate` is what a dataset records.
@@ -73,7 +75,9 @@ from .visibility import VISIBLE_EPS  # the tie rule of visibility, shared with t
 
 
 class TracedScene:
-    """Open3D ray-casting scene of all stage meshes at one time, with float64 copies of them."""
+    """Open3D ray-casting scene of all stage meshes at one time, with float64 copies of them: per mesh
+    (:attr:`meshes`) and concatenated (:attr:`V`, :attr:`T`: every mesh's triangles, indices into V;
+    mesh i's triangles start at ``tri_offset[i]``), so that hits on any mesh are resolved in one pass."""
 
     def __init__(self, geometry, time: float):
         import open3d as o3d
@@ -91,34 +95,55 @@ class TracedScene:
             )
             self.geom_ids.append(int(gid))
         self.by_gid = {g: i for i, g in enumerate(self.geom_ids) if g >= 0}
+        self.lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
+        for g, i in self.by_gid.items():
+            self.lut[g] = i
+        nv = np.array([len(m.vertices) for m in self.meshes], np.int64)
+        nt = np.array([len(m.triangles) for m in self.meshes], np.int64)
+        self.vert_offset = np.concatenate([[0], np.cumsum(nv)])
+        self.tri_offset = np.concatenate([[0], np.cumsum(nt)])
+        self.V = np.concatenate([np.asarray(m.vertices, np.float64).reshape(-1, 3) for m in self.meshes] + [np.zeros((0, 3))])
+        self.T = np.concatenate([np.asarray(m.triangles, np.int64).reshape(-1, 3) + o for m, o in zip(self.meshes, self.vert_offset)]
+                                + [np.zeros((0, 3), np.int64)])
+        self.prim_paths = [m.prim_path for m in self.meshes]
+        self.bounds = _bounds(self.meshes)
+        self._same: dict[float, np.ndarray] = {}
+        self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
+
+    def same_topology(self, other: "TracedScene") -> np.ndarray:
+        """Per mesh: whether ``other`` (another time of the same stage) holds it with the same
+        vertices count and triangles (then a point keeps its barycentric coordinates)."""
+        if other.time not in self._same:
+            self._same[other.time] = np.array([m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles)
+                                               for m0, m1 in zip(self.meshes, other.meshes)] + [False], bool)
+        return self._same[other.time]
+
+    def _rays(self, origins: np.ndarray, dirs: np.ndarray):
+        import open3d as o3d
+
+        rays = np.empty((len(dirs), 6), np.float32)
+        rays[:, :3] = origins
+        rays[:, 3:] = dirs
+        return o3d.core.Tensor(rays)
+
+    def _mesh_of(self, gid: np.ndarray) -> np.ndarray:
+        return self.lut[np.clip(gid, 0, len(self.lut) - 1)]
 
     def all_hits(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Every surface along each ray: (ray index, t_hit, mesh index, triangle id) per hit."""
-        import open3d as o3d
-
-        rays = np.concatenate([origins, dirs], axis=-1).reshape(-1, 6).astype(np.float32)
-        ans = self.scene.list_intersections(o3d.core.Tensor(rays))
+        ans = self.scene.list_intersections(self._rays(origins, dirs))
         splits = ans["ray_splits"].numpy().astype(np.int64)
         ray = np.repeat(np.arange(len(splits) - 1), np.diff(splits))
         gid = ans["geometry_ids"].numpy().astype(np.int64)
-        lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
-        for g, i in self.by_gid.items():
-            lut[g] = i
-        return ray, ans["t_hit"].numpy(), lut[np.clip(gid, 0, len(lut) - 1)], ans["primitive_ids"].numpy().astype(np.int64)
+        return ray, ans["t_hit"].numpy(), self._mesh_of(gid), ans["primitive_ids"].numpy().astype(np.int64)
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit float32 in units of |dir|, mesh index (-1 none), triangle id) per ray."""
-        import open3d as o3d
-
-        rays = np.concatenate([origins, dirs], axis=-1).reshape(-1, 6).astype(np.float32)
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(self._rays(origins, dirs))
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         prim = ans["primitive_ids"].numpy().astype(np.int64)
-        lut = np.full(max(self.geom_ids + [0]) + 2, -1, np.int64)
-        for g, i in self.by_gid.items():
-            lut[g] = i
-        mesh = np.where(np.isfinite(t), lut[np.clip(gid, 0, len(lut) - 1)], -1)
+        mesh = np.where(np.isfinite(t), self._mesh_of(gid), -1)
         return t, mesh, prim
 
 
@@ -126,23 +151,6 @@ def _rays(K: np.ndarray, cam_to_world: np.ndarray, H: int, W: int) -> tuple[np.n
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     d = ray_directions(u, v, Camera(K, cam_to_world))  # camera-z component 1
     return np.broadcast_to(np.asarray(cam_to_world, np.float64)[:3, 3], d.shape).copy(), d
-
-
-def _hit_on_triangle(o, d, A, B, C):
-    """Ray-plane hit parameter and barycentric (b1, b2) on triangles ABC, in float64."""
-    e1, e2 = B - A, C - A
-    n = np.cross(e1, e2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = ((A - o) * n).sum(-1) / (d * n).sum(-1)
-        P = o + t[:, None] * d
-        # Barycentric coordinates of P by the standard dot-product solve.
-        w = P - A
-        d00, d01, d11 = (e1 * e1).sum(-1), (e1 * e2).sum(-1), (e2 * e2).sum(-1)
-        d20, d21 = (w * e1).sum(-1), (w * e2).sum(-1)
-        den = d00 * d11 - d01 * d01
-        b1 = (d11 * d20 - d01 * d21) / den
-        b2 = (d00 * d21 - d01 * d20) / den
-    return t, P, b1, b2
 
 
 def _bounds(meshes) -> np.ndarray:
@@ -210,36 +218,39 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     """:func:`trace_motion`'s values for rays through arbitrary pixel coordinates (u, v) (flat arrays);
     ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray);
     ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False)."""
+    from . import _verify_numba as _numba  # the per-ray arithmetic, compiled
+
     s0, s1, K, H, W = ctx["s0"], ctx["s1"], ctx["K"], ctx["H"], ctx["W"]
-    o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3)).copy()
-    d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
-    mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
     n = len(u)
-    depth = np.full(n, np.inf)
-    pos = np.full((n, 3), np.nan)
+    key = None
+    if hits is None and n == H * W:  # a full grid: the same surface for a view's traces to t+1 and t-1
+        key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), np.asarray(u).tobytes(), np.asarray(v).tobytes())
+    if key is not None and s0._surface is not None and s0._surface[0] == key:
+        o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
+    else:
+        o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
+        d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
+        mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+        mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
+        depth = np.full(n, np.inf)
+        pos = np.full((n, 3), np.nan)
+        normal = np.full((n, 3), np.nan)
+        bary = np.zeros((n, 2))
+        g = np.flatnonzero(mesh >= 0)
+        if g.size:
+            _numba.surface(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
+        if key is not None:
+            s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
     pos1 = np.full((n, 3), np.nan)
-    normal = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
-    for i, (m0, m1) in enumerate(zip(s0.meshes, s1.meshes)):
-        sel = np.flatnonzero(mesh == i)
-        if sel.size == 0:
-            continue
-        tr = m0.triangles[tri[sel]]
-        t, P, b1, b2 = _hit_on_triangle(o[sel], d[sel], *(m0.vertices[tr[:, k]] for k in range(3)))
-        depth[sel] = t  # direction has camera-z 1, so the ray parameter is planar depth
-        pos[sel] = P
-        g = np.cross(m0.vertices[tr[:, 1]] - m0.vertices[tr[:, 0]], m0.vertices[tr[:, 2]] - m0.vertices[tr[:, 0]])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            g /= np.linalg.norm(g, axis=-1, keepdims=True)
-        normal[sel] = np.where(((g * d[sel]).sum(-1) > 0)[:, None], -g, g)  # the side the camera sees
-        if m1.vertices.shape == m0.vertices.shape and np.array_equal(m1.triangles, m0.triangles):
-            V = m1.vertices[tr]
-            pos1[sel] = (1 - b1 - b2)[:, None] * V[:, 0] + b1[:, None] * V[:, 1] + b2[:, None] * V[:, 2]
-            valid[sel] = True
     cam1 = Camera(K, ctx["c2w1"])
-    u1, v1, z1 = project(pos1, cam1)
+    R, C = cam1.world_to_cam()
+    u1, v1, z1 = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    if g.size:
+        _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, np.ascontiguousarray(K @ R, np.float64),
+                     np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), pos1, valid, u1, v1, z1)
     if visibility:
-        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W)
+        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1))
     else:
         vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
     baseline = ctx["baseline"]
@@ -248,8 +259,8 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         dchange = fb / z1 - fb / depth
     return {
         "depth": depth, "position": pos, "normal": normal, "mesh": mesh, "triangle": tri,
-        "prim_paths": [m.prim_path for m in s0.meshes],
-        "mesh_bounds": _bounds(s0.meshes),
+        "prim_paths": s0.prim_paths,
+        "mesh_bounds": s0.bounds,
         "flow": np.stack([u1 - u, v1 - v], -1),
         "scene_flow": pos1 - pos,
         "next_position": pos1,
@@ -261,10 +272,11 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
 
 
 def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: np.ndarray, H: int, W: int,
-                  eps: float = VISIBLE_EPS) -> tuple[np.ndarray, np.ndarray]:
+                  eps: float = VISIBLE_EPS, uvz: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(visible, first-hit ray parameter) of world points at the scene's time: inside the image and
-    no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule)."""
-    u1, v1, z1 = project(points, cam)
+    no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule);
+    ``uvz``: the points' projection in ``cam`` when the caller has it."""
+    u1, v1, z1 = project(points, cam) if uvz is None else uvz
     inside = valid & (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
     C1 = np.asarray(cam.cam_to_world, np.float64)[:3, 3]
     t_hit = np.full(len(points), np.nan)
@@ -295,6 +307,7 @@ def object_ids_for(prim_paths: list[str], objects: dict) -> np.ndarray:
 
 TIE_PX = 1e-3  # least sub-pixel offset of the candidate rays of the tie rule (an edge near the sample)
 EPS32 = 2.0**-24  # float32 unit roundoff: Blender intersects rays with float32 geometry
+EDGE_FRACTIONS = (1.0, 0.25, 0.0625)  # offsets (of the edge step) of the rays whose second surface is a candidate
 EDGE_ULPS = 8  # an edge within this many roundoffs of the coordinates' magnitude (in px) may be either side
 GRAZING_ULPS = 16  # depth error bound of a hit at incidence theta: this many roundoffs of max(|P|, |O|) / cos(theta)
 GRAZING_COS = 0.1  # ... for hits beyond 84 degrees (nearer the normal the bound is far under any limit)
@@ -450,7 +463,7 @@ class VerifyReport:
                 key = e["key"][:-len(BIAS)]
                 if key not in bias or e["max"] / e["threshold"] > bias[key]["max"] / bias[key]["threshold"]:
                     bias[key] = {"object": e["label"], "max": e["max"], "threshold": e["threshold"], "over": e["over"]}
-        return {"ok": self.ok, "rules": {"unchecked_fraction": UNCHECKED_FRACTION, "tie_px": TIE_PX, "edge_ulps": EDGE_ULPS,
+        return {"ok": self.ok, "rules": {"unchecked_fraction": UNCHECKED_FRACTION, "tie_px": TIE_PX, "edge_ulps": EDGE_ULPS, "edge_fractions": list(EDGE_FRACTIONS),
                                          "grazing_ulps": GRAZING_ULPS, "visible_eps": VISIBLE_EPS,
                                          "bias_fraction": BIAS_FRACTION, "bias_min_px": BIAS_MIN_PX},
                 "valid": self.valid, "unchecked": self.unchecked, "keys": keys, "bias": bias}
@@ -549,27 +562,44 @@ def _edge_step(ctx: dict, u: np.ndarray, v: np.ndarray, depth: np.ndarray) -> np
     return np.where(np.isfinite(step), np.maximum(step, TIE_PX), TIE_PX)
 
 
-def _candidates(traces: list, u: np.ndarray, v: np.ndarray, step: np.ndarray | float = TIE_PX):
-    """Other surfaces a pixel's sample may have hit within float tolerance: rays offset by ``step``
-    (px, per pixel: :func:`_edge_step`), and a second hit along the pixel's own ray within
-    VISIBLE_EPS of the first. Yields per candidate its kind (TIE_KINDS) and the traces (one per
-    direction in ``traces``) at those pixels."""
-    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        yield "edge", [trace_pixels(t["ctx"], u + du * step, v + dv * step) for t in traces]
-    ctx = traces[0]["ctx"]
-    o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3)).copy()
+def _second_hits(ctx: dict, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per ray through (u, v): (mesh, triangle) of a second surface within VISIBLE_EPS of the first
+    hit's distance (mesh -1 where none); None when no ray has one."""
+    o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3))
     d = ray_directions(u, v, Camera(ctx["K"], ctx["c2w"]))
     ray, t, mesh, tri = ctx["s0"].all_hits(o, d)
     if ray.size == 0:
-        return
+        return None
     first = np.full(len(u), np.inf)
     np.minimum.at(first, ray, t)
     alt = (t > first[ray]) & (t <= first[ray] * (1 + VISIBLE_EPS))
     if not alt.any():
-        return
+        return None
     m, k = np.full(len(u), -1), np.zeros(len(u), np.int64)
     m[ray[alt]], k[ray[alt]] = mesh[alt], tri[alt]
-    yield "surface", [trace_pixels(t_["ctx"], u, v, hits=(m, k)) for t_ in traces]
+    return m, k
+
+
+def _candidates(traces: list, u: np.ndarray, v: np.ndarray, step: np.ndarray | float = TIE_PX):
+    """Other surfaces a pixel's sample may have hit within float tolerance: rays offset by ``step``
+    (px, per pixel: :func:`_edge_step`), a second hit along the pixel's own ray within
+    VISIBLE_EPS of the first, and a second hit so near along an offset ray (the back-facing
+    triangle that shares a silhouette edge: Blender's ray may meet it at the edge, and Cycles then
+    negates the normal). Yields per candidate its kind (TIE_KINDS) and the traces (one per
+    direction in ``traces``) at those pixels."""
+    moves = ((1, 0), (-1, 0), (0, 1), (0, -1))
+    for du, dv in moves:
+        yield "edge", [trace_pixels(t["ctx"], u + du * step, v + dv * step) for t in traces]
+    ctx = traces[0]["ctx"]
+    hits = _second_hits(ctx, u, v)
+    if hits is not None:
+        yield "surface", [trace_pixels(t_["ctx"], u, v, hits=hits) for t_ in traces]
+    for frac in EDGE_FRACTIONS:  # nearer the edge too: the back face lies within VISIBLE_EPS only there
+        for du, dv in moves:
+            uu, vv = u + du * frac * step, v + dv * frac * step
+            hits = _second_hits(ctx, uu, vv)
+            if hits is not None:
+                yield "edge", [trace_pixels(t_["ctx"], uu, vv, hits=hits) for t_ in traces]
 
 
 def _clear_visibility_ties(err: dict, traces: dict) -> np.ndarray:
@@ -717,32 +747,41 @@ def compare_view(
                 valid = ds[f"valid_{name}"] & fg_ds
                 counts["valid"] = counts.get("valid", 0) + int(valid.sum())
                 counts["unchecked"] = counts.get("unchecked", 0) + int((valid & ~t["valid"] & (st["mesh"] >= 0)).sum())
+    # each pixel's label as an index into the sorted label names (no per-pixel string compares)
+    names_ = sorted(set(labels_of.tolist()))
+    code = np.array([names_.index(x) for x in labels_of.tolist()], np.int64)[cls]
+    of_label: dict[int, np.ndarray] = {}
+    fg_of: dict[int, int] = {-1: int(fg.sum())}  # foreground pixels per label
     rows: list[Row] = []
     for key, e in err.items():
         rate = UNITS.get(key) == "frac"
         sel_all = ~np.isnan(e)
-        for label in [ALL] + sorted(set(labels_of[cls[sel_all]].tolist())):
-            sel = sel_all if label == ALL else sel_all & (labels_of[cls] == label)
-            in_class = fg if label == ALL else fg & (labels_of[cls] == label)
+        kk = kind.copy() if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
+        for pix, k in own.get(key, []):
+            kk[pix[kk[pix] == 0]] = k
+        for c in [-1] + np.unique(code[sel_all]).tolist():
+            label = ALL if c < 0 else names_[c]
+            if c >= 0 and c not in of_label:
+                of_label[c] = code == c
+                fg_of[c] = int((fg & of_label[c]).sum())
+            sel = sel_all if c < 0 else sel_all & of_label[c]
             x = e[sel]
             if x.size == 0:
-                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=int(in_class.sum())))
+                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_of[c]))
                 continue
             over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
             j = int(np.flatnonzero(sel)[np.argmax(x)])
             worst = (j % W, j // W, float(x.max()))
-            kk = kind.copy() if key != "mixed" else np.zeros_like(kind)
-            for pix, k in own.get(key, []):
-                kk[pix[kk[pix] == 0]] = k
             counted = np.bincount(kk[sel], minlength=len(TIE_KINDS) + 1)
             by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
             n_ties = int(counted[1:].sum())
             if rate:
                 m = float(x.mean())
-                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
+                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, fg_of[c], n_ties, worst, by_kind))
             else:
-                rows.append(Row(frame, view, key, label, int(x.size), float(np.median(x)), float(np.percentile(x, 99)), float(x.max()),
-                                thr[key], over, int(in_class.sum()), n_ties, worst, by_kind))
+                med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
+                rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x.max()),
+                                thr[key], over, fg_of[c], n_ties, worst, by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
@@ -754,22 +793,12 @@ def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | Non
     """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
     the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
     ``flow``) in forward flow by more than ``flow_px``."""
-    wc = W + 1
-    a = (np.arange(H)[:, None] * wc + np.arange(W)[None, :]).ravel()
-    c = np.stack([a, a + 1, a + wc, a + wc + 1], 1)
-    ids = ident[c]
-    out = (ids != ids[:, :1]).any(1)
-    D = depth[c]
-    with np.errstate(invalid="ignore"):
-        lo, hi = D.min(1), D.max(1)
-        out |= np.isfinite(hi) & (hi - lo > depth_rel * lo)
-        if flow is not None:
-            F = flow[c]
-            gap = np.zeros(len(a))
-            for x in range(4):
-                for y in range(x + 1, 4):
-                    gap = np.fmax(gap, np.linalg.norm(F[:, x] - F[:, y], axis=-1))  # NaN (unknown motion) counts as none
-            out |= (ids[:, 0] >= 0) & (gap > flow_px)
+    from . import _verify_numba as _numba
+
+    out = np.zeros(H * W, bool)
+    f = np.zeros((0, 2)) if flow is None else np.ascontiguousarray(flow, np.float64)
+    _numba.mixed_decision(np.ascontiguousarray(ident, np.int64), np.ascontiguousarray(depth, np.float64), f, flow is not None, H, W,
+                          float(depth_rel), float(flow_px), out)
     return out
 
 
@@ -777,7 +806,9 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     """(error 0/1 per pixel, tie per pixel) of the dataset's ``mixed`` against the rule decided on
     verify's own rays through the pixel corners (the trace at t, carried to t+1 when ``carry``).
     Either value is accepted where the decision changes within MIXED_BAND of its limits, or where
-    a corner's ray moved TIE_PX sees another object (a corner on an edge)."""
+    a corner's ray moved TIE_PX sees another object, or a depth or flow that differs from the
+    corner's by more than the rule's lower limits (a corner on an edge, the same object's
+    included: a fold of a person in front of its own body)."""
     from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
 
     vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
@@ -792,14 +823,20 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     wrong = (got & ~maybe) | (~got & surely)
     tie = (surely != maybe) & (got == maybe)
     bad = np.flatnonzero(wrong)
-    if bad.size:  # corners on an edge: another object TIE_PX away
+    if bad.size:  # corners on an edge: TIE_PX away, another object, or a depth or flow step the rule counts
         wc = W + 1
         a = (bad // W) * wc + bad % W
         corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
         moved = np.zeros(len(uc), bool)
+        z0 = c["depth"][corners]
         for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
-            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)["mesh"]
-            moved[corners] |= np.where(m >= 0, ids[m], -1) != ident[corners]
+            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)
+            step = np.where(m["mesh"] >= 0, ids[m["mesh"]], -1) != ident[corners]
+            with np.errstate(invalid="ignore"):
+                step |= np.abs(m["depth"] - z0) > MIXED_DEPTH_REL * lo * np.fmin(m["depth"], z0)
+                if carry:
+                    step |= np.linalg.norm(m["flow"] - flow[corners], axis=-1) > MIXED_FLOW_PX * lo
+            moved[corners] |= step
         edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
         wrong[bad[edge]] = False
         tie[bad[edge]] = True

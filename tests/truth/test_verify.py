@@ -895,3 +895,80 @@ def test_edge_offsets_grow_with_the_coordinates_float_rounding():
     far[:3, 3] = (1e4, 0.0, 0.0)  # a scene 10 km from its origin, seen at 10 m
     step = _edge_step({"K": K, "c2w": far}, u, v, np.array([10.0]))
     assert step[0] == pytest.approx(EDGE_ULPS * EPS32 * np.hypot(1e4, 10.0) / 10.0 * 1000.0, rel=1e-6) and step[0] > 100 * TIE_PX
+
+
+def test_mixed_rule_on_corner_rays_by_hand():
+    """The compiled mixed rule on a hand-made corner grid: corners of another object, a depth step
+    over the limit, a flow step over the limit (a NaN flow, unknown motion, counts as none), and
+    background corners whose flows differ (not mixed: no surface moves there)."""
+    from lfusd.truth.verify import _mixed_decision
+
+    H, W, rel, px = 1, 3, 0.01, 0.5  # corners (H+1) x (W+1); pixel x has corners x, x+1, x+4, x+5
+    ident = np.array([1, 1, 1, 2, 1, 1, 1, 1])
+    depth = np.full(8, 2.0)
+    depth[0] = 2.0 * (1 + 2 * rel)  # pixel 0: a depth step of twice the limit
+    flow = np.zeros((8, 2))
+    flow[5] = np.nan  # pixel 1 (corners 1, 2, 5, 6): unknown motion, no step
+    assert _mixed_decision(ident, depth, None, H, W, rel, px).tolist() == [True, False, True]
+    assert _mixed_decision(ident, depth, flow, H, W, rel, px).tolist() == [True, False, True]
+    depth[0] = 2.0 * (1 + rel / 2)  # under the limit
+    flow[6] = (2 * px, 0.0)  # pixel 1 and 2: a flow step of twice the limit
+    assert _mixed_decision(ident, depth, flow, H, W, rel, px).tolist() == [False, True, True]
+    miss = _mixed_decision(np.full(4, -1), np.full(4, np.inf), np.array([[0.0, 0], [5, 0], [0, 0], [0, 0]]), 1, 1, rel, px)
+    assert miss.tolist() == [False]
+
+
+def test_an_edge_tie_finds_the_back_face_that_shares_a_silhouette_edge(tmp_path):
+    """A ridge seen edge-on 2e-4 px beside a pixel centre: the front face A and, behind it, a
+    grazing face B share the ridge. Blender's ray may meet B at the ridge (Cycles then negates the
+    normal; the default scene's person showed it at 1024x1024). Among the tie candidates, a ray
+    moved towards the ridge within the edge step must offer B: its second hit within VISIBLE_EPS,
+    which only a ray nearer the ridge than the full step has (the full step's gap is 1.8e-4)."""
+    from lfusd.truth.verify import VISIBLE_EPS, _candidates, _edge_step
+
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 2)
+    ridge = [(0.0, -1.0, 5.0), (0.0, 1.0, 5.0)]
+    for name, apex in (("A", (-1.0, 0.0, 3.0)), ("B", (-0.05, 0.0, 6.0))):  # A towards the camera, B away and grazing
+        m = UsdGeom.Mesh.Define(stage, f"/World/{name}")
+        m.CreatePointsAttr([*ridge, apex])
+        m.CreateFaceVertexCountsAttr([3])
+        m.CreateFaceVertexIndicesAttr([0, 1, 2])
+        m.CreateSubdivisionSchemeAttr("none")
+    stage.Save()
+    u0 = v0 = 32
+    K = np.array([[100.0, 0, u0 - 2e-4], [0, 100.0, v0], [0, 0, 1]])  # the ridge (x = 0) at u = u0 - 2e-4
+    tr = trace_motion(stage, 1, K, np.eye(4), np.eye(4), 64, 64)
+    assert tr["mesh"][v0, u0] == -1 and tr["mesh"][v0, u0 - 1] >= 0  # the centre misses, its left neighbour hits
+    b = tr["prim_paths"].index("/World/B")
+    u, v = np.array([float(u0)]), np.array([float(v0)])
+    step = _edge_step(tr["ctx"], u, v, np.array([5.0]))
+    kinds = [(kind, int(c[0]["mesh"][0])) for kind, c in _candidates([tr], u, v, step)]
+    assert ("edge", b) in kinds, kinds
+    assert all(m != b for _, m in kinds[:4]) and ("surface", b) not in kinds  # the four moved rays' first hits and the centre's own rays never meet B
+    assert VISIBLE_EPS == 1e-4
+
+
+def test_a_corner_on_an_edge_of_the_same_object_makes_mixed_a_tie(tmp_path):
+    """One mesh, a near quad over half of a far one: its edge lies 2e-4 px beside a pixel corner.
+    Verify's corner ray sees the far quad (a depth step: mixed), Blender's may see the near one
+    (not mixed): either value is a tie, though both surfaces are one object (a person's fold in
+    front of its own body at 1024x1024). A pixel away from the edge stays decided."""
+    from lfusd.truth.verify import _mixed_errors
+
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 2)
+    m = UsdGeom.Mesh.Define(stage, "/World/S")
+    m.CreatePointsAttr([(0, -5, 5), (5, -5, 5), (5, 5, 5), (0, 5, 5), (-5, -5, 4), (0, -5, 4), (0, 5, 4), (-5, 5, 4)])
+    m.CreateFaceVertexCountsAttr([4, 4])
+    m.CreateFaceVertexIndicesAttr([0, 1, 2, 3, 4, 5, 6, 7])
+    m.CreateSubdivisionSchemeAttr("none")
+    stage.Save()
+    H = W = 64
+    K = np.array([[100.0, 0, 31.5 - 2e-4], [0, 100.0, 31.5], [0, 0, 1]])  # the near quad's edge (x = 0) at u = 31.5 - 2e-4
+    tr = trace_motion(stage, 1, K, np.eye(4), np.eye(4), H, W)
+    ids = np.zeros(len(tr["prim_paths"]) + 1, np.int64)
+    mixed = np.zeros(H * W, bool)  # pixel 31 (corners u = 30.5, 31.5) as Blender may see it: both corners near
+    err, tie = _mixed_errors(mixed, tr["ctx"], False, ids, H, W)
+    assert err[20 * W + 31] == 0 and tie[20 * W + 31]
+    mixed[20 * W + 10] = True  # far from any edge: wrong, and no tie
+    err, tie = _mixed_errors(mixed, tr["ctx"], False, ids, H, W)
+    assert err[20 * W + 10] == 1 and not tie[20 * W + 10]

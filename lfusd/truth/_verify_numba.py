@@ -1,0 +1,99 @@
+"""Compiled per-pixel arithmetic of :mod:`lfusd.truth.verify` (numba): the hit on its triangle in
+float64 (ray-plane parameter, barycentric coordinates by the dot-product solve), the same point
+carried to the other time and projected, and the mixed rule on corner rays: one pass per ray
+instead of a dozen NumPy temporaries."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, error_model="numpy")
+def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
+    """Per ray i with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
+    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64."""
+    for i in range(mesh.size):
+        m = mesh[i]
+        if m < 0:
+            continue
+        k = toff[m] + tri[i]
+        a, b, c = T[k, 0], T[k, 1], T[k, 2]
+        e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+        e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        dn = dx * nx + dy * ny + dz * nz
+        t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        wx, wy, wz = px - V[a, 0], py - V[a, 1], pz - V[a, 2]
+        d00 = e1x * e1x + e1y * e1y + e1z * e1z
+        d01 = e1x * e2x + e1y * e2y + e1z * e2z
+        d11 = e2x * e2x + e2y * e2y + e2z * e2z
+        d20 = wx * e1x + wy * e1y + wz * e1z
+        d21 = wx * e2x + wy * e2y + wz * e2z
+        den = d00 * d11 - d01 * d01
+        depth[i] = t
+        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+        bary[i, 0] = (d11 * d20 - d01 * d21) / den
+        bary[i, 1] = (d00 * d21 - d01 * d20) / den
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        s = -1.0 if dn > 0 else 1.0  # the side the camera sees
+        normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+
+
+@njit(cache=True, error_model="numpy")
+def carry(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, pos1, valid, u1, v1, z1):  # pragma: no cover - compiled
+    """Per ray whose mesh keeps its topology (same[mesh]): the point of the same barycentric
+    coordinates on the same triangle at the other time, and its projection (u1, v1, planar depth
+    z1) in the camera of centre C, M = K @ R and R2 its world-to-camera rotation's third row (as
+    lfusd.camera.project: the centre subtracted first)."""
+    for i in range(mesh.size):
+        m = mesh[i]
+        if m < 0 or not same[m]:
+            continue
+        k = toff1[m] + tri[i]
+        b1, b2 = bary[i, 0], bary[i, 1]
+        b0 = 1 - b1 - b2
+        a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
+        for j in range(3):
+            pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
+        valid[i] = True
+        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
+        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+        u1[i], v1[i] = x0 / x2, x1 / x2
+        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
+
+@njit(cache=True, error_model="numpy")
+def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):  # pragma: no cover - compiled
+    """verify._mixed_decision's rule per pixel (see there) on the (H+1) x (W+1) corner grid."""
+    wc = W + 1
+    for y in range(H):
+        for x in range(W):
+            c0 = y * wc + x
+            cs = (c0, c0 + 1, c0 + wc, c0 + wc + 1)
+            i0 = ident[c0]
+            res = False
+            for c in cs:
+                if ident[c] != i0:
+                    res = True
+            if not res:
+                lo, hi, fin = np.inf, -np.inf, True
+                for c in cs:
+                    z = depth[c]
+                    if not np.isfinite(z):
+                        fin = False
+                    lo, hi = min(lo, z), max(hi, z)
+                if fin and hi - lo > depth_rel * lo:
+                    res = True
+            if not res and use_flow and i0 >= 0:
+                for a in range(4):
+                    for b in range(a + 1, 4):
+                        gx = flow[cs[a], 0] - flow[cs[b], 0]
+                        gy = flow[cs[a], 1] - flow[cs[b], 1]
+                        if np.sqrt(gx * gx + gy * gy) > flow_px:  # NaN (unknown motion) counts as none
+                            res = True
+            out[y * W + x] = res
