@@ -89,8 +89,9 @@ class ShardDataset:
             self._class_of_instance = np.zeros(max([o.id for o in table.objects], default=0) + 1, dtype=np.int32)
             for o in table.objects:
                 self._class_of_instance[o.id] = o.class_id
+        # a camera effect's keys (coc) need the render's effect settings, which a sample does not carry
         derived = [k for k, f in passes.DERIVED.items() if all(s in stored for s in keyreg.get(k).storage.sources)
-                   and (k != "semantic" or self._class_of_instance is not None)]
+                   and keyreg.get(k).effect is None and (k != "semantic" or self._class_of_instance is not None)]
         self.keys: tuple[str, ...] = tuple(k for k in keyreg.KEYS if k in {"rgb", *stored, *derived})
 
     @property

@@ -31,7 +31,8 @@ def test_stored_keys_read_back_bit_for_bit_and_derived_keys_as_the_reader_derive
     sh = ShardDataset(dest)
     assert sh.frames == [1, 2, 3] and sh.views == ds.views and sh.rig == ds.rig
     assert {"rgb", "depth", "normal", "instance", "flow_fwd", "valid_fwd", "disparity", "position", "depth_euclidean"} <= set(sh.keys)
-    assert "semantic" not in sh.keys  # no objects.json beside the fake dataset: no class table
+    assert "semantic" in sh.keys  # stored in the shards (issue 39 item 12), though no objects.json is beside the fake
+    assert "coc" not in sh.keys  # a camera effect's key: the samples carry no lens settings to derive it from
     for t in ds.frames:
         for v in ds.views:
             for k in sh.keys:
@@ -44,7 +45,7 @@ def test_stored_keys_read_back_bit_for_bit_and_derived_keys_as_the_reader_derive
             np.testing.assert_array_equal(sh.cam_to_world(t, v), ds.cam_to_world(t, v))
             np.testing.assert_array_equal(sh.intrinsics(v), ds.intrinsics(v))
     with pytest.raises(LfusdError, match="not in the export"):
-        sh.read(1, (0, 0), "semantic")
+        sh.read(1, (0, 0), "coc")
 
 
 def test_loader_items_from_the_shards_equal_the_dataset_items(exported, tmp_path):
