@@ -43,22 +43,11 @@ CONFIG_KEYS = ("ang", "d_min", "d_max", "disparities", "channels", "blocks", "co
 
 def load_weights(path) -> tuple[dict, dict]:
     """(config, state dict) of a DisparityNet from ``path`` (weights_only=True); one-line LfusdError otherwise."""
-    import pickle
-
-    path = Path(path)
-    if not path.is_file():
-        raise LfusdError(f"weights {path} not found; give --weights a checkpoint of flow/train_disparity.py (OUT/checkpoints/last.pt)")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as e:
-        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
-        raise LfusdError(f"{path} is not a weights file of flow/train_disparity.py ({why}); give its checkpoints/last.pt") from None
-    model, config = (state.get("model"), state.get("config")) if isinstance(state, dict) else (None, None)
-    if not isinstance(model, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in model.items()):
-        raise LfusdError(f"{path} holds no 'model' of named tensors; give a checkpoint of flow/train_disparity.py")
-    if not isinstance(config, dict) or any(k not in config for k in CONFIG_KEYS):
+    state = training.load_weights(path, "train_disparity")
+    config = state["config"]
+    if any(k not in config for k in CONFIG_KEYS):
         raise LfusdError(f"{path} lacks the network's config ({', '.join(CONFIG_KEYS)}); give a checkpoint of flow/train_disparity.py")
-    return config, model
+    return config, state["model"]
 
 
 def read_hci_views(folder: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:

@@ -47,18 +47,7 @@ CAM = re.compile(r"^input_Cam(\d{3})\.png$")
 def load_model(path) -> tuple[torch.nn.Module, dict]:
     """The SceneFlowNet of a weights file (``model`` state dict and ``config``), read with
     ``weights_only=True``; LfusdError when it is missing or not such a file."""
-    import pickle
-
-    path = Path(path)
-    if not path.is_file():
-        raise LfusdError(f"no weights at {path}; train with flow/train_sceneflow.py and pass --weights RUN/checkpoints/last.pt")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as e:
-        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
-        raise LfusdError(f"{path} is not a weights file of train_sceneflow.py ({why}); pass its checkpoints/last.pt") from None
-    if not isinstance(state, dict) or not isinstance(state.get("model"), dict) or not isinstance(state.get("config"), dict):
-        raise LfusdError(f"{path} lacks 'model' or 'config'; pass a checkpoint of train_sceneflow.py (RUN/checkpoints/last.pt)")
+    state = training.load_weights(path, "train_sceneflow")
     config = state["config"]
     try:
         model = tsf.build(config)

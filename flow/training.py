@@ -252,6 +252,28 @@ def check_state(state, path) -> dict:
     return state
 
 
+def load_weights(path, script: str) -> dict:
+    """The checkpoint of ``flow/<script>.py`` at ``path`` (at least ``model``, a dict of named tensors,
+    and ``config``, a dict), read with ``weights_only=True`` so that no pickled code runs; one-line
+    LfusdError when it is missing, unreadable or lacks either."""
+    import pickle
+
+    path = Path(path)
+    if not path.is_file():
+        raise LfusdError(f"no weights at {path}; train with flow/{script}.py and pass --weights RUN/checkpoints/last.pt")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, AttributeError, OSError) as e:
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0][:200]
+        raise LfusdError(f"{path} is not a weights file of flow/{script}.py ({why}); pass its checkpoints/last.pt") from None
+    model = state.get("model") if isinstance(state, dict) else None
+    if not isinstance(model, dict) or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in model.items()) \
+            or not isinstance(state.get("config"), dict):
+        raise LfusdError(f"{path} lacks a 'model' of named tensors or its 'config'; pass a checkpoint of flow/{script}.py "
+                         "(RUN/checkpoints/last.pt)")
+    return state
+
+
 def progress(quiet: bool):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
