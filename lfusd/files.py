@@ -1,4 +1,4 @@
-"""The one atomic file write of lfusd: a file appears whole or not at all.
+"""The one atomic file write of lfusd (a file appears whole or not at all), and a file's sha256.
 
 A base module (standard library only) so that every layer uses it: the dataset folder
 (:mod:`lfusd.data.folder` re-exports it), the Blender worker, authoring (stages, catalogues).
@@ -7,6 +7,7 @@ A base module (standard library only) so that every layer uses it: the dataset f
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import tempfile
 from pathlib import Path
@@ -54,3 +55,9 @@ def atomic_write(path, content: str | bytes | Callable[[str], object], *, prefix
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def sha256_of(path) -> str:
+    """The hex sha256 of the file at ``path``, read in blocks (never whole into memory)."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()

@@ -36,6 +36,7 @@ import numpy as np
 
 from .. import layout
 from ..errors import LfusdError
+from ..files import sha256_of
 
 log = logging.getLogger(__name__)
 
@@ -63,14 +64,6 @@ class Definition:
 
 def definition_names() -> list[str]:
     return sorted(p.stem for p in DEFINITIONS.glob("*.toml"))
-
-
-def _file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def load_definition(name: str) -> Definition:
@@ -116,14 +109,14 @@ def generate_stage(d: Definition, spec, folder: Path) -> Path:
 def stage_digests(d: Definition, folder: Path) -> dict[str, str]:
     """sha256 of every scene's stage of ``d``, generated in ``folder`` (what `bench_freeze.py` records)."""
     folder.mkdir(parents=True, exist_ok=True)
-    return {s.name: _file_sha256(generate_stage(d, s, folder)) for s in d.specs}
+    return {s.name: sha256_of(generate_stage(d, s, folder)) for s in d.specs}
 
 
 def check_stages(d: Definition, folder: Path) -> None:
     """Generate the stages into ``folder`` and refuse any whose digest differs from the frozen one."""
     for s in d.specs:
         want = d.digests.get(s.name)
-        got = _file_sha256(generate_stage(d, s, folder))
+        got = sha256_of(generate_stage(d, s, folder))
         if want != got:
             raise LfusdError(f"stage {s.name} of benchmark {d.name} differs from its frozen digest ({got[:12]} != {str(want)[:12]}): "
                              f"the scene generators changed; use the lfusd release that froze it, or re-freeze with "
@@ -216,7 +209,7 @@ def gt_digests(gt: Path) -> dict[str, str]:
     out = {}
     for p in sorted(gt.rglob("*")):
         if p.is_file() and p.name != layout.BENCH_DIGESTS:
-            out[p.relative_to(gt).as_posix()] = _file_sha256(p)
+            out[p.relative_to(gt).as_posix()] = sha256_of(p)
     return out
 
 
@@ -224,12 +217,12 @@ def check_gt(root: Path, rec: dict) -> None:
     """Refuse a gt/ whose digests.json or any file it lists differs from what `bench make` wrote."""
     gt = Path(root) / layout.BENCH_GT
     path = gt / layout.BENCH_DIGESTS
-    if not path.is_file() or _file_sha256(path) != rec.get("gt_digests"):
+    if not path.is_file() or sha256_of(path) != rec.get("gt_digests"):
         raise LfusdError(f"{path} is missing or differs from the one `lfusd bench make` wrote; rerun `lfusd bench make {rec['name']} -o {root}`")
     listed = json.loads(path.read_text())
     for rel, want in listed.items():
         p = gt / rel
-        if not p.is_file() or _file_sha256(p) != want:
+        if not p.is_file() or sha256_of(p) != want:
             raise LfusdError(f"{p}: test ground truth {'missing' if not p.is_file() else 'changed'} since `lfusd bench make` wrote it; "
                              f"rerun `lfusd bench make {rec['name']} -o {root}` to restore it")
 
@@ -314,7 +307,7 @@ def make_bench(name: str, root, quiet: bool = True, progress=None, executor: str
         ds = Dataset(scenes / d.split("test")[0].name)
         rec |= {"complete": True, "splits": splits, "grid": list(d.recipe.grid), "resolution": list(d.recipe.resolution),
                 "frames": {s.name: list(Dataset(scenes / s.name).frames) for s in d.split("test")},
-                "views": [list(v) for v in ds.views], "gt_digests": _file_sha256(gt / layout.BENCH_DIGESTS)}
+                "views": [list(v) for v in ds.views], "gt_digests": sha256_of(gt / layout.BENCH_DIGESTS)}
         atomic_write(root / layout.BENCH_RECORD, json.dumps(rec, indent=1) + "\n")
         result.record = rec
     return result

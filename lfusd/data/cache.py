@@ -26,7 +26,6 @@ neither pxr, bpy nor torch.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -40,7 +39,7 @@ from .. import keys as keyreg
 from .. import layout
 from ..camera import RigSpec
 from ..errors import LfusdError
-from ..files import atomic_write, file_mode
+from ..files import atomic_write, file_mode, sha256_of
 from . import confined
 from .folder import output_lock, resumable_folder
 
@@ -56,14 +55,6 @@ _MAPS_OPEN = 256  # memory maps kept open per process (each is one mapping of th
 def frame_folder(frame: int) -> str:
     """The folder of one frame in a cache: ``000001``."""
     return f"{int(frame):06d}"
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 22), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def cacheable_keys(ds, keys=None) -> list[str]:
@@ -113,7 +104,7 @@ def _read_record(path: Path) -> dict:
 def _frame_intact(dest: Path, entry: dict) -> bool:
     for name, f in entry.get("files", {}).items():
         p = dest / name
-        if confined.is_link(p) or not p.is_file() or p.stat().st_size != f["bytes"] or _sha256(p) != f["sha256"]:
+        if confined.is_link(p) or not p.is_file() or p.stat().st_size != f["bytes"] or sha256_of(p) != f["sha256"]:
             return False
     return True
 
@@ -172,7 +163,7 @@ def _write_frame(ds, dest: Path, t: int, views, keys) -> tuple[dict, list[str]]:
                 continue
             path = Path(tmps[name])
             os.chmod(path, file_mode())
-            files[rel[name]] = {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+            files[rel[name]] = {"bytes": path.stat().st_size, "sha256": sha256_of(path)}
             os.replace(path, dest / rel[name])
         return files, missing
     finally:

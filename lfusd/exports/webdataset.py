@@ -33,7 +33,6 @@ items, derived keys included).
 from __future__ import annotations
 
 import datetime
-import hashlib
 import io
 import json
 import logging
@@ -44,6 +43,7 @@ import numpy as np
 from ..data import formats
 from .. import keys as keyreg
 from .. import layout
+from ..files import sha256_of
 from .common import frames_of, new_dest
 from .registry import TEXT, Option, register
 
@@ -100,14 +100,6 @@ def _sample_meta(ds, frame: int, view) -> dict:
             "baseline_m": float(ds.baseline), "offset_x": float(sx), "offset_y": float(sy)}
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def verification_figures(ds) -> dict:
     """The dataset's verification certificate of the exported rig (lfusd verify's figures, in its
     manifest), only where its binding to the content still holds (lfusd.data.certificate.certified).
@@ -140,13 +132,13 @@ def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification
     if verification:
         desc += " Verification: " + json.dumps(verification, sort_keys=True)
     files = [{"@type": "cr:FileObject", "@id": f"shard-{i}", "name": f"shard-{i}", "contentUrl": p.relative_to(dest).as_posix(),
-              "encodingFormat": "application/x-tar", "sha256": _sha256(p), "contentSize": f"{p.stat().st_size} B"}
+              "encodingFormat": "application/x-tar", "sha256": sha256_of(p), "contentSize": f"{p.stat().st_size} B"}
              for i, p in enumerate(shards)]
     shard_ids = [{"@id": f["@id"]} for f in files]
     if (dest / layout.OBJECTS).is_file():  # the tables `instance` and `semantic` index, beside the shards
         p = dest / layout.OBJECTS
         files.append({"@type": "cr:FileObject", "@id": "objects", "name": "objects", "contentUrl": layout.OBJECTS,
-                      "encodingFormat": "application/json", "sha256": _sha256(p), "contentSize": f"{p.stat().st_size} B",
+                      "encodingFormat": "application/json", "sha256": sha256_of(p), "contentSize": f"{p.stat().st_size} B",
                       "description": "the class table (semantic id -> class name) and the instance table (instance id -> prim path, class)"})
     parts = [("rgb", "rgb.png", "image/png", "sc:ImageObject", _field_description("rgb") + "; PNG"),
              ("meta", "json", "application/json", "sc:Text", "per-sample metadata: scene, rig, frame, row, col, width, height, K (3x3 px), "
@@ -244,7 +236,7 @@ def export_webdataset(ds, dest, frame: int | None = None, views=None, hf: bool =
     for p in sorted((dest / SHARDS).glob("*.tar")):
         # the content's hash in the name: mlcroissant caches an archive's extraction by its URL alone,
         # so a re-export under the old name would read the old samples
-        shards.append(p.rename(p.with_name(f"{p.stem}-{_sha256(p)[:12]}.tar")))
+        shards.append(p.rename(p.with_name(f"{p.stem}-{sha256_of(p)[:12]}.tar")))
     verification = verification_figures(ds)
     objects = Path(getattr(ds, "root", "")) / layout.OBJECTS
     if objects.is_file():  # the class and instance tables that `instance` and `semantic` index
