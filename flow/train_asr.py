@@ -73,12 +73,7 @@ def main(argv=None) -> int:
     crop = min(config["crop"], ds.rig.height, ds.rig.width)
     train = LightFieldVideoDataset(data, keys=("rgb",), views=corners, target_views=grid, frames=train_frames, crop=crop, random_crop=True, rig=a.rig)
     model = build(config).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
-    start = 0
-    if state:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        start = state["step"]
+    opt, start = training.optimiser(model, config["lr"], state)
     run.log["config"] = config
     log.info("%s: %d training frames, 2x2 -> %dx%d views, %d parameters", data, len(train_frames), config["n"], config["n"], sum(q.numel() for q in model.parameters()))
 

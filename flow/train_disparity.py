@@ -258,12 +258,7 @@ def main(argv=None) -> int:
     train = Augmented(sources, config.get("shifts", [0] * len(scenes)), config["train_frames"], min(config["crop"], ds.rig.height, ds.rig.width),
                       config.get("refocus", 0), a.seed, a.rig)
     model = build(config).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
-    start = 0
-    if state:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        start = state["step"]
+    opt, start = training.optimiser(model, config["lr"], state)
     run.log["config"] = config
     log.info("%s: %d scenes, %d views, %s network of %d parameters, disparity candidates %.2f..%.2f px", config.get("recipe") or data, len(scenes),
              config["ang"] ** 2, config.get("arch", "distg"), sum(q.numel() for q in model.parameters()), config["d_min"], config["d_max"])

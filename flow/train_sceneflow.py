@@ -154,12 +154,7 @@ def main(argv=None) -> int:
     config["cache"] = a.cache or config.get("cache")
     train = Samples(clips(source, config["train_frames"], crop, True, a.rig), a.seed, augment)
     model = build(config).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=config["lr"])
-    start = 0
-    if state:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        start = state["step"]
+    opt, start = training.optimiser(model, config["lr"], state)
     run.log["config"] = config
     log.info("%s: %d training pairs, %d views, %d parameters, disparity candidates %.2f..%.2f px", data, len(config["train_frames"]), config["ang"] ** 2,
              sum(q.numel() for q in model.parameters()), config["d_min"], config["d_max"])

@@ -274,6 +274,17 @@ def load_weights(path, script: str) -> dict:
     return state
 
 
+def optimiser(model, lr: float, state: dict | None):
+    """(Adam over ``model``'s parameters, the step to start from): a resumed run's checkpoint
+    ``state`` restores the model, the optimiser and the step; without one, step 0."""
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    if not state:
+        return opt, 0
+    model.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    return opt, state["step"]
+
+
 def progress(quiet: bool):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 

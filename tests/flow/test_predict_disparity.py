@@ -16,19 +16,14 @@ import pytest
 import torch
 
 from lfusd.data import formats
+from support.flow_scripts import load_script  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 N, SIZE = 9, 24
 
 
 def _load(name: str):
-    import importlib.util
-
-    sys.path.insert(0, str(ROOT / "flow"))
-    spec = importlib.util.spec_from_file_location(f"flow_{name}", ROOT / "flow" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(name)
 
 
 def _main(capsys, *args) -> tuple[int, str]:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from support.flow_scripts import load_script  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -32,13 +33,7 @@ def data_dir(tmp_path_factory):
 
 
 def _load(name: str):
-    import importlib.util
-
-    sys.path.insert(0, str(ROOT / "flow"))
-    spec = importlib.util.spec_from_file_location(f"flow_{name}", ROOT / "flow" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(name)
 
 
 def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
