@@ -130,6 +130,17 @@ class _Interrupt:
         if not cls.defer:
             raise KeyboardInterrupt
 
+    @classmethod
+    def unraisable(cls, info) -> None:
+        """sys.unraisablehook while the handler is in place: a Ctrl-C that arrives inside a finaliser
+        (a ``__del__``, a weakref callback of the garbage collector) cannot propagate, and Python
+        would print it as "Exception ignored in ..." with a traceback (seen once in 30 random
+        Ctrl-Cs of ``lfusd verify``). It is latched already; the run reports it as its one line."""
+        if isinstance(info.exc_value, KeyboardInterrupt) or info.exc_type is KeyboardInterrupt:
+            cls.pending = True
+            return
+        sys.__unraisablehook__(info)
+
 
 class _RaiseAtImport:
     """A meta path finder: it raises a latched Ctrl-C at the next import, and loads pxr's modules
@@ -201,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         _Interrupt.pending = False
         signal.signal(signal.SIGINT, _Interrupt.handler)
         sys.meta_path.insert(0, _RaiseAtImport)
+        unraisable, sys.unraisablehook = sys.unraisablehook, _Interrupt.unraisable
     try:
         code = _main(argv)
         code = _interrupted() if _Interrupt.pending and code != EXIT_INTERRUPTED else code
@@ -215,6 +227,8 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGINT, signal.SIG_IGN if argv is None else signal.default_int_handler)
             with contextlib.suppress(ValueError):
                 sys.meta_path.remove(_RaiseAtImport)
+            if argv is not None:  # a caller's main([...]); the program keeps it through its exit functions
+                sys.unraisablehook = unraisable
             _Interrupt.pending = False
     if argv is None and code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
         # The program itself (not a caller's main([...])), stopped: its clean-up has run (workers,
