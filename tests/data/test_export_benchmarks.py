@@ -21,6 +21,7 @@ import pytest
 
 from support.fake import S, V, ZB, ZF0, FakeDataset
 from support.spec_readers import read_png_spec
+from lfusd import LfusdError
 from lfusd import exports as export
 from lfusd.truth import visibility
 
@@ -89,6 +90,42 @@ def test_hci_toolkit_formulas_give_lfusd_depth_and_disparity(tmp_path, rows, col
     assert np.isfinite(scene.focus_dist_m) and scene.focus_dist_m > 0
     assert abs(scene.compute_offset()) < 1e-9  # an unshifted rig: the disparity = 0 plane is at infinity
     print(f"HCI {width}x{height}: compared {depth.size} px of depth and disparity")
+
+
+@pytest.mark.parametrize("k", [1, -2])
+def test_hci_sensor_shift_gives_signed_disparity_the_toolkit_reads_back(tmp_path, k):
+    """`lfusd export hci --shift k`: HCI's sensor shift as an exact integer crop. Each exported view
+    (r, c) at grid offset (sx, sy) is the rendered one moved by (k*sx, k*sy) px, so a centre point
+    at disparity d is at disparity d - k; the toolkit's own conversions (disp2depth with the
+    written focus distance, compute_offset) give the rendered depth and k back."""
+    ds = FakeDataset(rows=3, cols=3, width=24, height=20, frames=(1,))
+    (sd,) = export.hci.export_hci(ds, tmp_path / "hci", shift=str(k))
+    scene = HciScene(sd)
+    m = abs(k)  # crop per side: |k| * max|offset| (offsets -1, 0, 1)
+    assert (scene.width, scene.height) == (24 - 2 * m, 20 - 2 * m)
+    c = ds.rig.centre_view
+    win = np.s_[m : 20 - m, m : 24 - m]
+    gt_disp = hci_read_pfm(sd / "gt_disp_lowres.pfm")
+    np.testing.assert_allclose(gt_disp, ds.read(1, c, "disparity")[win] - k, rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(hci_read_pfm(sd / "gt_depth_lowres.pfm"), ds.read(1, c, "depth")[win])
+    # geometry: disparity d - k = f_px * b * (1/z - 1/F), with f_px of the rendered views and F written
+    f_px, depth = ds.intrinsics(c)[0, 0], ds.read(1, c, "depth")[win].astype(np.float64)
+    np.testing.assert_allclose(gt_disp, f_px * ds.baseline * (1 / depth - 1 / scene.focus_dist_m), rtol=0, atol=1e-4)
+    np.testing.assert_allclose(scene.disp2depth(gt_disp), depth, rtol=1e-5)
+    assert scene.compute_offset() == pytest.approx(k, rel=1e-9)
+    # the images: view at offset (sx, sy) shifted by k*(sx, sy): I'(y, x) = I(y + m - k*sy, x + m - k*sx)
+    for idx in range(9):
+        r, col = divmod(idx, 3)
+        sx, sy = (int(o) for o in ds.rig.offsets((r, col)))
+        src = ds.read(1, (r, col), "rgb")
+        want = src[m - k * sy : m - k * sy + 20 - 2 * m, m - k * sx : m - k * sx + 24 - 2 * m]
+        np.testing.assert_array_equal(read_png_spec(sd / f"input_Cam{idx:03d}.png"), want)
+
+
+def test_hci_shift_must_be_whole_pixels(tmp_path):
+    ds = FakeDataset(rows=3, cols=3, width=12, height=10, frames=(1,))
+    with pytest.raises(LfusdError, match="whole number"):
+        export.hci.export_hci(ds, tmp_path / "hci", shift="0.5")
 
 
 def test_hci_read_lightfield_indexing(tmp_path):
