@@ -1,7 +1,7 @@
 """Predict the centre view's disparity of a light field with a trained DisparityNet (flow/models.py).
 
-    python flow/predict_disparity.py LF_DIR -o DISP.pfm --weights W
-    python flow/predict_disparity.py DATASET -o DISP.pfm --weights W [--frame 1] [--rig rig_00]
+    python flow/predict_disparity.py LF_DIR -o DISP.pfm [--weights W]
+    python flow/predict_disparity.py DATASET -o DISP.pfm [--weights W] [--frame 1] [--rig rig_00]
 
 LF_DIR holds input_Cam000.png ... input_Cam080.png in the HCI 4D benchmark layout (row-major,
 Cam000 top left; a parameters.cfg there is not read): an N x N grid of views, N*N files. Or an
@@ -38,6 +38,8 @@ from lfusd.data import formats  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 NAME = "predict_disparity"
+# the shipped weights: trained on lfusd data alone by the commands of flow/README.md ("Shipped weights")
+SHIPPED = Path(__file__).resolve().parent / "weights" / "disparity.pt"
 CONFIG_KEYS = ("ang", "d_min", "d_max", "disparities", "channels", "blocks", "cost_channels")
 
 
@@ -48,6 +50,26 @@ def load_weights(path) -> tuple[dict, dict]:
     if any(k not in config for k in CONFIG_KEYS):
         raise LfusdError(f"{path} lacks the network's config ({', '.join(CONFIG_KEYS)}); give a checkpoint of flow/train_disparity.py")
     return config, state["model"]
+
+
+def load_model(weights=None, device=None):
+    """(the network in eval mode on ``device``, its config, the weights' path) from a checkpoint or weights file;
+    ``weights`` None: the shipped weights (:data:`SHIPPED`)."""
+    from train_disparity import build
+
+    path = Path(weights) if weights is not None else SHIPPED
+    if weights is None and not path.is_file():
+        raise LfusdError(f"the shipped weights {path} are missing from this checkout; give --weights (a checkpoint of flow/train_disparity.py)")
+    config, state = load_weights(path)
+    model = build(config)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:
+        raise LfusdError(f"{path} does not fit the network its config describes ({str(e).splitlines()[0][:160]})") from None
+    model.eval()
+    if device is not None:
+        model.to(device)
+    return model, config, path
 
 
 def read_hci_views(folder: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
@@ -116,7 +138,7 @@ def main(argv=None) -> int:
                                 epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("lf_dir", help="an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
     p.add_argument("-o", "--output", required=True, help="the PFM file to write (HCI's gt_disp_lowres.pfm format)")
-    p.add_argument("--weights", default=None, help="a checkpoint of flow/train_disparity.py (required until weights ship)")
+    p.add_argument("--weights", default=None, help="a checkpoint of flow/train_disparity.py (default: the shipped weights, flow/weights/disparity.pt)")
     p.add_argument("--frame", type=int, default=None, help="frame of an lfusd dataset (default: its first)")
     p.add_argument("--rig", default=None, help="rig of an lfusd dataset with several")
     p.add_argument("--tile", type=int, default=128, help="tile side in pixels (default 128)")
@@ -124,8 +146,6 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=None, help="CPU threads of torch (default: torch's)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
     a = p.parse_args(argv)
-    if a.weights is None:
-        raise LfusdError("no --weights given and no shipped weights yet; train with flow/train_disparity.py and pass --weights OUT/checkpoints/last.pt")
     if a.tile < 8 or a.overlap < 0:
         raise LfusdError(f"--tile must be at least 8 and --overlap at least 0, got {a.tile} and {a.overlap}")
     out = Path(a.output)
@@ -134,7 +154,8 @@ def main(argv=None) -> int:
     folder = Path(a.lf_dir)
     if not folder.is_dir():
         raise LfusdError(f"{folder} is not a folder; give an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
-    config, state = load_weights(a.weights)
+    device = training.device_of(a.device, a.threads)
+    model, config, _ = load_model(a.weights, device)
     t0 = time.time()
     if (folder / "input_Cam000.png").is_file():
         views, offsets, centre = read_hci_views(folder)
@@ -143,16 +164,6 @@ def main(argv=None) -> int:
     n = math.isqrt(len(views))
     if n != config["ang"]:
         raise LfusdError(f"the weights are for a {config['ang']}x{config['ang']} grid, {folder} holds {n}x{n} views")
-    from train_disparity import build
-
-    model = build(config)
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as e:
-        raise LfusdError(f"{a.weights} does not fit the network its config describes ({str(e).splitlines()[0][:160]})") from None
-    model.eval()
-    device = training.device_of(a.device, a.threads)
-    model.to(device)
     disp = predict(model, views, offsets, a.tile, a.overlap)
     out.parent.mkdir(parents=True, exist_ok=True)
     formats.write_pfm(out, disp)

@@ -148,11 +148,14 @@ def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights, capsys
     assert means[-1.5] < 0 < means[1.5], means
 
 
-def test_errors_are_one_line(tmp_path, weights, capsys):
-    r = _script(tmp_path, "-o", tmp_path / "d.pfm")  # the command line's exit status
+def test_errors_are_one_line(tmp_path, weights, capsys, monkeypatch):
+    r = _script(tmp_path, "-o", tmp_path / "d.pfm", "--weights", tmp_path / "none.pt")  # the command line's exit status
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
-        "predict_disparity: error: no --weights given and no shipped weights yet; train with flow/train_disparity.py "
-        "and pass --weights OUT/checkpoints/last.pt"]
+        f"predict_disparity: error: no weights at {tmp_path / 'none.pt'}; train with flow/train_disparity.py and pass --weights RUN/checkpoints/last.pt"]
+    pdm = _load("predict_disparity")
+    monkeypatch.setattr(pdm, "SHIPPED", tmp_path / "gone.pt")  # a checkout without the shipped weights
+    code, err = _main(capsys, tmp_path, "-o", tmp_path / "d.pfm")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "shipped weights" in err and "--weights" in err
     lf = write_hci(tmp_path / "few", plane_views(0.5, np.random.default_rng(3))[:80])  # one view short of 9x9
     code, err = _main(capsys, lf, "-o", tmp_path / "d.pfm", "--weights", weights)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "N*N of them" in err
