@@ -209,10 +209,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     training.common_args(p)
     p.add_argument("--arch", default=None, choices=ARCHS, help="star: the CPU-affordable network (default); distg: the original DistgDisp-like one")
-    p.add_argument("--channels", type=int, default=None, help="feature channels")
-    p.add_argument("--blocks", type=int, default=None, help="feature blocks (Distg blocks with --arch distg)")
-    p.add_argument("--cost-channels", type=int, default=None, help="channels of the cost volume")
-    p.add_argument("--disparities", type=int, default=None, help="disparity candidates of the cost volume")
+    training.disparity_net_args(p, "feature blocks (Distg blocks with --arch distg)")
     p.add_argument("--refocus", type=int, default=None, help="refocus shifts k beyond 0..shift_px of each scene (d -> d - k); 0: only those")
     p.add_argument("--split", default="train", help="the split of a recipe dataset given as --data to train on (default train)")
     p.add_argument("--cache", default=None, help="training cache of --data (lfusd export cache DATA CACHE --keys rgb,disparity); "

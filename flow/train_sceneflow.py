@@ -118,10 +118,7 @@ def loss_of(out: dict, batch: dict, ci: int, device) -> torch.Tensor:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
     training.common_args(p)
-    p.add_argument("--channels", type=int, default=None, help="feature channels of the disparity network")
-    p.add_argument("--blocks", type=int, default=None, help="Distg blocks in the disparity network's feature extractor")
-    p.add_argument("--cost-channels", type=int, default=None, help="channels of the disparity cost volume")
-    p.add_argument("--disparities", type=int, default=None, help="disparity candidates of the cost volume")
+    training.disparity_net_args(p, "Distg blocks in the disparity network's feature extractor")
     p.add_argument("--flow-channels", type=int, default=None, help="feature channels of the flow network's finest level")
     p.add_argument("--flow-levels", type=int, default=None, help="pyramid levels of the flow network")
     p.add_argument("--radius", type=int, default=None, help="search radius of the flow correlation in pixels of each level")

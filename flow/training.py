@@ -45,6 +45,15 @@ def parse_frames(text: str | None) -> list[int] | None:
     return out
 
 
+def disparity_net_args(p: argparse.ArgumentParser, blocks: str) -> None:
+    """The options of a disparity network's size (train_disparity.py's network, the disparity half
+    of train_sceneflow.py's): feature channels and blocks, cost-volume channels and candidates."""
+    p.add_argument("--channels", type=int, default=None, help="feature channels of the disparity network")
+    p.add_argument("--blocks", type=int, default=None, help=blocks)
+    p.add_argument("--cost-channels", type=int, default=None, help="channels of the disparity cost volume")
+    p.add_argument("--disparities", type=int, default=None, help="disparity candidates of the cost volume")
+
+
 def common_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", default=None, help="dataset folder (lfusd render-video output); with --tiny, rendered there when it holds none")
     p.add_argument("--out", required=True, help="run folder: checkpoints/, train_log.json, pred/, eval_*.json")
