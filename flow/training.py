@@ -278,6 +278,8 @@ def check_state(state, path) -> dict:
         raise bad("'config' is not plain data")
     for key in ("train_frames", "eval_frames"):
         frames = config.get(key)
+        if key == "train_frames" and frames is None and config.get("recipe"):
+            continue  # train_disparity.py on a recipe: every frame of each scene
         if not isinstance(frames, list) or not all(isinstance(f, int) and not isinstance(f, bool) for f in frames):
             raise bad(f"config '{key}' is not a list of frame numbers")
     rng = state["rng"]
