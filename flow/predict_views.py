@@ -14,7 +14,7 @@ row-major over the n x n grid, Cam000 its top-left view; the four corners are th
 read (bit for bit), the others the network's. PNGs keep the input's bit depth (8 or 16 bits).
 
 W is a checkpoint of flow/train_asr.py (OUT/checkpoints/last.pt) or a file holding its ``model``
-(name -> tensor) and ``config``, loaded with torch.load(weights_only=True). The image is processed
+(name -> tensor) and ``config`` (default: the shipped flow/weights/asr.pt, once it ships), loaded with torch.load(weights_only=True). The image is processed
 in overlapping tiles (--tile, --overlap), so memory stays flat at any size.
 """
 
@@ -40,6 +40,8 @@ from lfusd.data import formats  # noqa: E402
 log = logging.getLogger("lfusd.flow")
 NAME = "predict_views"
 CONFIG_KEYS = ("n", "channels", "blocks")
+# the weights to ship (issue 36), used when --weights is not given
+SHIPPED = Path(__file__).resolve().parent / "weights" / "asr.pt"
 
 
 def load_model(path) -> tuple[torch.nn.Module, dict]:
@@ -141,7 +143,7 @@ def main(argv=None) -> int:
                                 epilog=__doc__.split("\n\n", 1)[1])
     p.add_argument("lf_dir", help="an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
     p.add_argument("-o", "--output", required=True, help="folder to write the n x n views to (input_Cam000.png ...)")
-    p.add_argument("--weights", default=None, help="a checkpoint of flow/train_asr.py (required until weights ship)")
+    p.add_argument("--weights", default=None, help="a checkpoint of flow/train_asr.py (default: the shipped weights, flow/weights/asr.pt, once they ship)")
     p.add_argument("--frame", type=int, default=None, help="frame of an lfusd dataset (default: its first)")
     p.add_argument("--rig", default=None, help="rig of an lfusd dataset with several")
     p.add_argument("--overwrite", action="store_true", help="replace the input_CamNNN.png files OUT_DIR already holds")
@@ -151,7 +153,10 @@ def main(argv=None) -> int:
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
     a = p.parse_args(argv)
     if a.weights is None:
-        raise LfusdError("no --weights given and no shipped weights yet; train with flow/train_asr.py and pass --weights OUT/checkpoints/last.pt")
+        if not SHIPPED.is_file():
+            raise LfusdError(f"no --weights given and no shipped weights ({SHIPPED.relative_to(training.ROOT)}) yet; "
+                             "train with flow/train_asr.py and pass --weights OUT/checkpoints/last.pt")
+        a.weights = str(SHIPPED)
     if a.tile < 8 or a.overlap < 0:
         raise LfusdError(f"--tile must be at least 8 and --overlap at least 0, got {a.tile} and {a.overlap}")
     folder, out = Path(a.lf_dir), Path(a.output)
