@@ -2,6 +2,7 @@
 
     python flow/predict_sceneflow.py DATASET -o OUT --weights RUN/checkpoints/last.pt [--frames 1-9]
     python flow/predict_sceneflow.py LF_T LF_T1 -o OUT --weights W
+    python flow/predict_sceneflow.py --bench BENCH -o SUB --weights W           # a benchmark submission
 
 DATASET is an lfusd dataset folder (lfusd render-video): for every frame t with t+1 (or those of
 --frames) OUT gets what `lfusd eval --task sceneflow --pred OUT --gt DATASET` scores, named
@@ -16,6 +17,14 @@ NxN grid, row-major, Cam000 top left, as `lfusd export hci` writes), frames t an
 orientation and lfusd's disparity, pixels per view step) for the view HCI takes as centre and, when
 LF_T holds a ``parameters.cfg`` (focal length, sensor, baseline), ``scene_flow.npy``: metres in the
 camera frame of t (x right, y down, z forward), assuming the rig did not move between the frames.
+
+With --bench BENCH (a folder of `lfusd bench make`), it reads only BENCH/public/test (every test
+scene's rgb/ and cameras.json) and writes SUB, a submission that `lfusd bench score SUB --bench
+BENCH` scores: baseline (c) of the benchmark. The scorer needs every view, and the network predicts
+its reference view, so it runs once per view with that view as its reference (the offsets of the
+others taken from it, the flow on that view's two frames), and scene flow is composed through that
+view's cameras at t and t+1. The network was trained with the centre view as reference only; the
+others are outside its training (SUB/submission.json says so, with the weights' sha256).
 
 Weights (a checkpoint of train_sceneflow.py, or a file with its ``model`` and ``config``) are
 loaded with ``torch.load(weights_only=True)``: a crafted file cannot run code.
@@ -165,9 +174,64 @@ def predict_dataset(model, config: dict, data, out: Path, frames=None, rig=None)
     return written
 
 
+def predict_bench(model, config: dict, bench, sub: Path, weights) -> int:
+    """Baseline (c) of `lfusd bench`: a submission for every view of every scored frame of every public
+    test scene of ``bench``, each view predicted as the network's reference; SUB/submission.json
+    describes it. Every scene's grid is checked before anything is written. The files written."""
+    import json
+
+    from lfusd.bench.baseline import public_inputs, public_test_scenes, write_prediction
+    from lfusd.files import sha256_of
+    from lfusd.layout import view_key
+
+    scenes = []
+    for scene, scene_dir in public_test_scenes(bench):
+        cams, rgb = public_inputs(scene_dir)
+        views = sorted(tuple(v) for v in cams["views"])
+        n = int(round(len(views) ** 0.5))
+        if views != [(r, c) for r in range(n) for c in range(n)]:
+            raise LfusdError(f"test scene {scene} has views {views[:3]}...; the network takes a square grid of views")
+        check_grid(config, n, scene_dir)
+        scenes.append((scene, cams, rgb, views))
+    n_files = 0
+    for scene, cams, rgb, views in scenes:
+        off = np.array([cams["offsets"][view_key(v)] for v in views], np.float64)
+        K = np.asarray(cams["intrinsics"], np.float64)
+        frames = cams["frames"]
+
+        def load(f):
+            imgs = [np.asarray(rgb(f, v))[..., :3] for v in views]
+            a = np.stack(imgs).astype(np.float32) / float(np.iinfo(imgs[0].dtype).max)
+            return torch.from_numpy(a).permute(0, 3, 1, 2).contiguous()
+
+        for f in cams["scored_frames"]:
+            nxt = frames[frames.index(f) + 1]
+            v0, v1 = load(f), load(nxt)
+            for i, v in enumerate(views):
+                res = tsf.predict(model, v0, v1, torch.from_numpy(off - off[i]).to(torch.float32), i)
+                c0 = np.asarray(cams["cam_to_world"][str(f)][view_key(v)], np.float64)
+                c1 = np.asarray(cams["cam_to_world"][str(nxt)][view_key(v)], np.float64)
+                sf = tsf.scene_flow(res, K, c0, c1, float(cams["baseline"]))
+                write_prediction(sub, scene, f, v, {"flow": res["flow"], "disparity": res["disparity"],
+                                                    "disparity_change": res["disparity_change"], "scene_flow": sf})
+                n_files += 1
+            log.info("%s: frame %d -> %d, %d views", scene, f, nxt, len(views))
+    meta = {"method": "(c) learned scene flow (flow/train_sceneflow.py SceneFlowNet)", "weights": str(weights),
+            "weights_sha256": sha256_of(weights), "views": "every view",
+            "reference": "each view predicted with itself as the network's reference view; the network was trained with the centre "
+                         "view as reference only, so the other views are outside its training",
+            "scene_flow": "composed from the predicted disparity, disparity change and flow through each view's cameras at t and t+1 "
+                          "(lfusd.evaluation.baselines.scene_flow_from_change); zero where it has no value",
+            "disparity_candidates_px": [config["d_min"], config["d_max"]]}
+    sub.mkdir(parents=True, exist_ok=True)
+    (sub / "submission.json").write_text(json.dumps(meta, indent=1) + "\n")
+    return n_files
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("inputs", nargs="+", help="an lfusd dataset folder, or two HCI-layout folders (frame t and t+1)")
+    p.add_argument("inputs", nargs="*", help="an lfusd dataset folder, or two HCI-layout folders (frame t and t+1)")
+    p.add_argument("--bench", default=None, metavar="BENCH", help="write a submission of `lfusd bench` (baseline c) for BENCH/public/test to OUT")
     p.add_argument("-o", "--out", required=True, help="output folder")
     p.add_argument("--weights", default=str(DEFAULT_WEIGHTS), help="a checkpoint of train_sceneflow.py (default: %(default)s)")
     p.add_argument("--frames", default=None, help="dataset frames t to predict (t -> t+1), e.g. 1-5 (default: every frame with a next one)")
@@ -176,10 +240,16 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.threads:
         torch.set_num_threads(a.threads)
+    if a.bench and a.inputs:
+        raise LfusdError("give either --bench BENCH or input folders, not both")
     model, config = load_model(a.weights)
     out = Path(a.out)
     from lfusd import layout
 
+    if a.bench:
+        n = predict_bench(model, config, a.bench, out, a.weights)
+        log.info("%s: %d files (baseline c: the learned scene-flow network); score it with lfusd bench score %s --bench %s", out, n, out, a.bench)
+        return 0
     if len(a.inputs) == 1:
         if not (Path(a.inputs[0]) / layout.MANIFEST).is_file():
             raise LfusdError(f"{a.inputs[0]} is not an lfusd dataset ({layout.MANIFEST} missing); give a dataset folder or two HCI-layout folders (frame t and t+1)")

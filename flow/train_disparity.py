@@ -106,32 +106,12 @@ def design_shift(folder: Path) -> int:
 
 def training_scenes(data: Path, split: str) -> list[Path]:
     """The dataset folders to train on: ``data`` itself, or the scenes of ``split`` of a made recipe dataset."""
-    from lfusd import layout
-    from lfusd.recipe import split_scenes
-
-    if not (data / layout.RECIPE_COPY).is_file():
-        return [data]
-    scenes = split_scenes(data).get(split, [])
-    if not scenes:
-        raise LfusdError(f"the recipe dataset {data} has no complete, verified scene in split {split!r}; make it with 'lfusd dataset make' or pick --split")
-    return scenes
+    return training.recipe_scenes(data, split)
 
 
 def scene_source(folder: Path, cache: Path | None, ds):
-    """What a scene's items are read from: its training cache when given (rig, frames and keys
-    checked against the scene's reader ``ds``), else the scene's folder."""
-    if cache is None:
-        return folder
-    from lfusd.data.cache import TrainingCache, is_cache
-
-    make = f"make it with 'lfusd export cache {folder} {cache} --keys {','.join(KEYS)}'"
-    if not is_cache(cache):
-        raise LfusdError(f"{cache} is no training cache; {make}")
-    c = TrainingCache(cache)
-    a, b = c.rig, ds.rig
-    if any(k not in c.keys for k in KEYS) or (a.rows, a.cols, a.width, a.height) != (b.rows, b.cols, b.width, b.height) or list(c.frames) != list(ds.frames):
-        raise LfusdError(f"the training cache {cache} is not one of {folder} with {', '.join(KEYS)}; {make}")
-    return c
+    """What a scene's items are read from: its training cache (with rgb and disparity) or its folder."""
+    return training.scene_source(folder, cache, ds, KEYS)
 
 
 class Augmented(torch.utils.data.Dataset):

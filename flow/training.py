@@ -174,6 +174,40 @@ def split_frames(ds, a) -> tuple[list[int], list[int]]:
     return train, evalf
 
 
+# ---- a recipe's scenes and their training caches ----------------------------------------------
+
+
+def recipe_scenes(data: Path, split: str) -> list[Path]:
+    """The dataset folders to train on: ``data`` itself, or the scenes of ``split`` of a made recipe
+    dataset (lfusd dataset make: its complete, verified scenes)."""
+    from lfusd.recipe import split_scenes
+
+    data = Path(data)
+    if not (data / layout.RECIPE_COPY).is_file():
+        return [data]
+    scenes = split_scenes(data).get(split, [])
+    if not scenes:
+        raise LfusdError(f"the recipe dataset {data} has no complete, verified scene in split {split!r}; make it with 'lfusd dataset make' or pick --split")
+    return scenes
+
+
+def scene_source(folder: Path, cache: Path | None, ds, keys):
+    """What a scene's items are read from: its training cache when given (rig, frames and ``keys``
+    checked against the scene's reader ``ds``), else the scene's folder."""
+    if cache is None:
+        return folder
+    from lfusd.data.cache import TrainingCache, is_cache
+
+    make = f"make it with 'lfusd export cache {folder} {cache} --keys {','.join(keys)}'"
+    if not is_cache(cache):
+        raise LfusdError(f"{cache} is no training cache; {make}")
+    c = TrainingCache(cache)
+    a, b = c.rig, ds.rig
+    if any(k not in c.keys for k in keys) or (a.rows, a.cols, a.width, a.height) != (b.rows, b.cols, b.width, b.height) or list(c.frames) != list(ds.frames):
+        raise LfusdError(f"the training cache {cache} is not one of {folder} with {', '.join(keys)}; {make}")
+    return c
+
+
 # ---- checkpoints and the training log ----------------------------------------------------------
 
 
@@ -253,6 +287,8 @@ def check_state(state, path) -> dict:
         raise bad("'config' is not plain data")
     for key in ("train_frames", "eval_frames"):
         frames = config.get(key)
+        if key == "train_frames" and frames is None and config.get("recipe"):
+            continue  # train_disparity.py on a recipe: every frame of each scene
         if not isinstance(frames, list) or not all(isinstance(f, int) and not isinstance(f, bool) for f in frames):
             raise bad(f"config '{key}' is not a list of frame numbers")
     rng = state["rng"]

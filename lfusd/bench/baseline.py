@@ -44,6 +44,31 @@ def _inputs(scene_dir: Path) -> tuple[dict, callable]:
     return cams, rgb
 
 
+def public_test_scenes(root) -> list[tuple[str, Path]]:
+    """(scene, its ``public/test/<scene>`` folder) for every test scene of benchmark ``root``: where a
+    method outside lfusd (flow/predict_sceneflow.py --bench) reads the inputs every method sees."""
+    from .make import read_record
+
+    root = Path(root)
+    return [(scene, root / layout.BENCH_PUBLIC / "test" / scene) for scene in read_record(root)["splits"]["test"]]
+
+
+def public_inputs(scene_dir) -> tuple[dict, callable]:
+    """(``cameras.json`` as a dict, ``rgb(frame, view)`` -> the stored image) of one public test scene."""
+    return _inputs(Path(scene_dir))
+
+
+def write_prediction(sub, scene: str, frame: int, view, arrays: dict) -> Path:
+    """Write one submission file (``flow``, ``disparity``, ``disparity_change``, ``scene_flow``) atomically; its path."""
+    from ..files import atomic_write
+    from .score import _savez, submission_path
+
+    path = submission_path(Path(sub), scene, frame, view)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, lambda tmp: _savez(tmp, arrays), suffix=".npz")
+    return path
+
+
 METHODS = ("dis", "rayflow")
 
 
