@@ -529,3 +529,19 @@ def view_distortion(base: Distortion, view: View, seed: int | None = None, sprea
     rng = np.random.default_rng([int(seed), int(view[0]), int(view[1]), 0x1E45])
     scale = 1.0 + float(spread) * rng.standard_normal(len(DISTORTION_COEFFS))
     return Distortion(**{n: float(getattr(base, n) * s) for n, s in zip(DISTORTION_COEFFS, scale)})
+
+
+def rig_distortions(spec: RigSpec, base: Distortion, seed: int | None = None, spread: float = 0.0) -> dict[View, Distortion]:
+    """Every view's lens (:func:`view_distortion`), each checked one-to-one over the rig's image
+    (:func:`check_distortion`: a model that folds is refused in one line, naming the view)."""
+    K = spec.intrinsics()
+    out = {}
+    for view in spec.views:
+        dist = view_distortion(base, view, seed, spread)
+        try:
+            check_distortion(dist, K, spec.width, spec.height)
+        except LfusdError as e:
+            where = f" (view {view[0]},{view[1]} of rig {spec.name}, drawn with --lens-seed {seed})" if dist != base else ""
+            raise LfusdError(f"{e}{where}") from None
+        out[view] = dist
+    return out

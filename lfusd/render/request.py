@@ -9,6 +9,7 @@ import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..camera import Distortion
 from ..data.sensor import SensorModel
 from ..errors import LfusdError
 
@@ -57,6 +58,9 @@ class RenderRequest:
     focus: float = 0.0  # --focus: the distance in metres every view of every rig focuses at (with --fstop)
     shutter: float = 0.0  # --shutter: Cycles' motion blur over this fraction of a frame, centred on it; 0: none (render-video)
     sensor: SensorModel | None = None  # --iso ...: the noisy image's sensor model (lfusd.data.sensor); None: no rgb_noisy
+    lens: Distortion | None = None  # --lens: every view's Brown-Conrady lens distortion (lfusd.camera.Distortion); None: a pinhole
+    lens_seed: int | None = None  # --lens-seed: each view's lens drawn around ``lens`` (lfusd.camera.view_distortion)
+    lens_spread: float = 0.0  # --lens-spread: the relative spread of those draws
 
     def check(self) -> None:
         """Raise LfusdError naming the first impossible setting."""
@@ -81,6 +85,12 @@ class RenderRequest:
                 raise LfusdError(f"{name} {value!r} is not a non-negative number")
         if bool(self.fstop) != bool(self.focus):
             raise LfusdError("--fstop and --focus go together (a lens's f-number and the distance it focuses at, e.g. --fstop 2.8 --focus 3)")
+        if not (isinstance(self.lens_spread, (int, float)) and math.isfinite(self.lens_spread) and self.lens_spread >= 0):
+            raise LfusdError(f"--lens-spread {self.lens_spread!r} is not a non-negative number (e.g. 0.05)")
+        if (self.lens_seed is not None or self.lens_spread) and (self.lens is None or self.lens.is_identity):
+            raise LfusdError("--lens-seed and --lens-spread draw each view's lens around --lens; add --lens K1,K2,P1,P2,K3")
+        if bool(self.lens_spread) != (self.lens_seed is not None):
+            raise LfusdError("--lens-seed and --lens-spread go together (e.g. --lens-seed 1 --lens-spread 0.05)")
         if self.shutter and not self.motion:
             raise LfusdError("--shutter needs the neighbouring frames that only 'lfusd render-video' renders; render a video")
         if self.materials and not self.motion:
@@ -97,6 +107,11 @@ class RenderRequest:
         """The camera effects (lfusd.keys.EFFECTS) this render turns on."""
         on = {"sensor": self.sensor is not None, "materials": self.materials, "blur": bool(self.shutter), "defocus": bool(self.fstop)}
         return tuple(name for name, yes in on.items() if yes)
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the views render through a lens distortion (--lens)."""
+        return self.lens is not None and not self.lens.is_identity
 
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""
