@@ -374,6 +374,7 @@ def ray_lengths(K: np.ndarray, h: int, w: int, dist: Distortion | None = None) -
 
 DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # OpenCV's order of distCoeffs
 UNDISTORT_TOL = 1e-12  # Newton's stopping step in normalised coordinates (1e-9 px at f = 1000 px)
+FOLD_TOL_PX = 1e-4  # a point the lens images where it projects undistorts back to it within this (Newton reaches 1e-9)
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import OpenEXR
 
-from ..camera import Camera, Distortion, backproject, pixel_grid, ray_lengths, undistort_pixels
+from ..camera import FOLD_TOL_PX, Camera, Distortion, backproject, pixel_grid, ray_lengths, undistort_pixels
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH, MATERIAL_AOV, MATERIAL_MASKS, MOTION_AOVS, RAW_PASS, RAW_PASSES
 
@@ -362,9 +362,6 @@ def disparity(depth: np.ndarray, focal_px: float, baseline: float) -> np.ndarray
     return np.where(np.isfinite(depth), d, np.float32(0.0)).astype(np.float32)
 
 
-LENS_FOLD_TOL = 1e-9  # normalised units: a disparity's neighbour point the lens images where the model maps it back (Newton reaches 1e-12)
-
-
 def disparity_distorted(depth: np.ndarray, K: np.ndarray, dist: Distortion, baseline: float) -> np.ndarray:
     """``disparity`` of a view with a lens distortion (docs/CONVENTIONS.md, "Lens distortion"): d = u - u',
     u' the distorted column at which the view's camera moved one baseline along its x axis (same K, same
@@ -380,7 +377,7 @@ def disparity_distorted(depth: np.ndarray, K: np.ndarray, dist: Distortion, base
         x1 = x - float(baseline) / np.where(fg, depth.astype(np.float64), np.inf)
         xd, yd = dist.distort(x1, y)
         xb, yb = dist.undistort(xd, yd)
-        imaged = (np.abs(xb - x1) <= LENS_FOLD_TOL) & (np.abs(yb - y) <= LENS_FOLD_TOL)
+        imaged = (np.abs(xb - x1) * K[0, 0] <= FOLD_TOL_PX) & (np.abs(yb - y) * K[1, 1] <= FOLD_TOL_PX)
     d = u - (xd * K[0, 0] + K[0, 2])
     return np.where(fg, np.where(imaged, d, np.nan), 0.0).astype(np.float32)
 
