@@ -3,6 +3,7 @@ request's checks, the manifest's per-view lenses, and a folding model refused in
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -32,7 +33,7 @@ def test_the_options_parse_into_the_request_and_are_checked():
 
     assert argtypes.lens_model("-0.25,0.05,0.003,-0.004,0.002") == LENS
     for bad in ("1,2,3", "a,b,c,d,e", "nan,0,0,0,0"):
-        with pytest.raises(Exception):
+        with pytest.raises(argparse.ArgumentTypeError):
             argtypes.lens_model(bad)
     req = dict(stage="s.usda", out="o", motion=True)
     for fields, words in ((dict(lens_seed=1, lens_spread=0.1), "add --lens"),
