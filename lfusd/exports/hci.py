@@ -88,7 +88,7 @@ def hci_parameters(ds, frame: int) -> dict:
 
 
 @register("hci", "one HCI 4D light-field benchmark scene folder per frame",
-          options=(Option("--all-views", "all_views", FLAG, "also per-view disparity PFMs"),))
+          options=(Option("--all-views", "all_views", FLAG, "also per-view disparity PFMs"),), pinhole=True)
 def export_hci(ds, dest, frame: int | None = None, all_views: bool = False) -> list[Path]:
     """Write one HCI scene folder per frame under ``dest``; returns the folders."""
     check_planar_grid(ds, "the HCI layout")

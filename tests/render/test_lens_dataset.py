@@ -106,3 +106,36 @@ def test_one_planted_wrong_pixel_fails_verify_through_the_lens(lens_video, tmp_p
     assert main(["verify", str(out)]) == 1
     fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL")]
     assert any(ln.startswith("FAIL flow_fwd") and f"frame {frame} view 0,1 pixel (u={vx}, v={vy})" in ln for ln in fails), fails
+
+
+def test_exports_carry_each_views_lens_or_refuse_in_one_line(lens_video, tmp_path, capsys):
+    import h5py
+
+    from lfusd.cli import main
+    from lfusd.data.shards import ShardDataset
+    from lfusd.exports import export
+
+    ds = Dataset(lens_video)
+    export(ds, "webdataset", tmp_path / "wds")
+    shards = ShardDataset(tmp_path / "wds")
+    assert shards.distorted
+    for view in ds.views:
+        assert shards.distortion(view) == LENS and shards.camera(1, view).dist == LENS
+        # keys computed on read from the exported depth go through the lens as the dataset's do
+        for key in ("disparity", "depth_euclidean"):
+            np.testing.assert_array_equal(shards.read(1, view, key), ds.read(1, view, key))
+    (h5,) = export(ds, "lfmat", tmp_path / "lf", frame=1)
+    with h5py.File(h5) as f:
+        np.testing.assert_array_equal(f.attrs["distortion"], np.broadcast_to(LENS.coeffs, (1, 2, 5)))
+    for fmt in ("hci", "kitti", "spring"):  # pinhole formats: no lens model to carry
+        assert main(["export", fmt, str(lens_video), str(tmp_path / fmt)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "lens distortion" in err[0] and "webdataset" in err[0], err
+        assert not (tmp_path / fmt).exists()
+
+
+def test_the_certificate_names_the_lens(lens_video):
+    from lfusd.data.certificate import certified
+
+    cert = certified(lens_video, "main")["main"]
+    assert cert["ok"] and cert["camera_effects"] == {"lens_distortion": {"model": LENS.to_dict(), "seed": None, "spread": 0.0}}

@@ -68,3 +68,14 @@ def test_a_drawn_lens_that_folds_is_refused_naming_the_view():
     check_distortion(base, RIG.intrinsics(), RIG.width, RIG.height)  # the base model alone is fine
     with pytest.raises(LfusdError, match=r"folds over the image .*view \d,\d of rig main, drawn with --lens-seed 3"):
         rig_distortions(RIG, base, seed=3, spread=2.0)
+
+
+def test_the_certificate_names_every_camera_effect_of_the_settings():
+    from lfusd.data.certificate import camera_effects
+
+    assert camera_effects({"samples": 4}) == {}
+    sensor = {"iso": 800.0, "jpeg": 0, "vignetting": 0.3, "seed": 2}
+    lens = {"model": LENS.to_dict(), "seed": 3, "spread": 0.05, "views": {"main": {}}}
+    got = camera_effects({"shutter": 0.5, "defocus": {"fstop": 2.8, "focus": 3.0}, "sensor": sensor, "materials": True, "lens": lens})
+    assert got == {"motion_blur": {"shutter": 0.5}, "defocus": {"fstop": 2.8, "focus": 3.0}, "sensor_noise": sensor,
+                   "material_masks": True, "lens_distortion": {"model": LENS.to_dict(), "seed": 3, "spread": 0.05}}
