@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import FOLD_TOL_PX, Camera, Distortion, distort_pixels, distorted_ray_directions, pixel_grid, project, project_distorted, undistort_pixels
+from ..camera import FOLD_TOL_PX, Camera, Distortion, distorted_ray_directions, pixel_grid, project, project_distorted, undistort_pixels
 
 
 
@@ -91,35 +91,3 @@ def flow_distorted(point_next: np.ndarray, cam_next: Camera, dist_next: Distorti
     flow[~ok] = np.nan
     return flow.astype(np.float32), ok
 
-
-def has_lens(cam: Camera) -> bool:
-    """Whether ``cam`` images through a lens distortion (Camera.dist, not the identity)."""
-    return cam.dist is not None and not cam.dist.is_identity
-
-
-def project_imaged(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(u, v, z, imaged) of world points (..., 3) in ``cam`` (float64): the distorted pixel coordinates
-    (cv2.projectPoints'), planar depth, and whether the lens images the point there: in front of the
-    camera and not beyond the model's fold (undistorting its pixel gives its own ray back)."""
-    pts = np.asarray(points, np.float64)
-    K = np.asarray(cam.K, np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        uu, vu, z = project(pts, Camera(K, cam.cam_to_world))  # the pinhole of K
-        if not has_lens(cam):
-            return uu, vu, z, np.isfinite(uu) & np.isfinite(vu) & (z > 0)
-        ud, vd = distort_pixels(uu, vu, K, cam.dist)
-        ok = np.isfinite(ud) & np.isfinite(vd) & (z > 0)
-        ub, vb = undistort_pixels(np.where(ok, ud, K[0, 2]), np.where(ok, vd, K[1, 2]), K, cam.dist)
-        ok &= (np.abs(ub - uu) <= FOLD_TOL_PX) & (np.abs(vb - vu) <= FOLD_TOL_PX)
-    return ud, vd, z, ok
-
-
-def point_disparity(points: np.ndarray, cam: Camera, baseline: float) -> np.ndarray:
-    """The disparity (docs/CONVENTIONS.md, "Lens distortion") of world points in ``cam``: u - u', u' the
-    distorted column at which ``cam`` moved ``baseline`` along its own x axis (same K, same lens) images
-    the point; f_px * b / z through a pinhole. NaN where either camera does not image it (behind, beyond the fold)."""
-    u, _, _, ok = project_imaged(points, cam)
-    shifted = np.array(cam.cam_to_world, np.float64)
-    shifted[:3, 3] += float(baseline) * shifted[:3, 0]
-    u1, _, _, ok1 = project_imaged(points, Camera(cam.K, shifted, cam.dist))
-    return np.where(ok & ok1, u - u1, np.nan)

@@ -67,7 +67,7 @@ from ..camera import Camera, backproject, pixel_grid, project
 from ..data.passes import RawPasses  # noqa: F401  (the input of derive_motion, re-exported)
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH, KEYS, MOTION, names
-from .lens import has_lens, point_disparity, project_imaged
+from ..camera import has_lens, point_disparity, project_imaged
 
 log = logging.getLogger(__name__)
 

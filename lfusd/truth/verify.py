@@ -254,7 +254,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
                      np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), pos1, valid, u1, v1, z1)
     lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
     if lens and g.size:  # the kernel projects through the pinhole: image the carried points through the lens
-        from .lens import project_imaged
+        from ..camera import project_imaged
 
         u1, v1, z1, imaged = project_imaged(np.where(valid[:, None], pos1, 0.0), cam1)
         valid &= imaged  # beyond the lens's fold a point has no image: its motion is not defined there
@@ -266,7 +266,7 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     fb = float(K[0, 0]) * float(baseline) if baseline else np.nan
     with np.errstate(divide="ignore", invalid="ignore"):
         if lens and baseline:  # the disparity of a distorted view (docs/CONVENTIONS.md, "Lens distortion")
-            from .lens import point_disparity
+            from ..camera import point_disparity
 
             dchange = point_disparity(pos1, cam1, float(baseline)) - point_disparity(pos, _camera(ctx), float(baseline))
             valid &= np.isfinite(dchange)

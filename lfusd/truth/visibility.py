@@ -300,7 +300,7 @@ def _visible_through_lens(points: np.ndarray, valid: np.ndarray, camera: Camera,
     """:func:`visible` for a camera with a lens distortion: inside the image is where the lens images the
     point (its distorted pixel on the image, not beyond the model's fold: lfusd.truth.lens.project_imaged);
     the segment from the centre to the point is lens-free, cast against the whole scene."""
-    from .lens import project_imaged
+    from ..camera import project_imaged
 
     out = np.zeros(len(points), bool)
     u, v, _, imaged = project_imaged(points.astype(np.float64), camera)
@@ -362,7 +362,7 @@ def _mixed_through_lens(camera: Camera, h: int, w: int, here: Occluders, nxt: Oc
     corners (lfusd.camera.ray_directions through ``camera.dist``), cast against the whole scene; each hit
     carried to t+1 (as the kernel does) is imaged through ``camera_next``'s lens, NaN beyond its fold."""
     from ._motion_numba import mixed_pixels
-    from .lens import project_imaged
+    from ..camera import project_imaged
     from ..camera import pixel_grid, ray_directions
 
     cu, cv = pixel_grid(h + 1, w + 1, np.float64)

@@ -211,7 +211,7 @@ def test_a_camera_with_a_lens_projects_and_casts_through_it(dtype):
 
 def test_disparity_of_a_distorted_view_is_the_shifted_cameras_column_and_the_pinholes_without_a_lens():
     from lfusd.data.passes import disparity, disparity_distorted
-    from lfusd.truth.lens import point_disparity
+    from lfusd.camera import point_disparity
 
     dist, cam = MODELS["all"], _camera()
     K = np.asarray(cam.K, np.float64)
