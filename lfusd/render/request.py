@@ -85,12 +85,7 @@ class RenderRequest:
                 raise LfusdError(f"{name} {value!r} is not a non-negative number")
         if bool(self.fstop) != bool(self.focus):
             raise LfusdError("--fstop and --focus go together (a lens's f-number and the distance it focuses at, e.g. --fstop 2.8 --focus 3)")
-        if not (isinstance(self.lens_spread, (int, float)) and math.isfinite(self.lens_spread) and self.lens_spread >= 0):
-            raise LfusdError(f"--lens-spread {self.lens_spread!r} is not a non-negative number (e.g. 0.05)")
-        if (self.lens_seed is not None or self.lens_spread) and (self.lens is None or self.lens.is_identity):
-            raise LfusdError("--lens-seed and --lens-spread draw each view's lens around --lens; add --lens K1,K2,P1,P2,K3")
-        if bool(self.lens_spread) != (self.lens_seed is not None):
-            raise LfusdError("--lens-seed and --lens-spread go together (e.g. --lens-seed 1 --lens-spread 0.05)")
+        check_lens(self.lens, self.lens_seed, self.lens_spread)
         if self.shutter and not self.motion:
             raise LfusdError("--shutter needs the neighbouring frames that only 'lfusd render-video' renders; render a video")
         if self.materials and not self.motion:
@@ -120,6 +115,17 @@ class RenderRequest:
             log.warning("--workers %d is more than this machine's %d CPU cores; using %d", self.workers, cores, cores)
             return replace(self, workers=cores)
         return self
+
+
+def check_lens(lens: Distortion | None, seed: int | None, spread: float, names=("--lens", "--lens-seed", "--lens-spread")) -> None:
+    """Raise LfusdError unless --lens, --lens-seed and --lens-spread (``names``: how the caller spells them) go together."""
+    lens_, seed_, spread_ = names
+    if not (isinstance(spread, (int, float)) and math.isfinite(spread) and spread >= 0):
+        raise LfusdError(f"{spread_} {spread!r} is not a non-negative number (e.g. 0.05)")
+    if (seed is not None or spread) and (lens is None or lens.is_identity):
+        raise LfusdError(f"{seed_} and {spread_} draw each view's lens around {lens_}; add {lens_} K1,K2,P1,P2,K3")
+    if bool(spread) != (seed is not None):
+        raise LfusdError(f"{seed_} and {spread_} go together (e.g. {seed_} 1 {spread_} 0.05)")
 
 
 def _gb(n: float) -> str:

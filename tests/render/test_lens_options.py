@@ -79,3 +79,22 @@ def test_the_certificate_names_every_camera_effect_of_the_settings():
     got = camera_effects({"shutter": 0.5, "defocus": {"fstop": 2.8, "focus": 3.0}, "sensor": sensor, "materials": True, "lens": lens})
     assert got == {"motion_blur": {"shutter": 0.5}, "defocus": {"fstop": 2.8, "focus": 3.0}, "sensor_noise": sensor,
                    "material_masks": True, "lens_distortion": {"model": LENS.to_dict(), "seed": 3, "spread": 0.05}}
+
+
+def test_a_recipe_asks_for_the_lens_and_the_card_says_so():
+    import json
+    from dataclasses import asdict
+
+    from lfusd.recipe import effects_text, parse_recipe
+
+    ds = {"name": "x", "grid": [3, 3], "resolution": [64, 64]}
+    part = [{"name": "a", "templates": ["room"], "scenes": 1}]
+    r = parse_recipe({"dataset": {**ds, "lens": [-0.1, 0.01, 0, 0, 0], "lens_seed": 2, "lens_spread": 0.05}, "part": part})
+    assert (r.distortion, r.distortion_seed, r.distortion_spread) == ((-0.1, 0.01, 0.0, 0.0, 0.0), 2, 0.05)
+    said = effects_text(json.loads(json.dumps(asdict(r))))
+    assert "lens distortion k1, k2, p1, p2, k3 = -0.1, 0.01, 0, 0, 0" in said and "seed 2" in said
+    assert "lens" not in effects_text(json.loads(json.dumps(asdict(parse_recipe({"dataset": ds, "part": part})))))
+    for bad, words in (({"lens": [1, 2]}, "dataset.lens must be"), ({"lens": [-0.1, 0, 0, 0, 0], "lens_seed": 1}, "go together"),
+                       ({"lens_seed": 1, "lens_spread": 0.1}, "add dataset.lens")):
+        with pytest.raises(LfusdError, match=words):
+            parse_recipe({"dataset": {**ds, **bad}, "part": part})
