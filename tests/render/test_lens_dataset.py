@@ -139,3 +139,27 @@ def test_the_certificate_names_the_lens(lens_video):
 
     cert = certified(lens_video, "main")["main"]
     assert cert["ok"] and cert["camera_effects"] == {"lens_distortion": {"model": LENS.to_dict(), "seed": None, "spread": 0.0}}
+
+
+def test_preview_and_view_show_the_lens(lens_video, tmp_path):
+    from evaluation.test_view import read_rrd
+
+    from lfusd.cli import main
+    from lfusd.data.formats import read_png
+    from lfusd.evaluation.preview import lens_shift
+    from lfusd.evaluation.view import entity
+
+    ds = Dataset(lens_video)
+    shift = lens_shift(ds, (0, 0))
+    K = np.asarray(ds.intrinsics((0, 0)), np.float64)
+    u, v = pixel_grid(RIG.height, RIG.width, np.float64)
+    pts = np.stack([u, v], -1).reshape(-1, 1, 2)
+    # OpenCV's undistortion, to convergence: the pinhole pixel of each distorted pixel's ray
+    und = cv2.undistortPointsIter(pts, K, LENS.coeffs, None, K, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    np.testing.assert_allclose(shift, np.linalg.norm(und.reshape(RIG.height, RIG.width, 2) - np.stack([u, v], -1), axis=-1), atol=1e-6)
+    assert shift[0, 0] > 1.0  # barrel: the corner's ray lies pixels out
+    assert main(["preview", str(lens_video), "-o", str(tmp_path / "p"), "--no-video"]) == 0
+    assert read_png(tmp_path / "p" / "lens_0001.png").shape == (RIG.height, RIG.width, 3)
+    assert main(["view", str(lens_video), "--save", str(tmp_path / "v.rrd")]) == 0
+    rec = read_rrd(tmp_path / "v.rrd")
+    assert any(e == entity("main", tuple(ds.rig.centre_view), "lens") for e, _ in rec)
