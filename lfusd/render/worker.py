@@ -1153,7 +1153,8 @@ def main() -> int:
             use_physical_sky(bpy.context.scene)
         scene, suffixes = setup_scene(job)
         realize_instances(scene, job)
-        device = select_device(scene, job.device)
+        # --lens: the OSL camera is checked against OpenCV on the CPU only (tests/render/test_lens_render.py)
+        device = select_device(scene, "cpu" if job.lenses else job.device)
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
         cpu_account.startup()
         emit("ready", device=device, seconds=time.time() - t0)

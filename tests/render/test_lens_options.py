@@ -43,6 +43,10 @@ def test_the_options_parse_into_the_request_and_are_checked():
         with pytest.raises(LfusdError, match=words):
             RenderRequest(**req, **fields).check()
     RenderRequest(**req, lens=LENS, lens_seed=1, lens_spread=0.05).check()
+    for device in ("cuda", "optix"):  # the OSL camera is checked on the CPU only
+        with pytest.raises(LfusdError, match="--device cpu"):
+            RenderRequest(**req, lens=LENS, device=device).check()
+    RenderRequest(**req, lens=LENS, device="auto").check()
     assert RenderRequest(**req, lens=LENS).distorted and not RenderRequest(**req, lens=Distortion()).distorted
 
 
