@@ -6,7 +6,7 @@
 Generates one dynamic scene (lfusd.author.scenes.generate), then renders it with `lfusd render-video`
 (one worker, CPU) once per configuration: none, --shutter 0.5, --fstop 2.8 --focus 3, --materials,
 --iso 800, --lens (OSL camera through Brown-Conrady distortion, and the NumPy route of the motion keys
-it takes) and all of them, interleaved round by round (benchmarks/interleave.py), each round starting
+it takes), all but the lens, and all but the defocus (--lens refuses --fstop), interleaved round by round (benchmarks/interleave.py), each round starting
 one configuration later, so that a busy machine and a cold first render slow all alike. Prints per configuration the best wall seconds and process-tree CPU
 seconds of the render, their ratios to `none`, and the median of the per-round wall ratios; then the
 cost of reading `rgb_noisy` (the sensor model runs on read) against reading `rgb`, per view.
@@ -35,7 +35,8 @@ CONFIGS = {
     "materials": ["--materials"],
     "iso 800": ["--iso", "800"],
     "lens": ["--lens", LENS],
-    "all": ["--shutter", "0.5", "--fstop", "2.8", "--focus", "3", "--materials", "--iso", "800", "--lens", LENS],
+    "all": ["--shutter", "0.5", "--fstop", "2.8", "--focus", "3", "--materials", "--iso", "800"],
+    "all, lens for fstop": ["--shutter", "0.5", "--materials", "--iso", "800", "--lens", LENS],  # --lens excludes --fstop
 }
 
 
@@ -82,11 +83,11 @@ def main() -> int:
         views = rows * cols * args.frames
         print(f"{args.template}, {rows}x{cols} views of {w}x{h}, {args.frames} frames ({views} views), {args.samples} samples, "
               f"best of {args.repeat} interleaved rounds")
-        print(f"{'effect':<12} {'wall s':>8} {'x none':>7} {'median x':>9} {'cpu s':>8} {'x none':>7}")
+        print(f"{'effect':<20} {'wall s':>8} {'x none':>7} {'median x':>9} {'cpu s':>8} {'x none':>7}")
         walls, cpus = table(wall, "none"), table(cpu, "none")
         for name in CONFIGS:
             best, ratio, median = walls[name]
-            print(f"{name:<12} {best:8.2f} {ratio:7.3f} {median:9.3f} {cpus[name][0]:8.2f} {cpus[name][1]:7.3f}")
+            print(f"{name:<20} {best:8.2f} {ratio:7.3f} {median:9.3f} {cpus[name][0]:8.2f} {cpus[name][1]:7.3f}")
         ds = Dataset(tmp / "out_0_iso_800")
         frame, view = ds.frames[0], ds.views[0]
         for key in ("rgb", "rgb_noisy"):
