@@ -163,3 +163,20 @@ def test_preview_and_view_show_the_lens(lens_video, tmp_path):
     assert main(["view", str(lens_video), "--save", str(tmp_path / "v.rrd")]) == 0
     rec = read_rrd(tmp_path / "v.rrd")
     assert any(e == entity("main", tuple(ds.rig.centre_view), "lens") for e, _ in rec)
+
+
+def test_torch_items_carry_each_views_lens(lens_video):
+    from lfusd.torch import LightFieldVideoDataset
+
+    item = LightFieldVideoDataset(lens_video, keys=("rgb", "disparity"), crop=(20, 30))[0]
+    np.testing.assert_array_equal(item["distortion"].numpy(), np.stack([LENS.coeffs] * 2))
+    # the cropped K with the same coefficients images each pixel's point where the crop shows it
+    ds = Dataset(lens_video)
+    K = item["intrinsics"][0].numpy()
+    top, left = (int(x) for x in item["crop"])
+    position = ds.read(1, (0, 0), "position")[top:top + 20, left:left + 30].astype(np.float64)
+    from lfusd.camera import Camera
+
+    uv = _opencv(position, Camera(K, ds.cam_to_world(1, (0, 0)), LENS))
+    u, v = pixel_grid(20, 30, np.float64)
+    assert np.abs(uv - np.stack([u, v], -1)).max() < 0.01

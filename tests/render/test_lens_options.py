@@ -105,3 +105,18 @@ def test_a_recipe_asks_for_the_lens_and_the_card_says_so():
                        ({"lens": [-0.1, 0, 0, 0, 0], "fstop": 2.8, "focus": 3.0}, "does not go with dataset.fstop")):
         with pytest.raises(LfusdError, match=words):
             parse_recipe({"dataset": {**ds, **bad}, "part": part})
+
+
+def test_geometric_augmentations_refuse_distorted_views_and_colour_ones_keep_them():
+    from lfusd.data.augment import RandomLightField, colour_jitter, flip, refocus, transpose
+
+    item = {"rgb": np.zeros((2, 3, 4, 4), np.float32), "disparity": np.zeros((2, 4, 4), np.float32),
+            "views": np.array([[0, 0], [0, 1]]), "offsets": np.array([[-0.5, 0.0], [0.5, 0.0]]),
+            "intrinsics": np.stack([np.eye(3)] * 2), "cam_to_world": np.stack([np.eye(4)] * 2),
+            "distortion": np.stack([LENS.coeffs] * 2)}
+    for op in (lambda i: flip(i, "x"), transpose, lambda i: refocus(i, 1), RandomLightField(seed=0)):
+        with pytest.raises(LfusdError, match="lens distortion"):
+            op(item)
+    assert np.array_equal(colour_jitter(item, brightness=1.1)["distortion"], item["distortion"])
+    pinhole = {**item, "distortion": np.zeros((2, 5))}
+    assert flip(pinhole, "x")["rgb"].shape == (2, 3, 4, 4)
