@@ -5,8 +5,9 @@
 
 Generates one dynamic scene (lfusd.author.scenes.generate), then renders it with `lfusd render-video`
 (one worker, CPU) once per configuration: none, --shutter 0.5, --fstop 2.8 --focus 3, --materials,
---iso 800 and all of them, interleaved round by round, each round starting one configuration later,
-so that a busy machine and a cold first render slow all alike. Prints per configuration the best wall seconds and process-tree CPU
+--iso 800, --lens (OSL camera through Brown-Conrady distortion, and the NumPy route of the motion keys
+it takes), all but the lens, and all but the defocus (--lens refuses --fstop), interleaved round by round (benchmarks/interleave.py), each round starting
+one configuration later, so that a busy machine and a cold first render slow all alike. Prints per configuration the best wall seconds and process-tree CPU
 seconds of the render, their ratios to `none`, and the median of the per-round wall ratios; then the
 cost of reading `rgb_noisy` (the sensor model runs on read) against reading `rgb`, per view.
 """
@@ -16,21 +17,26 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, os.path.dirname(__file__))
 
+from interleave import rounds, table  # noqa: E402  (benchmarks/, beside this script)
+
+LENS = "-0.15,0.02,0.002,-0.002,0"  # k1, k2, p1, p2, k3: a moderate barrel with some decentring
 CONFIGS = {
     "none": [],
     "shutter 0.5": ["--shutter", "0.5"],
     "fstop 2.8": ["--fstop", "2.8", "--focus", "3"],
     "materials": ["--materials"],
     "iso 800": ["--iso", "800"],
+    "lens": ["--lens", LENS],
     "all": ["--shutter", "0.5", "--fstop", "2.8", "--focus", "3", "--materials", "--iso", "800"],
+    "all, lens for fstop": ["--shutter", "0.5", "--materials", "--iso", "800", "--lens", LENS],  # --lens excludes --fstop
 }
 
 
@@ -62,10 +68,8 @@ def main() -> int:
         generate(args.template, stage, 0, frames=args.frames, rigs=1, grid=(rows, cols), resolution=(w, h), dynamic=True)
         wall: dict[str, list[float]] = {k: [] for k in CONFIGS}
         cpu: dict[str, list[float]] = {k: [] for k in CONFIGS}
-        names = list(CONFIGS)
-        for r in range(args.repeat):
-            # each round starts one configuration later: none is not always the first (cold) render
-            for name in names[r % len(names):] + names[: r % len(names)]:
+        for r, order in rounds(list(CONFIGS), args.repeat):
+            for name in order:
                 extra = CONFIGS[name]
                 out = tmp / f"out_{r}_{name.replace(' ', '_')}"
                 c0, t0 = _children_cpu(), time.perf_counter()
@@ -79,11 +83,11 @@ def main() -> int:
         views = rows * cols * args.frames
         print(f"{args.template}, {rows}x{cols} views of {w}x{h}, {args.frames} frames ({views} views), {args.samples} samples, "
               f"best of {args.repeat} interleaved rounds")
-        print(f"{'effect':<12} {'wall s':>8} {'x none':>7} {'median x':>9} {'cpu s':>8} {'x none':>7}")
+        print(f"{'effect':<20} {'wall s':>8} {'x none':>7} {'median x':>9} {'cpu s':>8} {'x none':>7}")
+        walls, cpus = table(wall, "none"), table(cpu, "none")
         for name in CONFIGS:
-            ratios = [a / b for a, b in zip(wall[name], wall["none"])]
-            print(f"{name:<12} {min(wall[name]):8.2f} {min(wall[name]) / min(wall['none']):7.3f} {statistics.median(ratios):9.3f} "
-                  f"{min(cpu[name]):8.2f} {min(cpu[name]) / min(cpu['none']):7.3f}")
+            best, ratio, median = walls[name]
+            print(f"{name:<20} {best:8.2f} {ratio:7.3f} {median:9.3f} {cpus[name][0]:8.2f} {cpus[name][1]:7.3f}")
         ds = Dataset(tmp / "out_0_iso_800")
         frame, view = ds.frames[0], ds.views[0]
         for key in ("rgb", "rgb_noisy"):

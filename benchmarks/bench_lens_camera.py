@@ -7,9 +7,9 @@ custom camera of lfusd.render.lens (the Brown-Conrady ray of every sample), side
 Generates one scene (lfusd.author.scenes.generate), imports it into Blender once, then renders one view
 of its rig with the pinhole and with the lens camera (k1 -0.25, k2 0.05, p1 0.003, p2 -0.004), each as
 the beauty (--samples, Blackman-Harris 1.5 px) and as the data render (one sample, box filter, the
-data passes on), interleaved round by round (each round starting with the other camera). Prints the
-best render seconds per configuration and the lens/pinhole ratios. render-video has no --lens option
-yet, so bench_camera_effects.py cannot include it; this measures the camera itself.
+data passes on), interleaved round by round (benchmarks/interleave.py: each round starting with the
+other camera). Prints the best render seconds per configuration and the lens/pinhole ratios: the
+camera itself, where bench_camera_effects.py's ``lens`` measures all of render-video --lens.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 PROBE = r"""
 import json, sys, time
 import bpy
+sys.path.insert(0, sys.argv[6])
+from interleave import rounds
 from lfusd.camera import Distortion, RigSpec
 from lfusd.render.lens import osl_source
 from lfusd.render.worker import distort_camera
@@ -47,8 +49,9 @@ spec = RigSpec(width=w, height=h)
 distort_camera(lens.data, osl_source(Distortion(k1=-0.25, k2=0.05, p1=0.003, p2=-0.004), spec.intrinsics(), w, h))
 vl = scene.view_layers[0]
 times = {}
-for r in range(repeat):
-    order = [("pinhole", pin), ("lens", lens)] if r % 2 == 0 else [("lens", lens), ("pinhole", pin)]
+cams_of = {"pinhole": pin, "lens": lens}
+for r, names in rounds(["pinhole", "lens"], repeat):
+    order = [(name, cams_of[name]) for name in names]
     for render in ("beauty", "data"):
         cyc = scene.cycles
         if render == "beauty":
@@ -83,7 +86,8 @@ def main() -> int:
         stage = tmp / "scene.usda"
         generate(args.template, stage, 0, frames=1, rigs=1, grid=(1, 1), resolution=(w, h), dynamic=False)
         (tmp / "probe.py").write_text(PROBE)
-        out = subprocess.run([sys.executable, str(tmp / "probe.py"), str(stage), str(w), str(h), str(args.samples), str(args.repeat)],
+        out = subprocess.run([sys.executable, str(tmp / "probe.py"), str(stage), str(w), str(h), str(args.samples), str(args.repeat),
+                              os.path.dirname(os.path.abspath(__file__))],
                              capture_output=True, text=True, check=True).stdout
         times = json.loads(next(ln for ln in out.splitlines() if ln.startswith("TIMES"))[5:])
         print(f"{args.template}, one view of {w}x{h}, beauty {args.samples} samples, data 1 sample; best of {args.repeat} interleaved rounds")

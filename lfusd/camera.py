@@ -374,6 +374,7 @@ def ray_lengths(K: np.ndarray, h: int, w: int, dist: Distortion | None = None) -
 
 DISTORTION_COEFFS = ("k1", "k2", "p1", "p2", "k3")  # OpenCV's order of distCoeffs
 UNDISTORT_TOL = 1e-12  # Newton's stopping step in normalised coordinates (1e-9 px at f = 1000 px)
+FOLD_TOL_PX = 1e-4  # a point the lens images where it projects undistorts back to it within this (Newton reaches 1e-9)
 
 
 @dataclass(frozen=True)
@@ -529,3 +530,52 @@ def view_distortion(base: Distortion, view: View, seed: int | None = None, sprea
     rng = np.random.default_rng([int(seed), int(view[0]), int(view[1]), 0x1E45])
     scale = 1.0 + float(spread) * rng.standard_normal(len(DISTORTION_COEFFS))
     return Distortion(**{n: float(getattr(base, n) * s) for n, s in zip(DISTORTION_COEFFS, scale)})
+
+
+def rig_distortions(spec: RigSpec, base: Distortion, seed: int | None = None, spread: float = 0.0) -> dict[View, Distortion]:
+    """Every view's lens (:func:`view_distortion`), each checked one-to-one over the rig's image
+    (:func:`check_distortion`: a model that folds is refused in one line, naming the view)."""
+    K = spec.intrinsics()
+    out = {}
+    for view in spec.views:
+        dist = view_distortion(base, view, seed, spread)
+        try:
+            check_distortion(dist, K, spec.width, spec.height)
+        except LfusdError as e:
+            where = f" (view {view[0]},{view[1]} of rig {spec.name}, drawn with --lens-seed {seed})" if dist != base else ""
+            raise LfusdError(f"{e}{where}") from None
+        out[view] = dist
+    return out
+
+
+def has_lens(cam: Camera) -> bool:
+    """Whether ``cam`` images through a lens distortion (Camera.dist, not the identity)."""
+    return cam.dist is not None and not cam.dist.is_identity
+
+
+def project_imaged(points: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, z, imaged) of world points (..., 3) in ``cam`` (float64): the distorted pixel coordinates
+    (cv2.projectPoints'), planar depth, and whether the lens images the point there: in front of the
+    camera and not beyond the model's fold (undistorting its pixel gives its own ray back)."""
+    pts = np.asarray(points, np.float64)
+    K = np.asarray(cam.K, np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uu, vu, z = project(pts, Camera(K, cam.cam_to_world))  # the pinhole of K
+        if not has_lens(cam):
+            return uu, vu, z, np.isfinite(uu) & np.isfinite(vu) & (z > 0)
+        ud, vd = distort_pixels(uu, vu, K, cam.dist)
+        ok = np.isfinite(ud) & np.isfinite(vd) & (z > 0)
+        ub, vb = undistort_pixels(np.where(ok, ud, K[0, 2]), np.where(ok, vd, K[1, 2]), K, cam.dist)
+        ok &= (np.abs(ub - uu) <= FOLD_TOL_PX) & (np.abs(vb - vu) <= FOLD_TOL_PX)
+    return ud, vd, z, ok
+
+
+def point_disparity(points: np.ndarray, cam: Camera, baseline: float) -> np.ndarray:
+    """The disparity (docs/CONVENTIONS.md, "Lens distortion") of world points in ``cam``: u - u', u' the
+    distorted column at which ``cam`` moved ``baseline`` along its own x axis (same K, same lens) images
+    the point; f_px * b / z through a pinhole. NaN where either camera does not image it (behind, beyond the fold)."""
+    u, _, _, ok = project_imaged(points, cam)
+    shifted = np.array(cam.cam_to_world, np.float64)
+    shifted[:3, 3] += float(baseline) * shifted[:3, 0]
+    u1, _, _, ok1 = project_imaged(points, Camera(cam.K, shifted, cam.dist))
+    return np.where(ok & ok1, u - u1, np.nan)

@@ -147,7 +147,7 @@ _TABLE = (
         "(render-video --materials)", _GT, CAST, storage=Storage("float32"), effect="materials"),
     Key("semantic", "int32", (), "id", "class id listed in the class table (0 = unlabelled)", _GT, STATIC,
         storage=Storage("computed", sources=("instance",))),
-    Key("disparity", "float32", (), "px", "pixels per unit baseline step, d = f_px * b / z (planar, parallel rigs); 0 where no surface",
+    Key("disparity", "float32", (), "px", "pixels per unit baseline step, d = f_px * b / z (planar, parallel rigs; through a lens (--lens), the column shift to the view moved one baseline, CONVENTIONS \"Lens distortion\", NaN past its fold); 0 where no surface",
         _GT, STATIC, storage=Storage("computed", sources=("depth",))),
     Key("depth_euclidean", "float32", (), "m",
         "distance along the pixel's ray from the camera centre to the surface, depth * ||K^-1 [u, v, 1]||; `inf` where no surface",

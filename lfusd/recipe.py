@@ -89,6 +89,10 @@ class Recipe:
     materials: bool = False  # dataset.materials: the material masks and depth_behind (render-video --materials)
     sensor: SensorModel | None = None  # [dataset.sensor]: the rgb_noisy key's sensor model (lfusd.data.sensor); None: off
     held_out: tuple[str, ...] = ()  # dataset.held_out: templates only test parts may use
+    # dataset.lens = [K1, K2, P1, P2, K3], lens_seed, lens_spread: every view's lens distortion (render-video --lens ...); () off
+    distortion: tuple[float, ...] = ()
+    distortion_seed: int | None = None
+    distortion_spread: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -149,7 +153,7 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     if not isinstance(ds, dict):
         raise LfusdError(f"recipe {source}: [dataset] is missing; add a [dataset] table with name, grid and resolution")
     known = {"name", "grid", "resolution", "samples", "device", "executor", "ray_address", "workers", "verify", "stats_views", "thresholds",
-             "catalogues", "sensor", "materials", "shutter", "fstop", "focus", "held_out"}
+             "catalogues", "sensor", "materials", "shutter", "fstop", "focus", "held_out", "lens", "lens_seed", "lens_spread"}
     for k in ds:
         if k not in known:
             raise LfusdError(f"recipe {source}: unknown field dataset.{k}; use one of {', '.join(sorted(known))}")
@@ -265,7 +269,33 @@ def parse_recipe(data: dict, source: str = "<recipe>") -> Recipe:
     return Recipe(name, grid, resolution, tuple(parts), samples, device, executor, ray_address, workers, verify, stats_views,
                   tuple(sorted(thresholds)), tuple(catalogues), _lens(ds, source), _shutter(ds, source),
                   _get(ds, "materials", bool, source, w, "must be true or false", False),
-                  _sensor(ds.get("sensor"), source), tuple(held_out))
+                  _sensor(ds.get("sensor"), source), tuple(held_out), *_distortion(ds, source))
+
+
+def _distortion(ds: dict, source: str) -> tuple[tuple[float, ...], int | None, float]:
+    """(coefficients, seed, spread) of dataset.lens, lens_seed and lens_spread (checked as render-video's options are)."""
+    from .camera import DISTORTION_COEFFS, Distortion
+
+    coeffs = ds.get("lens", [])
+    if not isinstance(coeffs, list) or len(coeffs) not in (0, len(DISTORTION_COEFFS)) or \
+            any(isinstance(c, bool) or not isinstance(c, (int, float)) for c in coeffs):
+        raise _bad(source, "dataset.lens", coeffs, "must be [K1, K2, P1, P2, K3] (OpenCV's distCoeffs, e.g. [-0.2, 0.05, 0, 0, 0])")
+    seed = ds.get("lens_seed")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+        raise _bad(source, "dataset.lens_seed", seed, "must be an integer")
+    spread = ds.get("lens_spread", 0.0)
+    if isinstance(spread, bool) or not isinstance(spread, (int, float)):
+        raise _bad(source, "dataset.lens_spread", spread, "must be a non-negative number")
+    from .render.request import check_lens
+
+    if coeffs and any(coeffs) and ds.get("fstop"):
+        raise _bad(source, "dataset.lens", coeffs, "does not go with dataset.fstop (the lens camera has no thin lens); keep one of them")
+    try:
+        check_lens(Distortion(*map(float, coeffs)) if coeffs else None, seed, float(spread),
+                   ("dataset.lens", "dataset.lens_seed", "dataset.lens_spread"))
+    except LfusdError as e:
+        raise LfusdError(f"recipe {source}: {e}") from None
+    return tuple(float(c) for c in coeffs), seed, float(spread)
 
 
 def _lens(ds: dict, source: str) -> tuple[float, float]:
@@ -514,6 +544,7 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
     """Generate, render, verify and measure one scene; return its record (written by the caller)."""
     from .author.scenes import generate
     from .render.job import render, render_video
+    from .camera import Distortion
     from .render.request import RenderRequest
 
     stage = root / layout.RECIPE_STAGES / f"{spec.name}.usda"
@@ -525,7 +556,9 @@ def make_scene(recipe: Recipe, spec: SceneSpec, root: Path, quiet: bool = True) 
                         executor=recipe.executor, ray_address=recipe.ray_address, quiet=quiet, sensor=recipe.sensor,
                         # the masks need render-video's triangles, the blur key its neighbouring frames
                         materials=recipe.materials and spec.dynamic, shutter=recipe.shutter if spec.dynamic else 0.0,
-                        fstop=recipe.lens[0], focus=recipe.lens[1])
+                        fstop=recipe.lens[0], focus=recipe.lens[1],
+                        lens=Distortion(*recipe.distortion) if recipe.distortion else None, lens_seed=recipe.distortion_seed,
+                        lens_spread=recipe.distortion_spread)
     if spec.dynamic:
         render_video(req)
     else:
@@ -761,6 +794,10 @@ def effects_text(r: dict) -> str:
         on.append(f"sensor noise at ISO {sn['iso']:g}, seed {sn['seed']}" + (f", JPEG {sn['jpeg']}" if sn["jpeg"] else "") + " (key rgb_noisy)")
     if r.get("materials"):
         on.append("material masks and depth_behind (dynamic scenes)")
+    if any(r.get("distortion") or ()):
+        k = ", ".join(f"{c:g}" for c in r["distortion"])
+        seed = f", each view's drawn with seed {r['distortion_seed']} and spread {r['distortion_spread']:g}" if r.get("distortion_seed") is not None else ""
+        on.append(f"lens distortion k1, k2, p1, p2, k3 = {k}{seed} (every key in distorted pixels)")
     return "; ".join(on) if on else "none (sharp, noiseless pinhole images)"
 
 

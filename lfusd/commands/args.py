@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import re
 
-from ..camera import parse_frames, parse_grid, parse_point, parse_resolution, parse_view
+from ..camera import DISTORTION_COEFFS, Distortion, parse_frames, parse_grid, parse_point, parse_resolution, parse_view
 from ..errors import LfusdError
 from ..layout import MAX_FRAMES
 
@@ -136,6 +136,12 @@ def add_effect_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--fstop", type=float, default=0.0, metavar="N",
                    help="render through a thin lens of this f-number (with --focus), and add the key coc (default 0: a pinhole)")
     g.add_argument("--focus", type=float, default=0.0, metavar="METRES", help="the distance every view focuses at (with --fstop)")
+    g.add_argument("--lens", type=lens_model, default=None, metavar="K1,K2,P1,P2,K3",
+                   help="render through this Brown-Conrady (OpenCV) lens distortion; image and ground truth in distorted pixels (default: none)")
+    g.add_argument("--lens-seed", type=int, default=None, metavar="S",
+                   help="draw each view's lens around --lens from this seed (with --lens-spread), as a real array's lenses differ")
+    g.add_argument("--lens-spread", type=float, default=0.0, metavar="X",
+                   help="each coefficient of a view's lens is --lens's times (1 + X * N(0, 1)) (with --lens-seed; default 0)")
     g.add_argument("--materials", action="store_true",
                    help="add the material masks transmissive, mirror, emissive and depth_behind (the first opaque surface's depth)")
     g.add_argument("--iso", type=float, default=None, help="add rgb_noisy: the image of a sensor at this ISO (e.g. 800; default: none)")
@@ -146,7 +152,22 @@ def add_effect_options(p: argparse.ArgumentParser) -> None:
 
 def effect_fields(args: argparse.Namespace) -> dict:
     """The `RenderRequest` fields of :func:`add_effect_options`' options."""
-    return dict(materials=args.materials, shutter=args.shutter, fstop=args.fstop, focus=args.focus, sensor=sensor_model(args))
+    return dict(materials=args.materials, shutter=args.shutter, fstop=args.fstop, focus=args.focus, sensor=sensor_model(args),
+                lens=args.lens, lens_seed=args.lens_seed, lens_spread=args.lens_spread)
+
+
+def lens_model(text: str):
+    """'K1,K2,P1,P2,K3' -> lfusd.camera.Distortion (OpenCV's distCoeffs order)."""
+    try:
+        values = [float(p) for p in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != len(DISTORTION_COEFFS):
+        raise argparse.ArgumentTypeError(f"{text!r} is not K1,K2,P1,P2,K3 (five numbers, OpenCV's order, e.g. -0.2,0.05,0,0,0)")
+    try:
+        return Distortion(*values)
+    except LfusdError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def sensor_model(args: argparse.Namespace):

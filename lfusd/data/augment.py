@@ -110,6 +110,14 @@ def _partners(offsets: np.ndarray, mirror) -> list[int]:
     return perm
 
 
+def _pinhole_only(item, what: str) -> None:
+    """Refuse a geometric augmentation of views rendered through a lens distortion (``distortion``): the
+    geometry above (disparity kept by a mirror, u - d*sx in every view) is a pinhole's."""
+    if "distortion" in item and np.any(_np(item["distortion"])):
+        raise LfusdError(f"{what} assumes pinhole views, and this item's were rendered through a lens distortion (--lens); "
+                         "use only colour_jitter and noise (RandomLightField(flip=False)), or a dataset rendered without --lens")
+
+
 def _no_targets(item, what: str) -> None:
     if "target_rgb" in item:
         raise LfusdError(f"{what} cannot move the target views of an angular super-resolution item; use only colour_jitter and noise there")
@@ -149,6 +157,7 @@ def flip(item: dict, axis: str = "x") -> dict:
     if axis not in ("x", "y"):
         raise LfusdError(f"flip axis {axis!r}: use 'x' (left-right) or 'y' (top-bottom)")
     _no_targets(item, "flip")
+    _pinhole_only(item, "flip")
     c = 0 if axis == "x" else 1
     offsets = _np(item["offsets"]).astype(np.float64)
     sign = np.array([-1.0, 1.0]) if c == 0 else np.array([1.0, -1.0])
@@ -174,6 +183,7 @@ def flip(item: dict, axis: str = "x") -> dict:
 def transpose(item: dict) -> dict:
     """Transpose image and view grid (u <-> v, row <-> col); see the module docstring."""
     _no_targets(item, "transpose")
+    _pinhole_only(item, "transpose")
     k = _np(item["intrinsics"]).astype(np.float64)
     if not np.allclose(k[:, 0, 0], k[:, 1, 1], rtol=1e-9):
         raise LfusdError("transpose needs square pixels (fx = fy) for one disparity in both directions; this item's differ")
@@ -203,6 +213,7 @@ def refocus(item: dict, k: int, margin: tuple[int, int] | None = None) -> dict:
     """Shift view i by (k*sx_i, k*sy_i) pixels (disparity d -> d - k) and crop ``margin`` (rows,
     columns; default :func:`refocus_margin` for ``|k|``) off each side; see the module docstring."""
     _no_targets(item, "refocus")
+    _pinhole_only(item, "refocus")
     k = int(k)
     offsets = _np(item["offsets"]).astype(np.float64)
     shifts = k * offsets
@@ -312,6 +323,8 @@ class RandomLightField:
         return self._rng
 
     def __call__(self, item: dict) -> dict:
+        if self.refocus or self.flip or self.transpose:  # refused on every item, not on the draws that pick one
+            _pinhole_only(item, "RandomLightField's refocus, flip and transpose")
         rng = self.rng()
         if self.refocus:
             k = int(rng.integers(-self.refocus, self.refocus + 1))

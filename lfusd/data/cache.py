@@ -37,7 +37,7 @@ import numpy as np
 
 from .. import keys as keyreg
 from .. import layout
-from ..camera import RigSpec
+from ..camera import Camera, Distortion, RigSpec
 from ..errors import LfusdError
 from ..files import atomic_write, file_mode, sha256_of
 from . import confined
@@ -208,7 +208,9 @@ def write_cache(ds, dest, frame: int | None = None, keys=None) -> list[Path]:
         _remove_temporaries(dest)
         doc = record or {"format": FORMAT, "version": VERSION, "source": source, "rig": ds.rig.to_dict(), "keys": keys,
                          "key_info": key_info, "views": [list(v) for v in views],
-                         "intrinsics": [np.asarray(ds.intrinsics(v), np.float64).tolist() for v in views], "frames": {}}
+                         "intrinsics": [np.asarray(ds.intrinsics(v), np.float64).tolist() for v in views], "frames": {},
+                         # render-video --lens: each view's model (lfusd.camera.Distortion.to_dict); absent for pinholes
+                         **({"distortion": [ds.distortion(v).to_dict() for v in views]} if getattr(ds, "distorted", False) else {})}
         root = getattr(ds, "root", None)
         for name in (layout.MANIFEST, layout.OBJECTS):  # the dataset's own records, copied as they are
             src = Path(root) / name if root is not None else None
@@ -328,6 +330,19 @@ class TrainingCache:
     def cam_to_world(self, frame: int, view) -> np.ndarray:
         """4x4 OpenCV camera-to-world pose of ``view`` at ``frame``."""
         return np.array(self.maps(frame, POSES)[self.view_index(view)])
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the cached views were rendered through a lens distortion (--lens)."""
+        return "distortion" in self.record
+
+    def distortion(self, view) -> Distortion | None:
+        """The view's lens distortion (lfusd.camera.Distortion); None for a pinhole."""
+        return Distortion.from_dict(self.record["distortion"][self.view_index(view)]) if self.distorted else None
+
+    def camera(self, frame: int, view) -> Camera:
+        """The view's camera at ``frame`` (K, pose and lens: lfusd.camera.Camera)."""
+        return Camera(self.intrinsics(view), self.cam_to_world(frame, view), self.distortion(view))
 
 
 def is_cache(path) -> bool:

@@ -62,9 +62,29 @@ def content_digest(root: str | Path, rig: str, manifest=None) -> str:
     return h.hexdigest()
 
 
+def camera_effects(settings: dict) -> dict:
+    """The camera effects a render turned on (docs/CONVENTIONS.md, "Camera effects"), by name with their
+    settings, from the manifest's ``settings``: motion_blur (--shutter), defocus (--fstop, --focus),
+    sensor_noise (--iso ...), material_masks (--materials), lens_distortion (--lens ...); {} for none."""
+    s = settings.to_dict() if hasattr(settings, "to_dict") else dict(settings or {})
+    lens = s.get("lens")
+    found = {
+        "motion_blur": {"shutter": s["shutter"]} if s.get("shutter") else None,
+        "defocus": s.get("defocus") or None,
+        "sensor_noise": s.get("sensor") or None,
+        "material_masks": True if s.get("materials") else None,
+        "lens_distortion": {k: lens[k] for k in ("model", "seed", "spread") if k in lens} if isinstance(lens, dict) else None,
+    }
+    return {name: value for name, value in found.items() if value is not None}
+
+
 def bind(root: str | Path, rig: str, figures: dict) -> dict:
-    """``figures`` (a rig's verify certificate) with the binding to the dataset's current content."""
-    return {**{k: v for k, v in figures.items() if k != BINDING},
+    """``figures`` (a rig's verify certificate) with the camera effects it was verified with (:func:`camera_effects`)
+    and the binding to the dataset's current content (whose settings hold those effects)."""
+    from .folder import read_manifest
+
+    effects = camera_effects(read_manifest(Path(root)).settings)
+    return {**{k: v for k, v in figures.items() if k != BINDING}, "camera_effects": effects,
             BINDING: {"verifier": VERIFIER, "content_sha256": content_digest(root, rig)}}
 
 
@@ -89,11 +109,13 @@ def certified(root: str | Path, rig: str | None = None) -> dict:
             why = "it is bound to no content"
         elif binding.get("content_sha256") != content_digest(root, name, manifest):
             why = "it was made for other content"
+        elif "camera_effects" in figures and figures["camera_effects"] != camera_effects(manifest.settings):
+            why = "the camera effects it names are not the dataset's"
         elif check_dataset(root, name)[1]:
             why = "files it covers no longer match their records"
         if why:
             log.warning("%s: the verification certificate of rig %s is not passed on: %s; run 'lfusd verify' again",
                         root / layout.MANIFEST, name, why)
             continue
-        out[name] = figures
+        out[name] = {**figures, "camera_effects": camera_effects(manifest.settings)}  # named by the settings it is bound to
     return out

@@ -18,7 +18,7 @@ from . import passes, sensor, store
 from .. import cpu_account, layout
 from .folder import FrameMeta, Manifest, ObjectTable, read_frame_meta, read_manifest, read_objects
 from .integrity import check_claims, complete_frames
-from ..camera import RigSpec, View
+from ..camera import Camera, Distortion, RigSpec, View, parse_view, ray_lengths
 from ..errors import LfusdError
 from ..keys import GT_RAW, IMAGE, MOTION, STATIC, get
 from ..layout import frame_dir, view_key
@@ -129,6 +129,30 @@ class Dataset:
         self._check_view(view)
         return self.rig.intrinsics()
 
+    def distortion(self, view: View) -> Distortion | None:
+        """The view's lens distortion (``render-video --lens``: the manifest's ``settings.lens.views``,
+        lfusd.camera.Distortion); None for a pinhole. Every pixel coordinate of the dataset is then a
+        distorted one (docs/CONVENTIONS.md, "Lens distortion")."""
+        self._check_view(view)
+        doc = self.record.settings.get("lens")
+        if not isinstance(doc, dict):
+            return None
+        try:
+            return Distortion.from_dict(doc["views"][self.rig_name][view_key(view)])
+        except (KeyError, TypeError, AttributeError):
+            raise LfusdError(f"{self.root / layout.MANIFEST} records no lens of view {view_key(view)} in rig {self.rig_name!r}; "
+                             "the manifest is damaged: render the dataset again into a new folder") from None
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the views were rendered through a lens distortion (--lens)."""
+        return isinstance(self.record.settings.get("lens"), dict)
+
+    def camera(self, frame: int, view: View) -> Camera:
+        """The view's camera at ``frame`` (lfusd.camera.Camera: K, pose and lens): the one model to project
+        points into its (distorted) pixels, cast their rays or backproject them."""
+        return Camera(self.intrinsics(view), self.cam_to_world(frame, view), self.distortion(view))
+
     def cam_to_world(self, frame: int, view: View) -> np.ndarray:
         """4x4 OpenCV camera-to-world pose of ``view`` at ``frame`` (metres)."""
         self._check_view(view)
@@ -188,7 +212,7 @@ class Dataset:
             return stored[key].copy()  # the cache must not be mutated by callers
         if k.stage == STATIC:
             info = passes.ViewInfo(self.intrinsics(view), self.baseline, self._class_of_instance, self.cam_to_world(frame, view),
-                                   self.defocus if key == "coc" else None)
+                                   self.defocus if key == "coc" else None, self.distortion(view))
             return passes.DERIVED[key](stored, info)
         raw = self._raw(str(d))
         if key not in raw:
@@ -198,12 +222,11 @@ class Dataset:
     def raw_passes(self, frame: int, view: View):
         """The view's raw passes with its camera (the input of lfusd.truth.motion.derive_motion), decoded
         on first use of an image (lfusd.data.passes.LazyRawPasses); a missing file is an error now."""
-        from ..camera import Camera
         from .passes import LazyRawPasses, RawPasses
 
         d = str(self.view_dir(frame, view))
         self._raw_file(d)
-        camera = Camera(self.intrinsics(view), self.cam_to_world(frame, view))
+        camera = self.camera(frame, view)
 
         def load() -> RawPasses:
             raw = self._raw(d)
@@ -243,7 +266,13 @@ class Dataset:
 
         def read():
             with cpu_account.phase("read"):
-                return passes.read_raw(path)
+                raw = passes.read_raw(path)
+            if self.distorted:  # the OSL lens camera's depth pass is the distance along the pixel's ray
+                dist = self.distortion(parse_view(Path(view_dir).name))
+                h, w = raw["depth"].shape
+                with np.errstate(invalid="ignore"):
+                    raw["depth"] = (raw["depth"] / ray_lengths(self.rig.intrinsics(), h, w, dist)).astype(np.float32)
+            return raw
 
         return _cached(self._raw_cache, view_dir, 4, read)
 

@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import OpenEXR
 
-from ..camera import Camera, backproject, pixel_grid, ray_lengths
+from ..camera import FOLD_TOL_PX, Camera, Distortion, backproject, pixel_grid, ray_lengths, undistort_pixels
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH, MATERIAL_AOV, MATERIAL_MASKS, MOTION_AOVS, RAW_PASS, RAW_PASSES
 
@@ -362,24 +362,47 @@ def disparity(depth: np.ndarray, focal_px: float, baseline: float) -> np.ndarray
     return np.where(np.isfinite(depth), d, np.float32(0.0)).astype(np.float32)
 
 
+def disparity_distorted(depth: np.ndarray, K: np.ndarray, dist: Distortion, baseline: float) -> np.ndarray:
+    """``disparity`` of a view with a lens distortion (docs/CONVENTIONS.md, "Lens distortion"): d = u - u',
+    u' the distorted column at which the view's camera moved one baseline along its x axis (same K, same
+    lens) images the pixel's surface point; f_px * b / z without distortion. 0 where no surface; NaN where
+    the lens does not image the point there (beyond its fold: no distorted pixel sees it)."""
+    h, w = depth.shape
+    K = np.asarray(K, np.float64)
+    u, v = pixel_grid(h, w, np.float64)
+    uu, vu = undistort_pixels(u, v, K, dist)
+    x, y = (uu - K[0, 2]) / K[0, 0], (vu - K[1, 2]) / K[1, 1]
+    fg = np.isfinite(depth)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x1 = x - float(baseline) / np.where(fg, depth.astype(np.float64), np.inf)
+        xd, yd = dist.distort(x1, y)
+        xb, yb = dist.undistort(xd, yd)
+        imaged = (np.abs(xb - x1) * K[0, 0] <= FOLD_TOL_PX) & (np.abs(yb - y) * K[1, 1] <= FOLD_TOL_PX)
+    d = u - (xd * K[0, 0] + K[0, 2])
+    return np.where(fg, np.where(imaged, d, np.nan), 0.0).astype(np.float32)
+
+
 def semantic(instance: np.ndarray, class_of_instance: np.ndarray) -> np.ndarray:
     """Class id per pixel from the instance ids (``class_of_instance[id]``, 0 = background)."""
     return class_of_instance[instance].astype(np.int32)
 
 
-def depth_euclidean(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Distance from the camera centre along each pixel's ray, depth * ||K^-1 [u, v, 1]||; inf where depth is."""
+def depth_euclidean(depth: np.ndarray, K: np.ndarray, dist: Distortion | None = None) -> np.ndarray:
+    """Distance from the camera centre along each pixel's ray, depth * ||K^-1 [u, v, 1]|| ((u, v) undistorted
+    through ``dist``: the ray the lens images at the pixel); inf where depth is."""
     h, w = depth.shape
-    return (depth * ray_lengths(K, h, w)).astype(np.float32)
+    return (depth * ray_lengths(K, h, w, dist)).astype(np.float32)
 
 
-def position(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> np.ndarray:
-    """World position of the surface at each pixel centre from planar depth and the pose (float64
-    arithmetic, float32 result); NaN where there is no surface."""
+def position(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray, dist: Distortion | None = None) -> np.ndarray:
+    """World position of the surface at each pixel centre from planar depth and the pose (and the lens
+    ``dist``: the point on the ray it images at the pixel) (float64 arithmetic, float32 result); NaN where
+    there is no surface."""
     h, w = depth.shape
     u, v = pixel_grid(h, w, np.float64)
     fg = np.isfinite(depth)
-    p = backproject(u, v, np.where(fg, depth, 0).astype(np.float64), Camera(np.asarray(K, np.float64), np.asarray(cam_to_world, np.float64)))
+    p = backproject(u, v, np.where(fg, depth, 0).astype(np.float64),
+                    Camera(np.asarray(K, np.float64), np.asarray(cam_to_world, np.float64), dist))
     return np.where(fg[..., None], p, np.nan).astype(np.float32)
 
 
@@ -395,21 +418,24 @@ def circle_of_confusion(depth: np.ndarray, focal_px: float, aperture_m: float, f
 @dataclass(frozen=True)
 class ViewInfo:
     """What a derived static key needs beside the stored keys: the view's K and pose, the rig baseline, the class
-    table, and the lens's (aperture diameter, focus distance) in metres for a render with --fstop."""
+    table, the lens's (aperture diameter, focus distance) in metres for a render with --fstop, and the view's
+    lens distortion for a render with --lens (None: a pinhole)."""
 
     K: np.ndarray
     baseline: float
     class_of_instance: np.ndarray
     cam_to_world: np.ndarray | None = None
     defocus: tuple[float, float] | None = None
+    dist: Distortion | None = None
 
 
 # Derived static keys (lfusd.keys.STATIC): name -> f(stored keys {depth, instance, ...}, ViewInfo).
 DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
-    "position": lambda raw, info: position(raw["depth"], info.K, info.cam_to_world),
+    "position": lambda raw, info: position(raw["depth"], info.K, info.cam_to_world, info.dist),
     "semantic": lambda raw, info: semantic(raw["instance"], info.class_of_instance),
-    "disparity": lambda raw, info: disparity(raw["depth"], float(info.K[0, 0]), info.baseline),
-    "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K),
+    "disparity": lambda raw, info: (disparity(raw["depth"], float(info.K[0, 0]), info.baseline) if info.dist is None
+                                    else disparity_distorted(raw["depth"], info.K, info.dist, info.baseline)),
+    "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K, info.dist),
     "coc": lambda raw, info: circle_of_confusion(raw["depth"], float(info.K[0, 0]), *info.defocus),
 }
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import keys as keyreg
 from .. import layout
-from ..camera import RigSpec
+from ..camera import Camera, Distortion, RigSpec
 from ..errors import LfusdError
 from . import formats, passes
 
@@ -123,6 +123,20 @@ class ShardDataset:
         """3x3 OpenCV K of ``view`` (the sample's, exactly as exported)."""
         return np.array(self._sample(self.frames[0], view)["meta"]["K"], dtype=np.float64)
 
+    def distortion(self, view) -> Distortion | None:
+        """The view's lens distortion (the sample's ``dist``, OpenCV's distCoeffs); None for a pinhole."""
+        coeffs = self._sample(self.frames[0], view)["meta"].get("dist")
+        return Distortion(*map(float, coeffs)) if coeffs and any(coeffs) else None
+
+    @property
+    def distorted(self) -> bool:
+        """Whether the exported views were rendered through a lens distortion (--lens)."""
+        return any(self.distortion(v) is not None for v in self.views)
+
+    def camera(self, frame: int, view) -> Camera:
+        """The view's camera at ``frame`` (K, pose and lens: lfusd.camera.Camera)."""
+        return Camera(self.intrinsics(view), self.cam_to_world(frame, view), self.distortion(view))
+
     def cam_to_world(self, frame: int, view) -> np.ndarray:
         """4x4 OpenCV camera-to-world pose of ``view`` at ``frame``."""
         return np.array(self._sample(frame, view)["meta"]["cam_to_world"], dtype=np.float64)
@@ -140,5 +154,5 @@ class ShardDataset:
             return np.load(io.BytesIO(self._bytes(files[f"{key}.npy"])), allow_pickle=False)
         sources = {src: self.read(frame, view, src) for src in keyreg.get(key).storage.sources}
         info = passes.ViewInfo(np.array(s["meta"]["K"], dtype=np.float64), self.baseline, self._class_of_instance,
-                               np.array(s["meta"]["cam_to_world"], dtype=np.float64))
+                               np.array(s["meta"]["cam_to_world"], dtype=np.float64), dist=self.distortion(view))
         return passes.DERIVED[key](sources, info)

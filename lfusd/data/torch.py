@@ -10,7 +10,8 @@ ground-truth keys, all views cropped with one window:
 - ``frames`` [T], ``views`` [V,2] (row, col), ``offsets`` [V,2] (sx, sy in baselines),
   ``intrinsics`` [V,3,3] (principal point moved by the crop), ``cam_to_world`` [V,4,4]
   ([T,V,4,4] for clips),
-  ``crop`` [2] (top, left).
+  ``crop`` [2] (top, left); from a dataset rendered with ``--lens``, ``distortion`` [V,5] (each view's OpenCV
+  distCoeffs k1, k2, p1, p2, k3, which hold for the cropped K as well).
 - With ``target_views`` (e.g. ``views="corners", target_views="all"`` for 2x2 -> 7x7 angular
   super-resolution) the item also holds ``target_rgb`` [Vt,3,h,w] and ``target_views``.
 
@@ -195,6 +196,8 @@ class LightFieldVideoDataset(_TorchDataset):
         self._views_t = torch.tensor(self.views, dtype=torch.int64)
         self._offsets_t = torch.tensor([dataset.rig.offsets(v) for v in self.views], dtype=torch.float64)
         self._k = np.stack([np.array(dataset.intrinsics(v), dtype=np.float64) for v in self.views])
+        self._dist = (torch.from_numpy(np.stack([dataset.distortion(v).coeffs for v in self.views]))
+                      if getattr(dataset, "distorted", False) else None)
 
     def __len__(self) -> int:
         return len(self._starts)
@@ -237,6 +240,8 @@ class LightFieldVideoDataset(_TorchDataset):
         ks[:, 0, 2] -= x0
         ks[:, 1, 2] -= y0
         item["intrinsics"] = torch.from_numpy(ks)
+        if self._dist is not None:
+            item["distortion"] = self._dist
         if fast:
             idx = self.ds._indices(self.views)
             poses = torch.from_numpy(np.stack([self.ds.maps(t, "cam_to_world")[idx] for t in frames]))

@@ -205,6 +205,20 @@ def write_video(path, frames: list[np.ndarray], fps: float = 12.0) -> Path:
     return path
 
 
+def lens_shift(ds, view) -> np.ndarray | None:
+    """(H, W) float64: how far, in pixels, each pixel of a view rendered through a lens distortion (--lens)
+    lies from where a pinhole of the same K would image its ray; None for a pinhole."""
+    from ..camera import pixel_grid, undistort_pixels
+
+    dist = ds.distortion(view) if getattr(ds, "distorted", False) else None
+    if dist is None or dist.is_identity:
+        return None
+    w, h = ds.resolution
+    u, v = pixel_grid(h, w, np.float64)
+    uu, vu = undistort_pixels(u, v, np.asarray(ds.intrinsics(view), np.float64), dist)
+    return np.hypot(uu - u, vu - v)
+
+
 def _try(read, *args):
     from ..errors import LfusdError as _E
 
@@ -263,6 +277,8 @@ def preview(ds, dest, frame: int | None = None, video: bool = True, fps: float =
     for key in ("blur", "coc"):
         px = _try(ds.read, t, c, key)
         save(f"{key}_{t:04d}.png", None if px is None else colormap(px, vmin=0.0, name="turbo", valid=np.isfinite(px)))
+    shift = lens_shift(ds, c)  # --lens: each pixel's distance from the pinhole's image of its ray
+    save(f"lens_{t:04d}.png", None if shift is None else colormap(shift, vmin=0.0, name="turbo"))
     flow_max = None
     flows = {}
     for tt in frames:

@@ -129,7 +129,7 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
     """Log one rig of a dataset to rerun recording ``rec``; returns counts of what was logged and
     the arrow scale used (``arrow_scale`` None: :func:`auto_arrow_scale`). ``lossless``: the
     images as raw pixels instead of JPEG."""
-    from .preview import colormap, flow_to_color
+    from .preview import colormap, flow_to_color, lens_shift
 
     rr = _rr()
     centre = tuple(ds.rig.centre_view)
@@ -172,6 +172,9 @@ def log_dataset(rec, ds, rig: str, frames: list[int], views: list, max_points: i
                 px = _read(ds, t, centre, key)
                 if px is not None:
                     rec.log(entity(rig, centre, key), rr.Image(colormap(px, vmin=0.0, valid=np.isfinite(px))))
+            shift = lens_shift(ds, centre)  # --lens: rerun's Pinhole has no distortion; the positions' points are exact
+            if shift is not None:
+                rec.log(entity(rig, centre, "lens"), rr.Image(colormap(shift, vmin=0.0)))
             pos = _read(ds, t, centre, "position")
             if pos is not None:
                 s = grid_step(h, w, max_points)

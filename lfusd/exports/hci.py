@@ -164,4 +164,4 @@ register("hci", "one HCI 4D light-field benchmark scene folder per frame",
          options=(Option("--all-views", "all_views", FLAG, "also per-view disparity PFMs"),
                   Option("--shift", "shift", TEXT, "HCI's sensor shift: K whole pixels per view step; views are shifted by K times their "
                          "grid offset and cropped alike, so the disparity is d - K (both signs; a `things` scene's design: "
-                         "shift_px in its record)")))(export_hci)
+                         "shift_px in its record)")), pinhole=True)(export_hci)

@@ -120,7 +120,7 @@ def kitti_truth(root: Path, name: str, task: str) -> dict:
 
 @register("kitti", "KITTI 2015 scene-flow layout of frame pairs (centre view and its right neighbour)",
           reader=Reader(find=kitti_root, names=kitti_names, truth=kitti_truth, protocol="kitti",
-                        predictions={"disparity": "disp_0", "flow": "flow", "sceneflow": "flow"}))
+                        predictions={"disparity": "disp_0", "flow": "flow", "sceneflow": "flow"}), pinhole=True)
 def export_kitti(ds, dest, frame: int | None = None) -> Path:
     """Write frame pairs (t, t+1) in the KITTI 2015 scene-flow layout; returns ``dest/training``."""
     check_planar_grid(ds, "the KITTI layout")

@@ -22,6 +22,14 @@ def light_field(ds, frame: int, key: str = "rgb") -> np.ndarray:
     return lf
 
 
+def lens_attrs(ds) -> dict:
+    """A distorted dataset's lens models (render-video --lens) as an attribute: ``distortion`` [rows, cols, 5],
+    each view's OpenCV distCoeffs (k1, k2, p1, p2, k3); nothing for pinholes."""
+    if not getattr(ds, "distorted", False):
+        return {}
+    return {"distortion": np.array([[ds.distortion((r, c)).coeffs for c in range(ds.rig.cols)] for r in range(ds.rig.rows)], np.float64)}
+
+
 @register("lfmat", "one HDF5 light-field array LF [U,V,H,W,3] per frame",
           options=(Option("--matlab", "matlab", FLAG,
                           "write MATLAB v7.3 .mat files instead of .h5 (both: LF [U,V,H,W,3] in [0,1] as BasicLFSR reads it)"),))
@@ -34,7 +42,8 @@ def export_lfmat(ds, dest, frame: int | None = None, matlab: bool = False) -> li
     out = []
     for t in frames:
         p = dest / f"{scene_name(ds)}_f{t:04d}.{'mat' if matlab else 'h5'}"
-        attrs = {"baseline_m": float(ds.rig.baseline), "focal_px": float(ds.rig.focal_px), "frame": int(t), "range": "rgb in [0, 1]"}
+        attrs = {"baseline_m": float(ds.rig.baseline), "focal_px": float(ds.rig.focal_px), "frame": int(t), "range": "rgb in [0, 1]",
+                 **lens_attrs(ds)}
         rgb = light_field(ds, t)
         formats.write_lf_h5(p, rgb.astype(np.float32) / np.float32(np.iinfo(rgb.dtype).max), matlab=matlab, attrs=attrs)
         out.append(p)

@@ -60,20 +60,22 @@ class Format:
     unit: str = "item"
     reader: Reader | None = None
     resumable: bool = False  # the writer makes or completes ``dest`` itself (the training cache), not a new folder
+    pinhole: bool = False  # the format's geometry is a pinhole's (rectified disparity, no lens model): a distorted dataset is refused
 
 
 FORMATS: dict[str, Format] = {}
 
 
 def register(name: str, help: str, options: tuple[Option, ...] = (), unit: str = "item", reader: Reader | None = None,
-             resumable: bool = False):
+             resumable: bool = False, pinhole: bool = False):
     """Decorator registering ``writer`` as export format ``name`` (``resumable``: it makes or
-    completes its target itself rather than writing a new folder whole)."""
+    completes its target itself rather than writing a new folder whole; ``pinhole``: the format cannot
+    express a lens distortion, so a dataset rendered with ``--lens`` is refused)."""
 
     def wrap(writer: Callable) -> Callable:
         if name in FORMATS:
             raise ValueError(f"export format {name!r} is registered twice")
-        FORMATS[name] = Format(name, help, writer, tuple(options), unit, reader, resumable)
+        FORMATS[name] = Format(name, help, writer, tuple(options), unit, reader, resumable, pinhole)
         return writer
 
     return wrap

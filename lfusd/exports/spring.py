@@ -35,7 +35,7 @@ def _spring_gt(a: np.ndarray) -> np.ndarray:
     return np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)
 
 
-@register("spring", "Spring benchmark layout of consecutive frames (.dsp5 / .flo5)")
+@register("spring", "Spring benchmark layout of consecutive frames (.dsp5 / .flo5)", pinhole=True)
 def export_spring(ds, dest, frame: int | None = None) -> Path:
     """Write consecutive frames in the Spring layout; returns ``dest/train/<scene>``.
 

@@ -97,7 +97,13 @@ def _sample_meta(ds, frame: int, view) -> dict:
     return {"scene": Path(getattr(ds, "root", "scene")).name, "rig": getattr(ds, "rig_name", "rig"), "frame": int(frame),
             "row": int(view[0]), "col": int(view[1]), "width": int(ds.rig.width), "height": int(ds.rig.height),
             "K": np.asarray(ds.intrinsics(view), float).tolist(), "cam_to_world": np.asarray(ds.cam_to_world(frame, view), float).tolist(),
-            "baseline_m": float(ds.baseline), "offset_x": float(sx), "offset_y": float(sy)}
+            "baseline_m": float(ds.baseline), "offset_x": float(sx), "offset_y": float(sy), "dist": _dist(ds, view)}
+
+
+def _dist(ds, view) -> list[float]:
+    """The view's lens distortion as OpenCV's distCoeffs (k1, k2, p1, p2, k3); zeros for a pinhole."""
+    d = ds.distortion(tuple(view)) if getattr(ds, "distorted", False) else None
+    return [0.0] * 5 if d is None else d.coeffs.tolist()
 
 
 def verification_figures(ds) -> dict:
@@ -176,7 +182,7 @@ def croissant(ds, dest: Path, shards: list[Path], names: list[str], verification
 # the per-sample json (_sample_meta) as a Hugging Face struct feature
 _META_FEATURES = (("scene", "string"), ("rig", "string"), ("frame", "int64"), ("row", "int64"), ("col", "int64"),
                   ("width", "int64"), ("height", "int64"), ("K", "matrix"), ("cam_to_world", "matrix"),
-                  ("baseline_m", "float64"), ("offset_x", "float64"), ("offset_y", "float64"))
+                  ("baseline_m", "float64"), ("offset_x", "float64"), ("offset_y", "float64"), ("dist", "vector"))
 
 
 def hf_features(ds, names: list[str]) -> str:
@@ -187,7 +193,8 @@ def hf_features(ds, names: list[str]) -> str:
     lines = ["  features:", "  - name: __key__", "    dtype: string", "  - name: __url__", "    dtype: string",
              "  - name: rgb.png", "    dtype: image", "  - name: json", "    struct:"]
     for name, kind in _META_FEATURES:
-        lines += [f"    - name: {name}", "      list:\n        list: float64" if kind == "matrix" else f"      dtype: {kind}"]
+        shape = {"matrix": "      list:\n        list: float64", "vector": "      list: float64"}
+        lines += [f"    - name: {name}", shape.get(kind, f"      dtype: {kind}")]
     for n in names:
         k = keyreg.get(n)
         shape = [h, w, *k.shape]

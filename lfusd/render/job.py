@@ -34,7 +34,7 @@ from ..author.labels import ObjectEntry, ObjectPoses, object_table
 from ..author.rigs import StageRig, select_rigs
 from ..author.stage import changed_file, check_frames, files_digest, frame_range, is_static, open_stage, stage_files, world_frame
 from ..author.vocabulary import PHYSICAL_SKY, SKY
-from ..camera import RigSpec
+from ..camera import RigSpec, rig_distortions
 from ..data import confined
 from ..data.folder import FrameMeta, Manifest, ObjectRow, ObjectTable, atomic_write, existing_dataset, output_lock
 from ..errors import LfusdError
@@ -88,7 +88,25 @@ def _settings(req: RenderRequest, files: dict, rigs: list[StageRig]) -> dict:
         **({"materials": True} if req.materials else {}),
         **({"shutter": req.shutter} if req.shutter else {}),
         **({"defocus": {"fstop": req.fstop, "focus": req.focus}} if req.fstop else {}),
+        **({"lens": _lens_record(req, rigs)} if req.distorted else {}),
     }
+
+
+def _lens_record(req: RenderRequest, rigs: list[StageRig]) -> dict:
+    """settings.lens: --lens, --lens-seed, --lens-spread and each view's model (lfusd.camera.rig_distortions,
+    which refuses one that folds), which readers take as the view's camera (lfusd.data.dataset.Dataset.camera)."""
+    views = {r.spec.name: {view_key(v): d.to_dict() for v, d in rig_distortions(r.spec, req.lens, req.lens_seed, req.lens_spread).items()}
+             for r in rigs}
+    return {"model": req.lens.to_dict(), "seed": req.lens_seed, "spread": req.lens_spread, "views": views}
+
+
+def _lenses_of(settings: dict) -> dict[str, dict[str, dict]]:
+    """{rig: {view key: {"K", "dist"}}} of a render with --lens (the workers' lfusd.render.plan.WorkUnit.lenses); {} without."""
+    doc = settings.get("lens")
+    if not doc:
+        return {}
+    return {name: {key: {"K": _matrix(RigSpec.from_dict(settings["rigs"][name]).intrinsics()), "dist": d} for key, d in views.items()}
+            for name, views in doc["views"].items()}
 
 
 def _io_error(path: Path, e: OSError) -> LfusdError:
@@ -356,7 +374,7 @@ class _Job:
                 req, self.plan, {r.spec.name: r.cameras for r in s.rigs}, {r.spec.name: (r.spec.width, r.spec.height) for r in s.rigs},
                 StageSetup(s.plain, s.instanced, any(p.IsA(UsdLux.DomeLight) for p in stage.Traverse()), list(_stage_range(stage, s.frames)),
                            _add_light(req, stage), s.world, physical_sky(stage)),
-                raw_codec(req, s.sizes),
+                raw_codec(req, s.sizes), _lenses_of(s.settings),
             )
             report = progress or Progress(self.plan.total, self.plan.total - self.plan.remaining, req.quiet)
             if self.scheduler is not None:

@@ -131,6 +131,9 @@ class WorkUnit:
     focus: float = 0.0
     shutter: float = 0.0  # --shutter: the beauty's motion blur (fraction of a frame, centred); the data passes stay sharp
     materials: bool = False  # --materials: the material-flags AOV and per-triangle flags (lfusd.render.worker.mark_materials)
+    # --lens: view key -> {"K": 3x3, "dist": lfusd.camera.Distortion.to_dict()}; each such view renders
+    # through the OSL camera of lfusd.render.lens (the beauty and the data passes alike); {}: pinholes
+    lenses: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -185,9 +188,9 @@ class StageSetup:
 
 
 def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, str]], sizes: dict[str, tuple[int, int]],
-               setup: StageSetup, raw_codec: str = "ZIP") -> list[WorkUnit]:
+               setup: StageSetup, raw_codec: str = "ZIP", lenses: dict | None = None) -> list[WorkUnit]:
     """Work units covering every missing (rig, frame, view) of ``plan``; Blender writes the data
-    passes with ``raw_codec``."""
+    passes with ``raw_codec``. ``lenses``: {rig: {view key: lens}} of a render with --lens (WorkUnit.lenses)."""
     units: list[WorkUnit] = []
     for beauty in (True, False):
         todo = {k: [v for v in vs if ((k[0], k[1], v) in plan.raw_only) != beauty] for k, vs in plan.todo.items()}
@@ -222,6 +225,7 @@ def plan_units(req: RenderRequest, plan: Plan, cameras_of: dict[str, dict[View, 
                     units.append(WorkUnit(
                         unit=len(units), rig=rig_name, stage=str(Path(req.stage).resolve()),
                         cameras={view_key(v): cameras_of[rig_name][v] for v in vchunk}, frames=unit_frames,
+                        lenses={view_key(v): (lenses or {})[rig_name][view_key(v)] for v in vchunk} if (lenses or {}).get(rig_name) else {},
                         width=width, height=height, samples=req.samples, device=req.device,
                         # Locally, workers share the cores; on Ray, Blender takes what the node has.
                         threads=max(1, (os.cpu_count() or 1) // req.workers) if req.executor == "local" else 0,

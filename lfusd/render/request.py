@@ -9,6 +9,7 @@ import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ..camera import Distortion
 from ..data.sensor import SensorModel
 from ..errors import LfusdError
 
@@ -57,6 +58,9 @@ class RenderRequest:
     focus: float = 0.0  # --focus: the distance in metres every view of every rig focuses at (with --fstop)
     shutter: float = 0.0  # --shutter: Cycles' motion blur over this fraction of a frame, centred on it; 0: none (render-video)
     sensor: SensorModel | None = None  # --iso ...: the noisy image's sensor model (lfusd.data.sensor); None: no rgb_noisy
+    lens: Distortion | None = None  # --lens: every view's Brown-Conrady lens distortion (lfusd.camera.Distortion); None: a pinhole
+    lens_seed: int | None = None  # --lens-seed: each view's lens drawn around ``lens`` (lfusd.camera.view_distortion)
+    lens_spread: float = 0.0  # --lens-spread: the relative spread of those draws
 
     def check(self) -> None:
         """Raise LfusdError naming the first impossible setting."""
@@ -81,6 +85,13 @@ class RenderRequest:
                 raise LfusdError(f"{name} {value!r} is not a non-negative number")
         if bool(self.fstop) != bool(self.focus):
             raise LfusdError("--fstop and --focus go together (a lens's f-number and the distance it focuses at, e.g. --fstop 2.8 --focus 3)")
+        check_lens(self.lens, self.lens_seed, self.lens_spread)
+        if self.distorted and self.fstop:
+            raise LfusdError("--lens and --fstop do not go together: the OSL lens camera has no thin lens (Cycles ignores its depth "
+                             "of field) and coc is a pinhole's; render with one of them")
+        if self.distorted and self.device in ("cuda", "optix"):
+            raise LfusdError(f"--lens renders through an OSL camera, which lfusd has checked on the CPU only; use --device cpu "
+                             f"(or auto, which renders a --lens job on the CPU) instead of --device {self.device}")
         if self.shutter and not self.motion:
             raise LfusdError("--shutter needs the neighbouring frames that only 'lfusd render-video' renders; render a video")
         if self.materials and not self.motion:
@@ -98,6 +109,11 @@ class RenderRequest:
         on = {"sensor": self.sensor is not None, "materials": self.materials, "blur": bool(self.shutter), "defocus": bool(self.fstop)}
         return tuple(name for name, yes in on.items() if yes)
 
+    @property
+    def distorted(self) -> bool:
+        """Whether the views render through a lens distortion (--lens)."""
+        return self.lens is not None and not self.lens.is_identity
+
     def capped(self) -> "RenderRequest":
         """This request with at most one local worker per CPU core (more only compete for them)."""
         cores = usable_cores()
@@ -105,6 +121,17 @@ class RenderRequest:
             log.warning("--workers %d is more than this machine's %d CPU cores; using %d", self.workers, cores, cores)
             return replace(self, workers=cores)
         return self
+
+
+def check_lens(lens: Distortion | None, seed: int | None, spread: float, names=("--lens", "--lens-seed", "--lens-spread")) -> None:
+    """Raise LfusdError unless --lens, --lens-seed and --lens-spread (``names``: how the caller spells them) go together."""
+    lens_, seed_, spread_ = names
+    if not (isinstance(spread, (int, float)) and math.isfinite(spread) and spread >= 0):
+        raise LfusdError(f"{spread_} {spread!r} is not a non-negative number (e.g. 0.05)")
+    if (seed is not None or spread) and (lens is None or lens.is_identity):
+        raise LfusdError(f"{seed_} and {spread_} draw each view's lens around {lens_}; add {lens_} K1,K2,P1,P2,K3")
+    if bool(spread) != (seed is not None):
+        raise LfusdError(f"{seed_} and {spread_} go together (e.g. {seed_} 1 {spread_} 0.05)")
 
 
 def _gb(n: float) -> str:

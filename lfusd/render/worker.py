@@ -45,6 +45,11 @@ PRIM_MAP: dict[str, list] = {}
 # The data render shifts the lens by the opposite so the sample lands on the pixel centre; the
 # test suite measures the residual from the position pass.
 SAMPLE_OFFSET_PX = (0.000486, 0.000474)
+# Where the data render's one sample lands through the OSL lens camera (lfusd.render.lens), from the
+# pixel centre in pixel axes (u right, v down), measured with bpy 5.0 from the position pass against
+# cv2.projectPoints (tests/render/test_lens_render.py): the shader takes it off every sample. The OSL
+# camera ignores the lens shift that puts SAMPLE_OFFSET_PX right.
+LENS_SAMPLE_OFFSET_PX = (0.0000024, -0.000128)
 VIEW_PREFIX = "lfusd_view"
 NON_GEOMETRY = ("EMPTY", "CAMERA", "LIGHT", "ARMATURE")
 
@@ -844,25 +849,66 @@ def _use_lens(scene, fstop: float, focus: float) -> None:
             dof.aperture_blades = 0  # a disc
 
 
+def compile_lens(name: str, source: str) -> tuple[str, str]:
+    """(bytecode, digest) of the OSL camera ``source`` (lfusd.render.lens.osl_source), compiled with
+    Cycles' compiler directly: bpy's module build lacks the ``oslquery`` module that Blender's own
+    update of a custom camera imports (a shader without parameters needs no query)."""
+    from cycles import osl
+
+    text = bpy.data.texts.new(f"lfusd_lens_{name}.osl")
+    text.write(source)
+    errors = []
+    ok, _, bytecode, digest = osl.update_internal_script(lambda kind, msg: errors.append(msg), text)
+    if not ok or not bytecode:
+        raise RuntimeError(f"the lens shader of camera {name} did not compile: {'; '.join(map(str, errors)) or 'see the log'}")
+    return bytecode, digest
+
+
+class Lenses:
+    """--lens: each view's camera the OSL custom camera of its Brown-Conrady model (WorkUnit.lenses),
+    compiled once per view for the beauty (samples about the pixel centre) and once for the data
+    render (its one sample moved onto the pixel centre: the shader takes LENS_SAMPLE_OFFSET_PX off)."""
+
+    def __init__(self, job: WorkUnit):
+        from lfusd.camera import Distortion
+        from lfusd.render.lens import osl_source
+
+        self.code: dict[str, dict[bool, tuple[str, str]]] = {}
+        for key, lens in job.lenses.items():
+            dist, K = Distortion.from_dict(lens["dist"]), np.asarray(lens["K"], np.float64)
+            cam = bpy.data.objects[f"{VIEW_PREFIX}_{key}"].data
+            cam.type = "CUSTOM"
+            cam.custom_mode = "INTERNAL"
+            self.code[key] = {
+                data: compile_lens(f"{key}_{'data' if data else 'beauty'}", osl_source(
+                    dist, K, job.width, job.height, LENS_SAMPLE_OFFSET_PX if data else (0.0, 0.0)))
+                for data in (False, True)}
+            _name_shader(cam, f"{key}_data")
+
+    def use(self, data: bool) -> None:
+        """Every distorted view's camera set for the data render (``data``) or the beauty."""
+        for key, code in self.code.items():
+            cam = bpy.data.objects[f"{VIEW_PREFIX}_{key}"].data
+            cam.custom_bytecode, cam.custom_bytecode_hash = code[data]
+            cam.update_tag()
+
+
+def _name_shader(cam_data, name: str) -> None:
+    try:
+        cam_data.custom_shader = bpy.data.texts[f"lfusd_lens_{name}.osl"]  # Blender's update fails without oslquery
+    except (ImportError, KeyError):
+        pass
+
+
 def distort_camera(cam_data, source: str) -> None:
     """Lens distortion: make one Blender camera the OSL custom camera of ``source``
     (lfusd.render.lens.osl_source), compiled here. bpy's module build lacks the ``oslquery`` module
     that Blender's own update of a custom camera imports, so the shader is compiled with Cycles'
     compiler directly and its bytecode stored on the camera (a shader without parameters needs no query)."""
-    from cycles import osl
-
-    text = bpy.data.texts.new(f"lfusd_lens_{cam_data.name}.osl")
-    text.write(source)
     cam_data.type = "CUSTOM"
     cam_data.custom_mode = "INTERNAL"
-    errors = []
-    try:
-        cam_data.custom_shader = text  # Blender's update fails without oslquery: compiled below instead
-    except ImportError:
-        pass
-    ok, _, bytecode, digest = osl.update_internal_script(lambda kind, msg: errors.append(msg), text)
-    if not ok or not bytecode:
-        raise RuntimeError(f"the lens shader of camera {cam_data.name} did not compile: {'; '.join(map(str, errors)) or 'see the log'}")
+    bytecode, digest = compile_lens(cam_data.name, source)
+    _name_shader(cam_data, cam_data.name)
     cam_data.custom_bytecode = bytecode
     cam_data.custom_bytecode_hash = digest
     cam_data.update_tag()
@@ -956,6 +1002,7 @@ class CyclesClock:
 
 
 _CLOCK: CyclesClock | None = None
+_LENSES: Lenses | None = None  # --lens: the views' OSL cameras (set by main)
 
 
 def _render(scene, filepath: str, render: str) -> None:
@@ -1008,6 +1055,8 @@ def _render_beauty(scene, job: WorkUnit, scratch: str, lighting: Lighting) -> No
         scene.render.motion_blur_shutter = job.shutter
         scene.render.motion_blur_position = "CENTER"
     _use_lens(scene, job.fstop, job.focus)
+    if _LENSES is not None:
+        _LENSES.use(data=False)
     _render(scene, os.path.join(scratch, "rgb"), "beauty")
 
 
@@ -1034,6 +1083,8 @@ def _render_data(scene, job: WorkUnit, scratch: str, lighting: Lighting, phases:
     _shift_lenses(scene, True)
     scene.render.use_motion_blur = False  # every data pass at the frame's instant (Cycles' vector pass needs it off too)
     _use_lens(scene, 0.0, 0.0)  # and through the lens centre
+    if _LENSES is not None:
+        _LENSES.use(data=True)
     _render(scene, os.path.join(scratch, "passes"), "data")
     phases["data"] = phases.get("data", 0.0) + time.perf_counter() - t
     phases["data_cpu"] = phases.get("data_cpu", 0.0) + time.process_time() - c
@@ -1102,13 +1153,17 @@ def main() -> int:
             use_physical_sky(bpy.context.scene)
         scene, suffixes = setup_scene(job)
         realize_instances(scene, job)
-        device = select_device(scene, job.device)
+        # --lens: the OSL camera is checked against OpenCV on the CPU only (tests/render/test_lens_render.py)
+        device = select_device(scene, "cpu" if job.lenses else job.device)
         motion = MotionAttributes(scene, *job.stage_range) if job.motion else None
         cpu_account.startup()
         emit("ready", device=device, seconds=time.time() - t0)
         if job.materials:
             mark_materials(scene)
         lighting = Lighting(scene, motion is not None, job.materials)
+        if job.lenses:
+            global _LENSES
+            _LENSES = Lenses(job)
         for frame in job.frames:
             render_frame(scene, job, frame, suffixes, motion, lighting)
             _test_kill_hook(frame)

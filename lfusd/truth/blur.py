@@ -30,7 +30,7 @@ def _camera_at(a: Camera, b: Camera, s: float) -> Camera:
     m = np.eye(4)
     m[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix([ma[:3, :3], mb[:3, :3]]))(s).as_matrix()
     m[:3, 3] = (1 - s) * ma[:3, 3] + s * mb[:3, 3]
-    return Camera(a.K, m)
+    return Camera(a.K, m, a.dist)
 
 
 def blur_extent(cur: RawPasses, nxt, prv, shutter: float) -> np.ndarray:

@@ -173,7 +173,7 @@ def depth_behind(ds: Dataset, frame: int, view: View, raw: dict[str, np.ndarray]
     """The ``depth_behind`` key of one view: ``depth`` where the first surface is not transmissive, and
     where it is, the planar depth of the first non-transmissive triangle of the frame (geometry.npz, each
     triangle's material flags) on the ray through the pixel centre; inf where that ray leaves the scene."""
-    from ..camera import Camera, ray_directions
+    from ..camera import ray_directions
     from .visibility import _scene
 
     import open3d as o3d
@@ -191,7 +191,7 @@ def depth_behind(ds: Dataset, frame: int, view: View, raw: dict[str, np.ndarray]
     with cpu_account.phase("layers"):
         scene = _scene(vertices, triangles[(flags & TRANSMISSIVE) == 0])
         v, u = np.nonzero(transmissive)
-        cam = Camera(ds.intrinsics(view), ds.cam_to_world(frame, view))
+        cam = ds.camera(frame, view)  # through the view's lens, if it has one
         dirs = ray_directions(u.astype(np.float64), v.astype(np.float64), cam)  # camera-frame z = 1: the ray parameter is planar depth
         origins = np.broadcast_to(cam.world_to_cam()[1], dirs.shape)
         rays = np.ascontiguousarray(np.concatenate([origins, dirs], axis=-1), np.float32)

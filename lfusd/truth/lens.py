@@ -18,9 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Camera, Distortion, distorted_ray_directions, pixel_grid, project, project_distorted, undistort_pixels
+from ..camera import FOLD_TOL_PX, Camera, Distortion, distorted_ray_directions, pixel_grid, project, project_distorted, undistort_pixels
 
-FOLD_TOL_PX = 1e-4  # a point the lens images where it projects undistorts back to it within this (Newton reaches 1e-9)
 
 
 def undistortion_map(K: np.ndarray, dist: Distortion, width: int, height: int, K_wide: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,3 +90,4 @@ def flow_distorted(point_next: np.ndarray, cam_next: Camera, dist_next: Distorti
     flow = np.stack([ud - u, vd - v], axis=-1)
     flow[~ok] = np.nan
     return flow.astype(np.float32), ok
+

@@ -58,6 +58,8 @@ on the first frame (no ``prv``).
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from .. import cpu_account
@@ -65,6 +67,9 @@ from ..camera import Camera, backproject, pixel_grid, project
 from ..data.passes import RawPasses  # noqa: F401  (the input of derive_motion, re-exported)
 from ..errors import LfusdError
 from ..keys import BACKGROUND_DEPTH, KEYS, MOTION, names
+from ..camera import has_lens, point_disparity, project_imaged
+
+log = logging.getLogger(__name__)
 
 # what derive_motion derives: every motion key but a camera effect's (blur: lfusd.truth.blur, added by lfusd.truth.derive)
 MOTION_KEYS = tuple(k for k in names(MOTION) if KEYS[k].effect is None)
@@ -237,6 +242,12 @@ def _direction(cur: RawPasses, other: RawPasses, fg: np.ndarray, other_position,
         P1 = np.asarray(other_position, dtype=np.float32).reshape(-1, 3)[idx]
         exact = np.isfinite(P1).all(axis=1)
         pu, pv, pz = project(P1[exact].astype(np.float64), other.camera)
+        if has_lens(other.camera):  # through a lens: a point beyond its fold has no image at all (invalid, counted)
+            imaged = project_imaged(P1[exact].astype(np.float64), other.camera)[3]
+            if not imaged.all():
+                log.debug("%d points beyond the lens's fold at the %s frame: invalid", int((~imaged).sum()), "next" if forward else "previous")
+                exact[np.flatnonzero(exact)[~imaged]] = False
+                pu, pv, pz = pu[imaged], pv[imaged], pz[imaged]
         # From the point that was sampled, not the pixel centre: on a sliver triangle Blender's
         # sample lands off the pixel's ray, and a static point must get zero flow.
         u0, v0, _ = project(pos_t.reshape(-1, 3)[idx][exact].astype(np.float64), cur.camera)
@@ -340,6 +351,10 @@ def derive_motion(
     that stay in place from frame to frame (same results, fewer rays).
     """
     backend = backend or BACKEND
+    if any(other is not None and has_lens(other.camera) for other in (cur, nxt, prv)):
+        # the compiled kernels project through a pinhole: a distorted view takes the NumPy route, which
+        # projects with lfusd.camera (through the lens), and casts whole scenes (no memo, no parts)
+        backend, memo = "numpy", None
     if backend not in ("numba", "numpy"):
         raise LfusdError(f"flow backend {backend!r} is not available; use 'numba' or 'numpy'")
     hw = _check(cur, "frame t")
@@ -425,7 +440,13 @@ def _derive_numpy(cur: RawPasses, nxt: RawPasses | None, prv: RawPasses | None, 
         out["scene_flow"].reshape(-1, 3)[idx] = sf
         z0 = cur.depth.ravel()[idx].astype(np.float32)
         with np.errstate(divide="ignore", invalid="ignore"):
-            dc = np.where(known, fb / z1 - fb / z0, 0).astype(np.float32)
+            if has_lens(cur.camera) or has_lens(nxt.camera):  # the disparity of a distorted view (docs/CONVENTIONS.md)
+                b = fb / float(cur.camera.K[0, 0])
+                dc = point_disparity(P1, nxt.camera, b) - point_disparity(P0, cur.camera, b) if fb else np.zeros(len(P0))
+                known &= np.isfinite(dc)  # a point either camera does not image has no disparity there
+            else:
+                dc = fb / z1 - fb / z0
+            dc = np.where(known, dc, 0).astype(np.float32)
         out["disparity_change"].ravel()[idx] = dc
         out["valid_fwd"].ravel()[idx] = known
         out["occlusion_fwd"].ravel()[idx] = ~visible & (exact if cur.next_position is not None else True)

@@ -186,6 +186,7 @@ def trace_motion(
     step: int = 1,
     baseline: float | None = None,
     scenes: dict | None = None,
+    dist=None,
 ) -> dict[str, Any]:
     """Independently traced ground truth of one view at ``frame`` towards ``frame + step``.
 
@@ -195,7 +196,9 @@ def trace_motion(
     ``prim_paths``, -1 background), prim_paths, flow (H,W,2) to frame+step, scene_flow (H,W,3),
     disparity_change (H,W; needs ``baseline``), occluded (H,W bool: hidden or outside the image
     at frame+step), valid (H,W bool: foreground whose mesh keeps its topology) and the tracing
-    context ``ctx`` that :func:`trace_pixels` takes for sub-pixel candidates.
+    context ``ctx`` that :func:`trace_pixels` takes for sub-pixel candidates. ``dist``: the view's lens
+    distortion (lfusd.camera.Distortion; None: a pinhole): pixel coordinates are then distorted ones, each
+    traced along the ray the lens images there, and points at the other frame imaged through it.
     """
     from ..author.geometry import StageGeometry
 
@@ -205,7 +208,7 @@ def trace_motion(
         if t not in scenes:
             scenes[t] = TracedScene(geo, t)
     ctx = {"s0": scenes[frame], "s1": scenes[frame + step], "K": np.asarray(K, np.float64), "c2w": np.asarray(cam_to_world_t, np.float64),
-           "c2w1": np.asarray(cam_to_world_t1, np.float64), "H": H, "W": W, "baseline": baseline}
+           "c2w1": np.asarray(cam_to_world_t1, np.float64), "H": H, "W": W, "baseline": baseline, "dist": dist}
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     out = trace_pixels(ctx, u.ravel(), v.ravel())
     full = {k: (a.reshape(H, W, *a.shape[1:]) if isinstance(a, np.ndarray) and a.shape[:1] == (H * W,) else a) for k, a in out.items()}
@@ -224,12 +227,12 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     n = len(u)
     key = None
     if hits is None and n == H * W:  # a full grid: the same surface for a view's traces to t+1 and t-1
-        key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), np.asarray(u).tobytes(), np.asarray(v).tobytes())
+        key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), np.asarray(u).tobytes(), np.asarray(v).tobytes(), repr(ctx.get("dist")))
     if key is not None and s0._surface is not None and s0._surface[0] == key:
         o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
         o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
-        d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
+        d = ray_directions(u, v, _camera(ctx))  # camera-z component 1
         mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth = np.full(n, np.inf)
@@ -243,12 +246,18 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
             s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
     pos1 = np.full((n, 3), np.nan)
     valid = np.zeros(n, bool)
-    cam1 = Camera(K, ctx["c2w1"])
+    cam1 = _camera(ctx, 1)
     R, C = cam1.world_to_cam()
     u1, v1, z1 = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     if g.size:
         _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, np.ascontiguousarray(K @ R, np.float64),
                      np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), pos1, valid, u1, v1, z1)
+    lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
+    if lens and g.size:  # the kernel projects through the pinhole: image the carried points through the lens
+        from ..camera import project_imaged
+
+        u1, v1, z1, imaged = project_imaged(np.where(valid[:, None], pos1, 0.0), cam1)
+        valid &= imaged  # beyond the lens's fold a point has no image: its motion is not defined there
     if visibility:
         vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1))
     else:
@@ -256,7 +265,13 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     baseline = ctx["baseline"]
     fb = float(K[0, 0]) * float(baseline) if baseline else np.nan
     with np.errstate(divide="ignore", invalid="ignore"):
-        dchange = fb / z1 - fb / depth
+        if lens and baseline:  # the disparity of a distorted view (docs/CONVENTIONS.md, "Lens distortion")
+            from ..camera import point_disparity
+
+            dchange = point_disparity(pos1, cam1, float(baseline)) - point_disparity(pos, _camera(ctx), float(baseline))
+            valid &= np.isfinite(dchange)
+        else:
+            dchange = fb / z1 - fb / depth
     return {
         "depth": depth, "position": pos, "normal": normal, "mesh": mesh, "triangle": tri,
         "prim_paths": s0.prim_paths,
@@ -269,6 +284,11 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         "visibility_hit": t_hit,
         "valid": valid,
     }
+
+
+def _camera(ctx: dict, at: int = 0) -> Camera:
+    """The traced view's camera at t (``at`` 0) or at the other frame (1), with its lens."""
+    return Camera(ctx["K"], ctx["c2w1" if at else "c2w"], ctx.get("dist"))
 
 
 def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: np.ndarray, H: int, W: int,
@@ -554,7 +574,7 @@ def _edge_step(ctx: dict, u: np.ndarray, v: np.ndarray, depth: np.ndarray) -> np
     """Per pixel, how far (px) an edge near its sample may really lie, from float32 rounding of
     coordinates of magnitude max(|P|, |O|) seen at ``depth``: never under TIE_PX."""
     C = ctx["c2w"][:3, 3]
-    d = ray_directions(u, v, Camera(ctx["K"], ctx["c2w"]))
+    d = ray_directions(u, v, _camera(ctx))
     with np.errstate(invalid="ignore"):
         P = C + depth[:, None] * d
         mag = np.fmax(np.linalg.norm(P, axis=-1), np.linalg.norm(C))
@@ -566,7 +586,7 @@ def _second_hits(ctx: dict, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, n
     """Per ray through (u, v): (mesh, triangle) of a second surface within VISIBLE_EPS of the first
     hit's distance (mesh -1 where none); None when no ray has one."""
     o = np.broadcast_to(ctx["c2w"][:3, 3], (len(u), 3))
-    d = ray_directions(u, v, Camera(ctx["K"], ctx["c2w"]))
+    d = ray_directions(u, v, _camera(ctx))
     ray, t, mesh, tri = ctx["s0"].all_hits(o, d)
     if ray.size == 0:
         return None
@@ -631,7 +651,7 @@ def _clear_grazing_ties(err: dict, ds: dict, st: dict, ctx: dict, thr: dict, W: 
     if idx.size == 0:
         return idx
     v, u = np.divmod(idx, W)
-    d = ray_directions(u.astype(np.float64), v.astype(np.float64), Camera(ctx["K"], ctx["c2w"]))
+    d = ray_directions(u.astype(np.float64), v.astype(np.float64), _camera(ctx))
     C = ctx["c2w"][:3, 3]
     with np.errstate(invalid="ignore", divide="ignore"):
         cos = np.abs((st["normal"][idx] * d).sum(-1)) / np.linalg.norm(d, axis=-1)
@@ -645,7 +665,7 @@ def _clear_grazing_ties(err: dict, ds: dict, st: dict, ctx: dict, thr: dict, W: 
 def _visibility_tie(ctx: dict, tr: dict, idx: np.ndarray) -> np.ndarray:
     """Whether the visibility of each traced point (flat pixels ``idx``) at the other frame changes
     when its target moves ``TIE_PX`` pixels sideways in the other frame's image (a grazing ray)."""
-    cam1 = Camera(ctx["K"], ctx["c2w1"])
+    cam1 = _camera(ctx, 1)
     P = tr["next_position"][idx]
     base = tr["occluded"][idx]
     _, _, z = project(P, cam1)
@@ -1068,13 +1088,14 @@ def verify_dataset(
                 K = _checked_intrinsics(rig, ds, view, K, W, H, report.problems, rig_checked)
                 pose = lambda g: _checked_pose(stage, rig, ds, g, view, report.problems, rig_checked)  # noqa: E731
             c2w = pose(f)
+            dist = ds.distortion(view) if hasattr(ds, "distortion") else None  # --lens: traced through the view's lens
             fwd = bwd = None
             if f + 1 in all_frames:
-                fwd = trace_motion(geo, f, K, c2w, pose(f + 1), H, W, 1, baseline, scenes)
+                fwd = trace_motion(geo, f, K, c2w, pose(f + 1), H, W, 1, baseline, scenes, dist)
             if f - 1 in all_frames:
-                bwd = trace_motion(geo, f, K, c2w, pose(f - 1), H, W, -1, baseline, scenes)
+                bwd = trace_motion(geo, f, K, c2w, pose(f - 1), H, W, -1, baseline, scenes, dist)
             # A frame without rendered neighbours has no motion keys to check: its static keys are.
-            still = trace_motion(geo, f, K, c2w, c2w, H, W, 0, baseline, scenes) if fwd is None and bwd is None else None
+            still = trace_motion(geo, f, K, c2w, c2w, H, W, 0, baseline, scenes, dist) if fwd is None and bwd is None else None
             report.rows.extend(compare_view(data, fwd, bwd, objects, f, tuple(view), thresholds, still=still, counts=counts))
             for t in [t for t in scenes if t < f - 1]:
                 del scenes[t]  # frames are visited in order: free meshes no longer needed

@@ -274,6 +274,8 @@ def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: in
     valid = np.ascontiguousarray(valid).ravel()
     out = np.zeros(len(points), bool)
     R, C = camera.world_to_cam()
+    if camera.dist is not None and not camera.dist.is_identity:
+        return _visible_through_lens(points, valid, camera, h, w, occluders, eps)
     split = parts is not None and memo is not None and len(occluders.triangles) > 0
     if split:
         key = (parts.digest, np.asarray(C, np.float64).tobytes(), float(eps), len(points))
@@ -289,6 +291,26 @@ def visible(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: in
         n = len(points)
         memo.segments = {"key": key, "ends": np.zeros((n, 3), np.uint32), "filled": np.zeros(n, bool), "hidden": np.zeros(n, bool)}
         remember_visible(index, hidden, points.view(np.uint32), memo.segments["ends"], memo.segments["filled"], memo.segments["hidden"])
+    out[index] = ~hidden
+    return out
+
+
+def _visible_through_lens(points: np.ndarray, valid: np.ndarray, camera: Camera, h: int, w: int, occluders: Occluders,
+                          eps: float) -> np.ndarray:
+    """:func:`visible` for a camera with a lens distortion: inside the image is where the lens images the
+    point (its distorted pixel on the image, not beyond the model's fold: lfusd.truth.lens.project_imaged);
+    the segment from the centre to the point is lens-free, cast against the whole scene."""
+    from ..camera import project_imaged
+
+    out = np.zeros(len(points), bool)
+    u, v, _, imaged = project_imaged(points.astype(np.float64), camera)
+    with np.errstate(invalid="ignore"):
+        index = np.flatnonzero(valid & imaged & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5))
+    C = camera.world_to_cam()[1]
+    rays = np.empty((len(index), 6), np.float32)
+    rays[:, :3] = C
+    rays[:, 3:] = points[index].astype(np.float64) - C  # parameter 1 at the point, as segment_rays
+    hidden = _occluded(occluders.scene, rays, eps) if len(occluders.triangles) else np.zeros(len(index), bool)
     out[index] = ~hidden
     return out
 
@@ -315,6 +337,8 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     between frames) and the dynamic part's (cast only where a dynamic triangle may lie before it)."""
     from ._motion_numba import mixed_pixels
 
+    if camera.dist is not None and not camera.dist.is_identity:
+        return _mixed_through_lens(camera, h, w, here, nxt, camera_next)
     _, C = camera.world_to_cam()
     n = (h + 1) * (w + 1)
     if len(here.triangles):
@@ -331,6 +355,50 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     else:
         args = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
     return mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
+
+
+def _mixed_through_lens(camera: Camera, h: int, w: int, here: Occluders, nxt: Occluders | None, camera_next: Camera | None) -> np.ndarray:
+    """:func:`mixed_footprint` for a camera with a lens distortion: the rays the lens images at the pixel
+    corners (lfusd.camera.ray_directions through ``camera.dist``), cast against the whole scene; each hit
+    carried to t+1 (as the kernel does) is imaged through ``camera_next``'s lens, NaN beyond its fold."""
+    from ._motion_numba import mixed_pixels
+    from ..camera import project_imaged
+    from ..camera import pixel_grid, ray_directions
+
+    cu, cv = pixel_grid(h + 1, w + 1, np.float64)
+    dirs = ray_directions(cu - 0.5, cv - 0.5, camera).reshape(-1, 3)  # camera-frame z = 1: the ray parameter is planar depth
+    _, C = camera.world_to_cam()
+    rays = np.empty((len(dirs), 6), np.float32)
+    rays[:, :3], rays[:, 3:] = C, dirs
+    if len(here.triangles):
+        t, tri, uv = _cast(here.scene, rays)
+    else:
+        n = len(dirs)
+        t, tri, uv = np.full(n, np.inf, np.float32), np.zeros(n, np.uint32), np.zeros((n, 2), np.float32)
+    tri = np.where(np.isfinite(t), tri, 0).astype(np.uint32)
+    inst = np.ascontiguousarray(here.instance if here.instance is not None else np.zeros(len(here.triangles)), np.int32)
+    none = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
+    mixed = mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), False, *none, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
+    carry = nxt is not None and camera_next is not None and len(nxt.triangles) == len(here.triangles) and len(here.triangles) > 0
+    if not carry:
+        return mixed
+    hit = np.isfinite(t)
+    f = np.asarray(nxt.triangles, np.int64)[tri]
+    vn = np.asarray(nxt.vertices, np.float64)
+    b1, b2 = uv[:, :1].astype(np.float64), uv[:, 1:].astype(np.float64)
+    P = vn[f[:, 0]] + b1 * (vn[f[:, 1]] - vn[f[:, 0]]) + b2 * (vn[f[:, 2]] - vn[f[:, 0]])
+    pu, pv, _, imaged = project_imaged(P, camera_next)
+    ok = hit & imaged
+    fu = np.where(ok, pu - (cu.ravel() - 0.5), np.nan).reshape(h + 1, w + 1)
+    fv = np.where(ok, pv - (cv.ravel() - 0.5), np.nan).reshape(h + 1, w + 1)
+    corners = [(slice(0, h), slice(0, w)), (slice(0, h), slice(1, w + 1)), (slice(1, h + 1), slice(0, w)), (slice(1, h + 1), slice(1, w + 1))]
+    with np.errstate(invalid="ignore"):
+        for a in range(4):
+            for b in range(a + 1, 4):
+                du = fu[corners[a]] - fu[corners[b]]
+                dv = fv[corners[a]] - fv[corners[b]]
+                mixed |= du * du + dv * dv > MIXED_FLOW_PX * MIXED_FLOW_PX  # False where either is NaN
+    return mixed
 
 
 def _cast(scene, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -207,3 +207,77 @@ def test_a_camera_with_a_lens_projects_and_casts_through_it(dtype):
     assert np.abs(ray_lengths(cam.K, H, W, dist) - np.linalg.norm(distorted_ray_directions(u.astype(np.float64), v.astype(np.float64), cam, dist), axis=-1)).max() < 1e-12
     # without a lens the pinhole is unchanged
     assert np.abs(project(points, cam)[0] - project(points, Camera(cam.K, cam.cam_to_world, Distortion()))[0]).max() == 0
+
+
+def test_disparity_of_a_distorted_view_is_the_shifted_cameras_column_and_the_pinholes_without_a_lens():
+    from lfusd.data.passes import disparity, disparity_distorted
+    from lfusd.camera import point_disparity
+
+    dist, cam = MODELS["all"], _camera()
+    K = np.asarray(cam.K, np.float64)
+    rng = np.random.default_rng(4)
+    depth = rng.uniform(1.0, 6.0, (H, W)).astype(np.float32)
+    depth[0, :5] = np.inf  # no surface: 0, as the pinhole key has it
+    b = 0.1
+    got = disparity_distorted(depth, K, dist, b)
+    u, v = pixel_grid(H, W, np.float64)
+    lensed = Camera(K, cam.cam_to_world, dist)
+    from lfusd.camera import backproject
+
+    P = backproject(u, v, np.where(np.isfinite(depth), depth, 1.0).astype(np.float64), lensed)
+    shifted = np.array(cam.cam_to_world, np.float64)
+    shifted[:3, 3] += b * shifted[:3, 0]
+    want = u - _opencv(P, Camera(K, shifted), dist)[..., 0]  # where OpenCV images the point in the moved camera
+    fg = np.isfinite(depth)
+    assert np.abs(got[fg] - want[fg]).max() < 1e-3 and (got[~fg] == 0).all()
+    np.testing.assert_allclose(point_disparity(P, lensed, b)[fg], want[fg], atol=1e-6)  # the motion keys' disparity, the same
+    np.testing.assert_allclose(disparity_distorted(depth, K, Distortion(), b)[fg], disparity(depth, K[0, 0], b)[fg], rtol=1e-5)
+
+
+def test_visibility_and_mixed_through_the_lens():
+    """A point outside the pinhole's image that the barrel lens brings in is visible through it (and not
+    through the pinhole); one beyond the fold is not; a wall hides what lies behind it as without a lens."""
+    from lfusd.truth.visibility import Occluders, mixed_footprint, visible
+
+    dist, cam = MODELS["barrel"], _camera()
+    K = np.asarray(cam.K, np.float64)
+    lensed = Camera(K, cam.cam_to_world, dist)
+    corner_in = undistort_pixels(np.array([1.0]), np.array([1.0]), K, dist)  # the ray the lens images near pixel (1, 1)
+    from lfusd.camera import backproject
+
+    inside = backproject(corner_in[0], corner_in[1], np.array([3.0]), Camera(K, cam.cam_to_world))
+    assert corner_in[0][0] < -0.5  # outside the pinhole's image
+    far = backproject(np.array([-40.0 * W]), np.array([H / 2.0]), np.array([3.0]), Camera(K, cam.cam_to_world))  # far past the fold
+    points = np.concatenate([inside, far]).astype(np.float32)
+    empty = Occluders(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32))
+    assert visible(points, np.ones(2, bool), lensed, H, W, empty).tolist() == [True, False]
+    assert visible(points, np.ones(2, bool), cam, H, W, empty).tolist() == [False, False]
+    # a wall between the camera and the point hides it
+    C = cam.world_to_cam()[1]
+    mid = C + 0.5 * (inside[0] - C)
+    n = np.cross(inside[0] - C, [0.0, 0.0, 1.0])
+    n /= np.linalg.norm(n)
+    up = np.cross(n, inside[0] - C)
+    up /= np.linalg.norm(up)
+    quad = np.array([mid + a * n + c * up for a, c in ((-1, -1), (1, -1), (1, 1), (-1, 1))], np.float32)
+    wall = Occluders(quad, np.array([[0, 1, 2], [0, 2, 3]], np.int32), np.array([1, 1], np.int32))
+    assert visible(points[:1], np.ones(1, bool), lensed, H, W, wall).tolist() == [False]
+    # mixed: a plane parallel to the image, one instance, no motion: no pixel mixed; a half plane's edge is mixed
+    R = np.asarray(cam.cam_to_world, np.float64)[:3, :3]
+    centre = C + 4.0 * R[:, 2]
+    plane = np.array([centre + 50 * (a * R[:, 0] + c * R[:, 1]) for a, c in ((-1, -1), (1, -1), (1, 1), (-1, 1))], np.float32)
+    flat = Occluders(plane, np.array([[0, 1, 2], [0, 2, 3]], np.int32), np.array([1, 1], np.int32))
+    assert not mixed_footprint(lensed, H, W, flat, flat, lensed).any()
+    x0 = 1.2  # the half plane x >= x0 (camera frame) at depth 4: a straight column in the pinhole, a curve through the lens
+    half = np.array([centre + (x0 + 50 * a) * R[:, 0] + 50 * c * R[:, 1] for a, c in ((0, -1), (1, -1), (1, 1), (0, 1))], np.float32)
+    tris = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    edge = mixed_footprint(lensed, H, W, Occluders(half, tris, np.array([1, 1], np.int32)))
+    vs = np.linspace(-20 * H, 20 * H, 40001)
+    ud, vd = distort_pixels(np.full_like(vs, K[0, 2] + K[0, 0] * x0 / 4.0), vs, K, dist)  # the edge's image through the lens
+    curve = np.stack([ud, vd], -1)[(vd > -1) & (vd < H) & (ud > -1) & (ud < W)]
+    rows, cols = np.nonzero(edge)
+    assert set(rows.tolist()) == set(range(H))  # every row crosses the edge once
+    near = np.min(np.hypot(cols[:, None] - curve[None, :, 0], rows[:, None] - curve[None, :, 1]), axis=1)
+    assert near.max() <= 1.0  # each mixed pixel's footprint holds the curve (within a pixel's reach)
+    assert np.ptp(curve[:, 0]) > 2  # curved: the pinhole's straight column would not do
+    assert (mixed_footprint(cam, H, W, Occluders(half, tris, np.array([1, 1], np.int32))) != edge).any()
