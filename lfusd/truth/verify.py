@@ -109,6 +109,20 @@ class TracedScene:
         self.bounds = _bounds(self.meshes)
         self._same: dict[float, np.ndarray] = {}
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
+        self._edges: tuple | None = None
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The traced meshes' triangles (rows of T), the mesh index of each, and their edge table
+        (lfusd.truth.footprint.edge_table): the ``mixed`` footprint's discontinuity edges."""
+        if self._edges is None:
+            from .footprint import edge_table
+
+            traced = np.array([g >= 0 for g in self.geom_ids], bool)
+            mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
+            keep = traced[mesh] if len(mesh) else np.zeros(0, bool)
+            T, mesh = np.ascontiguousarray(self.T[keep]), mesh[keep]
+            self._edges = (T, mesh, edge_table(self.V, T))
+        return self._edges
 
     def same_topology(self, other: "TracedScene") -> np.ndarray:
         """Per mesh: whether ``other`` (another time of the same stage) holds it with the same
@@ -819,6 +833,16 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     lo, hi = MIXED_BAND
     surely = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi)
     maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
+    # the footprint's edges, from the stage's own triangles: surely crossed (squares shrunk by the
+    # float bound, nearly edge-on triangles no silhouette), or maybe (grown, edge-on either side)
+    T, mesh, table = ctx["s0"].edges()
+    if len(T):
+        from .footprint import crossed_by_edges
+
+        cam, inst = Camera(ctx["K"], ctx["c2w"]), ids[mesh]
+        for out, grow, strict, rel in ((surely, -TIE_PX, True, MIXED_DEPTH_REL * lo), (maybe, TIE_PX, False, MIXED_DEPTH_REL * hi)):
+            out |= crossed_by_edges(ctx["s0"].V, T, inst, table, cam, c["depth"], H, W, rel, grow=grow, ulps=EDGE_ULPS,
+                                    strict=strict, fpx=float(ctx["K"][0, 0])).ravel()
     got = np.asarray(mixed, bool)
     wrong = (got & ~maybe) | (~got & surely)
     tie = (surely != maybe) & (got == maybe)
