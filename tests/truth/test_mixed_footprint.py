@@ -4,6 +4,7 @@ computed here in closed form (its eight corners projected, their convex hull aga
 square by separating axes), for the derivation and for verify."""
 
 import numpy as np
+import pytest
 from support.motion_scenes import Box, Scene, intrinsics, pose, rot
 
 N = 48
@@ -113,3 +114,82 @@ def test_the_edge_table_welds_split_vertices_and_names_boundaries_and_silhouette
         "the fold is a silhouette: every pixel along it is crossed"
     assert not crossed_by_edges(V2, T2, same, edge_table(V2, T2), cam, np.full(33 * 33, 1.5), 32, 32, 0.01)[hinge].any(), \
         "an edge behind everything the corners see is hidden"
+
+
+def test_verify_checks_the_wires_footprint_on_its_own_geometry(tmp_path):
+    """Verify decides the footprint again from the stage's triangles: the derived ``mixed`` passes,
+    and clearing it on one pixel that only the footprint knows (its four corners all see the wall)
+    fails, naming the key."""
+    from test_verify import FakeDataset, stage_of
+
+    from lfusd.truth.verify import verify_dataset
+
+    sc = wire_scene()
+    stage_of(sc, tmp_path / "s.usda")
+    ds = FakeDataset(sc, tmp_path / "s.usda")
+    report = verify_dataset(ds)
+    assert report.ok, report.failures()
+    assert report.certificate()["keys"]["mixed"]["count"] == 3 * N * N  # every pixel of the three frames
+    crossed = wire_pixels(sc, 2)
+    t = sc.truth(2)
+    corners_on_wall = np.ones((N, N), bool)
+    v, u = np.mgrid[0:N, 0:N].astype(float)
+    for du, dv in ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
+        d = np.stack([u + du, v + dv, np.ones_like(u)], -1) @ np.linalg.inv(sc.K).T @ sc.cams[2][:3, :3].T
+        corners_on_wall &= sc.cast(np.broadcast_to(sc.cams[2][:3, 3], d.shape), d, 2)[1] == 0
+    only = np.argwhere(crossed & corners_on_wall & (t["which"] == 0))
+    assert len(only), "the wire must pass between some pixel's corners"
+    i, j = only[len(only) // 2]
+    ds.data[2]["mixed"][i, j] = False
+    report = verify_dataset(ds)
+    assert not report.ok and any(line.startswith("mixed") or " mixed" in line for line in report.failures()), report.failures()
+
+
+@pytest.mark.render
+def test_a_rendered_4mm_wire_is_mixed_wherever_it_crosses_a_pixel(tmp_path):
+    """Blender, 48x48, 2 frames, 1 sample: a 4 mm wire (a thin box, 0.05 px wide) 4.5 m in front
+    of the camera and a wall behind it. Every pixel whose square the wire's projection meets
+    (its eight corners from the stage, projected with the dataset's camera) is mixed, no pixel more
+    than a pixel away from it is, and verify passes with ``mixed`` checked on every pixel."""
+    from pxr import Gf, UsdGeom
+
+    from lfusd import Dataset
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.rigs import add_rig
+    from lfusd.author.stage import new_stage
+    from lfusd.camera import Camera, RigSpec, project
+    from lfusd.cli import main
+    from lfusd.truth.verify import verify_dataset
+
+    stage = new_stage(str(tmp_path / "s.usda"), 1, 2)
+    wall = UsdGeom.Cube.Define(stage, "/World/Wall")
+    wall.AddTranslateOp().Set(Gf.Vec3d(0, 4, 1.2))
+    wall.AddScaleOp().Set(Gf.Vec3f(8, 0.05, 8))  # filling the view: its outline is no discontinuity in it
+    set_class_label(wall.GetPrim(), "wall")
+    wire = UsdGeom.Cube.Define(stage, "/World/Wire")
+    t, r = wire.AddTranslateOp(), wire.AddRotateYOp()
+    wire.AddScaleOp().Set(Gf.Vec3f(1.2, WIRE, WIRE))
+    for f in (1, 2):
+        t.Set(Gf.Vec3d(0.03 * f, 0.0, 1.25), f)
+        r.Set(31.0 + 1.5 * f, f)
+    set_class_label(wire.GetPrim(), "wire")
+    add_rig(stage, RigSpec(name="main", rows=1, cols=1, width=N, height=N, at=(0, -4.5, 1.2), look_at=(0, 0, 1.2)))
+    stage.Save()
+    assert main(["render-video", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
+    ds = Dataset(tmp_path / "out")
+    view = ds.views[0]
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    for frame in (1, 2):
+        M = np.array(UsdGeom.Xformable(stage.GetPrimAtPath("/World/Wire")).ComputeLocalToWorldTransform(frame), float)
+        X = corners @ M[:3, :3] + M[3, :3]  # USD row vectors
+        u, v, z = project(X, Camera(ds.intrinsics(view), ds.cam_to_world(frame, view)))
+        assert (z > 0).all()
+        hull = _hull(np.stack([u, v], -1))
+        crossed, near = squares_meeting(hull, N, N), squares_meeting(hull, N, N, grow=1.0)
+        mixed = ds.read(frame, view, "mixed").astype(bool)
+        assert crossed.sum() > 25, "the wire must cross the view"
+        assert not (crossed & ~mixed).any(), f"frame {frame}: {(crossed & ~mixed).sum()} of {crossed.sum()} pixels the wire crosses are not mixed"
+        assert not (mixed & ~near).any(), f"frame {frame}: {(mixed & ~near).sum()} pixels more than a pixel from the wire are mixed"
+    report = verify_dataset(ds)
+    assert report.ok, report.failures()
+    assert report.certificate()["keys"]["mixed"]["count"] == 2 * N * N
