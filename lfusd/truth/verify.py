@@ -29,7 +29,7 @@ Ties are counted and reported. :meth:`VerifyReport.certificate` is what a datase
 Every other key and record is checked exactly (:data:`EXACT`): ``normal`` against the traced
 triangle (unit length, the side the camera sees), ``valid_fwd``/``valid_bwd`` (set exactly where the
 trace knows the motion, nowhere past the rendered range), ``semantic``, ``mixed`` (decided again on
-verify's own corner rays), the object table and the manifest's rig against the stage (the trace
+verify's own corner rays and the stage's own triangles' discontinuity edges: lfusd.truth.footprint), the object table and the manifest's rig against the stage (the trace
 takes the stage's rig). Per object and view, the mean signed error of flow, scene flow and
 disparity change is held to a tenth of the limit (the ``<key>_bias`` rows).
 """
@@ -822,7 +822,10 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     Either value is accepted where the decision changes within MIXED_BAND of its limits, or where
     a corner's ray moved TIE_PX sees another object, or a depth or flow that differs from the
     corner's by more than the rule's lower limits (a corner on an edge, the same object's
-    included: a fold of a person in front of its own body)."""
+    included: a fold of a person in front of its own body). The footprint's edges
+    (lfusd.truth.footprint) are decided from the stage's triangles twice: surely (squares shrunk
+    by the float bound of the edge's position, a triangle within rounding of edge-on no
+    silhouette, depth slack 0.8 times the rule's) and maybe (grown, either side, 1.25 times)."""
     from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
 
     vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
