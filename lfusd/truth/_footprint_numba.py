@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit
 
 EPS32 = 2.0**-24  # float32 unit roundoff
+MAX_GROW = 2.0  # px: the float bound of an edge's position is capped here (an edge within millimetres of the lens)
 
 
 @njit(cache=True, error_model="numpy")
@@ -75,8 +76,8 @@ def footprint_edges(V, T, inst, e0, e1, t1, t2, flip, M, C, R2, corner_depth, h,
     depth the rays through the pixel's four corners see (``corner_depth``: (h+1)(w+1) planar depths,
     inf for a miss): an edge behind all that the footprint shows is hidden. With ``ulps`` > 0 the
     squares are grown (``grow`` >= 0) or shrunk (``grow`` < 0) by at least that many float32
-    roundoffs of the edge's coordinates (max(|end|, |C|)) seen at its least depth (``fpx``: focal
-    length in px): where the edge may lie after rounding."""
+    roundoffs of the edge's coordinates (max(|end|, |C|)) seen at its depth in the square (``fpx``:
+    focal length in px; at most MAX_GROW px): where the edge may lie after rounding."""
     cos, tol = _facing(V, T, C, ulps)
     wc = w + 1
     for k in range(e0.shape[0]):
@@ -122,16 +123,19 @@ def footprint_edges(V, T, inst, e0, e1, t1, t2, flip, M, C, R2, corner_depth, h,
         if not (math.isfinite(ua) and math.isfinite(va) and math.isfinite(ub) and math.isfinite(vb)):
             continue
         du, dv = ub - ua, vb - va
+        ia, ib = 1.0 / za, 1.0 / zb  # inverse depth is affine in the projected segment's parameter
         g = grow
+        px_per_inv = 0.0  # px of rounding per unit of inverse depth
         if ulps > 0:
             mag = max(max(math.sqrt(V[a, 0] ** 2 + V[a, 1] ** 2 + V[a, 2] ** 2), math.sqrt(V[b, 0] ** 2 + V[b, 1] ** 2 + V[b, 2] ** 2)),
                       math.sqrt(C[0] * C[0] + C[1] * C[1] + C[2] * C[2]))
-            g = max(abs(grow), ulps * EPS32 * mag * fpx / min(za, zb))
+            px_per_inv = ulps * EPS32 * mag * fpx
+            # the range searched: the bound at the edge's nearest point, at most MAX_GROW px
+            g = min(max(abs(grow), px_per_inv * max(ia, ib)), MAX_GROW)
             if grow < 0:
                 g = -g
         if g <= -0.5:
             continue
-        ia, ib = 1.0 / za, 1.0 / zb  # inverse depth is affine in the projected segment's parameter
         j0 = int(math.ceil(max(min(ua, ub) - 0.5 - g, -1.0)))  # clamped first: a far end may be huge
         j1 = int(math.floor(min(max(ua, ub) + 0.5 + g, w + 1.0)))
         j0, j1 = max(j0, 0), min(j1, w - 1)
@@ -149,6 +153,18 @@ def footprint_edges(V, T, inst, e0, e1, t1, t2, flip, M, C, R2, corner_depth, h,
                 if sc > sd:
                     continue
                 inv = max(ia + sc * (ib - ia), ia + sd * (ib - ia))
+                if px_per_inv > 0:  # the bound at the edge's depth here (its nearest point in the searched square)
+                    gl = min(max(abs(grow), px_per_inv * inv), MAX_GROW)
+                    if grow < 0:
+                        gl = -gl
+                    if gl != g:
+                        if gl <= -0.5:
+                            continue
+                        sc, sd = _clip(0.0, 1.0, ua, du, j - 0.5 - gl, j + 0.5 + gl)
+                        sc, sd = _clip(sc, sd, va, dv, i - 0.5 - gl, i + 0.5 + gl)
+                        if sc > sd:
+                            continue
+                        inv = max(ia + sc * (ib - ia), ia + sd * (ib - ia))
                 c = i * wc + j
                 far = max(max(corner_depth[c], corner_depth[c + 1]), max(corner_depth[c + wc], corner_depth[c + wc + 1]))
                 if not (far < np.inf) or 1.0 <= inv * far * (1.0 + depth_rel):
