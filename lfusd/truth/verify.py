@@ -107,9 +107,42 @@ class TracedScene:
                                 + [np.zeros((0, 3), np.int64)])
         self.prim_paths = [m.prim_path for m in self.meshes]
         self.bounds = _bounds(self.meshes)
-        self._same: dict[float, np.ndarray] = {}
+        self._same: dict = {}  # per other time: same topology per mesh; ("static", t), ("moving", t): see below
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
         self._edges: tuple | None = None
+
+    def static_triangles(self, other: "TracedScene") -> np.ndarray:
+        """Per triangle (rows of T): whether ``other`` (another time) holds it traced, with the same
+        topology and its three vertices the same bit for bit (it stands still from one time to the other)."""
+        key = ("static", other.time)
+        if key not in self._same:
+            same = self.same_topology(other)
+            out = np.zeros(len(self.T), bool)
+            for m in np.flatnonzero(same[:-1]):
+                if self.geom_ids[m] < 0 or other.geom_ids[m] < 0:
+                    continue
+                a0, b0, a1 = self.vert_offset[m], self.vert_offset[m + 1], other.vert_offset[m]
+                still = (self.V[a0:b0] == other.V[a1:a1 + b0 - a0]).all(axis=1)
+                out[self.tri_offset[m]:self.tri_offset[m + 1]] = still[self.T[self.tri_offset[m]:self.tri_offset[m + 1]] - a0].all(axis=1)
+            self._same[key] = out
+        return self._same[key]
+
+    def moving_scene(self, other: "TracedScene"):
+        """An Open3D scene of this time's traced triangles that do not stand still since ``other``
+        (:meth:`static_triangles`), or None when there are none (built once per pair)."""
+        import open3d as o3d
+
+        key = ("moving", other.time)
+        if key not in self._same:
+            mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
+            traced = np.array([g >= 0 for g in self.geom_ids] + [False], bool)
+            moving = traced[mesh] & ~self.static_triangles(other) if len(mesh) else np.zeros(0, bool)
+            scene = None
+            if moving.any():
+                scene = o3d.t.geometry.RaycastingScene()
+                scene.add_triangles(o3d.core.Tensor(self.V.astype(np.float32)), o3d.core.Tensor(self.T[moving].astype(np.uint32)))
+            self._same[key] = scene
+        return self._same[key]
 
     def edges(self) -> tuple[np.ndarray, np.ndarray, dict]:
         """The traced meshes' triangles (rows of T), the mesh index of each, and their edge table
@@ -264,7 +297,15 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, np.ascontiguousarray(K @ R, np.float64),
                      np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), pos1, valid, u1, v1, z1)
     if visibility:
-        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1))
+        still = None
+        if hits is None and np.array_equal(ctx["c2w1"][:3, 3], ctx["c2w"][:3, 3]) and g.size:
+            # The camera centre stays put: a first hit on a triangle that stands still is the same
+            # point on the same segment from the centre as at t, where nothing lay before it; only
+            # what moved can hide it now (see visibility_of).
+            k = np.where(mesh >= 0, s0.tri_offset[np.maximum(mesh, 0)] + tri, 0)
+            still = (mesh >= 0) & s0.static_triangles(s1)[k]
+        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1), still=still,
+                                   moving=s1.moving_scene(s0) if still is not None else None)
     else:
         vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
     baseline = ctx["baseline"]
@@ -286,15 +327,31 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
 
 
 def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: np.ndarray, H: int, W: int,
-                  eps: float = VISIBLE_EPS, uvz: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  eps: float = VISIBLE_EPS, uvz: tuple | None = None, still: np.ndarray | None = None,
+                  moving=None) -> tuple[np.ndarray, np.ndarray]:
     """(visible, first-hit ray parameter) of world points at the scene's time: inside the image and
     no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule);
-    ``uvz``: the points' projection in ``cam`` when the caller has it."""
+    ``uvz``: the points' projection in ``cam`` when the caller has it. ``still`` (per point): the
+    point is the first hit, at the other time, of a ray from this same camera centre, on a triangle
+    that stands still, so no triangle that stands still lies before it: its segment is cast against
+    ``moving`` alone (the scene's triangles that moved; None: nothing moved), its own surface at 1."""
     u1, v1, z1 = project(points, cam) if uvz is None else uvz
     inside = valid & (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
     C1 = np.asarray(cam.cam_to_world, np.float64)[:3, 3]
     t_hit = np.full(len(points), np.nan)
-    idx = np.flatnonzero(inside)
+    cast = inside
+    if still is not None:
+        known = np.flatnonzero(inside & still)
+        cast = inside & ~still
+        t_hit[known] = 1.0
+        if known.size and moving is not None:
+            import open3d as o3d
+
+            rays = np.empty((known.size, 6), np.float32)
+            rays[:, :3] = C1
+            rays[:, 3:] = points[known] - C1
+            t_hit[known] = np.minimum(moving.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy(), 1.0)
+    idx = np.flatnonzero(cast)
     if idx.size:
         t_hit[idx] = scene.cast(np.broadcast_to(C1, (idx.size, 3)), points[idx] - C1)[0]
     with np.errstate(invalid="ignore"):
