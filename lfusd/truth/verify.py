@@ -821,29 +821,37 @@ def compare_view(
     # each pixel's label as an index into the sorted label names (no per-pixel string compares)
     names_ = sorted(set(labels_of.tolist()))
     code = np.array([names_.index(x) for x in labels_of.tolist()], np.int64)[cls]
-    of_label: dict[int, np.ndarray] = {}
+    # the pixels ordered by label once: each label's rows read its own slice, not the whole view
+    order = np.argsort(code, kind="stable")
+    bounds = np.r_[0, np.cumsum(np.bincount(code, minlength=len(names_)))]
+    fg_sorted = fg[order]
     fg_of: dict[int, int] = {-1: int(fg.sum())}  # foreground pixels per label
     rows: list[Row] = []
     for key, e in err.items():
         rate = UNITS.get(key) == "frac"
-        sel_all = ~np.isnan(e)
         kk = kind.copy() if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
         for pix, k in own.get(key, []):
             kk[pix[kk[pix] == 0]] = k
-        for c in [-1] + np.unique(code[sel_all]).tolist():
+        e_sorted = e[order]
+        sel_sorted = ~np.isnan(e_sorted)
+        for c in [-1] + [c for c in range(len(names_)) if sel_sorted[bounds[c]:bounds[c + 1]].any()]:
             label = ALL if c < 0 else names_[c]
-            if c >= 0 and c not in of_label:
-                of_label[c] = code == c
-                fg_of[c] = int((fg & of_label[c]).sum())
-            sel = sel_all if c < 0 else sel_all & of_label[c]
-            x = e[sel]
+            if c < 0:
+                at = np.flatnonzero(sel_sorted)
+                x = e_sorted[at]
+            else:
+                if c not in fg_of:
+                    fg_of[c] = int(fg_sorted[bounds[c]:bounds[c + 1]].sum())
+                at = bounds[c] + np.flatnonzero(sel_sorted[bounds[c]:bounds[c + 1]])
+                x = e_sorted[at]
             if x.size == 0:
                 rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_of[c]))
                 continue
             over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
-            j = int(np.flatnonzero(sel)[np.argmax(x)])
-            worst = (j % W, j // W, float(x.max()))
-            counted = np.bincount(kk[sel], minlength=len(TIE_KINDS) + 1)
+            top = int(np.argmax(x))
+            j = int(order[at[top]])
+            worst = (j % W, j // W, float(x[top]))
+            counted = np.bincount(kk[order[at]], minlength=len(TIE_KINDS) + 1)
             by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
             n_ties = int(counted[1:].sum())
             if rate:
@@ -851,7 +859,7 @@ def compare_view(
                 rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, fg_of[c], n_ties, worst, by_kind))
             else:
                 med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
-                rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x.max()),
+                rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x[top]),
                                 thr[key], over, fg_of[c], n_ties, worst, by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
@@ -946,27 +954,36 @@ def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.nd
         return []
     sizes = object_sizes(ids, tr["mesh_bounds"])
     rows = []
-    order = np.argsort(inst[ok], kind="stable")
-    pix = np.flatnonzero(ok)[order]
-    starts = np.flatnonzero(np.r_[True, np.diff(inst[pix]) != 0])
-    for a, b in zip(starts, np.r_[starts[1:], pix.size]):
-        obj = int(inst[pix[a]])
-        if b - a < BIAS_MIN_PX or obj not in objects:
-            continue
-        sel = pix[a:b]
+    # per object sums by bincount (one pass per key and component, no sort)
+    pix = np.flatnonzero(ok)
+    objs = inst[pix]
+    n = np.bincount(objs)
+    first = np.zeros(n.size, np.int64)  # each object's first pixel (where its row points)
+    first[objs[::-1]] = pix[::-1]
+    objects_here = [o for o in np.flatnonzero(n >= BIAS_MIN_PX).tolist() if o in objects]
+    if not objects_here:
+        return []
+    means: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for key in keys:
+        trace_key = "flow" if key.startswith("flow") else key
+        with np.errstate(invalid="ignore"):
+            diff = np.asarray(ds[key][pix], np.float64) - tr[trace_key][pix]
+        diff = diff.reshape(len(pix), -1)
+        finite = np.bincount(objs, weights=(~np.isfinite(diff).all(axis=1)).astype(float), minlength=n.size) == 0
+        sums = np.stack([np.bincount(objs, weights=np.nan_to_num(diff[:, c]), minlength=n.size) for c in range(diff.shape[1])], -1)
+        means[key] = (np.linalg.norm(sums / np.maximum(n, 1)[:, None], axis=-1), finite)
+    for obj in objects_here:
         for key in keys:
-            trace_key = "flow" if key.startswith("flow") else key
-            with np.errstate(invalid="ignore"):
-                diff = np.asarray(ds[key][sel], np.float64) - tr[trace_key][sel]
-            if not np.isfinite(diff).all():
+            bias_of, finite = means[key]
+            if not finite[obj]:
                 continue
-            bias = float(np.linalg.norm(np.atleast_2d(diff.T).mean(-1)))
+            bias = float(bias_of[obj])
             limit = BIAS_FRACTION * thr[key]
             if key == "scene_flow":
                 limit = max(BIAS_FRACTION * min(thr[key], SCENE_FLOW_REL * sizes[obj]), SCENE_FLOW_FLOOR)
-            j = int(sel[len(sel) // 2])
-            rows.append(Row(frame, view, key + BIAS, objects[obj].prim_path, int(b - a), bias, bias, bias, limit,
-                            int(bias > limit), int(b - a), 0, (j % W, j // W, bias)))
+            j = int(first[obj])
+            rows.append(Row(frame, view, key + BIAS, objects[obj].prim_path, int(n[obj]), bias, bias, bias, limit,
+                            int(bias > limit), int(n[obj]), 0, (j % W, j // W, bias)))
     return rows
 
 
