@@ -193,3 +193,22 @@ def test_a_rendered_4mm_wire_is_mixed_wherever_it_crosses_a_pixel(tmp_path):
     report = verify_dataset(ds)
     assert report.ok, report.failures()
     assert report.certificate()["keys"]["mixed"]["count"] == 2 * N * N
+
+
+def test_verify_band_of_an_edge_reaching_behind_the_camera_stays_near_its_projection():
+    """A boundary edge from behind the camera to 5 m in front: clipped at the near plane, its
+    projection runs off the image; verify's float band (8 roundoffs of its coordinates at its depth
+    in each square) marks the pixels along it, not the whole view (the band at the clipped end's
+    depth of 1e-6 m would be huge)."""
+    from lfusd.camera import Camera
+    from lfusd.truth.footprint import crossed_by_edges, edge_table
+
+    V = np.array([[0.0, 0.0, -1.0], [0.5, 0.2, 5.0], [0.5, 3.0, 5.0]])  # one triangle: every edge a boundary
+    T = np.array([[0, 1, 2]])
+    K = np.array([[20.0, 0, 15.5], [0, 20.0, 15.5], [0, 0, 1]])
+    far = np.full(33 * 33, np.inf)
+    tab = edge_table(V, T)
+    plain = crossed_by_edges(V, T, np.zeros(1, np.int64), tab, Camera(K, np.eye(4)), far, 32, 32, 0.01)
+    band = crossed_by_edges(V, T, np.zeros(1, np.int64), tab, Camera(K, np.eye(4)), far, 32, 32, 0.01, grow=1e-3, ulps=8, fpx=20.0)
+    assert plain.any() and (band >= plain).all()
+    assert band.sum() <= plain.sum() + 8, f"{band.sum()} px in the band against {plain.sum()} crossed"
