@@ -97,3 +97,38 @@ def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):
                         if np.sqrt(gx * gx + gy * gy) > flow_px:  # NaN (unknown motion) counts as none
                             res = True
             out[y * W + x] = res
+
+
+@njit(cache=True, error_model="numpy")
+def nearest_depth(V, T, M, C, R2, H, W, margin):  # pragma: no cover - compiled
+    """(H, W): per pixel, the least camera depth of the triangles (rows of T into V) whose
+    projection's bounding rectangle, grown by ``margin`` px, covers the pixel centre; inf where none
+    does. A triangle reaching to or behind the camera covers every pixel at depth 0. M = K R, C the
+    centre, R2 R's depth row: what may lie in front of a point seen through a pixel, conservatively."""
+    out = np.full((H, W), np.inf)
+    for f in range(T.shape[0]):
+        umin, umax, vmin, vmax, zmin = np.inf, -np.inf, np.inf, -np.inf, np.inf
+        behind = False
+        for c in range(3):
+            k = T[f, c]
+            dx, dy, dz = V[k, 0] - C[0], V[k, 1] - C[1], V[k, 2] - C[2]
+            z = R2[0] * dx + R2[1] * dy + R2[2] * dz
+            if not z > 0:
+                behind = True
+                break
+            hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+            u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
+            v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
+            umin, umax, vmin, vmax, zmin = min(umin, u), max(umax, u), min(vmin, v), max(vmax, v), min(zmin, z)
+        if behind:
+            out[:, :] = 0.0
+            return out
+        j0 = max(int(np.ceil(max(umin - margin, -1.0))), 0)
+        j1 = min(int(np.floor(min(umax + margin, W + 1.0))), W - 1)
+        i0 = max(int(np.ceil(max(vmin - margin, -1.0))), 0)
+        i1 = min(int(np.floor(min(vmax + margin, H + 1.0))), H - 1)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                if zmin < out[i, j]:
+                    out[i, j] = zmin
+    return out

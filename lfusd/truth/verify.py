@@ -128,8 +128,8 @@ class TracedScene:
         return self._same[key]
 
     def moving_scene(self, other: "TracedScene"):
-        """An Open3D scene of this time's traced triangles that do not stand still since ``other``
-        (:meth:`static_triangles`), or None when there are none (built once per pair)."""
+        """(Open3D scene, V, their rows of T) of this time's traced triangles that do not stand still
+        since ``other`` (:meth:`static_triangles`), or None when there are none (built once per pair)."""
         import open3d as o3d
 
         key = ("moving", other.time)
@@ -141,6 +141,7 @@ class TracedScene:
             if moving.any():
                 scene = o3d.t.geometry.RaycastingScene()
                 scene.add_triangles(o3d.core.Tensor(self.V.astype(np.float32)), o3d.core.Tensor(self.T[moving].astype(np.uint32)))
+                scene = (scene, self.V, np.ascontiguousarray(self.T[moving]))
             self._same[key] = scene
         return self._same[key]
 
@@ -334,7 +335,8 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
     ``uvz``: the points' projection in ``cam`` when the caller has it. ``still`` (per point): the
     point is the first hit, at the other time, of a ray from this same camera centre, on a triangle
     that stands still, so no triangle that stands still lies before it: its segment is cast against
-    ``moving`` alone (the scene's triangles that moved; None: nothing moved), its own surface at 1."""
+    ``moving`` alone (:meth:`TracedScene.moving_scene`; None: nothing moved), and only where one of
+    those may lie in front of it; its own surface counts as a hit at 1."""
     u1, v1, z1 = project(points, cam) if uvz is None else uvz
     inside = valid & (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
     C1 = np.asarray(cam.cam_to_world, np.float64)[:3, 3]
@@ -347,10 +349,23 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
         if known.size and moving is not None:
             import open3d as o3d
 
-            rays = np.empty((known.size, 6), np.float32)
-            rays[:, :3] = C1
-            rays[:, 3:] = points[known] - C1
-            t_hit[known] = np.minimum(moving.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy(), 1.0)
+            from . import _verify_numba as _numba
+
+            # only where a moving triangle may lie in front: its screen rectangle (grown by a
+            # pixel) covers the pixel nearest the point, nearer than the point (depth is the ray
+            # parameter times the point's depth: a triangle no nearer cannot hit before 1)
+            mscene, V1, T1 = moving
+            R, _ = cam.world_to_cam()
+            near = _numba.nearest_depth(V1, T1, np.asarray(cam.K, np.float64) @ R, np.ascontiguousarray(C1, np.float64),
+                                        np.ascontiguousarray(R[2], np.float64), H, W, 1.0)
+            i = np.clip(np.rint(v1[known]), 0, H - 1).astype(np.int64)
+            j = np.clip(np.rint(u1[known]), 0, W - 1).astype(np.int64)
+            known = known[near[i, j] < z1[known]]
+            if known.size:
+                rays = np.empty((known.size, 6), np.float32)
+                rays[:, :3] = C1
+                rays[:, 3:] = points[known] - C1
+                t_hit[known] = np.minimum(mscene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy(), 1.0)
     idx = np.flatnonzero(cast)
     if idx.size:
         t_hit[idx] = scene.cast(np.broadcast_to(C1, (idx.size, 3)), points[idx] - C1)[0]
