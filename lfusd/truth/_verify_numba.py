@@ -5,6 +5,8 @@ instead of a dozen NumPy temporaries."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -132,3 +134,22 @@ def nearest_depth(V, T, M, C, R2, H, W, margin):  # pragma: no cover - compiled
                 if zmin < out[i, j]:
                     out[i, j] = zmin
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def object_sums(ok, obj, a, b, n_obj, sums, count, broken):  # pragma: no cover - compiled
+    """Per object id (obj per pixel, pixels where ``ok``): the sum of a - b over its pixels per
+    component (a, b: (N, C)), its pixel count, and whether any difference is not finite."""
+    for i in range(ok.size):
+        if not ok[i]:
+            continue
+        o = obj[i]
+        if o < 0 or o >= n_obj:
+            continue
+        count[o] += 1
+        for c in range(a.shape[1]):
+            x = a[i, c] - b[i, c]
+            if math.isfinite(x):
+                sums[o, c] += x
+            else:
+                broken[o] = True

@@ -967,26 +967,25 @@ def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.nd
         ok &= ds[f"valid_{name}"]
     if not ok.any():
         return []
+    from . import _verify_numba as _numba
+
     sizes = object_sizes(ids, tr["mesh_bounds"])
     rows = []
-    # per object sums by bincount (one pass per key and component, no sort)
+    n_obj = int(inst.max(initial=0)) + 1
     pix = np.flatnonzero(ok)
-    objs = inst[pix]
-    n = np.bincount(objs)
-    first = np.zeros(n.size, np.int64)  # each object's first pixel (where its row points)
-    first[objs[::-1]] = pix[::-1]
-    objects_here = [o for o in np.flatnonzero(n >= BIAS_MIN_PX).tolist() if o in objects]
-    if not objects_here:
-        return []
+    first = np.zeros(n_obj, np.int64)  # each object's first pixel (where its row points)
+    first[inst[pix[::-1]]] = pix[::-1]
     means: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    for key in keys:
+    n = np.zeros(n_obj, np.int64)
+    for key in keys:  # one compiled pass per key: per object, the sum of the differences
         trace_key = "flow" if key.startswith("flow") else key
-        with np.errstate(invalid="ignore"):
-            diff = np.asarray(ds[key][pix], np.float64) - tr[trace_key][pix]
-        diff = diff.reshape(len(pix), -1)
-        finite = np.bincount(objs, weights=(~np.isfinite(diff).all(axis=1)).astype(float), minlength=n.size) == 0
-        sums = np.stack([np.bincount(objs, weights=np.nan_to_num(diff[:, c]), minlength=n.size) for c in range(diff.shape[1])], -1)
-        means[key] = (np.linalg.norm(sums / np.maximum(n, 1)[:, None], axis=-1), finite)
+        a, b = np.asarray(ds[key], np.float64), np.asarray(tr[trace_key], np.float64)
+        a, b = a.reshape(len(a), -1), b.reshape(len(b), -1)
+        sums, n, broken = np.zeros((n_obj, a.shape[1])), np.zeros(n_obj, np.int64), np.zeros(n_obj, bool)
+        _numba.object_sums(ok, np.ascontiguousarray(inst, np.int64), np.ascontiguousarray(a), np.ascontiguousarray(b), n_obj, sums,
+                           n, broken)
+        means[key] = (np.linalg.norm(sums / np.maximum(n, 1)[:, None], axis=-1), ~broken)
+    objects_here = [o for o in np.flatnonzero(n >= BIAS_MIN_PX).tolist() if o in objects]
     for obj in objects_here:
         for key in keys:
             bias_of, finite = means[key]
