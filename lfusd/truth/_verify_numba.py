@@ -153,3 +153,44 @@ def object_sums(ok, obj, a, b, n_obj, sums, count, broken):  # pragma: no cover 
                 sums[o, c] += x
             else:
                 broken[o] = True
+
+
+@njit(cache=True, error_model="numpy")
+def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # pragma: no cover - compiled
+    """One pass over a key's per-pixel errors ``e`` (NaN: not compared) for verify's rows: per label
+    (``code`` per pixel, 0 .. n_labels-1; row n_labels is every label together) the pixels compared,
+    those over ``limit`` (over 0.5 when ``rate``), the first pixel of the greatest error and that
+    error, the sum of the errors and the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1).
+    Unless ``rate``, ``grouped`` receives the compared errors ordered by label (raster order within
+    one), a label's at its offset (the counts' running sum)."""
+    rows = n_labels + 1
+    count = np.zeros(rows, np.int64)
+    over = np.zeros(rows, np.int64)
+    worst = np.zeros(rows, np.int64)
+    top = np.full(rows, -np.inf)
+    total = np.zeros(rows)
+    kinds = np.zeros((rows, n_kinds), np.int64)
+    for i in range(e.size):
+        x = e[i]
+        if x != x:
+            continue
+        c = code[i]
+        for r in (c, n_labels):
+            count[r] += 1
+            total[r] += x
+            if (x > 0.5) if rate else (x > limit):
+                over[r] += 1
+            if count[r] == 1 or x > top[r]:
+                top[r] = x
+                worst[r] = i
+            kinds[r, kind[i]] += 1
+    if not rate:
+        pos = np.zeros(n_labels, np.int64)
+        for c in range(1, n_labels):
+            pos[c] = pos[c - 1] + count[c - 1]
+        for i in range(e.size):
+            x = e[i]
+            if x == x:
+                grouped[pos[code[i]]] = x
+                pos[code[i]] += 1
+    return count, over, worst, top, total, kinds

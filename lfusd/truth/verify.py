@@ -836,46 +836,39 @@ def compare_view(
     # each pixel's label as an index into the sorted label names (no per-pixel string compares)
     names_ = sorted(set(labels_of.tolist()))
     code = np.array([names_.index(x) for x in labels_of.tolist()], np.int64)[cls]
-    # the pixels ordered by label once: each label's rows read its own slice, not the whole view
-    order = np.argsort(code, kind="stable")
-    bounds = np.r_[0, np.cumsum(np.bincount(code, minlength=len(names_)))]
-    fg_sorted = fg[order]
-    fg_of: dict[int, int] = {-1: int(fg.sum())}  # foreground pixels per label
+    from . import _verify_numba as _numba
+
+    n_labels = len(names_)
+    fg_of = np.bincount(code[fg], minlength=n_labels)  # foreground pixels per label
+    fg_all = int(fg.sum())
     rows: list[Row] = []
-    for key, e in err.items():
+    grouped = np.empty(H * W)
+    for key, e in err.items():  # one compiled pass per key for every label's row
         rate = UNITS.get(key) == "frac"
         kk = kind.copy() if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
         for pix, k in own.get(key, []):
             kk[pix[kk[pix] == 0]] = k
-        e_sorted = e[order]
-        sel_sorted = ~np.isnan(e_sorted)
-        for c in [-1] + [c for c in range(len(names_)) if sel_sorted[bounds[c]:bounds[c + 1]].any()]:
-            label = ALL if c < 0 else names_[c]
-            if c < 0:
-                at = np.flatnonzero(sel_sorted)
-                x = e_sorted[at]
-            else:
-                if c not in fg_of:
-                    fg_of[c] = int(fg_sorted[bounds[c]:bounds[c + 1]].sum())
-                at = bounds[c] + np.flatnonzero(sel_sorted[bounds[c]:bounds[c + 1]])
-                x = e_sorted[at]
-            if x.size == 0:
-                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_of[c]))
+        count, over, worst, top, total, kinds = _numba.label_stats(
+            np.ascontiguousarray(e, np.float64), code, kk.astype(np.int64), n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, grouped)
+        offset = np.r_[0, np.cumsum(count[:n_labels])]
+        for c in [-1] + np.flatnonzero(count[:n_labels]).tolist():
+            r = n_labels if c < 0 else c
+            label, fg_c = (ALL, fg_all) if c < 0 else (names_[c], int(fg_of[c]))
+            if count[r] == 0:
+                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_c))
                 continue
-            over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
-            top = int(np.argmax(x))
-            j = int(order[at[top]])
-            worst = (j % W, j // W, float(x[top]))
-            counted = np.bincount(kk[order[at]], minlength=len(TIE_KINDS) + 1)
-            by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
-            n_ties = int(counted[1:].sum())
+            j = int(worst[r])
+            by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(kinds[r]) if k and n}
+            n_ties = int(kinds[r, 1:].sum())
             if rate:
-                m = float(x.mean())
-                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, fg_of[c], n_ties, worst, by_kind))
+                m = float(total[r] / count[r])
+                rows.append(Row(frame, view, key, label, int(count[r]), m, m, m, thr[key], int(over[r]), fg_c, n_ties,
+                                (j % W, j // W, float(top[r])), by_kind))
             else:
+                x = grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]]
                 med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
-                rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x[top]),
-                                thr[key], over, fg_of[c], n_ties, worst, by_kind))
+                rows.append(Row(frame, view, key, label, int(count[r]), float(med), float(p99), float(top[r]),
+                                thr[key], int(over[r]), fg_c, n_ties, (j % W, j // W, float(top[r])), by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
