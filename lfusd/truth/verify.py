@@ -568,15 +568,16 @@ class VerifyReport:
 ALL = "(all)"
 
 
-def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
+def _errors(ds: dict, idx: np.ndarray | slice, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
             classes: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per-key error at flat pixels ``idx`` (NaN where the key is not compared there): ``ds`` holds the
+    """Per-key error at flat pixels ``idx`` (``slice(None)``: all of them, without a copy) (NaN where
+    the key is not compared there): ``ds`` holds the
     dataset's flat arrays, ``st`` a trace at t and ``fw``/``bw`` traces towards t+1 / t-1 (None: the
     frame has no neighbour that way, so the dataset must call no pixel valid that way), each
     indexed like ``idx``; ``classes``: the stage's class id of every instance id (semantic check).
     Instance, semantic, validity and occlusion errors are 0 (agree) or 1; normal: 1 - cos of the
     angle to the traced triangle's normal facing the camera (2 when not of unit length)."""
-    nan = np.full(idx.size, np.nan)
+    nan = np.full(len(ds["depth"]) if isinstance(idx, slice) else idx.size, np.nan)
     inst_tr = ids[st["mesh"]]
     fg_tr = st["mesh"] >= 0
     d_ds = ds["depth"][idx]
@@ -591,7 +592,7 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
             err["semantic"] = np.where(both, (ds["semantic"][idx] != classes[np.clip(inst_tr, 0, len(classes) - 1)]).astype(float), nan)
         if ds.get("normal") is not None and "normal" in st:
             n = ds["normal"][idx].astype(np.float64)
-            length = np.linalg.norm(n, axis=-1)
+            length = _norm(n)
             e = 1.0 - (n * st["normal"]).sum(-1) / length
             err["normal"] = np.where(both, np.where(np.abs(length - 1) <= NORMAL_LENGTH_TOL, e, 2.0), nan)
         for name, tr in (("fwd", fw), ("bwd", bw)):
@@ -606,13 +607,13 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
                 err[f"valid_{name}"] = np.where(both, (ds[f"valid_{name}"][idx] != tr["valid"]).astype(float), nan)
                 ok &= ds[f"valid_{name}"][idx]
             if ds.get(f"flow_{name}") is not None:
-                err[f"flow_{name}"] = np.where(ok, np.linalg.norm(ds[f"flow_{name}"][idx] - tr["flow"], axis=-1), nan)
+                err[f"flow_{name}"] = np.where(ok, _norm(ds[f"flow_{name}"][idx] - tr["flow"]), nan)
             if name == "fwd" and ds.get("scene_flow") is not None:
                 # Held to the limit or SCENE_FLOW_REL of the object's size, whichever is smaller, but
                 # never below the storage step (a 1.5 mm object's true error is the rounding).
                 size = object_sizes(ids, tr["mesh_bounds"])[np.clip(inst_tr, 0, None)]
                 limit = np.maximum(np.minimum(thr["scene_flow"], SCENE_FLOW_REL * size), SCENE_FLOW_FLOOR)
-                e = np.linalg.norm(ds["scene_flow"][idx] - tr["scene_flow"], axis=-1) * thr["scene_flow"] / limit
+                e = _norm(ds["scene_flow"][idx] - tr["scene_flow"]) * thr["scene_flow"] / limit
                 err["scene_flow"] = np.where(ok, e, nan)
             if name == "fwd" and ds.get("disparity_change") is not None and np.isfinite(tr["disparity_change"][ok]).all():
                 err["disparity_change"] = np.where(ok, np.abs(ds["disparity_change"][idx] - tr["disparity_change"]), nan)
@@ -625,6 +626,12 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
                 tie = (h >= 1 - 10 * VISIBLE_EPS) & (h <= 1 - VISIBLE_EPS / 10)
                 err[f"occlusion_{name}"] = np.where(ok, (~(agree | tie)).astype(float), nan)
     return err
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    """Euclidean length of each row of ``a`` (N, C) (np.linalg.norm's, in one pass)."""
+    a = np.asarray(a, np.float64)
+    return np.sqrt(np.einsum("ij,ij->i", a, a))
 
 
 def _over(err: dict[str, np.ndarray], thr: dict) -> np.ndarray:
@@ -783,8 +790,7 @@ def compare_view(
         if ds.get(k) is not None:
             ds[k] = ds[k].astype(np.float64)
     st, fw, bw = flat(tr), flat(fwd), flat(bwd)
-    idx = np.arange(H * W)
-    err = _errors(ds, idx, st, fw, bw, ids, thr, classes)
+    err = _errors(ds, slice(None), st, fw, bw, ids, thr, classes)  # every pixel (views of the arrays, no gathers)
     kind = np.zeros(H * W, np.int8)  # ties of every key at a pixel (edge, surface): 0 none, else 1 + index in TIE_KINDS
     own: dict[str, list] = {}  # ties of one key: key -> [(pixels, kind)]
     vis = (_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)}), 1 + TIE_KINDS.index("visibility"))
