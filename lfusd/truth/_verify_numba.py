@@ -194,3 +194,20 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # prag
                 grouped[pos[code[i]]] = x
                 pos[code[i]] += 1
     return count, over, worst, top, total, kinds
+
+
+@njit(cache=True, error_model="numpy")
+def rays_through(u, v, A, C):  # pragma: no cover - compiled
+    """The rays from the camera centre C through pixel coordinates (u, v): directions A (u, v, 1)
+    (camera-frame z = 1, float64, (N, 3)) and the same rays as Open3D takes them ((N, 6) float32:
+    origin, direction)."""
+    n = u.size
+    d = np.empty((n, 3))
+    rays = np.empty((n, 6), np.float32)
+    for i in range(n):
+        for k in range(3):
+            x = A[k, 0] * u[i] + A[k, 1] * v[i] + A[k, 2]
+            d[i, k] = x
+            rays[i, k] = C[k]
+            rays[i, 3 + k] = x
+    return d, rays

@@ -187,7 +187,13 @@ class TracedScene:
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit float32 in units of |dir|, mesh index (-1 none), triangle id) per ray."""
-        ans = self.scene.cast_rays(self._rays(origins, dirs))
+        return self.cast_rays(self._rays(origins, dirs))
+
+    def cast_rays(self, rays) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`cast` of rays as Open3D takes them ((N, 6) float32: origin, direction)."""
+        import open3d as o3d
+
+        ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else o3d.core.Tensor(rays))
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         prim = ans["primitive_ids"].numpy().astype(np.int64)
@@ -277,8 +283,10 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
         o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
-        d = ray_directions(u, v, Camera(K, ctx["c2w"]))  # camera-z component 1
-        mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+        # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole), in one pass
+        d, rays = _numba.rays_through(np.ascontiguousarray(u, np.float64).ravel(), np.ascontiguousarray(v, np.float64).ravel(),
+                                      Camera(K, ctx["c2w"])._pixel_to_world(np.float64), np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64))
+        mesh, tri = s0.cast_rays(rays)[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth = np.full(n, np.inf)
         pos = np.full((n, 3), np.nan)
