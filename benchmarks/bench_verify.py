@@ -2,7 +2,7 @@
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_verify.py [--dataset DIR] [--before main]
         [--stage stages/street_dynamic_00.usda] [--rig rig_00] [--grid 1x2] [--frames 68-70] [--resolution 96x96]
-        [--check 69-69] [--views '1,1;0,0'] [--repeat 2]
+        [--check 69-69] [--views '1,1;0,0'] [--repeat 2] [--marginal]
 
 Without ``--dataset``, renders a small dataset of the default scene first (``lfusd render-video``, 1
 sample, CPU) into a temporary folder. The older verifier is ``lfusd/truth/verify.py`` as committed at
@@ -77,6 +77,9 @@ def main() -> None:
     p.add_argument("--check", default=None, help="frames to verify A-B (default: every rendered frame but the first and last)")
     p.add_argument("--views", default=None, help="views to verify, e.g. '1,1;0,0' (default: all)")
     p.add_argument("--repeat", type=int, default=2)
+    p.add_argument("--marginal", action="store_true", help="also time each verifier on the first view alone: the cost of "
+                   "the other views over it is the per-pixel work (the stage read and meshes, once per run and frame, left out), "
+                   "extrapolated to 1024x1024 without the fixed costs that small views overstate")
     a = p.parse_args()
 
     from lfusd.truth import verify as after
@@ -121,6 +124,17 @@ def main() -> None:
         cpu, wall = best[name]
         print(f"{name:<28}{cpu / n:>12.3f}{wall / n:>12.3f}{cpu / n * scale:>20.2f}{cpu / best[after_name][0]:>9.2f}  "
               f"{str(reports[name].ok):<5} {len(reports[name].failures())}")
+    if a.marginal and len(views) > 1:
+        one = {name: float("inf") for name, _ in mods}
+        for _ in range(a.repeat):
+            for name, mod in mods:
+                one[name] = min(one[name], run(mod, path, frames, views[:1])[0])
+        m = len(frames) * (len(views) - 1)
+        print(f"marginal: the {len(views) - 1} view(s) after the first, per view (fixed costs out)")
+        print(f"{'verifier':<28}{'core-s/view':>12}{'core-s/1024^2 view':>20}{'x after':>9}")
+        marg = {name: (best[name][0] - one[name]) / m for name, _ in mods}
+        for name, _ in mods:
+            print(f"{name:<28}{marg[name]:>12.3f}{marg[name] * scale:>20.2f}{marg[name] / marg[after_name]:>9.2f}")
     for name, _ in mods:
         for line in reports[name].failures()[:5]:
             print(f"  {name}: {line}")

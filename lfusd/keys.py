@@ -177,7 +177,9 @@ _TABLE = (
     Key("occlusion_bwd", "bool", (), "mask", "the point is hidden or outside the image at t-1", _MOTION, MOTION,
         step=-1, accuracy=0.0, accuracy_unit="frac", storage=Storage("mask", 3)),
     Key("mixed", "bool", (), "mask", "the pixel's footprint holds more than one surface or motion: the rays through its four corners "
-        "(at +-1/2 px) see different instances, depths more than 1 % apart, or forward flows more than 0.5 px apart "
+        "(at +-1/2 px) see different instances, depths more than 1 % apart, or forward flows more than 0.5 px apart, or a "
+        "discontinuity edge of the triangles (a boundary, a silhouette, an edge between two instances) crosses its square "
+        "not behind what the corners see, however thin the structure "
         "(render-video; the edge and fine-structure mask of HCI and Spring)", _MOTION, MOTION, storage=Storage("mask", 4)),
 )
 

@@ -15,6 +15,7 @@ shapes are not applied (lfusd refuses meshes that have them).
 from __future__ import annotations
 
 import logging
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +51,32 @@ def triangulate(counts: np.ndarray, indices: np.ndarray, points: np.ndarray | No
     without ``points``, every face is a fan."""
     counts = np.asarray(counts, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
+    # A stage's meshes are triangulated again at every time verify traces, mostly with the same
+    # points (static meshes): the same input gives the same triangles, kept by digest.
+    import xxhash
+
+    h = xxhash.xxh3_128()
+    for a in (counts, indices, np.asarray(points, np.float64) if points is not None else np.zeros(0), np.array([left_handed])):
+        h.update(np.ascontiguousarray(a).tobytes())
+        h.update(b"|")
+    key = h.digest()
+    if key in _TRIANGULATED:
+        _TRIANGULATED.move_to_end(key)
+        return _TRIANGULATED[key]
+    tris = _triangulate(counts, indices, points, left_handed)
+    tris.flags.writeable = False  # shared by every caller with the same input
+    _TRIANGULATED[key] = tris
+    if len(_TRIANGULATED) > TRIANGULATED_MAX:
+        _TRIANGULATED.popitem(last=False)
+    return tris
+
+
+_TRIANGULATED: "OrderedDict[bytes, np.ndarray]" = OrderedDict()
+TRIANGULATED_MAX = 4096  # meshes whose triangles are kept (a few scenes' worth)
+
+
+def _triangulate(counts: np.ndarray, indices: np.ndarray, points: np.ndarray | None, left_handed: bool) -> np.ndarray:
+    """:func:`triangulate`'s work (int64 counts and indices)."""
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     if left_handed and indices.size:
         # reverse each face's corners: position j of a face of n corners takes corner n-1-j

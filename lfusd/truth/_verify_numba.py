@@ -5,6 +5,8 @@ instead of a dozen NumPy temporaries."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -97,3 +99,115 @@ def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):
                         if np.sqrt(gx * gx + gy * gy) > flow_px:  # NaN (unknown motion) counts as none
                             res = True
             out[y * W + x] = res
+
+
+@njit(cache=True, error_model="numpy")
+def nearest_depth(V, T, M, C, R2, H, W, margin):  # pragma: no cover - compiled
+    """(H, W): per pixel, the least camera depth of the triangles (rows of T into V) whose
+    projection's bounding rectangle, grown by ``margin`` px, covers the pixel centre; inf where none
+    does. A triangle reaching to or behind the camera covers every pixel at depth 0. M = K R, C the
+    centre, R2 R's depth row: what may lie in front of a point seen through a pixel, conservatively."""
+    out = np.full((H, W), np.inf)
+    for f in range(T.shape[0]):
+        umin, umax, vmin, vmax, zmin = np.inf, -np.inf, np.inf, -np.inf, np.inf
+        behind = False
+        for c in range(3):
+            k = T[f, c]
+            dx, dy, dz = V[k, 0] - C[0], V[k, 1] - C[1], V[k, 2] - C[2]
+            z = R2[0] * dx + R2[1] * dy + R2[2] * dz
+            if not z > 0:
+                behind = True
+                break
+            hz = M[2, 0] * dx + M[2, 1] * dy + M[2, 2] * dz
+            u = (M[0, 0] * dx + M[0, 1] * dy + M[0, 2] * dz) / hz
+            v = (M[1, 0] * dx + M[1, 1] * dy + M[1, 2] * dz) / hz
+            umin, umax, vmin, vmax, zmin = min(umin, u), max(umax, u), min(vmin, v), max(vmax, v), min(zmin, z)
+        if behind:
+            out[:, :] = 0.0
+            return out
+        j0 = max(int(np.ceil(max(umin - margin, -1.0))), 0)
+        j1 = min(int(np.floor(min(umax + margin, W + 1.0))), W - 1)
+        i0 = max(int(np.ceil(max(vmin - margin, -1.0))), 0)
+        i1 = min(int(np.floor(min(vmax + margin, H + 1.0))), H - 1)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                if zmin < out[i, j]:
+                    out[i, j] = zmin
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def object_sums(ok, obj, a, b, n_obj, sums, count, broken):  # pragma: no cover - compiled
+    """Per object id (obj per pixel, pixels where ``ok``): the sum of a - b over its pixels per
+    component (a, b: (N, C)), its pixel count, and whether any difference is not finite."""
+    for i in range(ok.size):
+        if not ok[i]:
+            continue
+        o = obj[i]
+        if o < 0 or o >= n_obj:
+            continue
+        count[o] += 1
+        for c in range(a.shape[1]):
+            x = a[i, c] - b[i, c]
+            if math.isfinite(x):
+                sums[o, c] += x
+            else:
+                broken[o] = True
+
+
+@njit(cache=True, error_model="numpy")
+def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # pragma: no cover - compiled
+    """One pass over a key's per-pixel errors ``e`` (NaN: not compared) for verify's rows: per label
+    (``code`` per pixel, 0 .. n_labels-1; row n_labels is every label together) the pixels compared,
+    those over ``limit`` (over 0.5 when ``rate``), the first pixel of the greatest error and that
+    error, the sum of the errors and the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1).
+    Unless ``rate``, ``grouped`` receives the compared errors ordered by label (raster order within
+    one), a label's at its offset (the counts' running sum)."""
+    rows = n_labels + 1
+    count = np.zeros(rows, np.int64)
+    over = np.zeros(rows, np.int64)
+    worst = np.zeros(rows, np.int64)
+    top = np.full(rows, -np.inf)
+    total = np.zeros(rows)
+    kinds = np.zeros((rows, n_kinds), np.int64)
+    for i in range(e.size):
+        x = e[i]
+        if x != x:
+            continue
+        c = code[i]
+        for r in (c, n_labels):
+            count[r] += 1
+            total[r] += x
+            if (x > 0.5) if rate else (x > limit):
+                over[r] += 1
+            if count[r] == 1 or x > top[r]:
+                top[r] = x
+                worst[r] = i
+            kinds[r, kind[i]] += 1
+    if not rate:
+        pos = np.zeros(n_labels, np.int64)
+        for c in range(1, n_labels):
+            pos[c] = pos[c - 1] + count[c - 1]
+        for i in range(e.size):
+            x = e[i]
+            if x == x:
+                grouped[pos[code[i]]] = x
+                pos[code[i]] += 1
+    return count, over, worst, top, total, kinds
+
+
+@njit(cache=True, error_model="numpy")
+def rays_through(u, v, A, C):  # pragma: no cover - compiled
+    """The rays from the camera centre C through pixel coordinates (u, v): directions A (u, v, 1)
+    (camera-frame z = 1, float64, (N, 3)) and the same rays as Open3D takes them ((N, 6) float32:
+    origin, direction)."""
+    n = u.size
+    d = np.empty((n, 3))
+    rays = np.empty((n, 6), np.float32)
+    for i in range(n):
+        for k in range(3):
+            x = A[k, 0] * u[i] + A[k, 1] * v[i] + A[k, 2]
+            d[i, k] = x
+            rays[i, k] = C[k]
+            rays[i, 3 + k] = x
+    return d, rays

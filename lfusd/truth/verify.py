@@ -29,7 +29,7 @@ Ties are counted and reported. :meth:`VerifyReport.certificate` is what a datase
 Every other key and record is checked exactly (:data:`EXACT`): ``normal`` against the traced
 triangle (unit length, the side the camera sees), ``valid_fwd``/``valid_bwd`` (set exactly where the
 trace knows the motion, nowhere past the rendered range), ``semantic``, ``mixed`` (decided again on
-verify's own corner rays), the object table and the manifest's rig against the stage (the trace
+verify's own corner rays and the stage's own triangles' discontinuity edges: lfusd.truth.footprint), the object table and the manifest's rig against the stage (the trace
 takes the stage's rig). Per object and view, the mean signed error of flow, scene flow and
 disparity change is held to a tenth of the limit (the ``<key>_bias`` rows).
 """
@@ -107,8 +107,56 @@ class TracedScene:
                                 + [np.zeros((0, 3), np.int64)])
         self.prim_paths = [m.prim_path for m in self.meshes]
         self.bounds = _bounds(self.meshes)
-        self._same: dict[float, np.ndarray] = {}
+        self._same: dict = {}  # per other time: same topology per mesh; ("static", t), ("moving", t): see below
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
+        self._edges: tuple | None = None
+
+    def static_triangles(self, other: "TracedScene") -> np.ndarray:
+        """Per triangle (rows of T): whether ``other`` (another time) holds it traced, with the same
+        topology and its three vertices the same bit for bit (it stands still from one time to the other)."""
+        key = ("static", other.time)
+        if key not in self._same:
+            same = self.same_topology(other)
+            out = np.zeros(len(self.T), bool)
+            for m in np.flatnonzero(same[:-1]):
+                if self.geom_ids[m] < 0 or other.geom_ids[m] < 0:
+                    continue
+                a0, b0, a1 = self.vert_offset[m], self.vert_offset[m + 1], other.vert_offset[m]
+                still = (self.V[a0:b0] == other.V[a1:a1 + b0 - a0]).all(axis=1)
+                out[self.tri_offset[m]:self.tri_offset[m + 1]] = still[self.T[self.tri_offset[m]:self.tri_offset[m + 1]] - a0].all(axis=1)
+            self._same[key] = out
+        return self._same[key]
+
+    def moving_scene(self, other: "TracedScene"):
+        """(Open3D scene, V, their rows of T) of this time's traced triangles that do not stand still
+        since ``other`` (:meth:`static_triangles`), or None when there are none (built once per pair)."""
+        import open3d as o3d
+
+        key = ("moving", other.time)
+        if key not in self._same:
+            mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
+            traced = np.array([g >= 0 for g in self.geom_ids] + [False], bool)
+            moving = traced[mesh] & ~self.static_triangles(other) if len(mesh) else np.zeros(0, bool)
+            scene = None
+            if moving.any():
+                scene = o3d.t.geometry.RaycastingScene()
+                scene.add_triangles(o3d.core.Tensor(self.V.astype(np.float32)), o3d.core.Tensor(self.T[moving].astype(np.uint32)))
+                scene = (scene, self.V, np.ascontiguousarray(self.T[moving]))
+            self._same[key] = scene
+        return self._same[key]
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The traced meshes' triangles (rows of T), the mesh index of each, and their edge table
+        (lfusd.truth.footprint.edge_table): the ``mixed`` footprint's discontinuity edges."""
+        if self._edges is None:
+            from .footprint import edge_table
+
+            traced = np.array([g >= 0 for g in self.geom_ids], bool)
+            mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
+            keep = traced[mesh] if len(mesh) else np.zeros(0, bool)
+            T, mesh = np.ascontiguousarray(self.T[keep]), mesh[keep]
+            self._edges = (T, mesh, edge_table(self.V, T))
+        return self._edges
 
     def same_topology(self, other: "TracedScene") -> np.ndarray:
         """Per mesh: whether ``other`` (another time of the same stage) holds it with the same
@@ -139,7 +187,13 @@ class TracedScene:
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit float32 in units of |dir|, mesh index (-1 none), triangle id) per ray."""
-        ans = self.scene.cast_rays(self._rays(origins, dirs))
+        return self.cast_rays(self._rays(origins, dirs))
+
+    def cast_rays(self, rays) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`cast` of rays as Open3D takes them ((N, 6) float32: origin, direction)."""
+        import open3d as o3d
+
+        ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else o3d.core.Tensor(rays))
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         prim = ans["primitive_ids"].numpy().astype(np.int64)
@@ -232,8 +286,15 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
         o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
-        d = ray_directions(u, v, _camera(ctx))  # camera-z component 1
-        mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+        lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
+        if lens:  # the lens's ray through each pixel (camera-z component 1)
+            d = ray_directions(u, v, _camera(ctx))
+            mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+        else:
+            # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole), in one pass
+            d, rays = _numba.rays_through(np.ascontiguousarray(u, np.float64).ravel(), np.ascontiguousarray(v, np.float64).ravel(),
+                                          Camera(K, ctx["c2w"])._pixel_to_world(np.float64), np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64))
+            mesh, tri = s0.cast_rays(rays)[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth = np.full(n, np.inf)
         pos = np.full((n, 3), np.nan)
@@ -259,7 +320,15 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         u1, v1, z1, imaged = project_imaged(np.where(valid[:, None], pos1, 0.0), cam1)
         valid &= imaged  # beyond the lens's fold a point has no image: its motion is not defined there
     if visibility:
-        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1))
+        still = None
+        if hits is None and np.array_equal(ctx["c2w1"][:3, 3], ctx["c2w"][:3, 3]) and g.size:
+            # The camera centre stays put: a first hit on a triangle that stands still is the same
+            # point on the same segment from the centre as at t, where nothing lay before it; only
+            # what moved can hide it now (see visibility_of).
+            k = np.where(mesh >= 0, s0.tri_offset[np.maximum(mesh, 0)] + tri, 0)
+            still = (mesh >= 0) & s0.static_triangles(s1)[k]
+        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1), still=still,
+                                   moving=s1.moving_scene(s0) if still is not None else None)
     else:
         vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
     baseline = ctx["baseline"]
@@ -292,15 +361,45 @@ def _camera(ctx: dict, at: int = 0) -> Camera:
 
 
 def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: np.ndarray, H: int, W: int,
-                  eps: float = VISIBLE_EPS, uvz: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  eps: float = VISIBLE_EPS, uvz: tuple | None = None, still: np.ndarray | None = None,
+                  moving=None) -> tuple[np.ndarray, np.ndarray]:
     """(visible, first-hit ray parameter) of world points at the scene's time: inside the image and
     no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule);
-    ``uvz``: the points' projection in ``cam`` when the caller has it."""
+    ``uvz``: the points' projection in ``cam`` when the caller has it. ``still`` (per point): the
+    point is the first hit, at the other time, of a ray from this same camera centre, on a triangle
+    that stands still, so no triangle that stands still lies before it: its segment is cast against
+    ``moving`` alone (:meth:`TracedScene.moving_scene`; None: nothing moved), and only where one of
+    those may lie in front of it; its own surface counts as a hit at 1."""
     u1, v1, z1 = project(points, cam) if uvz is None else uvz
     inside = valid & (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
     C1 = np.asarray(cam.cam_to_world, np.float64)[:3, 3]
     t_hit = np.full(len(points), np.nan)
-    idx = np.flatnonzero(inside)
+    cast = inside
+    if still is not None:
+        known = np.flatnonzero(inside & still)
+        cast = inside & ~still
+        t_hit[known] = 1.0
+        if known.size and moving is not None:
+            import open3d as o3d
+
+            from . import _verify_numba as _numba
+
+            # only where a moving triangle may lie in front: its screen rectangle (grown by a
+            # pixel) covers the pixel nearest the point, nearer than the point (depth is the ray
+            # parameter times the point's depth: a triangle no nearer cannot hit before 1)
+            mscene, V1, T1 = moving
+            R, _ = cam.world_to_cam()
+            near = _numba.nearest_depth(V1, T1, np.asarray(cam.K, np.float64) @ R, np.ascontiguousarray(C1, np.float64),
+                                        np.ascontiguousarray(R[2], np.float64), H, W, 1.0)
+            i = np.clip(np.rint(v1[known]), 0, H - 1).astype(np.int64)
+            j = np.clip(np.rint(u1[known]), 0, W - 1).astype(np.int64)
+            known = known[near[i, j] < z1[known]]
+            if known.size:
+                rays = np.empty((known.size, 6), np.float32)
+                rays[:, :3] = C1
+                rays[:, 3:] = points[known] - C1
+                t_hit[known] = np.minimum(mscene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy(), 1.0)
+    idx = np.flatnonzero(cast)
     if idx.size:
         t_hit[idx] = scene.cast(np.broadcast_to(C1, (idx.size, 3)), points[idx] - C1)[0]
     with np.errstate(invalid="ignore"):
@@ -502,15 +601,16 @@ class VerifyReport:
 ALL = "(all)"
 
 
-def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
+def _errors(ds: dict, idx: np.ndarray | slice, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
             classes: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """Per-key error at flat pixels ``idx`` (NaN where the key is not compared there): ``ds`` holds the
+    """Per-key error at flat pixels ``idx`` (``slice(None)``: all of them, without a copy) (NaN where
+    the key is not compared there): ``ds`` holds the
     dataset's flat arrays, ``st`` a trace at t and ``fw``/``bw`` traces towards t+1 / t-1 (None: the
     frame has no neighbour that way, so the dataset must call no pixel valid that way), each
     indexed like ``idx``; ``classes``: the stage's class id of every instance id (semantic check).
     Instance, semantic, validity and occlusion errors are 0 (agree) or 1; normal: 1 - cos of the
     angle to the traced triangle's normal facing the camera (2 when not of unit length)."""
-    nan = np.full(idx.size, np.nan)
+    nan = np.full(len(ds["depth"]) if isinstance(idx, slice) else idx.size, np.nan)
     inst_tr = ids[st["mesh"]]
     fg_tr = st["mesh"] >= 0
     d_ds = ds["depth"][idx]
@@ -525,7 +625,7 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
             err["semantic"] = np.where(both, (ds["semantic"][idx] != classes[np.clip(inst_tr, 0, len(classes) - 1)]).astype(float), nan)
         if ds.get("normal") is not None and "normal" in st:
             n = ds["normal"][idx].astype(np.float64)
-            length = np.linalg.norm(n, axis=-1)
+            length = _norm(n)
             e = 1.0 - (n * st["normal"]).sum(-1) / length
             err["normal"] = np.where(both, np.where(np.abs(length - 1) <= NORMAL_LENGTH_TOL, e, 2.0), nan)
         for name, tr in (("fwd", fw), ("bwd", bw)):
@@ -540,13 +640,13 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
                 err[f"valid_{name}"] = np.where(both, (ds[f"valid_{name}"][idx] != tr["valid"]).astype(float), nan)
                 ok &= ds[f"valid_{name}"][idx]
             if ds.get(f"flow_{name}") is not None:
-                err[f"flow_{name}"] = np.where(ok, np.linalg.norm(ds[f"flow_{name}"][idx] - tr["flow"], axis=-1), nan)
+                err[f"flow_{name}"] = np.where(ok, _norm(ds[f"flow_{name}"][idx] - tr["flow"]), nan)
             if name == "fwd" and ds.get("scene_flow") is not None:
                 # Held to the limit or SCENE_FLOW_REL of the object's size, whichever is smaller, but
                 # never below the storage step (a 1.5 mm object's true error is the rounding).
                 size = object_sizes(ids, tr["mesh_bounds"])[np.clip(inst_tr, 0, None)]
                 limit = np.maximum(np.minimum(thr["scene_flow"], SCENE_FLOW_REL * size), SCENE_FLOW_FLOOR)
-                e = np.linalg.norm(ds["scene_flow"][idx] - tr["scene_flow"], axis=-1) * thr["scene_flow"] / limit
+                e = _norm(ds["scene_flow"][idx] - tr["scene_flow"]) * thr["scene_flow"] / limit
                 err["scene_flow"] = np.where(ok, e, nan)
             if name == "fwd" and ds.get("disparity_change") is not None and np.isfinite(tr["disparity_change"][ok]).all():
                 err["disparity_change"] = np.where(ok, np.abs(ds["disparity_change"][idx] - tr["disparity_change"]), nan)
@@ -559,6 +659,12 @@ def _errors(ds: dict, idx: np.ndarray, st: dict, fw: dict | None, bw: dict | Non
                 tie = (h >= 1 - 10 * VISIBLE_EPS) & (h <= 1 - VISIBLE_EPS / 10)
                 err[f"occlusion_{name}"] = np.where(ok, (~(agree | tie)).astype(float), nan)
     return err
+
+
+def _norm(a: np.ndarray) -> np.ndarray:
+    """Euclidean length of each row of ``a`` (N, C) (np.linalg.norm's, in one pass)."""
+    a = np.asarray(a, np.float64)
+    return np.sqrt(np.einsum("ij,ij->i", a, a))
 
 
 def _over(err: dict[str, np.ndarray], thr: dict) -> np.ndarray:
@@ -717,8 +823,7 @@ def compare_view(
         if ds.get(k) is not None:
             ds[k] = ds[k].astype(np.float64)
     st, fw, bw = flat(tr), flat(fwd), flat(bwd)
-    idx = np.arange(H * W)
-    err = _errors(ds, idx, st, fw, bw, ids, thr, classes)
+    err = _errors(ds, slice(None), st, fw, bw, ids, thr, classes)  # every pixel (views of the arrays, no gathers)
     kind = np.zeros(H * W, np.int8)  # ties of every key at a pixel (edge, surface): 0 none, else 1 + index in TIE_KINDS
     own: dict[str, list] = {}  # ties of one key: key -> [(pixels, kind)]
     vis = (_clear_visibility_ties(err, {"fwd": (fwd, fw), "bwd": (bwd, bw)}), 1 + TIE_KINDS.index("visibility"))
@@ -770,38 +875,39 @@ def compare_view(
     # each pixel's label as an index into the sorted label names (no per-pixel string compares)
     names_ = sorted(set(labels_of.tolist()))
     code = np.array([names_.index(x) for x in labels_of.tolist()], np.int64)[cls]
-    of_label: dict[int, np.ndarray] = {}
-    fg_of: dict[int, int] = {-1: int(fg.sum())}  # foreground pixels per label
+    from . import _verify_numba as _numba
+
+    n_labels = len(names_)
+    fg_of = np.bincount(code[fg], minlength=n_labels)  # foreground pixels per label
+    fg_all = int(fg.sum())
     rows: list[Row] = []
-    for key, e in err.items():
+    grouped = np.empty(H * W)
+    for key, e in err.items():  # one compiled pass per key for every label's row
         rate = UNITS.get(key) == "frac"
-        sel_all = ~np.isnan(e)
         kk = kind.copy() if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
         for pix, k in own.get(key, []):
             kk[pix[kk[pix] == 0]] = k
-        for c in [-1] + np.unique(code[sel_all]).tolist():
-            label = ALL if c < 0 else names_[c]
-            if c >= 0 and c not in of_label:
-                of_label[c] = code == c
-                fg_of[c] = int((fg & of_label[c]).sum())
-            sel = sel_all if c < 0 else sel_all & of_label[c]
-            x = e[sel]
-            if x.size == 0:
-                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_of[c]))
+        count, over, worst, top, total, kinds = _numba.label_stats(
+            np.ascontiguousarray(e, np.float64), code, kk.astype(np.int64), n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, grouped)
+        offset = np.r_[0, np.cumsum(count[:n_labels])]
+        for c in [-1] + np.flatnonzero(count[:n_labels]).tolist():
+            r = n_labels if c < 0 else c
+            label, fg_c = (ALL, fg_all) if c < 0 else (names_[c], int(fg_of[c]))
+            if count[r] == 0:
+                rows.append(Row(frame, view, key, label, 0, 0.0, 0.0, 0.0, thr[key], foreground=fg_c))
                 continue
-            over = int((x > 0.5).sum()) if rate else int((x > thr[key]).sum())
-            j = int(np.flatnonzero(sel)[np.argmax(x)])
-            worst = (j % W, j // W, float(x.max()))
-            counted = np.bincount(kk[sel], minlength=len(TIE_KINDS) + 1)
-            by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(counted) if k and n}
-            n_ties = int(counted[1:].sum())
+            j = int(worst[r])
+            by_kind = {TIE_KINDS[k - 1]: int(n) for k, n in enumerate(kinds[r]) if k and n}
+            n_ties = int(kinds[r, 1:].sum())
             if rate:
-                m = float(x.mean())
-                rows.append(Row(frame, view, key, label, int(x.size), m, m, m, thr[key], over, fg_of[c], n_ties, worst, by_kind))
+                m = float(total[r] / count[r])
+                rows.append(Row(frame, view, key, label, int(count[r]), m, m, m, thr[key], int(over[r]), fg_c, n_ties,
+                                (j % W, j // W, float(top[r])), by_kind))
             else:
+                x = grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]]
                 med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
-                rows.append(Row(frame, view, key, label, int(x.size), float(med), float(p99), float(x.max()),
-                                thr[key], over, fg_of[c], n_ties, worst, by_kind))
+                rows.append(Row(frame, view, key, label, int(count[r]), float(med), float(p99), float(top[r]),
+                                thr[key], int(over[r]), fg_c, n_ties, (j % W, j // W, float(top[r])), by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
@@ -828,7 +934,10 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     Either value is accepted where the decision changes within MIXED_BAND of its limits, or where
     a corner's ray moved TIE_PX sees another object, or a depth or flow that differs from the
     corner's by more than the rule's lower limits (a corner on an edge, the same object's
-    included: a fold of a person in front of its own body)."""
+    included: a fold of a person in front of its own body). The footprint's edges
+    (lfusd.truth.footprint) are decided from the stage's triangles twice: surely (squares shrunk
+    by the float bound of the edge's position, a triangle within rounding of edge-on no
+    silhouette, depth slack 0.8 times the rule's) and maybe (grown, either side, 1.25 times)."""
     from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
 
     vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
@@ -839,6 +948,17 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     lo, hi = MIXED_BAND
     surely = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi)
     maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
+    # the footprint's edges, from the stage's own triangles: surely crossed (squares shrunk by the
+    # float bound, nearly edge-on triangles no silhouette), or maybe (grown, edge-on either side)
+    T, mesh, table = ctx["s0"].edges()
+    lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
+    if len(T) and not lens:  # through a lens straight edges image as curves: the corner rule alone (CONVENTIONS, lens distortion)
+        from .footprint import crossed_by_edges
+
+        cam, inst = Camera(ctx["K"], ctx["c2w"]), ids[mesh]
+        for out, grow, strict, rel in ((surely, -TIE_PX, True, MIXED_DEPTH_REL * lo), (maybe, TIE_PX, False, MIXED_DEPTH_REL * hi)):
+            out |= crossed_by_edges(ctx["s0"].V, T, inst, table, cam, c["depth"], H, W, rel, grow=grow, ulps=EDGE_ULPS,
+                                    strict=strict, fpx=float(ctx["K"][0, 0])).ravel()
     got = np.asarray(mixed, bool)
     wrong = (got & ~maybe) | (~got & surely)
     tie = (surely != maybe) & (got == maybe)
@@ -880,29 +1000,37 @@ def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.nd
         ok &= ds[f"valid_{name}"]
     if not ok.any():
         return []
+    from . import _verify_numba as _numba
+
     sizes = object_sizes(ids, tr["mesh_bounds"])
     rows = []
-    order = np.argsort(inst[ok], kind="stable")
-    pix = np.flatnonzero(ok)[order]
-    starts = np.flatnonzero(np.r_[True, np.diff(inst[pix]) != 0])
-    for a, b in zip(starts, np.r_[starts[1:], pix.size]):
-        obj = int(inst[pix[a]])
-        if b - a < BIAS_MIN_PX or obj not in objects:
-            continue
-        sel = pix[a:b]
+    n_obj = int(inst.max(initial=0)) + 1
+    pix = np.flatnonzero(ok)
+    first = np.zeros(n_obj, np.int64)  # each object's first pixel (where its row points)
+    first[inst[pix[::-1]]] = pix[::-1]
+    means: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    n = np.zeros(n_obj, np.int64)
+    for key in keys:  # one compiled pass per key: per object, the sum of the differences
+        trace_key = "flow" if key.startswith("flow") else key
+        a, b = np.asarray(ds[key], np.float64), np.asarray(tr[trace_key], np.float64)
+        a, b = a.reshape(len(a), -1), b.reshape(len(b), -1)
+        sums, n, broken = np.zeros((n_obj, a.shape[1])), np.zeros(n_obj, np.int64), np.zeros(n_obj, bool)
+        _numba.object_sums(ok, np.ascontiguousarray(inst, np.int64), np.ascontiguousarray(a), np.ascontiguousarray(b), n_obj, sums,
+                           n, broken)
+        means[key] = (np.linalg.norm(sums / np.maximum(n, 1)[:, None], axis=-1), ~broken)
+    objects_here = [o for o in np.flatnonzero(n >= BIAS_MIN_PX).tolist() if o in objects]
+    for obj in objects_here:
         for key in keys:
-            trace_key = "flow" if key.startswith("flow") else key
-            with np.errstate(invalid="ignore"):
-                diff = np.asarray(ds[key][sel], np.float64) - tr[trace_key][sel]
-            if not np.isfinite(diff).all():
+            bias_of, finite = means[key]
+            if not finite[obj]:
                 continue
-            bias = float(np.linalg.norm(np.atleast_2d(diff.T).mean(-1)))
+            bias = float(bias_of[obj])
             limit = BIAS_FRACTION * thr[key]
             if key == "scene_flow":
                 limit = max(BIAS_FRACTION * min(thr[key], SCENE_FLOW_REL * sizes[obj]), SCENE_FLOW_FLOOR)
-            j = int(sel[len(sel) // 2])
-            rows.append(Row(frame, view, key + BIAS, objects[obj].prim_path, int(b - a), bias, bias, bias, limit,
-                            int(bias > limit), int(b - a), 0, (j % W, j // W, bias)))
+            j = int(first[obj])
+            rows.append(Row(frame, view, key + BIAS, objects[obj].prim_path, int(n[obj]), bias, bias, bias, limit,
+                            int(bias > limit), int(n[obj]), 0, (j % W, j // W, bias)))
     return rows
 
 

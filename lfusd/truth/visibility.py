@@ -92,6 +92,15 @@ class Occluders:
             self._corners = self.vertices[self.triangles.astype(np.int64)]
         return self._corners
 
+    @property
+    def edges(self) -> dict:
+        """The welded triangles' edge table (lfusd.truth.footprint.edge_table; built once)."""
+        if getattr(self, "_edges", None) is None:
+            from .footprint import edge_table
+
+            self._edges = edge_table(self.vertices, self.triangles)
+        return self._edges
+
     def parts(self, other: "Occluders") -> "Parts":
         """These triangles split by ``other`` (a neighbouring frame's): see :class:`Parts`."""
         if other.key not in self._parts:
@@ -334,7 +343,11 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
     apart differ too. The corners are the footprint's extreme points: a straight edge that crosses
     the footprint separates two of them, wherever it crosses. With ``parts`` (``here`` split by a
     neighbouring frame) each corner's first hit is the nearer of the static part's (kept in ``memo``
-    between frames) and the dynamic part's (cast only where a dynamic triangle may lie before it)."""
+    between frames) and the dynamic part's (cast only where a dynamic triangle may lie before it).
+
+    Structure that passes between the corners (a wire a tenth of a pixel wide) is found from the
+    triangles: a pixel whose square a discontinuity edge (boundary, silhouette, between instances)
+    crosses, not behind what its corners see, is mixed too (lfusd.truth.footprint)."""
     from ._motion_numba import mixed_pixels
 
     if camera.dist is not None and not camera.dist.is_identity:
@@ -354,7 +367,12 @@ def mixed_footprint(camera: Camera, h: int, w: int, here: Occluders, nxt: Occlud
                 np.ascontiguousarray(Cn, np.float64))
     else:
         args = (np.zeros((1, 3), np.float32), np.zeros((1, 3), np.uint32), np.eye(3), np.zeros(3))
-    return mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
+    mixed = mixed_pixels(t, tri, uv, inst if inst.size else np.zeros(1, np.int32), carry, *args, h, w, MIXED_DEPTH_REL, MIXED_FLOW_PX)
+    if len(here.triangles):
+        from .footprint import crossed_by_edges
+
+        mixed |= crossed_by_edges(here.vertices, here.triangles, inst, here.edges, camera, t, h, w, MIXED_DEPTH_REL)
+    return mixed
 
 
 def _mixed_through_lens(camera: Camera, h: int, w: int, here: Occluders, nxt: Occluders | None, camera_next: Camera | None) -> np.ndarray:

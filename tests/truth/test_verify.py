@@ -972,3 +972,27 @@ def test_a_corner_on_an_edge_of_the_same_object_makes_mixed_a_tie(tmp_path):
     mixed[20 * W + 10] = True  # far from any edge: wrong, and no tie
     err, tie = _mixed_errors(mixed, tr["ctx"], False, ids, H, W)
     assert err[20 * W + 10] == 1 and not tie[20 * W + 10]
+
+
+def test_a_still_camera_casts_points_on_still_triangles_against_what_moved_only(tmp_path, monkeypatch):
+    """With the camera centre in place, verify casts the visibility of a point on a triangle that
+    stands still against the moving triangles alone: occlusion is still the closed form's on every
+    pixel (the block sliding over the wall hides wall points at t+1 and uncovers others at t-1), and
+    the same as casting every segment against the whole scene."""
+    from lfusd.truth import verify as V
+
+    sc = scene(cam_motion=False)
+    stage = stage_of(sc, tmp_path / "s.usda")
+    for step in (1, -1):
+        tr = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[2 + step], N, N, step=step, baseline=sc.baseline)
+        s0, s1 = tr["ctx"]["s0"], tr["ctx"]["s1"]
+        assert s0.static_triangles(s1).sum() == 12 and s1.moving_scene(s0) is not None  # the wall stands, the block moves
+        t = sc.truth(2)
+        both = (t["which"] >= 0) & (tr["mesh"] == t["which"])
+        hidden = (t["which"] == 0) & ~sc.visible_at(2, step)
+        assert hidden[both].sum() > 20
+        assert (tr["occluded"][both] == (both & ~sc.visible_at(2, step))[both]).mean() > 0.999
+        with monkeypatch.context() as m:
+            m.setattr(V.TracedScene, "static_triangles", lambda self, other: np.zeros(len(self.T), bool))
+            full = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[2 + step], N, N, step=step, baseline=sc.baseline)
+        assert np.array_equal(full["occluded"], tr["occluded"])
