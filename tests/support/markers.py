@@ -12,6 +12,10 @@ Time limits: pytest's ``timeout`` option (pyproject.toml, 300 s) holds for a pla
 marked ``blender`` or ``slow`` gets :data:`LONG_TIMEOUT` (a render on two busy cores, a numba
 compilation), and ``@pytest.mark.timeout(N)`` on a test overrides both.
 
+Order under xdist (``make test``, ``--dist loadgroup``): the groups of :func:`xdist_group` are handed
+out longest first, by :func:`group_cost` (xdist's own order, most tests first, left the two-test
+module that renders for minutes to the end, one worker running it while the other idled).
+
 Loaded by tests/conftest.py; a pytest run elsewhere loads it with ``-p support.markers``.
 """
 
@@ -49,6 +53,9 @@ def active(config) -> bool:
 def pytest_configure(config) -> None:
     for line in MARKERS:
         config.addinivalue_line("markers", line)
+    if getattr(config.option, "loadscopereorder", None):
+        # the scheduler keeps the workers' collection order, which longest_groups_first sets
+        config.option.loadscopereorder = False
     if not active(config):
         return
     folder = Path(tempfile.mkdtemp(prefix="lfusd-no-blender-"))
@@ -82,6 +89,8 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.timeout(LONG_TIMEOUT))
         if not item.get_closest_marker("xdist_group"):
             item.add_marker(pytest.mark.xdist_group(xdist_group(item)))
+    if hasattr(config, "workerinput"):  # an xdist worker: its collection order is the scheduler's
+        items[:] = longest_groups_first(items)
 
 
 def _guarded(item):
@@ -126,6 +135,33 @@ def xdist_group(item) -> str:
     file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES`."""
     name = item.path.name
     return "ray" if name in RAY_FILES else str(item.path)
+
+
+# Rough seconds of one test on a busy 2-core machine, by marker: a plain test, one that starts
+# Blender (or is in a module whose fixture renders), one marked slow (a long sweep, a compilation).
+PLAIN_COST, BLENDER_COST, SLOW_COST = 1.0, 10.0, 30.0
+
+
+def group_cost(items) -> float:
+    """A group's expected run time, from its tests' markers (the schedule's order, not a limit)."""
+    return sum(SLOW_COST if it.get_closest_marker("slow") else BLENDER_COST if it.get_closest_marker("blender") else PLAIN_COST
+               for it in items)
+
+
+def _group_name(item) -> str:
+    mark = item.get_closest_marker("xdist_group")
+    return (mark.args[0] if mark.args else mark.kwargs.get("name", "")) if mark else xdist_group(item)
+
+
+def longest_groups_first(items) -> list:
+    """``items`` with whole groups ordered by :func:`group_cost`, highest first (ties keep the
+    collection order), each group's tests in their own order: with ``--dist loadgroup`` the longest
+    groups start first and the short ones fill in at the end (longest-processing-time scheduling)."""
+    groups: dict[str, list] = {}
+    for it in items:
+        groups.setdefault(_group_name(it), []).append(it)
+    ordered = sorted(groups.values(), key=group_cost, reverse=True)  # stable: ties keep collection order
+    return [it for g in ordered for it in g]
 
 
 def pytest_xdist_auto_num_workers(config) -> int:
