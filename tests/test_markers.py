@@ -122,3 +122,33 @@ def test_under_loadgroup_the_longest_group_starts_first_not_the_one_with_most_te
     # one worker runs the groups in the scheduler's order: slow+blender (40) > many (4) > plain (3)
     assert log.read_text().split() == ["test_slow_0", "test_slow_1", *(f"test_many_{i}" for i in range(4)),
                                        *(f"test_plain_{i}" for i in range(3))]
+
+
+# how a test starts Ray: the CLI's Ray executor, or `ray start` (a cluster, a user's Ray)
+STARTS_RAY = ('"--executor", "ray"', "ray.scripts")
+
+
+def test_every_test_that_starts_ray_is_in_the_ray_group():
+    """A test starting Ray outside the ray group would run beside another Ray test on the other
+    worker (markers.RAY_FILES); a helper starting it outside RAY_FILES would hide which tests do."""
+    import ast
+    from types import SimpleNamespace
+
+    from support.markers import RAY_FILES, xdist_group
+
+    misplaced = []
+    for path in sorted(TESTS.rglob("test_*.py")):
+        if path.name in RAY_FILES or path.name == "test_markers.py":
+            continue
+        source = path.read_text()
+        if not any(s in source for s in STARTS_RAY):
+            continue
+        for node in ast.parse(source).body:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and any(s in ast.get_source_segment(source, node) for s in STARTS_RAY):
+                item = SimpleNamespace(path=path, name=node.name, originalname=node.name)
+                if not node.name.startswith("test_") or xdist_group(item) != "ray":
+                    misplaced.append(f"{path.relative_to(TESTS)}::{node.name}")
+    assert not misplaced, f"start Ray outside the ray group (tests/support/markers.py RAY_FILES / RAY_TESTS): {misplaced}"
+    faults = TESTS / "test_faults.py"
+    assert xdist_group(SimpleNamespace(path=faults, name="test_sigterm_stops_the_workers_and_exits_143",
+                                       originalname="test_sigterm_stops_the_workers_and_exits_143")) == str(faults)

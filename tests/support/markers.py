@@ -124,17 +124,23 @@ def pytest_runtest_teardown(item, nextitem):
 
 
 
-# Files whose tests start a Ray instance or cluster, run one after another on one xdist worker:
-# their Ctrl-C timings and process sweeps are measured on a machine not also starting another Ray.
+# Tests that start a Ray instance or cluster run one after another on one xdist worker: their Ctrl-C
+# timings and process sweeps are measured on a machine not also starting another Ray. Whole files
+# where most tests do (or share a module fixture that a Ray test needs), single tests elsewhere, so
+# that the rest of their file runs beside the ray group (test_faults.py: its one Ray test needs only
+# the stage file of its module fixture; its renders are not Ray's). tests/test_markers.py checks
+# that every test starting Ray is in one of them.
 RAY_FILES = frozenset({"test_ray_shutdown.py", "test_ray_cluster.py", "test_ray_loopback.py", "test_executors.py",
-                       "test_faults.py", "test_render_video.py"})
+                       "test_render_video.py"})
+RAY_TESTS = frozenset({("test_faults.py", "test_ctrl_c_under_ray_exits_130_and_leaves_no_ray_or_blender_process")})
 
 
 def xdist_group(item) -> str:
     """The group whose tests one xdist worker runs in order (``--dist loadgroup``): the test's
-    file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES`."""
+    file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES` and :data:`RAY_TESTS`."""
     name = item.path.name
-    return "ray" if name in RAY_FILES else str(item.path)
+    test = getattr(item, "originalname", None) or item.name
+    return "ray" if name in RAY_FILES or (name, test) in RAY_TESTS else str(item.path)
 
 
 # Rough seconds of one test on a busy 2-core machine, by marker: a plain test, one that starts
