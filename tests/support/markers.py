@@ -56,6 +56,8 @@ def pytest_configure(config) -> None:
     if getattr(config.option, "loadscopereorder", None):
         # the scheduler keeps the workers' collection order, which longest_groups_first sets
         config.option.loadscopereorder = False
+    if hasattr(config, "workerinput") and not config.pluginmanager.has_plugin("lfusd-order"):
+        config.pluginmanager.register(_Order(), "lfusd-order")  # an xdist worker: its collection order is the scheduler's
     if not active(config):
         return
     folder = Path(tempfile.mkdtemp(prefix="lfusd-no-blender-"))
@@ -89,8 +91,17 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.timeout(LONG_TIMEOUT))
         if not item.get_closest_marker("xdist_group"):
             item.add_marker(pytest.mark.xdist_group(xdist_group(item)))
-    if hasattr(config, "workerinput"):  # an xdist worker: its collection order is the scheduler's
+
+
+class _Order:
+    """Orders an xdist worker's collection by :func:`longest_groups_first`, after ``-m`` and ``-k``
+    deselected what they do (a wrapper: its second half runs after every other hook)."""
+
+    @pytest.hookimpl(wrapper=True)
+    def pytest_collection_modifyitems(self, config, items):
+        result = yield
         items[:] = longest_groups_first(items)
+        return result
 
 
 def _guarded(item):
