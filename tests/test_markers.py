@@ -82,3 +82,73 @@ def test_the_guard_survives_a_test_that_forbids_file_access(tmp_path):
                         "--rootdir", str(tmp_path), str(tmp_path / "test_probe.py"), "-m", "not blender"],
                        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=240)
     assert r.returncode == 0 and "1 passed" in r.stdout, r.stdout + r.stderr
+
+
+ORDER_PROBE = '''
+import os
+import pytest
+
+def _log(request):
+    with open(os.environ["ORDER_LOG"], "a") as f:
+        f.write(request.node.name + "\\n")
+
+def test_{name}_0(request):
+    _log(request)
+
+def test_{name}_1(request):
+    _log(request)
+
+def test_{name}_2(request):
+    _log(request)
+'''
+
+
+def test_under_loadgroup_the_longest_group_starts_first_not_the_one_with_most_tests(tmp_path):
+    """xdist's own order (most tests first) starts a module of a few slow tests last, leaving one
+    worker to run it alone at the end; the order of markers.longest_groups_first starts it first."""
+    (tmp_path / "test_many.py").write_text(ORDER_PROBE.format(name="many") + "\ndef test_many_3(request):\n    _log(request)\n")
+    (tmp_path / "test_plain.py").write_text(ORDER_PROBE.format(name="plain"))
+    # last in collection order, fewest tests: one marked slow, one marked blender (Blender never starts)
+    slow = ORDER_PROBE.format(name="slow").split("def test_slow_2")[0]
+    slow = slow.replace("def test_slow_0", "@pytest.mark.slow\ndef test_slow_0").replace("def test_slow_1", "@pytest.mark.blender\ndef test_slow_1")
+    (tmp_path / "test_z_slow.py").write_text("import pytest\n" + slow)
+    log = tmp_path / "order.log"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]), "ORDER_LOG": str(log),
+           "LFUSD_NO_BLENDER": "0"}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-p", "support.markers", "-p", "no:cacheprovider", "-p", "no:dash",
+                        "-n", "1", "--dist", "loadgroup", "--rootdir", str(tmp_path), "-q", str(tmp_path)],
+                       capture_output=True, text=True, cwd=tmp_path, env=env, timeout=240)
+    assert r.returncode == 0 and "9 passed" in r.stdout, r.stdout + r.stderr
+    # one worker runs the groups in the scheduler's order: slow+blender (40) > many (4) > plain (3)
+    assert log.read_text().split() == ["test_slow_0", "test_slow_1", *(f"test_many_{i}" for i in range(4)),
+                                       *(f"test_plain_{i}" for i in range(3))]
+
+
+# how a test starts Ray: the CLI's Ray executor, or `ray start` (a cluster, a user's Ray)
+STARTS_RAY = ('"--executor", "ray"', "ray.scripts")
+
+
+def test_every_test_that_starts_ray_is_in_the_ray_group():
+    """A test starting Ray outside the ray group would run beside another Ray test on the other
+    worker (markers.RAY_FILES); a helper starting it outside RAY_FILES would hide which tests do."""
+    import ast
+    from types import SimpleNamespace
+
+    from support.markers import RAY_FILES, xdist_group
+
+    misplaced = []
+    for path in sorted(TESTS.rglob("test_*.py")):
+        if path.name in RAY_FILES or path.name == "test_markers.py":
+            continue
+        source = path.read_text()
+        if not any(s in source for s in STARTS_RAY):
+            continue
+        for node in ast.parse(source).body:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and any(s in ast.get_source_segment(source, node) for s in STARTS_RAY):
+                item = SimpleNamespace(path=path, name=node.name, originalname=node.name)
+                if not node.name.startswith("test_") or xdist_group(item) != "ray":
+                    misplaced.append(f"{path.relative_to(TESTS)}::{node.name}")
+    assert not misplaced, f"start Ray outside the ray group (tests/support/markers.py RAY_FILES / RAY_TESTS): {misplaced}"
+    faults = TESTS / "test_faults.py"
+    assert xdist_group(SimpleNamespace(path=faults, name="test_sigterm_stops_the_workers_and_exits_143",
+                                       originalname="test_sigterm_stops_the_workers_and_exits_143")) == str(faults)

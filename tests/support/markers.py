@@ -12,6 +12,11 @@ Time limits: pytest's ``timeout`` option (pyproject.toml, 300 s) holds for a pla
 marked ``blender`` or ``slow`` gets :data:`LONG_TIMEOUT` (a render on two busy cores, a numba
 compilation), and ``@pytest.mark.timeout(N)`` on a test overrides both.
 
+Order under xdist (``make test``, ``--dist loadgroup``): the groups of :func:`xdist_group` are handed
+out longest first, by :func:`group_cost` (xdist's own order, most tests first, started the
+two-test tests/test_interrupts.py, 40 interrupted runs and a 72-view render, 99th of 106 groups,
+and the one-test render modules last: one worker running them while the other idled).
+
 Loaded by tests/conftest.py; a pytest run elsewhere loads it with ``-p support.markers``.
 """
 
@@ -49,6 +54,11 @@ def active(config) -> bool:
 def pytest_configure(config) -> None:
     for line in MARKERS:
         config.addinivalue_line("markers", line)
+    if getattr(config.option, "loadscopereorder", None):
+        # the scheduler keeps the workers' collection order, which longest_groups_first sets
+        config.option.loadscopereorder = False
+    if hasattr(config, "workerinput") and not config.pluginmanager.has_plugin("lfusd-order"):
+        config.pluginmanager.register(_Order(), "lfusd-order")  # an xdist worker: its collection order is the scheduler's
     if not active(config):
         return
     folder = Path(tempfile.mkdtemp(prefix="lfusd-no-blender-"))
@@ -84,6 +94,17 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.xdist_group(xdist_group(item)))
 
 
+class _Order:
+    """Orders an xdist worker's collection by :func:`longest_groups_first`, after ``-m`` and ``-k``
+    deselected what they do (a wrapper: its second half runs after every other hook)."""
+
+    @pytest.hookimpl(wrapper=True)
+    def pytest_collection_modifyitems(self, config, items):
+        result = yield
+        items[:] = longest_groups_first(items)
+        return result
+
+
 def _guarded(item):
     fd = getattr(item.config, "_lfusd_blender_log", None)
     if fd is None:
@@ -115,17 +136,50 @@ def pytest_runtest_teardown(item, nextitem):
 
 
 
-# Files whose tests start a Ray instance or cluster, run one after another on one xdist worker:
-# their Ctrl-C timings and process sweeps are measured on a machine not also starting another Ray.
+# Tests that start a Ray instance or cluster run one after another on one xdist worker: their Ctrl-C
+# timings and process sweeps are measured on a machine not also starting another Ray. Whole files
+# where most tests do (or share a module fixture that a Ray test needs), single tests elsewhere, so
+# that the rest of their file runs beside the ray group (test_faults.py: its one Ray test needs only
+# the stage file of its module fixture; its renders are not Ray's). tests/test_markers.py checks
+# that every test starting Ray is in one of them.
 RAY_FILES = frozenset({"test_ray_shutdown.py", "test_ray_cluster.py", "test_ray_loopback.py", "test_executors.py",
-                       "test_faults.py", "test_render_video.py"})
+                       "test_render_video.py"})
+RAY_TESTS = frozenset({("test_faults.py", "test_ctrl_c_under_ray_exits_130_and_leaves_no_ray_or_blender_process")})
 
 
 def xdist_group(item) -> str:
     """The group whose tests one xdist worker runs in order (``--dist loadgroup``): the test's
-    file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES`."""
+    file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES` and :data:`RAY_TESTS`."""
     name = item.path.name
-    return "ray" if name in RAY_FILES else str(item.path)
+    test = getattr(item, "originalname", None) or item.name
+    return "ray" if name in RAY_FILES or (name, test) in RAY_TESTS else str(item.path)
+
+
+# Rough seconds of one test on a busy 2-core machine, by marker: a plain test, one that starts
+# Blender (or is in a module whose fixture renders), one marked slow (a long sweep, a compilation).
+PLAIN_COST, BLENDER_COST, SLOW_COST = 1.0, 10.0, 30.0
+
+
+def group_cost(items) -> float:
+    """A group's expected run time, from its tests' markers (the schedule's order, not a limit)."""
+    return sum(SLOW_COST if it.get_closest_marker("slow") else BLENDER_COST if it.get_closest_marker("blender") else PLAIN_COST
+               for it in items)
+
+
+def _group_name(item) -> str:
+    mark = item.get_closest_marker("xdist_group")
+    return (mark.args[0] if mark.args else mark.kwargs.get("name", "")) if mark else xdist_group(item)
+
+
+def longest_groups_first(items) -> list:
+    """``items`` with whole groups ordered by :func:`group_cost`, highest first (ties keep the
+    collection order), each group's tests in their own order: with ``--dist loadgroup`` the longest
+    groups start first and the short ones fill in at the end (longest-processing-time scheduling)."""
+    groups: dict[str, list] = {}
+    for it in items:
+        groups.setdefault(_group_name(it), []).append(it)
+    ordered = sorted(groups.values(), key=group_cost, reverse=True)  # stable: ties keep collection order
+    return [it for g in ordered for it in g]
 
 
 def pytest_xdist_auto_num_workers(config) -> int:
