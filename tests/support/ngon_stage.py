@@ -16,10 +16,11 @@ import numpy as np
 # Corner xy (a face's own frame, about the unit disc) and the height of each corner.
 NGONS = {
     "pent_convex": [(1.0, 0.0), (0.31, 0.95), (-0.81, 0.59), (-0.81, -0.59), (0.31, -0.95)],
-    # reflex corners where the ear search lands: Blender's sweep reverses there
-    "pent_sweep": [(-0.1, 1.0), (-0.26, -1.0), (-0.1, -0.15), (-0.26, 0.2), (1.0, 0.2)],
+    "pent_concave": [(-1.0, -1.0), (1.0, -0.9), (0.9, 1.0), (0.0, 0.3), (-1.0, 0.95)],
     "hex_convex": [(1.0, 0.0), (0.5, 0.87), (-0.5, 0.87), (-1.0, 0.0), (-0.5, -0.87), (0.5, -0.87)],
-    "hex_sweep": [(-0.75, 0.6), (-1.0, 0.0), (-0.4, -0.35), (-0.5, -1.0), (0.55, -0.4), (1.0, -0.2)],
+    # reflex corners where the ear search lands: Blender's sweep reverses there
+    "hex_sweep": [(0.44, 0.05), (0.56, 1.09), (-0.12, 0.81), (-0.83, 0.91), (-1.0, -0.27), (-0.14, -0.56)],
+    "hept_sweep": [(0.51, 0.21), (0.08, 0.57), (-0.49, 0.53), (-0.87, -0.78), (-0.09, -0.78), (0.68, -1.01), (0.68, -0.3)],
     "L": [(-1.0, -1.0), (1.0, -1.0), (1.0, -0.1), (0.2, -0.1), (-0.05, 1.0), (-1.0, 1.0)],
     "star8": [((1.0 if k % 2 == 0 else 0.45) * np.cos(2 * np.pi * k / 8 + 0.2),
                (1.0 if k % 2 == 0 else 0.45) * np.sin(2 * np.pi * k / 8 + 0.2)) for k in range(8)],
@@ -51,8 +52,8 @@ def placements():
                 Rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
                 Rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
                 M[:3, :3] = Rz @ Rx
-            c, r = k % 4, 2 * row + k // 4
-            M[:3, 3] = ((c - 1.5) * SPACING, (1.5 - r) * SPACING, 0.0)
+            c, r = k % 5, 2 * row + k // 5
+            M[:3, 3] = ((c - 2.0) * SPACING, (1.5 - r) * SPACING, 0.0)
             out.append((f"{name}_{'tilted' if tilted else 'flat'}", name, M, np.array([0.04, 0.02 * (1 - 2 * row), 0.0])))
     return out
 
@@ -82,7 +83,7 @@ def build(path: str, frames: int = 1, width: int = 96, height: int = 96):
             op.Set(Gf.Matrix4d(A.T.tolist()), f)  # USD's row-vector convention
         set_class_label(m.GetPrim(), prim)
     floor = UsdGeom.Mesh.Define(stage, "/World/Floor")
-    floor.CreatePointsAttr([(-6, -6, -1.5), (6, -6, -1.5), (6, 6, -1.5), (-6, 6, -1.5)])
+    floor.CreatePointsAttr([(-9, -9, -1.5), (9, -9, -1.5), (9, 9, -1.5), (-9, 9, -1.5)])
     floor.CreateFaceVertexCountsAttr([4])
     floor.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
     floor.CreateSubdivisionSchemeAttr("none")
