@@ -94,20 +94,25 @@ def _polyfill(P: np.ndarray) -> np.ndarray:
     corners on along the search direction; where that corner is not convex, one further and the
     direction reverses (Blender's sweep about convex ears). An ear tip is a convex corner with no
     reflex or flat corner inside or on its triangle (any corner once none is reflex); a second pass
-    accepts flat tips, then any corner not reflex. Measured on convex, concave (L, star, arrow) and
-    bent faces of 5-9 corners (tests/author/test_triangulation.py)."""
+    accepts flat tips, then any corner not reflex. Measured with bpy 5.0: Blender's loop triangles
+    of 448 random star-shaped, mostly concave, non-planar faces of 5-12 corners and of convex,
+    L, star and folded faces are these (tests/author/test_triangulation.py)."""
     n = len(P)
     P = np.asarray(P, np.float64)
-    normal = np.zeros(3)
-    for i in range(n):  # Newell's normal: the plane Blender projects the face onto
-        a, b = P[i - 1], P[i]
-        normal += ((a[1] - b[1]) * (a[2] + b[2]), (a[2] - b[2]) * (a[0] + b[0]), (a[0] - b[0]) * (a[1] + b[1]))
+    a, b = np.roll(P, 1, axis=0), P  # Newell's normal: the plane Blender projects the face onto
+    normal = np.array([((a[:, 1] - b[:, 1]) * (a[:, 2] + b[:, 2])).sum(), ((a[:, 2] - b[:, 2]) * (a[:, 0] + b[:, 0])).sum(),
+                       ((a[:, 0] - b[:, 0]) * (a[:, 1] + b[:, 1])).sum()])
     if not normal.any():
         normal = np.array([0.0, 0.0, 1.0])
+    # coordinates in the face's plane, on axes (e1, e2) with e1 x e2 along the normal: the sign
+    # of a projected triangle's area is that of its 3D cross product along the normal
+    e1 = np.cross(normal, np.eye(3)[int(np.argmin(np.abs(normal)))])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal / np.linalg.norm(normal), e1)
+    X, Y = (P @ e1).tolist(), (P @ e2).tolist()
 
     def sign(a: int, b: int, c: int) -> int:
-        # the 2D cross product of the projected corners is (b-a) x (c-a) along the normal
-        s = float(np.dot(np.cross(P[b] - P[a], P[c] - P[a]), normal))
+        s = (X[b] - X[a]) * (Y[c] - Y[a]) - (Y[b] - Y[a]) * (X[c] - X[a])
         return 1 if s > 0 else (0 if s == 0 else -1)
 
     nxt = [(i + 1) % n for i in range(n)]

@@ -1,7 +1,9 @@
 """Issue 37 item 1: verify's triangles are Blender's. Measured with bpy 5.0 (a render of the quads
 below seen from above; the depth at the quad's centre tells the diagonal): a quad is split along
 its corners 0-2 whatever the diagonals' lengths, along 1-3 when 0-2 lies outside it (a concave
-quad), and a left-handed mesh's faces are reversed first; faces of 5-9 corners as MEASURED_NGONS."""
+quad), and a left-handed mesh's faces are reversed first; faces of 5-9 corners as MEASURED_NGONS;
+concave and folded faces as MEASURED_FACES (fitted to rendered positions) and as Blender's own loop
+triangles, which the render worker writes to geometry.npz (compared face by face below)."""
 
 import numpy as np
 import pytest
@@ -180,11 +182,41 @@ def test_every_triangulation_is_enumerated_and_the_fit_tells_them_apart():
     assert [set(T) for T in fits] == [MEASURED_FACES["hex_sweep"]]
 
 
+def _blenders_triangles(ds, frame, prim_path, corners_world):
+    """The corner triples of the loop triangles Blender rendered of one face (the render worker's
+    geometry.npz, kept with --keep-raw), each vertex matched to the nearest of ``corners_world``."""
+    from lfusd.layout import GEOMETRY
+
+    g = np.load(ds.view_dir(frame, ds.views[0]) / GEOMETRY)
+    ids = {o.prim_path: i for i, o in ds.objects.items()}
+    V = g["vertices"][g["triangles"][g["instance"] == ids[prim_path]]].astype(np.float64)  # (m, 3, 3)
+    d = np.linalg.norm(V[:, :, None, :] - corners_world[None, None], axis=-1)
+    assert d.min(-1).max() < 1e-5  # every vertex is a corner of the face
+    return {tuple(sorted(int(i) for i in t)) for t in d.argmin(-1)}
+
+
+@pytest.mark.render
+def test_blenders_triangles_of_random_concave_faces_are_lfusds(tmp_path):
+    """Issue 37 item 1: 48 random star-shaped faces of 5-12 corners (most concave, every corner at
+    its own height) rendered at 16x16: the loop triangles Blender renders of each face are exactly
+    lfusd's (on 11 of them a search that never reverses splits otherwise)."""
+    from lfusd import Dataset
+    from lfusd.cli import main
+    from support import ngon_stage as S
+
+    faces = S.build_random(str(tmp_path / "s.usda"), 48, seed=0)
+    assert main(["render-video", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw"]) == 0
+    ds = Dataset(tmp_path / "out")
+    for k, W in enumerate(faces):
+        n = len(W)
+        assert _blenders_triangles(ds, ds.frames[0], f"/World/F{k:03d}", W) == _tri_set(triangulate(np.array([n]), np.arange(n), W)), k
+
+
 @pytest.mark.render
 def test_blender_renders_ngons_as_lfusd_triangulates_them_and_verify_passes(tmp_path):
     """Issue 37 items 1 and 3: a 2-frame render (72x72, 1 sample) of the n-gon stage: Blender's
     rendered positions fit lfusd's triangles of every face (and not the never-reversing ear
-    search's), `lfusd verify` passes on every pixel with no tie, and one depth pixel of a sweep
+    search's), its loop triangles are lfusd's, `lfusd verify` passes on every pixel with no tie, and one depth pixel of a sweep
     face 0.1 % off (10x the limit) fails it."""
     import lfusd.truth.verify as V
     from lfusd import Dataset
@@ -192,7 +224,7 @@ def test_blender_renders_ngons_as_lfusd_triangulates_them_and_verify_passes(tmp_
     from support import ngon_stage as S
 
     S.build(str(tmp_path / "s.usda"), frames=2, width=72, height=72)
-    assert main(["render-video", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu"]) == 0
+    assert main(["render-video", str(tmp_path / "s.usda"), "-o", str(tmp_path / "out"), "--samples", "1", "--quiet", "--device", "cpu", "--keep-raw"]) == 0
     ds = Dataset(tmp_path / "out")
     f, v = ds.frames[0], ds.views[0]
     pos, inst = ds.read(f, v, "position"), ds.read(f, v, "instance")
@@ -203,8 +235,10 @@ def test_blender_renders_ngons_as_lfusd_triangulates_them_and_verify_passes(tmp_
         local = (pos[sel].astype(np.float64) - M[:3, 3]) @ M[:3, :3]
         P = S.corners(name)
         fits = [set(T) for T in S.fit_triangulations(P, local)]
-        assert _tri_set(triangulate(np.array([len(P)]), np.arange(len(P)), P)) in fits, prim
+        ours = _tri_set(triangulate(np.array([len(P)]), np.arange(len(P)), P))
+        assert ours in fits, prim
         assert NOT_BLENDERS.get(name) not in fits, prim
+        assert _blenders_triangles(ds, f, f"/World/{prim}", P @ M[:3, :3].T + M[:3, 3]) == ours, prim
     report = V.verify_dataset(ds)
     assert report.ok, report.failures()
     rows = {(r.key, r.label): r for r in report.rows}

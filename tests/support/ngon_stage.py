@@ -123,3 +123,44 @@ def fit_triangulations(P: np.ndarray, local: np.ndarray, tol: float = 2e-4) -> l
         if (best <= tol).all():
             fits.append(T)
     return fits
+
+
+def random_faces(count: int, seed: int = 0) -> list[np.ndarray]:
+    """``count`` simple faces of 5-12 corners (n, 3), most of them concave: corners at random
+    radii round a centre (star-shaped, so simple), each at its own random height."""
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < count:
+        n = int(rng.integers(5, 13))
+        a = np.sort(rng.uniform(0, 2 * np.pi, n))
+        if np.diff(np.r_[a, a[0] + 2 * np.pi]).min() < 0.25:
+            continue
+        r = rng.uniform(0.25, 1.0, n)
+        out.append(np.column_stack([r * np.cos(a), r * np.sin(a), rng.uniform(0.0, 0.3, n)]))
+    return out
+
+
+def build_random(path: str, count: int = 48, seed: int = 0):
+    """Author :func:`random_faces` as one mesh each, 1.2 m apart in rows of 8, under a 16x16
+    camera (the render is for Blender's triangles, not its pixels); returns the faces' world corners."""
+    from pxr import UsdGeom
+
+    from lfusd.author.labels import set_class_label
+    from lfusd.author.rigs import add_rig
+    from lfusd.author.stage import new_stage
+    from lfusd.camera import RigSpec
+
+    stage = new_stage(path, 1, 1)
+    faces = []
+    for k, P in enumerate(random_faces(count, seed)):
+        W = P * (0.5, 0.5, 1.0) + ((k % 8 - 3.5) * 1.2, (k // 8 - 2.5) * 1.2, 0.0)
+        m = UsdGeom.Mesh.Define(stage, f"/World/F{k:03d}")
+        m.CreatePointsAttr([tuple(map(float, p)) for p in W])
+        m.CreateFaceVertexCountsAttr([len(W)])
+        m.CreateFaceVertexIndicesAttr(list(range(len(W))))
+        m.CreateSubdivisionSchemeAttr("none")
+        set_class_label(m.GetPrim(), "face")
+        faces.append(W)
+    add_rig(stage, RigSpec(name="main", rows=1, cols=1, width=16, height=16, focal_length_mm=20.0, at=(0, 0, 12), look_at=(0, 0, 0)))
+    stage.Save()
+    return faces
