@@ -141,8 +141,9 @@ def random_faces(count: int, seed: int = 0) -> list[np.ndarray]:
 
 
 def build_random(path: str, count: int = 48, seed: int = 0):
-    """Author :func:`random_faces` as one mesh each, 1.2 m apart in rows of 8, under a 16x16
-    camera (the render is for Blender's triangles, not its pixels); returns the faces' world corners."""
+    """Author :func:`random_faces` as one mesh each, 1.2 m apart in rows of 8, every other one
+    left-handed, under a 16x16 camera (the render is for Blender's triangles, not its pixels);
+    returns the faces' world corners."""
     from pxr import UsdGeom
 
     from lfusd.author.labels import set_class_label
@@ -159,6 +160,7 @@ def build_random(path: str, count: int = 48, seed: int = 0):
         m.CreateFaceVertexCountsAttr([len(W)])
         m.CreateFaceVertexIndicesAttr(list(range(len(W))))
         m.CreateSubdivisionSchemeAttr("none")
+        m.CreateOrientationAttr("leftHanded" if k % 2 else "rightHanded")
         set_class_label(m.GetPrim(), "face")
         faces.append(W)
     add_rig(stage, RigSpec(name="main", rows=1, cols=1, width=16, height=16, focal_length_mm=20.0, at=(0, 0, 12), look_at=(0, 0, 0)))
