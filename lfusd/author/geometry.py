@@ -96,8 +96,8 @@ def _polyfill(P: np.ndarray) -> np.ndarray:
     reflex or flat corner inside or on its triangle (any corner once none is reflex); a second pass
     accepts flat tips, then any corner not reflex. Measured with bpy 5.0: Blender's loop triangles
     of 448 random star-shaped, mostly concave, non-planar faces of 5-12 corners (right- and
-    left-handed) and of convex,
-    L, star and folded faces are these (tests/author/test_triangulation.py)."""
+    left-handed) and of convex, L, star and folded faces are these
+    (tests/author/test_triangulation.py)."""
     n = len(P)
     P = np.asarray(P, np.float64)
     a, b = np.roll(P, 1, axis=0), P  # Newell's normal: the plane Blender projects the face onto
