@@ -154,7 +154,9 @@ def test_errors_are_one_line(tmp_path, weights, capsys, monkeypatch):
         f"predict_disparity: error: no weights at {tmp_path / 'none.pt'}; train with flow/train_disparity.py and pass --weights RUN/checkpoints/last.pt"]
     pdm = _load("predict_disparity")
     monkeypatch.setattr(pdm, "SHIPPED", tmp_path / "gone.pt")  # a checkout without the shipped weights
-    code, err = _main(capsys, tmp_path, "-o", tmp_path / "d.pfm")
+    lf = write_hci(tmp_path / "plane", plane_views(0.5, np.random.default_rng(3)))
+    code = pdm.training.main_wrapper(pdm.NAME, pdm.main, [str(lf), "-o", str(tmp_path / "d.pfm")])
+    err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "shipped weights" in err and "--weights" in err
     lf = write_hci(tmp_path / "few", plane_views(0.5, np.random.default_rng(3))[:80])  # one view short of 9x9
     code, err = _main(capsys, lf, "-o", tmp_path / "d.pfm", "--weights", weights)
