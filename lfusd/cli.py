@@ -148,7 +148,10 @@ class _RaiseAtImport:
 
     @staticmethod
     def find_spec(name, path=None, target=None):
-        if _Interrupt.pending and not _Interrupt.defer and not holding():  # not in a clean-up that must finish (Ray's shutdown)
+        # not in a clean-up that must finish (Ray's shutdown); and only in the main thread, where
+        # lfusd reports it: raised in another thread's import it would end that thread with a
+        # traceback ("Exception in thread ...", seen once in CI's random Ctrl-Cs of render-video)
+        if _Interrupt.pending and not _Interrupt.defer and not holding() and threading.current_thread() is threading.main_thread():
             raise KeyboardInterrupt
         if name.split(".")[0] != "pxr":
             return None

@@ -346,3 +346,24 @@ def test_a_ctrl_c_inside_a_finaliser_is_the_one_line_and_exit_130():
     assert p.returncode == 130, p.stderr
     lines = [ln for ln in p.stderr.strip().splitlines() if ln != "carried on"]
     assert lines == ["lfusd: interrupted; rerun the same command to resume"], p.stderr
+
+
+def test_a_latched_ctrl_c_is_raised_at_the_main_threads_imports_only():
+    """A Ctrl-C latched by lfusd is raised again at the next import of the main thread, where lfusd
+    reports it; another thread's import goes on (raised there, it would end that thread with a
+    traceback on stderr: "Exception in thread ...")."""
+    import threading
+
+    from lfusd import cli
+
+    got = []
+    cli._Interrupt.pending = True
+    try:
+        t = threading.Thread(target=lambda: got.append(cli._RaiseAtImport.find_spec("lfusd_not_a_module")))
+        t.start()
+        t.join()
+        with pytest.raises(KeyboardInterrupt):
+            cli._RaiseAtImport.find_spec("lfusd_not_a_module")
+    finally:
+        cli._Interrupt.pending = False
+    assert got == [None]
