@@ -39,13 +39,10 @@ METRICS = (("mse_x100", "MSE x100"), ("badpix_0.07_pct", "BadPix0.07 %"), ("badp
 
 
 def template_of(scene: Path) -> str:
-    """A recipe scene folder's template (its record's ``template``; else the name's third field)."""
-    rec = scene.parent / f"{scene.name}.json"
-    try:
-        return str(json.loads(rec.read_text())["template"])
-    except (OSError, ValueError, KeyError, TypeError):
-        parts = scene.name.split("_")
-        return parts[2] if len(parts) > 2 else scene.name
+    """A recipe scene folder's template (lfusd.recipe.scene_template), else the folder's name."""
+    from lfusd.recipe import scene_template
+
+    return scene_template(scene) or scene.name
 
 
 def score_folder(hci_dir: Path, pred: np.ndarray) -> dict:

@@ -331,8 +331,9 @@ def _resize_flow(flow: torch.Tensor, size) -> torch.Tensor:
 
 class SceneFlowNet(nn.Module):
     """Light-field scene flow of the reference view from two frames of a square U x U light field:
-    :class:`FlowNet` on the reference view at t and t+1, one :class:`DisparityNet` (shared weights)
-    on the whole light field at t and at t+1, and the disparity change of each reference pixel's
+    :class:`FlowNet` on the reference view at t and t+1, one disparity network (shared weights:
+    :class:`DisparityNet`, or the one given, e.g. a trained :class:`StarDisparityNet`) on the whole
+    light field at t and at t+1, and the disparity change of each reference pixel's
     point as the disparity at t+1 sampled where the flow carries the pixel, minus the disparity at t
     (lfusd's ``disparity_change``). Scene flow follows from these through the camera
     (lfusd.evaluation.baselines.scene_flow_from_change).
@@ -344,10 +345,11 @@ class SceneFlowNet(nn.Module):
     """
 
     def __init__(self, ang: int, d_min: float, d_max: float, n_disp: int = 9, ch: int = 16, n_blocks: int = 2, cost_ch: int = 32,
-                 flow_ch: int = 16, flow_levels: int = 3, radius: int = 3):
+                 flow_ch: int = 16, flow_levels: int = 3, radius: int = 3, disparity: nn.Module | None = None):
         super().__init__()
         self.ang = ang
-        self.disparity = DisparityNet(ang, d_min, d_max, n_disp, ch=ch, n_blocks=n_blocks, cost_ch=cost_ch)
+        # ``disparity``: a disparity network of the same forward contract (e.g. a trained StarDisparityNet)
+        self.disparity = disparity if disparity is not None else DisparityNet(ang, d_min, d_max, n_disp, ch=ch, n_blocks=n_blocks, cost_ch=cost_ch)
         self.flow = FlowNet(flow_ch, flow_levels, radius)
 
     def forward(self, views0: torch.Tensor, views1: torch.Tensor, rel: torch.Tensor, ref: int) -> dict:

@@ -183,7 +183,11 @@ def predict_bench(model, config: dict, bench, sub: Path, weights) -> int:
     from lfusd.bench.baseline import public_inputs, public_test_scenes, write_prediction
     from lfusd.files import sha256_of
     from lfusd.layout import view_key
+    from models import StarDisparityNet
 
+    if isinstance(model.disparity, StarDisparityNet):
+        raise LfusdError(f"{weights} predicts disparity for the centre view only (its disparity half is train_disparity.py's star network), "
+                         "and the benchmark scores every view; use weights trained without --disparity-weights")
     scenes = []
     for scene, scene_dir in public_test_scenes(bench):
         cams, rgb = public_inputs(scene_dir)

@@ -52,9 +52,29 @@ NET = ("disparities", "channels", "blocks", "cost_channels", "flow_channels", "f
 
 
 def build(config: dict) -> SceneFlowNet:
-    """The network a run's configuration describes (also what predict_sceneflow.py loads)."""
+    """The network a run's configuration describes (also what predict_sceneflow.py loads): its
+    disparity half is train_disparity.py's network of ``config["disparity_net"]`` when the run
+    started from disparity weights (--disparity-weights), else a DisparityNet of the run's size."""
+    disparity = None
+    if config.get("disparity_net"):
+        from train_disparity import build as build_disparity
+
+        disparity = build_disparity(config["disparity_net"])
     return SceneFlowNet(config["ang"], config["d_min"], config["d_max"], config["disparities"], ch=config["channels"], n_blocks=config["blocks"],
-                        cost_ch=config["cost_channels"], flow_ch=config["flow_channels"], flow_levels=config["flow_levels"], radius=config["radius"])
+                        cost_ch=config["cost_channels"], flow_ch=config["flow_channels"], flow_levels=config["flow_levels"], radius=config["radius"],
+                        disparity=disparity)
+
+
+def start_disparity(path: str, ang: int) -> tuple[dict, dict]:
+    """(the disparity network's config, its weights) of a train_disparity.py checkpoint, checked to
+    take this grid."""
+    state = training.load_weights(path, "train_disparity")
+    config = dict(state["config"])
+    if int(config.get("ang", -1)) != int(ang):
+        raise LfusdError(f"the disparity weights {path} take a {config.get('ang')}x{config.get('ang')} grid, the data has {ang}x{ang}; "
+                         "train disparity on this grid or leave --disparity-weights out")
+    keep = ("ang", "d_min", "d_max", "arch", "disparities", "channels", "blocks", "cost_channels")
+    return {k: config[k] for k in keep if k in config}, state["model"]
 
 
 def split_pairs(ds, a) -> tuple[list[int], list[int]]:
@@ -123,38 +143,83 @@ def main(argv=None) -> int:
     p.add_argument("--flow-levels", type=int, default=None, help="pyramid levels of the flow network")
     p.add_argument("--radius", type=int, default=None, help="search radius of the flow correlation in pixels of each level")
     p.add_argument("--refocus", type=int, default=None, help="largest refocus shift k of the augmentation (disparity d -> d - k); 0: none")
-    p.add_argument("--cache", default=None, help="read the training samples from this training cache of --data (lfusd export cache DATA CACHE): memory maps, no decoding")
+    p.add_argument("--cache", default=None, help="read the training samples from this training cache of --data (lfusd export cache DATA CACHE): memory maps, "
+                   "no decoding; for a recipe dataset a folder holding one per scene, named as the scene")
+    p.add_argument("--split", default="train", help="the split of a recipe dataset given as --data to train on (default train)")
+    p.add_argument("--eval-split", default="test", help="the split of a recipe dataset scored after training, every pair t -> t+1 of each scene (default test)")
+    p.add_argument("--disparity-weights", default=None, help="start the disparity half from this train_disparity.py checkpoint (its network and "
+                   "candidates replace --channels ... --disparities), e.g. flow/weights/disparity.pt")
+    p.add_argument("--freeze-disparity", action="store_true", help="with --disparity-weights: keep the disparity half fixed and train the flow network "
+                   "(loss: flow and disparity change)")
     a = p.parse_args(argv)
     t_start = time.time()
+    recipe = None
+    if not a.resume and a.data and (Path(a.data) / "recipe.toml").is_file():
+        recipe = Path(a.data)
+        scenes = training.recipe_scenes(recipe, a.split)
+        a.data = str(scenes[0])  # the reference scene: rig, frames and the network's grid
+    if a.freeze_disparity and not a.disparity_weights and not a.resume:
+        raise LfusdError("--freeze-disparity keeps trained disparity weights fixed; give them with --disparity-weights W")
     run, state, device, data, ds, _, _ = training.start(a, NAME, TINY, FULL, TINY_SCENE)
     r = ds.rig
     if r.rows != r.cols:
         raise LfusdError(f"the disentangling network needs a square grid of views, got {r.rows}x{r.cols}; render with --grid NxN")
+    from lfusd.data.dataset import open_dataset
+
+    disparity_weights = None
     if state:
         config = state["config"]
     else:
         train_frames, eval_frames = split_pairs(ds, a)
-        from train_disparity import disparity_range
-
-        d_min, d_max = disparity_range(ds, sorted(set(train_frames) | {t + 1 for t in train_frames}))
+        scenes = scenes if recipe else [Path(data)]
+        for sc in scenes[1:]:
+            sds = open_dataset(sc, a.rig)
+            if (sds.rig.rows, sds.rig.cols) != (r.rows, r.cols) or any(f not in sds.frames for t in train_frames for f in (t, t + 1, t + 2)):
+                raise LfusdError(f"{sc} lacks frames {train_frames} (+2) of a {r.rows}x{r.cols} grid that {scenes[0]} has; one run takes one grid and clip")
         k = int(a.refocus)  # refocusing by k moves every disparity by -k
-        config = {"ang": r.rows, "d_min": d_min - k, "d_max": d_max + k, **{n: getattr(a, n) for n in NET}}
+        if a.disparity_weights:
+            disparity_net, disparity_weights = start_disparity(a.disparity_weights, r.rows)
+            d_min, d_max = disparity_net["d_min"], disparity_net["d_max"]
+            sizes = {n: disparity_net.get(n) for n in ("disparities", "channels", "blocks", "cost_channels")}
+        else:
+            from train_disparity import disparity_range
+
+            disparity_net, sizes = None, {}
+            ranges = [disparity_range(open_dataset(sc, a.rig), sorted(set(train_frames) | {t + 1 for t in train_frames})) for sc in scenes]
+            d_min, d_max = min(x[0] for x in ranges) - k, max(x[1] for x in ranges) + k
+        config = {"ang": r.rows, "d_min": d_min, "d_max": d_max, **{n: getattr(a, n) for n in NET}, **sizes}
+        caches = None
+        if a.cache:
+            caches = [str(Path(a.cache) / sc.name) for sc in scenes] if recipe else [a.cache]
         config.update(data=str(data), train_frames=train_frames, eval_frames=eval_frames, crop=a.crop, batch=a.batch, lr=a.lr, tiny=a.tiny,
-                      refocus=k, centre=list(r.centre_view), baseline=float(r.baseline))
+                      refocus=k, centre=list(r.centre_view), baseline=float(r.baseline), recipe=str(recipe) if recipe else None,
+                      scenes=[str(sc) for sc in scenes], caches=caches, cache=caches[0] if caches and not recipe else None,
+                      eval_split=a.eval_split if recipe else None, disparity_net=disparity_net, disparity_weights=a.disparity_weights,
+                      freeze_disparity=bool(a.freeze_disparity))
     from lfusd.data.augment import refocus_margin
 
     offsets = [r.offsets(v) for v in ds.views]
     my, mx = refocus_margin(offsets, config["refocus"])
     crop = (min(config["crop"] + 2 * my, r.height), min(config["crop"] + 2 * mx, r.width))
     augment = dict(refocus=config["refocus"], flip=True, brightness=0.2, contrast=0.2, saturation=0.2, noise=0.02)
-    source = training_source(a.cache or config.get("cache"), ds, data)
-    config["cache"] = a.cache or config.get("cache")
-    train = Samples(clips(source, config["train_frames"], crop, True, a.rig), a.seed, augment)
+    scenes = [Path(sc) for sc in config.get("scenes") or [config["data"]]]
+    if config.get("recipe"):
+        caches = config.get("caches") or [None] * len(scenes)
+        sources = [training.scene_source(sc, Path(c) if c else None, open_dataset(sc, a.rig), KEYS) for sc, c in zip(scenes, caches)]
+    else:
+        sources = [training_source(a.cache or config.get("cache"), ds, data)]
+        config["cache"] = a.cache or config.get("cache")
+    train = Samples([clips(src, config["train_frames"], crop, True, a.rig) for src in sources], a.seed, augment)
     model = build(config).to(device)
+    if disparity_weights is not None:
+        model.disparity.load_state_dict(disparity_weights)
+    if config.get("freeze_disparity"):
+        model.disparity.requires_grad_(False)
     opt, start = training.optimiser(model, config["lr"], state)
     run.log["config"] = config
-    log.info("%s: %d training pairs, %d views, %d parameters, disparity candidates %.2f..%.2f px", data, len(config["train_frames"]), config["ang"] ** 2,
-             sum(q.numel() for q in model.parameters()), config["d_min"], config["d_max"])
+    log.info("%s: %d scenes, %d training pairs each, %d views, %d parameters (%d trained), disparity candidates %.2f..%.2f px",
+             config.get("recipe") or data, len(scenes), len(config["train_frames"]), config["ang"] ** 2, sum(q.numel() for q in model.parameters()),
+             sum(q.numel() for q in model.parameters() if q.requires_grad), config["d_min"], config["d_max"])
 
     b = config["batch"]
     loader = torch.utils.data.DataLoader(train, batch_size=b, sampler=range(start * b, max(a.steps, start + 1) * b), num_workers=a.workers, drop_last=True)
@@ -170,22 +235,26 @@ def main(argv=None) -> int:
     training.train_loop(model, opt, training.endless(loader), step, run, config, start, a, "scene flow")
 
     t0 = time.time()
-    run.log["eval"] = evaluate(model, ds, config, Path(a.out), device, a)
+    if config.get("recipe"):
+        run.log["eval"] = evaluate_split(model, config, Path(a.out), device, a)
+        m, f = run.log["eval"]["pooled"]["model"], run.log["eval"]["pooled"]["model_flow"]
+    else:
+        run.log["eval"] = evaluate(model, ds, config, Path(a.out), device, a)
+        m, f = run.log["eval"]["model"]["mean"], run.log["eval"]["model_flow"]["mean"]
     run.log["timing"]["eval_s"] = time.time() - t0
     run.log["timing"]["total_s"] = time.time() - t_start
     run.write_log()
-    m, f = run.log["eval"]["model"]["mean"], run.log["eval"]["model_flow"]["mean"]
-    log.info("frames %s: EPE3D %.4f m, flow EPE %.3f px (log %s)", config["eval_frames"], m["epe3d_m"], f["epe_px"], run.log_path)
+    log.info("EPE3D %.4f m, flow EPE %.3f px (log %s)", m["epe3d_m"], f["epe_px"], run.log_path)
     return 0
 
 
 class Samples(torch.utils.data.Dataset):
-    """Training sample n of a run: a clip drawn, cropped (lfusd.torch's random crop) and augmented
+    """Training sample n of a run: a scene and a clip of it drawn, cropped (lfusd.torch's random crop) and augmented
     (lfusd.data.augment.RandomLightField) from the run's seed and n alone, in any process, so that
     a resumed run sees exactly the batches the uninterrupted one would have seen."""
 
-    def __init__(self, clips, seed: int, augment: dict):
-        self.clips, self.seed, self.augment = clips, int(seed), augment
+    def __init__(self, clips: list, seed: int, augment: dict):
+        self.clips, self.seed, self.augment = list(clips), int(seed), augment
 
     def __len__(self):
         return 2**62
@@ -195,7 +264,8 @@ class Samples(torch.utils.data.Dataset):
 
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed((self.seed * 2_654_435_761 + int(n)) % 2**63)
-            item = self.clips[int(torch.randint(len(self.clips), ()))]
+            c = self.clips[int(torch.randint(len(self.clips), ())) if len(self.clips) > 1 else 0]  # a scene, then one of its clips
+            item = c[int(torch.randint(len(c), ()))]
         return RandomLightField(seed=[self.seed, int(n)], **self.augment)(item)
 
 
@@ -244,9 +314,10 @@ def load_pair(ds, t: int, views):
     return one(t), one(t + 1)
 
 
-def evaluate(model, ds, config, out: Path, device, a) -> dict:
-    """Predict the centre view of every evaluation pair, write it where `lfusd eval` reads it and
-    score it (scene flow and flow); the same for the plane sweep + DIS composition."""
+def evaluate(model, ds, config, out: Path, device, a, frames=None, sweep_range=None) -> dict:
+    """Predict the centre view of every evaluation pair (``frames``, default the run's), write it
+    where `lfusd eval` reads it and score it (scene flow and flow); the same for the plane sweep +
+    DIS composition, its plane sweep over ``sweep_range`` (default the network's candidates)."""
     from lfusd.evaluation import baselines
     from lfusd.data import formats
 
@@ -257,9 +328,9 @@ def evaluate(model, ds, config, out: Path, device, a) -> dict:
     K = ds.intrinsics(centre)
     dirs = {n: out / n for n in ("pred", "pred_flow", "pred_composition", "pred_composition_flow")}
     for d in dirs.values():
-        d.mkdir(exist_ok=True)
+        d.mkdir(parents=True, exist_ok=True)
     offsets = {v: ds.rig.offsets(v) for v in views}
-    for t in config["eval_frames"]:
+    for t in frames or config["eval_frames"]:
         stem = training.pred_name(t, centre)
         poses = ds.cam_to_world(t, centre), ds.cam_to_world(t + 1, centre)
         v0, v1 = load_pair(ds, t, views)
@@ -267,7 +338,7 @@ def evaluate(model, ds, config, out: Path, device, a) -> dict:
         write_prediction(dirs["pred"], stem, res, scene_flow(res, K, *poses, ds.rig.baseline))
         formats.write_flo(dirs["pred_flow"] / f"{stem}.flo", res["flow"])
         if not a.no_baselines:
-            rng = (config["d_min"], config["d_max"])
+            rng = sweep_range or (config["d_min"], config["d_max"])
             d = [baselines.plane_sweep_disparity({v: ds.read(f, v, "rgb") for v in views}, offsets, offsets[centre], rng, 64, 9, device=device) for f in (t, t + 1)]
             flow = baselines.dis_flow(ds.read(t, centre, "rgb"), ds.read(t + 1, centre, "rgb"))
             sf, dch, ok = baselines.scene_flow_from(d[0], d[1], flow, K, *poses, ds.rig.baseline)
@@ -280,6 +351,45 @@ def evaluate(model, ds, config, out: Path, device, a) -> dict:
         res["composition_flow"] = training.score(ds, dirs["pred_composition_flow"], "flow")
     (out / "eval.json").write_text(json.dumps({k: v["mean"] for k, v in res.items()}, indent=1, default=float))
     return res
+
+
+def evaluate_split(model, config, out: Path, device, a) -> dict:
+    """Score every pair t -> t+1 of every scene of the recipe's evaluation split (scenes never
+    trained on) as :func:`evaluate` does, into OUT/<split>/<scene>/; the composition's plane sweep
+    spans each scene's own true disparity range (+10 %), as flow/disparity_table.py gives it.
+    Returns the per-scene scores and their means over every scored pixel per template and pooled."""
+    from lfusd.data.dataset import open_dataset
+    from lfusd.recipe import scene_template
+    from train_disparity import disparity_range
+
+    split = config.get("eval_split") or "test"
+    scenes = training.recipe_scenes(Path(config["recipe"]), split)
+    per_scene, groups = {}, {}
+    for sc in scenes:
+        sds = open_dataset(sc, a.rig)
+        frames = training.parse_frames(a.eval_frames) or [t for t in sds.frames if t + 1 in sds.frames]
+        rng = disparity_range(sds, sorted(set(frames) | {t + 1 for t in frames}))
+        res = evaluate(model, sds, config, out / split / sc.name, device, a, frames=frames, sweep_range=rng)
+        per_scene[sc.name] = {k: v["mean"] for k, v in res.items()}
+        groups.setdefault(scene_template(sc) or sc.name, []).append(per_scene[sc.name])
+    pooled = {g: pool(rows) for g, rows in groups.items()}
+    pooled["all"] = pool(list(per_scene.values()))
+    result = {"split": split, "scenes": per_scene, "groups": pooled, "pooled": pooled["all"]}
+    (out / "eval.json").write_text(json.dumps(result, indent=1, default=float))
+    return result
+
+
+def pool(rows: list[dict]) -> dict:
+    """Per method, each metric's mean over every scored pixel of the given scenes (each scene's
+    mean weighted by its pixel count)."""
+    out = {}
+    for method in rows[0]:
+        ms = [r[method] for r in rows if method in r]
+        w = np.array([float(m.get("pixels", 0)) for m in ms])
+        keys = [k for k, v in ms[0].items() if isinstance(v, (int, float)) and k != "pixels"]
+        out[method] = {k: float(np.average([m[k] for m in ms], weights=w)) if w.sum() > 0 else float(np.mean([m[k] for m in ms])) for k in keys}
+        out[method]["pixels"] = int(w.sum())
+    return out
 
 
 if __name__ == "__main__":

@@ -490,6 +490,15 @@ def split_scenes(root) -> dict[str, list[Path]]:
     return out
 
 
+def scene_template(folder) -> str | None:
+    """The template a made recipe scene folder was generated from (its record's spec), None for a
+    folder that is not a recipe scene with a readable record."""
+    folder = Path(folder)
+    rec = _read_record(folder.parent / f"{folder.name}.json")
+    spec = rec.get("spec") if rec else None
+    return str(spec["template"]) if isinstance(spec, dict) and "template" in spec else None
+
+
 def _read_record(path: Path) -> dict | None:
     if not path.is_file():
         return None

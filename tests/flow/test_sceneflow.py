@@ -258,3 +258,126 @@ def test_weights_with_a_pickle_payload_do_not_run(tmp_path):
     assert not marker.exists()
     torch.load(tmp_path / "w.pt", weights_only=False)  # the file's payload is real
     assert marker.exists()
+
+
+def _disparity_checkpoint(path: Path, ang: int = 3) -> dict:
+    """A train_disparity.py-shaped checkpoint of a tiny StarDisparityNet (seeded weights)."""
+    from support.flow_scripts import load_script
+
+    config = {"ang": ang, "d_min": -2.0, "d_max": 3.0, "arch": "star", "disparities": 5, "channels": 4, "blocks": 1, "cost_channels": 4}
+    torch.manual_seed(7)
+    model = load_script("train_disparity").build(config)
+    torch.save({"model": model.state_dict(), "config": config}, path)
+    return model.state_dict()
+
+
+@pytest.mark.render
+def test_training_from_disparity_weights_keeps_them_when_frozen_and_predict_loads_the_run(video, tmp_path):
+    """--disparity-weights starts the disparity half from a train_disparity checkpoint (its
+    architecture and candidates); with --freeze-disparity those weights come out unchanged while the
+    flow network trains, without it they train too; predict_sceneflow builds the same network."""
+    given = _disparity_checkpoint(tmp_path / "disp.pt")
+    from models import StarDisparityNet  # flow/ is on the path now
+    train = _train_main()
+    threads = torch.get_num_threads()
+    common = ["--tiny", "--data", str(video), "--no-baselines", "--quiet", "--disparity-weights", str(tmp_path / "disp.pt")]
+    try:
+        assert train([*common, "--out", str(tmp_path / "frozen"), "--freeze-disparity", "--steps", "1"]) == 0
+        first = torch.load(tmp_path / "frozen" / "checkpoints" / "last.pt", weights_only=True)
+        assert train(["--out", str(tmp_path / "frozen"), "--resume", "--steps", "3", "--quiet", "--no-baselines"]) == 0  # frozen again on resume
+        assert train([*common, "--out", str(tmp_path / "free"), "--steps", "3"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    frozen, free = (torch.load(tmp_path / n / "checkpoints" / "last.pt", weights_only=True) for n in ("frozen", "free"))
+    assert frozen["step"] == 3 and frozen["config"]["disparity_net"]["arch"] == "star" and frozen["config"]["freeze_disparity"]
+    assert (frozen["config"]["d_min"], frozen["config"]["d_max"]) == (-2.0, 3.0)  # the given network's candidates
+    for k, v in given.items():
+        assert torch.equal(frozen["model"][f"disparity.{k}"], v), k  # untouched: no arithmetic on a frozen tensor
+    assert any(not torch.equal(free["model"][f"disparity.{k}"], v) for k, v in given.items() if v.is_floating_point())
+    assert any(not torch.equal(frozen["model"][k], first["model"][k]) for k in first["model"] if k.startswith("flow."))  # the flow trains
+    sys.path.insert(0, str(ROOT / "flow"))
+    import predict_sceneflow
+
+    model, config = predict_sceneflow.load_model(tmp_path / "frozen" / "checkpoints" / "last.pt")
+    assert isinstance(model.disparity, StarDisparityNet) and config["disparity_net"]["disparities"] == 5
+
+
+@pytest.mark.render
+def test_disparity_weights_are_refused_in_one_line_when_they_do_not_fit(video, tmp_path):
+    _disparity_checkpoint(tmp_path / "disp5.pt", ang=5)
+    r = _script("train_sceneflow", "--tiny", "--data", video, "--out", tmp_path / "a", "--steps", 1, "--quiet", "--disparity-weights", tmp_path / "disp5.pt")
+    last = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 2 and "5x5 grid" in last and last.startswith("train_sceneflow: error:") and r.stderr.count("error") == 1, r.stderr
+    r = _script("train_sceneflow", "--tiny", "--data", video, "--out", tmp_path / "b", "--steps", 1, "--quiet", "--freeze-disparity")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "--disparity-weights" in r.stderr, r.stderr
+
+
+def _recipe_of(video: Path, root: Path) -> Path:
+    """A made recipe dataset whose scenes are the video (one `things` train scene, one held-out
+    `street` test scene), with the records `lfusd dataset make` writes for verified scenes."""
+    import lfusd.recipe as rc
+    from lfusd import layout
+
+    root.mkdir()
+    (root / layout.RECIPE_COPY).write_text(
+        '[dataset]\nname = "t"\ngrid = [3, 3]\nresolution = [40, 32]\nheld_out = ["street"]\n'
+        '[[part]]\nname = "train"\nsplit = "train"\ntemplates = ["things"]\nscenes = 1\n'
+        '[[part]]\nname = "test"\nsplit = "test"\ntemplates = ["street"]\nscenes = 1\nfirst_seed = 100\n')
+    (root / layout.RECIPE_SCENES).mkdir()
+    for spec in rc.scene_specs(rc.load_recipe(root / layout.RECIPE_COPY)):
+        (root / layout.RECIPE_SCENES / spec.name).symlink_to(video, target_is_directory=True)
+        rec = {"version": rc.RECORD_VERSION, "spec": rc._spec_dict(spec), "verified": True}
+        (root / layout.RECIPE_SCENES / f"{spec.name}.json").write_text(json.dumps(rec))
+    return root
+
+
+@pytest.mark.render
+def test_a_recipe_run_trains_on_its_train_split_and_scores_every_pair_of_the_test_split(video, tmp_path):
+    """--data RECIPE_OUT: the run trains on the train split's scenes (their caches under --cache)
+    and scores every pair t -> t+1 of each test scene beside the composition, pooled per template
+    over every scored pixel."""
+    from lfusd.cli import main
+    from lfusd.recipe import split_scenes
+
+    root = _recipe_of(video, tmp_path / "recipe")
+    (train_scene,), (test_scene,) = split_scenes(root)["train"], split_scenes(root)["test"]
+    caches = tmp_path / "caches"
+    assert main(["export", "cache", str(train_scene), str(caches / train_scene.name), "--keys", "rgb,disparity,flow_fwd,disparity_change,valid_fwd"]) == 0
+    train = _train_main()
+    threads = torch.get_num_threads()
+    try:
+        assert train(["--tiny", "--data", str(root), "--cache", str(caches), "--out", str(tmp_path / "run"), "--steps", "2", "--quiet"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    config = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", weights_only=True)["config"]
+    assert config["scenes"] == [str(train_scene)] and config["caches"] == [str(caches / train_scene.name)]
+    ev = json.loads((tmp_path / "run" / "eval.json").read_text())
+    assert ev["split"] == "test" and list(ev["scenes"]) == [test_scene.name] and set(ev["groups"]) == {"street", "all"}
+    scored = sorted(p.name for p in (tmp_path / "run" / "test" / test_scene.name / "pred").glob("*.npy"))
+    assert scored == ["0001_01_01.npy", "0002_01_01.npy", "0003_01_01.npy"]  # every pair of the 4 frames
+    for method in ("model", "model_flow", "composition", "composition_flow"):
+        one = ev["scenes"][test_scene.name][method]
+        assert ev["pooled"][method]["pixels"] == one["pixels"] > 0
+        assert all(np.isclose(ev["pooled"][method][k], v) for k, v in one.items() if isinstance(v, float))
+
+
+def test_pooling_weights_each_scene_by_its_scored_pixels():
+    from support.flow_scripts import load_script
+
+    pool = load_script("train_sceneflow").pool
+    got = pool([{"m": {"epe3d_m": 1.0, "fl_pct": 10.0, "pixels": 1}}, {"m": {"epe3d_m": 2.0, "fl_pct": 30.0, "pixels": 3}}])
+    assert got == {"m": {"epe3d_m": 1.75, "fl_pct": 25.0, "pixels": 4}}
+
+
+def test_star_disparity_weights_are_refused_for_a_benchmark_submission_in_one_line(tmp_path):
+    """The star disparity network predicts the centre view only; --bench scores every view."""
+    from support.flow_scripts import load_script
+
+    tsf = load_script("train_sceneflow")
+    disparity_net = {"ang": 3, "d_min": -2.0, "d_max": 3.0, "arch": "star", "disparities": 5, "channels": 4, "blocks": 1, "cost_channels": 4}
+    config = {"ang": 3, "d_min": -2.0, "d_max": 3.0, "disparities": 5, "channels": 4, "blocks": 1, "cost_channels": 4, "flow_channels": 4,
+              "flow_levels": 2, "radius": 1, "disparity_net": disparity_net}
+    torch.save({"model": tsf.build(config).state_dict(), "config": config}, tmp_path / "sf.pt")
+    r = _script("predict_sceneflow", "--bench", tmp_path / "no_bench", "-o", tmp_path / "sub", "--weights", tmp_path / "sf.pt")
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "centre view only" in r.stderr, r.stderr
+    assert not (tmp_path / "sub").exists()
