@@ -42,9 +42,9 @@ log = logging.getLogger("lfusd.flow")
 NAME = "train_sceneflow"
 KEYS = ("rgb", "disparity", "flow_fwd", "disparity_change", "valid_fwd")
 TINY = dict(steps=200, batch=2, crop=32, lr=2e-3, save_every=50, log_every=1, channels=8, blocks=1, cost_channels=8, disparities=9,
-            flow_channels=8, flow_levels=2, radius=2, refocus=0)
+            flow_channels=8, flow_levels=2, radius=2, refocus=0, translate=0)
 FULL = dict(steps=40000, batch=8, crop=64, lr=5e-4, save_every=500, log_every=50, channels=16, blocks=4, cost_channels=32, disparities=33,
-            flow_channels=24, flow_levels=4, radius=4, refocus=1)
+            flow_channels=24, flow_levels=4, radius=4, refocus=1, translate=6)
 # the --tiny dataset: frames 1-4 of the bundled street (cars, people) seen by its 3x3 rig at 48x48
 TINY_SCENE = (training.ROOT / "stages" / "street_dynamic_00.usda", None,
               ["--rig", "rig_00", "--frames", "1-4", "--resolution", "48x48", "--samples", "4", "--quiet"])
@@ -143,6 +143,8 @@ def main(argv=None) -> int:
     p.add_argument("--flow-levels", type=int, default=None, help="pyramid levels of the flow network")
     p.add_argument("--radius", type=int, default=None, help="search radius of the flow correlation in pixels of each level")
     p.add_argument("--refocus", type=int, default=None, help="largest refocus shift k of the augmentation (disparity d -> d - k); 0: none")
+    p.add_argument("--translate", type=int, default=None, help="translate frame t+1 of half the samples by up to this many whole pixels in x and y "
+                   "(lfusd.data.augment.translate_next: every pixel's flow grows by the shift), so that the flow network sees every pixel move; 0: none")
     p.add_argument("--cache", default=None, help="read the training samples from this training cache of --data (lfusd export cache DATA CACHE): memory maps, "
                    "no decoding; for a recipe dataset a folder holding one per scene, named as the scene")
     p.add_argument("--split", default="train", help="the split of a recipe dataset given as --data to train on (default train)")
@@ -195,12 +197,13 @@ def main(argv=None) -> int:
                       refocus=k, centre=list(r.centre_view), baseline=float(r.baseline), recipe=str(recipe) if recipe else None,
                       scenes=[str(sc) for sc in scenes], caches=caches, cache=caches[0] if caches and not recipe else None,
                       eval_split=a.eval_split if recipe else None, disparity_net=disparity_net, disparity_weights=a.disparity_weights,
-                      freeze_disparity=bool(a.freeze_disparity))
+                      freeze_disparity=bool(a.freeze_disparity), translate=int(a.translate))
     from lfusd.data.augment import refocus_margin
 
     offsets = [r.offsets(v) for v in ds.views]
     my, mx = refocus_margin(offsets, config["refocus"])
-    crop = (min(config["crop"] + 2 * my, r.height), min(config["crop"] + 2 * mx, r.width))
+    shift = int(config.get("translate", 0))
+    crop = (min(config["crop"] + 2 * (my + shift), r.height), min(config["crop"] + 2 * (mx + shift), r.width))
     augment = dict(refocus=config["refocus"], flip=True, brightness=0.2, contrast=0.2, saturation=0.2, noise=0.02)
     scenes = [Path(sc) for sc in config.get("scenes") or [config["data"]]]
     if config.get("recipe"):
@@ -209,7 +212,7 @@ def main(argv=None) -> int:
     else:
         sources = [training_source(a.cache or config.get("cache"), ds, data)]
         config["cache"] = a.cache or config.get("cache")
-    train = Samples([clips(src, config["train_frames"], crop, True, a.rig) for src in sources], a.seed, augment)
+    train = Samples([clips(src, config["train_frames"], crop, True, a.rig) for src in sources], a.seed, augment, shift)
     model = build(config).to(device)
     if disparity_weights is not None:
         model.disparity.load_state_dict(disparity_weights)
@@ -250,11 +253,12 @@ def main(argv=None) -> int:
 
 class Samples(torch.utils.data.Dataset):
     """Training sample n of a run: a scene and a clip of it drawn, cropped (lfusd.torch's random crop) and augmented
-    (lfusd.data.augment.RandomLightField) from the run's seed and n alone, in any process, so that
+    (lfusd.data.augment.RandomLightField, then for half the samples translate_next by up to
+    ``translate`` px) from the run's seed and n alone, in any process, so that
     a resumed run sees exactly the batches the uninterrupted one would have seen."""
 
-    def __init__(self, clips: list, seed: int, augment: dict):
-        self.clips, self.seed, self.augment = list(clips), int(seed), augment
+    def __init__(self, clips: list, seed: int, augment: dict, translate: int = 0):
+        self.clips, self.seed, self.augment, self.translate = list(clips), int(seed), augment, int(translate)
 
     def __len__(self):
         return 2**62
@@ -266,7 +270,14 @@ class Samples(torch.utils.data.Dataset):
             torch.manual_seed((self.seed * 2_654_435_761 + int(n)) % 2**63)
             c = self.clips[int(torch.randint(len(self.clips), ())) if len(self.clips) > 1 else 0]  # a scene, then one of its clips
             item = c[int(torch.randint(len(c), ()))]
-        return RandomLightField(seed=[self.seed, int(n)], **self.augment)(item)
+        item = RandomLightField(seed=[self.seed, int(n)], **self.augment)(item)
+        if not self.translate:
+            return item
+        from lfusd.data.augment import translate_next
+
+        rng = np.random.default_rng([self.seed, int(n), 1])
+        dx, dy = rng.integers(-self.translate, self.translate + 1, 2) if rng.random() < 0.5 else (0, 0)
+        return translate_next(item, int(dx), int(dy), self.translate)
 
 
 @torch.no_grad()

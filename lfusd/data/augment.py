@@ -22,6 +22,9 @@ Geometry (docs/CONVENTIONS.md: a point at disparity d seen at (u, v) in the cent
 - :func:`transpose`: image and grid transposed (u <-> v, row <-> col, sx <-> sy); flow components
   swap; the world is mirrored across the camera's x = y plane; fx <-> fy, cx <-> cy. Needs square
   pixels (fx = fy) and, for batches, square crops.
+- :func:`translate_next` ``(dx, dy)``: frame t+1 of a two-frame clip translated by whole pixels
+  against frame t: forward flow grows by (dx, dy), disparity and disparity change are unchanged
+  (training a flow network on scenes whose camera stands still).
 - :func:`colour_jitter` and :func:`noise` change ``rgb`` (and ``target_rgb``) only, float in [0, 1]
   (uint8 rgb, ``LightFieldVideoDataset(uint8_rgb=True)``, becomes float / 255 first):
   one brightness, contrast and saturation factor for all views and frames of an item (views must
@@ -249,6 +252,57 @@ def refocus(item: dict, k: int, margin: tuple[int, int] | None = None) -> dict:
         crop[0] += my
         crop[1] += mx
         out["crop"] = _like(crop, item["crop"])  # the centre view's window in the source image
+    return out
+
+
+# what translate_next keeps exact: images and per-pixel labels move with the pixels; forward motion
+# is re-expressed in the translated frame's pixels; what needs frame t+1's camera is refused
+_TRANSLATABLE = ("rgb", "disparity", "depth", "disparity_change", "flow_fwd", "valid_fwd", "instance", "semantic", "mixed")
+
+
+def translate_next(item: dict, dx: int, dy: int, margin: int) -> dict:
+    """A two-frame clip with frame t+1 of every view translated by (dx, dy) whole pixels against frame
+    t, I'_{t+1}(u, v) = I_{t+1}(u - dx, v - dy) (a crop of the ``margin`` px on each side at an
+    offset; frame t is cropped alike at no offset): every pixel's forward flow t -> t+1 grows by
+    exactly (dx, dy), while the disparity and the disparity change of each point are unchanged.
+    Frame t+1's forward flow (to t+2, which is not translated) shrinks by (dx, dy). It teaches a
+    flow network that every pixel may move (lfusd's ``things`` cameras stand still), but frame t+1
+    is then no longer imaged by the item's intrinsics (its principal point moves by (dx, dy)), so
+    keys that need its camera (positions, scene flow, backward flow) are refused."""
+    _no_targets(item, "translate_next")
+    _pinhole_only(item, "translate_next")
+    dx, dy, m = int(dx), int(dy), int(margin)
+    if max(abs(dx), abs(dy)) > m:
+        raise LfusdError(f"a translation of ({dx}, {dy}) px needs a margin of at least {max(abs(dx), abs(dy))} px, got {m}")
+    keys = _pixel_keys(item)
+    other = [k for k in keys if k not in _TRANSLATABLE]
+    if other:
+        raise LfusdError(f"translate_next keeps {', '.join(_TRANSLATABLE)} exact, not {', '.join(other)}; leave those keys out")
+    if _view_axis(item) != 1 or _np(item[keys[0]]).shape[0] != 2:
+        raise LfusdError("translate_next takes a clip of two frames (LightFieldVideoDataset(clip=2))")
+    h, w = _np(item[keys[0]]).shape[-2:]
+    hh, ww = h - 2 * m, w - 2 * m
+    if hh <= 0 or ww <= 0:
+        raise LfusdError(f"a margin of {m} px leaves nothing of {h}x{w} crops; ask the loader for larger crops")
+    out = dict(item)
+    for key in keys:
+        a = item[key]
+        t0 = a[0][..., m : m + hh, m : m + ww]
+        t1 = a[1][..., m - dy : m - dy + hh, m - dx : m - dx + ww]
+        if key == "flow_fwd":
+            d = np.array([dx, dy], np.float32).reshape(2, 1, 1)
+            d = _like(d, a) if _is_torch(a) else d
+            t0, t1 = t0 + d, t1 - d
+        if _is_torch(a):
+            out[key] = a.new_empty((2,) + tuple(t0.shape))
+            out[key][0], out[key][1] = t0, t1
+        else:
+            out[key] = np.stack([t0, t1])
+    if "crop" in item:
+        crop = _np(item["crop"]).copy()
+        crop[0] += m
+        crop[1] += m
+        out["crop"] = _like(crop, item["crop"])  # frame t's window in the source image
     return out
 
 

@@ -241,3 +241,41 @@ def test_augmented_rendered_views_warp_onto_the_augmented_centre(box_dataset):
     assert error(shifted, 1, wrong) > 2 * error(shifted, 1)
     for name in AUGMENTS:  # and the rendered positions, depth and disparity agree through the augmented cameras
         check_geometry(AUGMENTS[name](item), motion=False)
+
+
+@pytest.mark.parametrize("dx, dy", [(3, -2), (0, 4), (-4, -4)])
+def test_translating_the_next_frame_adds_the_shift_to_the_flow_where_the_points_land(dx, dy):
+    """translate_next against the closed-form light field: the point seen at pixel p of frame t
+    (position + scene flow, projected by frame t+1's camera in the source image) lands at p + flow'
+    in the translated frame t+1, whose images and disparities are the source's moved by (dx, dy)."""
+    from lfusd.torch import LightFieldVideoDataset
+
+    m = 4
+    ds = FakeDataset(rows=3, cols=3, width=49, height=51, frames=(1, 2, 3, 4))
+    src = LightFieldVideoDataset(ds, keys=("rgb", "disparity", "flow_fwd", "position", "scene_flow"), views="all", clip=2, frames=[2], crop=(46, 44))[0]
+    item = {k: v for k, v in src.items() if k not in ("position", "scene_flow")}
+    out = aug.translate_next(item, dx, dy, m)
+    h, w = 46 - 2 * m, 44 - 2 * m
+    assert out["rgb"].shape[-2:] == (h, w) and out["flow_fwd"].shape == (2, 9, 2, h, w)
+    pos, sf = (src[k].numpy().astype(np.float64) for k in ("position", "scene_flow"))
+    poses, ks = src["cam_to_world"].numpy(), src["intrinsics"].numpy()
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    flow = out["flow_fwd"].numpy().astype(np.float64)
+    for i in range(9):
+        u, v, _ = project(pos[0, i] + sf[0, i], poses[1, i], ks[i])  # source pixels of frame t+1
+        u, v = u[m : m + h, m : m + w] - (m - dx), v[m : m + h, m : m + w] - (m - dy)  # in the translated frame t+1
+        np.testing.assert_allclose(u, xx + flow[0, i, 0], atol=2e-3)
+        np.testing.assert_allclose(v, yy + flow[0, i, 1], atol=2e-3)
+        np.testing.assert_array_equal(out["rgb"][1, i].numpy(), src["rgb"][1, i, :, m - dy : m - dy + h, m - dx : m - dx + w].numpy())
+        np.testing.assert_array_equal(out["disparity"][0, i].numpy(), src["disparity"][0, i, m : m + h, m : m + w].numpy())
+        np.testing.assert_array_equal(out["disparity"][1, i].numpy(), src["disparity"][1, i, m - dy : m - dy + h, m - dx : m - dx + w].numpy())
+    np.testing.assert_allclose(flow[1], src["flow_fwd"].numpy()[1, :, :, m - dy : m - dy + h, m - dx : m - dx + w] - np.reshape([dx, dy], (2, 1, 1)))
+
+
+def test_translate_next_refuses_what_it_cannot_keep_exact(item):
+    with pytest.raises(LfusdError, match="not position"):
+        aug.translate_next(item, 1, 0, 2)
+    small = {k: v for k, v in item.items() if k in ("rgb", "flow_fwd", "cam_to_world", "offsets", "intrinsics", "views", "frames")}
+    with pytest.raises(LfusdError, match="margin of at least 3"):
+        aug.translate_next(small, 3, 0, 2)
+    assert aug.translate_next(small, 0, 0, 2)["rgb"].shape[-2:] == (42, 40)
