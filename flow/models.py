@@ -25,6 +25,8 @@ a minute. Both use LeakyReLU and no normalisation layers (small batches).
 
 from __future__ import annotations
 
+import numpy as np
+
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -321,6 +323,49 @@ class FlowNet(nn.Module):
         return _resize_flow(flow, img0.shape[-2:])
 
 
+class DISRefineFlow(nn.Module):
+    """Optical flow of two images: OpenCV's DIS flow (lfusd.evaluation.baselines.dis_flow, the one
+    the plane sweep + DIS composition uses) plus a residual from a small CNN that sees frame t,
+    frame t+1 warped back by the DIS flow, their difference and the DIS flow; dilated convolutions
+    (rates 1, 2, 4, ... over ``blocks`` layers) give it context to correct occlusions, motion
+    boundaries and textureless regions. The residual's last layer starts at zero, so an untrained
+    network is DIS exactly. DIS runs on the CPU without gradients (the images as 8-bit grey).
+
+    A network a CPU can train: a PWC-style FlowNet trained for 700 steps on lfusd's ``things``
+    preview learned to predict zero flow everywhere (its decoders had not yet learned to read the
+    cost volume); this one starts where the classical baseline is and learns only corrections.
+
+    forward(img0, img1 [B, 3, H, W] in [0, 1]) -> flow [B, 2, H, W] in pixels (frame t -> t+1).
+    """
+
+    def __init__(self, ch: int = 32, blocks: int = 5):
+        super().__init__()
+        layers, prev = [], 3 + 3 + 3 + 2
+        for i in range(blocks):
+            rate = 2 ** min(i, 4)
+            layers += [nn.Conv2d(prev, ch, 3, padding=rate, dilation=rate), _act()]
+            prev = ch
+        self.body = nn.Sequential(*layers)
+        self.head = nn.Conv2d(ch, 2, 3, padding=1)
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    @staticmethod
+    def dis(img0: torch.Tensor, img1: torch.Tensor) -> torch.Tensor:
+        from lfusd.evaluation.baselines import dis_flow
+
+        a = img0.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy()
+        b = img1.detach().float().clamp(0, 1).permute(0, 2, 3, 1).cpu().numpy()
+        flows = [dis_flow(x, y) for x, y in zip(a, b)]
+        return torch.from_numpy(np.stack(flows)).permute(0, 3, 1, 2).to(img0)
+
+    def forward(self, img0: torch.Tensor, img1: torch.Tensor) -> torch.Tensor:
+        base = self.dis(img0, img1)
+        warped = backward_warp(img1, base)
+        x = torch.cat([img0, warped, img0 - warped, base / 8.0], 1)
+        return base + self.head(self.body(x))
+
+
 def _resize_flow(flow: torch.Tensor, size) -> torch.Tensor:
     """Bilinear resize of a flow field with its vectors scaled to the new pixel size."""
     h, w = flow.shape[-2:]
@@ -345,12 +390,13 @@ class SceneFlowNet(nn.Module):
     """
 
     def __init__(self, ang: int, d_min: float, d_max: float, n_disp: int = 9, ch: int = 16, n_blocks: int = 2, cost_ch: int = 32,
-                 flow_ch: int = 16, flow_levels: int = 3, radius: int = 3, disparity: nn.Module | None = None):
+                 flow_ch: int = 16, flow_levels: int = 3, radius: int = 3, disparity: nn.Module | None = None, flow_arch: str = "pwc"):
         super().__init__()
         self.ang = ang
         # ``disparity``: a disparity network of the same forward contract (e.g. a trained StarDisparityNet)
         self.disparity = disparity if disparity is not None else DisparityNet(ang, d_min, d_max, n_disp, ch=ch, n_blocks=n_blocks, cost_ch=cost_ch)
-        self.flow = FlowNet(flow_ch, flow_levels, radius)
+        # "pwc": FlowNet; "dis": DISRefineFlow (OpenCV DIS refined by a CNN)
+        self.flow = DISRefineFlow(flow_ch, flow_levels) if flow_arch == "dis" else FlowNet(flow_ch, flow_levels, radius)
 
     def forward(self, views0: torch.Tensor, views1: torch.Tensor, rel: torch.Tensor, ref: int) -> dict:
         b = views0.shape[0]

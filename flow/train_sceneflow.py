@@ -42,13 +42,13 @@ log = logging.getLogger("lfusd.flow")
 NAME = "train_sceneflow"
 KEYS = ("rgb", "disparity", "flow_fwd", "disparity_change", "valid_fwd")
 TINY = dict(steps=200, batch=2, crop=32, lr=2e-3, save_every=50, log_every=1, channels=8, blocks=1, cost_channels=8, disparities=9,
-            flow_channels=8, flow_levels=2, radius=2, refocus=0, translate=0)
+            flow_channels=8, flow_levels=2, radius=2, refocus=0, translate=0, flow_arch="pwc")
 FULL = dict(steps=40000, batch=8, crop=64, lr=5e-4, save_every=500, log_every=50, channels=16, blocks=4, cost_channels=32, disparities=33,
-            flow_channels=24, flow_levels=4, radius=4, refocus=1, translate=6)
+            flow_channels=24, flow_levels=4, radius=4, refocus=1, translate=6, flow_arch="pwc")
 # the --tiny dataset: frames 1-4 of the bundled street (cars, people) seen by its 3x3 rig at 48x48
 TINY_SCENE = (training.ROOT / "stages" / "street_dynamic_00.usda", None,
               ["--rig", "rig_00", "--frames", "1-4", "--resolution", "48x48", "--samples", "4", "--quiet"])
-NET = ("disparities", "channels", "blocks", "cost_channels", "flow_channels", "flow_levels", "radius")
+NET = ("disparities", "channels", "blocks", "cost_channels", "flow_channels", "flow_levels", "radius", "flow_arch")
 
 
 def build(config: dict) -> SceneFlowNet:
@@ -62,7 +62,7 @@ def build(config: dict) -> SceneFlowNet:
         disparity = build_disparity(config["disparity_net"])
     return SceneFlowNet(config["ang"], config["d_min"], config["d_max"], config["disparities"], ch=config["channels"], n_blocks=config["blocks"],
                         cost_ch=config["cost_channels"], flow_ch=config["flow_channels"], flow_levels=config["flow_levels"], radius=config["radius"],
-                        disparity=disparity)
+                        disparity=disparity, flow_arch=config.get("flow_arch", "pwc"))
 
 
 def start_disparity(path: str, ang: int) -> tuple[dict, dict]:
@@ -142,6 +142,8 @@ def main(argv=None) -> int:
     p.add_argument("--flow-channels", type=int, default=None, help="feature channels of the flow network's finest level")
     p.add_argument("--flow-levels", type=int, default=None, help="pyramid levels of the flow network")
     p.add_argument("--radius", type=int, default=None, help="search radius of the flow correlation in pixels of each level")
+    p.add_argument("--flow-arch", choices=("pwc", "dis"), default=None, help="pwc: the PWC-lite FlowNet (default); dis: OpenCV DIS refined by a CNN "
+                   "(models.DISRefineFlow: --flow-channels wide, --flow-levels dilated layers)")
     p.add_argument("--refocus", type=int, default=None, help="largest refocus shift k of the augmentation (disparity d -> d - k); 0: none")
     p.add_argument("--translate", type=int, default=None, help="translate frame t+1 of half the samples by up to this many whole pixels in x and y "
                    "(lfusd.data.augment.translate_next: every pixel's flow grows by the shift), so that the flow network sees every pixel move; 0: none")

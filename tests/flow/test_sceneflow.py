@@ -381,3 +381,31 @@ def test_star_disparity_weights_are_refused_for_a_benchmark_submission_in_one_li
     r = _script("predict_sceneflow", "--bench", tmp_path / "no_bench", "-o", tmp_path / "sub", "--weights", tmp_path / "sf.pt")
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()] and "centre view only" in r.stderr, r.stderr
     assert not (tmp_path / "sub").exists()
+
+
+def test_the_dis_refining_flow_network_starts_as_dis_and_learns_a_correction():
+    """models.DISRefineFlow: untrained, exactly OpenCV's DIS flow (the composition baseline's); a few
+    steps towards a target move it off DIS."""
+    from support.flow_scripts import load_script
+
+    from lfusd.evaluation.baselines import dis_flow
+
+    models = load_script("models")
+    rng = np.random.default_rng(3)
+    img = rng.uniform(0, 1, (40, 48, 3)).astype(np.float32)
+    img0, img1 = img[4:36, 4:44], img[3:35, 6:46]  # frame t+1 shows the texture moved by (-2, 1)
+    t0, t1 = (torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None] for a in (img0, img1))
+    net = models.DISRefineFlow(8, 2)
+    with torch.no_grad():
+        got = net(t0, t1)[0].permute(1, 2, 0).numpy()
+    np.testing.assert_allclose(got, dis_flow(img0, img1), atol=1e-6)
+    opt = torch.optim.Adam(net.parameters(), 1e-2)
+    target = torch.zeros(1, 2, 32, 40)
+    target[:, 0], target[:, 1] = -2.0, 1.0
+    for _ in range(3):
+        loss = (net(t0, t1) - target).abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        assert not np.allclose(net(t0, t1)[0].permute(1, 2, 0).numpy(), dis_flow(img0, img1), atol=1e-3)

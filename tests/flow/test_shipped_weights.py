@@ -50,3 +50,43 @@ def test_a_plane_of_each_sign_comes_out_of_the_shipped_weights_with_its_sign_and
     inner = got[16:-16, 16:-16]
     med = float(np.median(inner))
     assert np.sign(med) == np.sign(d) and abs(med - d) < BOUND_PX, (d, med, float(inner.min()), float(inner.max()))
+
+
+SF_WEIGHTS = ROOT / "flow" / "weights" / "sceneflow.pt"
+# the shipped scene-flow weights' documented bounds (flow/README.md "Learned scene flow"), on the inner
+# 32x32 of the moving planes below: median flow error per component and median |disparity change|
+SF_FLOW_BOUND_PX = 0.25
+SF_CHANGE_BOUND_PX = 0.25
+
+
+def test_the_shipped_scene_flow_weights_are_small_and_load_without_pickled_code():
+    assert SF_WEIGHTS.is_file(), "flow/weights/sceneflow.pt is missing"
+    assert SF_WEIGHTS.stat().st_size <= 10 * 2**20
+    state = torch.load(SF_WEIGHTS, map_location="cpu", weights_only=True)
+    assert set(state) >= {"model", "config"} and state["config"]["ang"] == 9
+    assert load_script("predict_sceneflow").DEFAULT_WEIGHTS == SF_WEIGHTS
+
+
+@pytest.mark.parametrize("d, fx, fy", [(-1.5, 2, -1), (1.5, -1, 2), (2.5, 3, 1)])
+def test_a_moving_plane_comes_out_of_the_shipped_scene_flow_weights_with_its_flow_and_no_disparity_change(tmp_path, d, fx, fy):
+    """A fronto-parallel plane at disparity d whose texture moves by (fx, fy) whole pixels between the
+    two frames (the analytic views of plane_views, cropped from a larger canvas at two offsets):
+    optical flow (fx, fy), disparity d at both times, disparity change 0 (it keeps its depth)."""
+    m = 8
+    big = plane_views(d, np.random.default_rng(11), SIZE + 2 * m)
+    t0 = write_hci(tmp_path / "t0", big[:, m : m + SIZE, m : m + SIZE])
+    t1 = write_hci(tmp_path / "t1", big[:, m - fy : m - fy + SIZE, m - fx : m - fx + SIZE])
+    for f in (t0, t1):
+        (f / "parameters.cfg").unlink()  # no camera: flow, disparity and its change only
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, str(ROOT / "flow" / "predict_sceneflow.py"), str(t0), str(t1), "-o", str(tmp_path / "out"), "--threads", "1"],
+                       env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    inner = (slice(16, -16), slice(16, -16))
+    flow = formats.read_flo(tmp_path / "out" / "flow.flo")[inner]
+    disp = formats.read_pfm(tmp_path / "out" / "disparity.pfm")[inner]
+    change = formats.read_pfm(tmp_path / "out" / "disparity_change.pfm")[inner]
+    got = (float(np.median(flow[..., 0])), float(np.median(flow[..., 1])))
+    assert abs(got[0] - fx) < SF_FLOW_BOUND_PX and abs(got[1] - fy) < SF_FLOW_BOUND_PX, (d, (fx, fy), got)
+    assert np.sign(np.median(disp)) == np.sign(d) and abs(float(np.median(disp)) - d) < BOUND_PX, (d, float(np.median(disp)))
+    assert abs(float(np.median(change))) < SF_CHANGE_BOUND_PX, float(np.median(change))
