@@ -56,7 +56,7 @@ SF_WEIGHTS = ROOT / "flow" / "weights" / "sceneflow.pt"
 # the shipped scene-flow weights' documented bounds (flow/README.md "Learned scene flow"), on the inner
 # 32x32 of the moving planes below: median flow error per component and median |disparity change|
 SF_FLOW_BOUND_PX = 0.25
-SF_CHANGE_BOUND_PX = 0.25
+SF_CHANGE_BOUND_PX = 0.05
 
 
 def test_the_shipped_scene_flow_weights_are_small_and_load_without_pickled_code():
@@ -67,7 +67,7 @@ def test_the_shipped_scene_flow_weights_are_small_and_load_without_pickled_code(
     assert load_script("predict_sceneflow").DEFAULT_WEIGHTS == SF_WEIGHTS
 
 
-@pytest.mark.parametrize("d, fx, fy", [(-1.5, 2, -1), (1.5, -1, 2), (2.5, 3, 1)])
+@pytest.mark.parametrize("d, fx, fy", [(-1.5, 2, -1), (2.5, 3, 1), (-2.5, 0, -3)])
 def test_a_moving_plane_comes_out_of_the_shipped_scene_flow_weights_with_its_flow_and_no_disparity_change(tmp_path, d, fx, fy):
     """A fronto-parallel plane at disparity d whose texture moves by (fx, fy) whole pixels between the
     two frames (the analytic views of plane_views, cropped from a larger canvas at two offsets):
