@@ -47,8 +47,7 @@ def test_the_options_parse_into_the_request_and_are_checked():
         with pytest.raises(LfusdError, match="--device cpu"):
             RenderRequest(**req, lens=LENS, device=device).check()
     RenderRequest(**req, lens=LENS, device="auto").check()
-    with pytest.raises(LfusdError, match="--lens and --fstop"):
-        RenderRequest(**req, lens=LENS, fstop=2.8, focus=3.0).check()
+    RenderRequest(**req, lens=LENS, fstop=2.8, focus=3.0).check()  # the OSL camera has its own thin lens
     assert RenderRequest(**req, lens=LENS).distorted and not RenderRequest(**req, lens=Distortion()).distorted
 
 
@@ -101,10 +100,11 @@ def test_a_recipe_asks_for_the_lens_and_the_card_says_so():
     assert "lens distortion k1, k2, p1, p2, k3 = -0.1, 0.01, 0, 0, 0" in said and "seed 2" in said
     assert "lens" not in effects_text(json.loads(json.dumps(asdict(parse_recipe({"dataset": ds, "part": part})))))
     for bad, words in (({"lens": [1, 2]}, "dataset.lens must be"), ({"lens": [-0.1, 0, 0, 0, 0], "lens_seed": 1}, "go together"),
-                       ({"lens_seed": 1, "lens_spread": 0.1}, "add dataset.lens"),
-                       ({"lens": [-0.1, 0, 0, 0, 0], "fstop": 2.8, "focus": 3.0}, "does not go with dataset.fstop")):
+                       ({"lens_seed": 1, "lens_spread": 0.1}, "add dataset.lens")):
         with pytest.raises(LfusdError, match=words):
             parse_recipe({"dataset": {**ds, **bad}, "part": part})
+    both = parse_recipe({"dataset": {**ds, "lens": [-0.1, 0, 0, 0, 0], "fstop": 2.8, "focus": 3.0}, "part": part})
+    assert both.distortion[0] == -0.1 and both.lens == (2.8, 3.0)  # distortion and defocus together
 
 
 def test_geometric_augmentations_refuse_distorted_views_and_colour_ones_keep_them():
