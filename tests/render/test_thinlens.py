@@ -74,7 +74,7 @@ def test_coc_is_the_aperture_disc_imaged_through_the_lens_on_a_tilted_plane(rend
     M = _pixel_jacobian(x, y, K)
     want = _blur_ellipse_diameter(z, M)
     got = ds.read(FRAME, VIEW, "coc")
-    np.testing.assert_allclose(got[plane], want[plane], rtol=1e-4)
+    np.testing.assert_allclose(got[plane], want[plane], rtol=1e-4, atol=1e-5)  # atol: 1/S - 1/z cancels near focus (float32 depth)
     assert got[plane].min() < 0.05 and got[plane].max() > 0.8  # in focus across a column, blurred away from it
     # through the lens is not the pinhole's disc: the barrel lens shrinks the blur off-centre
     pinhole = K[0, 0] * APERTURE * np.abs(1 / FOCUS - 1 / z)
@@ -109,7 +109,8 @@ def test_the_focus_plane_stays_sharp_and_a_nearer_square_spreads_over_the_coc_el
     win = (slice(sv - 7, sv + 8), slice(su - 7, su + 8))
     (m1, c1, v1), (m0, c0, v0) = _moments(thin[win]), _moments(sharp[win])
     assert abs(m1 / m0 - 1) < 0.03 and np.abs(c1 - c0).max() < 0.05, (m1, m0, c1, c0)
-    assert abs(np.trace(v1) / np.trace(v0) - 1) < 0.05, (v1, v0)
+    assert abs(np.trace(v1) / np.trace(v0) - 1) < 0.02, (v1, v0)  # a 0.7 px blur disc would add 2 %
+    assert np.abs(thin[win] - sharp[win]).max() < 0.05 * sharp[win].max()
     # the square at planar depth 1 m: its sharp image convolved with the aperture's disc imaged through the
     # lens, an ellipse of covariance (rho^2 / 4) M M^T, rho the disc's radius in undistorted normalised units
     near = _square_pixel(ds, SQUARE[:3])
