@@ -120,3 +120,18 @@ def test_geometric_augmentations_refuse_distorted_views_and_colour_ones_keep_the
     assert np.array_equal(colour_jitter(item, brightness=1.1)["distortion"], item["distortion"])
     pinhole = {**item, "distortion": np.zeros((2, 5))}
     assert flip(pinhole, "x")["rgb"].shape == (2, 3, 4, 4)
+
+
+def test_a_bench_definition_with_a_lens_is_refused_before_anything_renders(tmp_path, monkeypatch):
+    import lfusd.bench.make as make
+
+    text = (make.DEFINITIONS / "tiny.toml").read_text()
+    assert "[dataset]\n" in text
+    (tmp_path / "lensy.toml").write_text(text.replace("[dataset]\n", "[dataset]\nlens = [-0.1, 0.0, 0.0, 0.0, 0.0]\n", 1))
+    monkeypatch.setattr(make, "DEFINITIONS", tmp_path)
+    with pytest.raises(LfusdError, match="dataset.lens renders distorted scenes, and a benchmark needs pinhole cameras"):
+        make.load_definition("lensy")
+    out = tmp_path / "bench"
+    with pytest.raises(LfusdError, match="dataset.lens"):
+        make.make_bench("lensy", out)
+    assert not out.exists()
