@@ -188,7 +188,8 @@ def _one_line_refusal(err: str, root) -> None:
 
 
 def test_pinhole_only_consumers_refuse_the_distorted_dataset_in_one_line(lens_video, tmp_path, capsys):
-    """The baselines, the rig study, the bench and the flow/ scripts compute with K alone: each refuses
+    """The baselines, the rig study, the bench, eval's kitti protocol and the flow/ scripts compute with K
+    alone or match along image rows: each refuses
     a dataset rendered through a lens (lfusd.data.folder.require_pinhole) before computing anything."""
     from support.flow_scripts import load_script
 
@@ -197,11 +198,13 @@ def test_pinhole_only_consumers_refuse_the_distorted_dataset_in_one_line(lens_vi
     from lfusd.bench.score import _test_scenes
     from lfusd.errors import LfusdError
     from lfusd.evaluation.baselines import run_baselines
+    from lfusd.evaluation.score import evaluate
     from lfusd.study.run import load_views
 
     ds = Dataset(lens_video)
+    (tmp_path / "pred").mkdir()
     for call in (lambda: run_baselines(ds), lambda: load_views(lens_video, "main", 1, {"0_0": 0, "0_1": 1}),
-                 lambda: cameras(ds)):
+                 lambda: cameras(ds), lambda: evaluate(lens_video, tmp_path / "pred", "disparity", protocol="kitti")):
         with pytest.raises(LfusdError) as e:
             call()
         _one_line_refusal(e.value, lens_video)
