@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import training  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 from lfusd.data import formats  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
@@ -102,6 +103,7 @@ def read_dataset_views(folder: Path, frame: int | None, rig: str | None) -> tupl
     from lfusd.exports.hci import hci_centre_view
 
     ds = Dataset(folder, rig=rig) if rig else Dataset(folder)
+    require_pinhole(ds, "the disparity network (it shifts views by disparity times their grid offsets)")
     check_planar_grid(ds, "the disparity network")
     t = frames_of(ds, frame)[0]
     if ds.rig.rows != ds.rig.cols:

@@ -46,6 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import training  # noqa: E402
 import train_sceneflow as tsf  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 NAME = "predict_sceneflow"
@@ -152,6 +153,7 @@ def predict_dataset(model, config: dict, data, out: Path, frames=None, rig=None)
     from lfusd.data.dataset import open_dataset
 
     ds = open_dataset(data, rig)
+    require_pinhole(ds, "the scene-flow network (it shifts views by disparity and composes scene flow with K)")
     if ds.rig.rows != ds.rig.cols:
         raise LfusdError(f"the network needs a square grid of views and {data} has {ds.rig.rows}x{ds.rig.cols}")
     check_grid(config, ds.rig.rows, data)

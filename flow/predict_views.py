@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import training  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 from lfusd.data import formats  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
@@ -95,6 +96,7 @@ def read_dataset_corners(folder: Path, n: int, frame: int | None, rig: str | Non
     from lfusd.exports.common import check_planar_grid, frames_of
 
     ds = open_dataset(folder, rig)
+    require_pinhole(ds, "angular super-resolution (it shifts views by disparity times their grid offsets)")
     check_planar_grid(ds, "angular super-resolution")
     t = frames_of(ds, frame)[0]
     grid = central_grid(ds.rig.rows, ds.rig.cols, n, folder)

@@ -85,6 +85,11 @@ def start(a, script: str, tiny: dict, full: dict, tiny_scene: tuple | None = Non
     Returns (run, checkpoint state or None, device, dataset folder, reader, train frames, eval frames).
     """
     t0 = time.time()
+    if a.data and not a.resume and (Path(a.data) / layout.MANIFEST).is_file():  # refused before the run folder is made
+        from lfusd.data.dataset import open_dataset
+        from lfusd.data.folder import require_pinhole
+
+        require_pinhole(open_dataset(a.data, a.rig), "training a light-field network (it shifts views by disparity times their grid offsets)")
     run = Run(a.out, script)
     state = run.load() if a.resume else None
     if state:  # a resumed run keeps its kind and its data unless told otherwise
@@ -99,8 +104,10 @@ def start(a, script: str, tiny: dict, full: dict, tiny_scene: tuple | None = Non
     data = resolve_data(a, tiny_scene)
     run.log["timing"]["render_s"] = time.time() - t0
     from lfusd.data.dataset import open_dataset
+    from lfusd.data.folder import require_pinhole
 
     ds = open_dataset(data, a.rig)
+    require_pinhole(ds, "training a light-field network (it shifts views by disparity times their grid offsets)")
     if state:
         train, evalf = state["config"]["train_frames"], state["config"]["eval_frames"]
     else:
