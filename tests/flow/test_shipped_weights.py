@@ -1,7 +1,7 @@
 """The shipped disparity weights (flow/weights/disparity.pt, trained on lfusd data alone: flow/README.md
 "Shipped weights"): loaded with weights_only=True by predict_disparity.py without --weights, they put
 synthetic fronto-parallel planes at known disparities of each sign on the right side of zero and near
-their value (analytic views: tests/flow/test_predict_disparity.py plane_views, a texture no lfusd
+their value (analytic views: tests/support/light_fields.py plane_views, a texture no lfusd
 stage has), through the command line on HCI-layout folders, as a user runs them.
 
 The bound is the one the shipped weights are documented to meet, :data:`BOUND_PX`. Issue 36 asks for
@@ -11,9 +11,6 @@ claimed: tighten BOUND_PX to 0.1 when weights that meet it ship."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +18,8 @@ import pytest
 import torch
 
 from lfusd.data import formats
-from support.flow_scripts import load_script
-from test_predict_disparity import plane_views, write_hci
+from support.flow_scripts import load_script, run_script
+from support.light_fields import plane_views, write_hci
 
 ROOT = Path(__file__).resolve().parents[2]
 WEIGHTS = ROOT / "flow" / "weights" / "disparity.pt"
@@ -42,9 +39,7 @@ def test_the_shipped_weights_are_small_and_load_without_pickled_code():
 @pytest.mark.parametrize("d", [-2.5, -1.0, 1.0, 2.5])
 def test_a_plane_of_each_sign_comes_out_of_the_shipped_weights_with_its_sign_and_near_its_value(tmp_path, d):
     lf = write_hci(tmp_path / "lf", plane_views(d, np.random.default_rng(11), SIZE))
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, str(ROOT / "flow" / "predict_disparity.py"), str(lf), "-o", str(tmp_path / "d.pfm"), "--threads", "1"],
-                       env=env, capture_output=True, text=True, timeout=300)
+    r = run_script("predict_disparity", lf, "-o", tmp_path / "d.pfm", "--threads", 1)
     assert r.returncode == 0, r.stderr
     got = formats.read_pfm(tmp_path / "d.pfm")
     inner = got[16:-16, 16:-16]
