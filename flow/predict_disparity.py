@@ -104,14 +104,8 @@ def predict(model, views: np.ndarray, offsets: np.ndarray, tile: int = 128, over
     dev = next(model.parameters()).device
     rel = torch.from_numpy(offsets)[None].to(dev)
     out = np.zeros((h, w), np.float32)
-    step = max(tile, 1)
-    for y0 in range(0, h, step):
-        for x0 in range(0, w, step):
-            y1, x1 = min(y0 + step, h), min(x0 + step, w)
-            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
-            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
-            d = model(x[..., a0:a1, b0:b1].to(dev), rel)[0].cpu().numpy()
-            out[y0:y1, x0:x1] = d[y0 - a0 : y1 - a0, x0 - b0 : x1 - b0]
+    for part, seen, inner in training.tiles(h, w, tile, overlap):
+        out[part] = model(x[(..., *seen)].to(dev), rel)[0].cpu().numpy()[inner]
     return out
 
 

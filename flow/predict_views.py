@@ -110,16 +110,11 @@ def predict(model, corners: np.ndarray, tile: int = 128, overlap: int = 16) -> n
     x = torch.from_numpy(np.ascontiguousarray(corners.transpose(0, 3, 1, 2)))[None]  # 1, 4, 3, H, W
     dev = next(model.parameters()).device
     out = None
-    step = max(tile, 1)
-    for y0 in range(0, h, step):
-        for x0 in range(0, w, step):
-            y1, x1 = min(y0 + step, h), min(x0 + step, w)
-            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
-            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
-            views = model(x[..., a0:a1, b0:b1].to(dev))[0].clamp(0, 1).cpu().numpy()  # n*n, 3, h', w'
-            if out is None:
-                out = np.zeros((views.shape[0], h, w, 3), np.float32)
-            out[:, y0:y1, x0:x1] = views[:, :, y0 - a0 : y1 - a0, x0 - b0 : x1 - b0].transpose(0, 2, 3, 1)
+    for part, seen, inner in training.tiles(h, w, tile, overlap):
+        views = model(x[(..., *seen)].to(dev))[0].clamp(0, 1).cpu().numpy()  # n*n, 3, h', w'
+        if out is None:
+            out = np.zeros((views.shape[0], h, w, 3), np.float32)
+        out[(slice(None), *part)] = views[(slice(None), slice(None), *inner)].transpose(0, 2, 3, 1)
     return out
 
 

@@ -458,6 +458,21 @@ def read_hci(folder: Path) -> tuple[int, np.ndarray]:
     return n, np.stack([v.astype(np.float32) / float(np.iinfo(v.dtype).max) for v in views])
 
 
+def tiles(h: int, w: int, tile: int, overlap: int):
+    """The overlapping tiles a predict script runs its network on, covering an h x w image once: per
+    tile (its part of the output, the input it sees: that part and up to ``overlap`` pixels of context
+    on every side within the image, where the part stands in that input), each a (rows, cols) pair of
+    slices; the parts are ``tile`` pixels square, smaller at the image's right and bottom edges."""
+    step = max(tile, 1)
+    for y0 in range(0, h, step):
+        for x0 in range(0, w, step):
+            y1, x1 = min(y0 + step, h), min(x0 + step, w)
+            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
+            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
+            yield ((slice(y0, y1), slice(x0, x1)), (slice(a0, a1), slice(b0, b1)),
+                   (slice(y0 - a0, y1 - a0), slice(x0 - b0, x1 - b0)))
+
+
 # ---- scoring through lfusd eval ----------------------------------------------------------------
 
 

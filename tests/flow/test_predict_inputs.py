@@ -107,3 +107,18 @@ def test_the_one_light_field_scripts_check_their_shared_options_alike(tmp_path, 
     # neither input_Cam000.png nor an lfusd manifest: the HCI reader says what is missing
     assert "holds 0 input_CamNNN.png files" in run(tmp_path / "empty", "-o", out, "--weights", weights)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("h, w, tile, overlap", [(37, 50, 16, 5), (8, 8, 128, 32), (24, 24, 12, 24), (9, 30, 8, 0)])
+def test_tiles_cover_the_image_once_and_see_their_context(h, w, tile, overlap):
+    training = load_script("training")
+    covered = np.zeros((h, w), int)
+    for part, seen, inner in training.tiles(h, w, tile, overlap):
+        covered[part] += 1
+        rows, cols = np.mgrid[0:h, 0:w]
+        # the part stands where ``inner`` says in the input the tile sees
+        assert np.array_equal(rows[seen][inner], rows[part]) and np.array_equal(cols[seen][inner], cols[part])
+        for out, ctx, size in ((part[0], seen[0], h), (part[1], seen[1], w)):
+            assert out.stop - out.start <= tile and (out.stop - out.start == tile or out.stop == size)
+            assert ctx.start == max(out.start - overlap, 0) and ctx.stop == min(out.stop + overlap, size)
+    assert (covered == 1).all()
