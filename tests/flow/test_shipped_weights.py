@@ -11,6 +11,9 @@ claimed: tighten BOUND_PX to 0.1 when weights that meet it ship."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +21,7 @@ import pytest
 import torch
 
 from lfusd.data import formats
-from support.flow_scripts import load_script, run_script
+from support.flow_scripts import load_script
 from support.light_fields import plane_views, write_hci
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,7 +42,9 @@ def test_the_shipped_weights_are_small_and_load_without_pickled_code():
 @pytest.mark.parametrize("d", [-2.5, -1.0, 1.0, 2.5])
 def test_a_plane_of_each_sign_comes_out_of_the_shipped_weights_with_its_sign_and_near_its_value(tmp_path, d):
     lf = write_hci(tmp_path / "lf", plane_views(d, np.random.default_rng(11), SIZE))
-    r = run_script("predict_disparity", lf, "-o", tmp_path / "d.pfm", "--threads", 1)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, str(ROOT / "flow" / "predict_disparity.py"), str(lf), "-o", str(tmp_path / "d.pfm"), "--threads", "1"],
+                       env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     got = formats.read_pfm(tmp_path / "d.pfm")
     inner = got[16:-16, 16:-16]
