@@ -17,9 +17,7 @@ machine's wall time means little.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,23 +26,16 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "flow"))
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import net_timing  # noqa: E402
 import predict_views  # noqa: E402
 import train_asr  # noqa: E402
 
 
-def timed(fn) -> tuple[float, float]:
-    t0, c0 = time.time(), time.process_time()
-    fn()
-    return time.time() - t0, time.process_time() - c0
-
-
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--steps", type=int, default=3, help="training steps timed (after one untimed)")
-    ap.add_argument("--no-predict", action="store_true", help="time the training step only")
+    net_timing.args(ap)
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(0)
@@ -52,32 +43,15 @@ def main() -> int:
     n, b, crop = full["n"], full["batch"], full["crop"]
     configs = {"full": {"n": n, "channels": full["channels"], "blocks": full["blocks"]},
                "tiny": {"n": n, "channels": train_asr.TINY["channels"], "blocks": train_asr.TINY["blocks"]}}
-    print(f"2x2 -> {n}x{n}; training step: batch {b} of {crop}x{crop} crops; predict: {a.size}x{a.size}; {a.threads} threads; "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    print(f"2x2 -> {n}x{n}; training step: batch {b} of {crop}x{crop} crops; predict: {a.size}x{a.size}; {a.threads} threads; {net_timing.load()}")
     corners = None if a.no_predict else np.random.default_rng(0).random((4, a.size, a.size, 3), dtype=np.float32)
     res = {}
     for name, config in configs.items():
         model = train_asr.build(config)
         x, target = torch.rand(b, 4, 3, crop, crop), torch.rand(b, n * n, 3, crop, crop)
-        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
-
-        def step():
-            loss = (model(x) - target).abs().mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-
-        model.train()
-        step()
-        w, c = timed(lambda: [step() for _ in range(a.steps)])
-        r = {"params": sum(p.numel() for p in model.parameters()), "step_wall": w / a.steps, "step_cpu": c / a.steps}
-        line = f"{name:4s} {r['params']:7d} parameters: train step wall {r['step_wall']:6.2f} s, CPU {r['step_cpu']:6.2f} s"
-        if corners is not None:
-            model.eval()
-            r["pred_wall"], r["pred_cpu"] = timed(lambda: predict_views.predict(model, corners))
-            line += f"; predict wall {r['pred_wall']:6.1f} s, CPU {r['pred_cpu']:6.1f} s"
-        res[name] = r
-        print(line + f" (load average now {os.getloadavg()[0]:.1f})", flush=True)
+        res[name] = net_timing.measure(model, lambda: (model(x) - target).abs().mean(), a.steps,
+                                       None if corners is None else lambda: predict_views.predict(model, corners))
+        net_timing.report(name, res[name])
     f, t = res["full"], res["tiny"]
     print(f"full / tiny CPU-s: training step {f['step_cpu'] / t['step_cpu']:.1f}x"
           + ("" if corners is None else f", predict {f['pred_cpu'] / t['pred_cpu']:.1f}x"))

@@ -16,9 +16,7 @@ old / new; the machine's load average is printed too, as a shared machine's wall
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +25,9 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "flow"))
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import net_timing  # noqa: E402
 import predict_disparity  # noqa: E402
 import train_disparity  # noqa: E402
 
@@ -40,21 +40,12 @@ def config_of(name: str, n: int) -> dict:
     return {"ang": n, "d_min": -4.4, "d_max": 4.4, "arch": name, **{k: c[k] for k in NET}}
 
 
-def timed(fn) -> tuple[float, float]:
-    t0, c0 = time.time(), time.process_time()
-    fn()
-    return time.time() - t0, time.process_time() - c0
-
-
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--size", type=int, default=512)
+    net_timing.args(ap)
     ap.add_argument("--configs", nargs="+", default=["distg", "star"], choices=["distg", "star"])
     ap.add_argument("--tile", type=int, default=128)
     ap.add_argument("--overlap", type=int, default=32)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--steps", type=int, default=3, help="training steps timed (after one untimed)")
-    ap.add_argument("--no-predict", action="store_true", help="time the training step only")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(0)
@@ -65,34 +56,16 @@ def main() -> int:
     views = None if a.no_predict else rng.random((n * n, a.size, a.size, 3), dtype=np.float32)
     b, crop = train_disparity.FULL["batch"], train_disparity.FULL["crop"]
     print(f"{n}x{n} views of {a.size}x{a.size}, tiles {a.tile} + {a.overlap} context; training step: batch {b} of {crop}x{crop} crops; "
-          f"{a.threads} threads; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+          f"{a.threads} threads; {net_timing.load()}")
     res = {}
     for name in a.configs:
         model = train_disparity.build(config_of(name, n))
-        params = sum(p.numel() for p in model.parameters())
         x = torch.rand(b, n * n, 3, crop, crop)
         rel = torch.from_numpy(offsets)[None].expand(b, -1, -1).contiguous()
         gt = torch.rand(b, crop, crop) * 8 - 4
-        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
-
-        def step():
-            loss = (model(x, rel) - gt).abs().mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-
-        model.train()
-        step()
-        w, c = timed(lambda: [step() for _ in range(a.steps)])
-        r = {"params": params, "step_wall": w / a.steps, "step_cpu": c / a.steps}
-        if views is not None:
-            model.eval()
-            r["pred_wall"], r["pred_cpu"] = timed(lambda: predict_disparity.predict(model, views, offsets, a.tile, a.overlap))
-        res[name] = r
-        line = f"{name:5s} {params:7d} parameters: train step wall {r['step_wall']:6.2f} s, CPU {r['step_cpu']:6.2f} s"
-        if views is not None:
-            line += f"; predict wall {r['pred_wall']:7.1f} s, CPU {r['pred_cpu']:7.1f} s, wall / budget {r['pred_wall'] / BUDGET_S:5.2f}x"
-        print(line + f" (load average now {os.getloadavg()[0]:.1f})", flush=True)
+        r = res[name] = net_timing.measure(model, lambda: (model(x, rel) - gt).abs().mean(), a.steps,
+                                           None if views is None else lambda: predict_disparity.predict(model, views, offsets, a.tile, a.overlap))
+        net_timing.report(name, r, "" if views is None else f", wall / budget {r['pred_wall'] / BUDGET_S:5.2f}x")
     if len(res) == 2:
         o, s = res["distg"], res["star"]
         print(f"old / new CPU-s: training step {o['step_cpu'] / s['step_cpu']:.1f}x"

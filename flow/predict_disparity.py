@@ -74,36 +74,18 @@ def load_model(weights=None, device=None):
 
 def read_hci_views(folder: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """(views [N*N, H, W, 3] float32 in [0, 1], offsets [N*N, 2] (sx, sy) from the centre, centre (row, col))."""
-    files = sorted(folder.glob("input_Cam*.png"))
-    n = math.isqrt(len(files))
-    names = [f"input_Cam{i:03d}.png" for i in range(n * n)]
-    if n < 2 or n * n != len(files) or [f.name for f in files] != names:
-        raise LfusdError(f"{folder} holds {len(files)} input_CamNNN.png files; an HCI light field needs N*N of them "
-                         "numbered from input_Cam000.png (e.g. 81 for 9x9)")
-    views = []
-    for f in files:
-        img = formats.read_png(f)
-        if img.ndim == 2:
-            img = np.repeat(img[..., None], 3, axis=2)
-        scale = 65535.0 if img.dtype == np.uint16 else 255.0
-        views.append(img[..., :3].astype(np.float32) / scale)
-    if len({v.shape for v in views}) != 1:
-        raise LfusdError(f"the views in {folder} differ in size; every input_CamNNN.png must have the same size")
+    n, views = training.read_hci(folder)
     centre = divmod(n * n // 2, n)  # the HCI toolkit's centre camera
     rows, cols = np.divmod(np.arange(n * n), n)
     offsets = np.stack([cols - centre[1], rows - centre[0]], 1).astype(np.float32)
-    return np.stack(views), offsets, centre
+    return views, offsets, centre
 
 
 def read_dataset_views(folder: Path, frame: int | None, rig: str | None) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """The same from an lfusd dataset: one frame's views of a uniform planar parallel rig (row-major)."""
-    from lfusd import Dataset
-    from lfusd.exports.common import check_planar_grid, frames_of
     from lfusd.exports.hci import hci_centre_view
 
-    ds = Dataset(folder, rig=rig) if rig else Dataset(folder)
-    check_planar_grid(ds, "the disparity network")
-    t = frames_of(ds, frame)[0]
+    ds, t = training.dataset_frame(folder, frame, rig, "the disparity network")
     if ds.rig.rows != ds.rig.cols:
         raise LfusdError(f"the disparity network needs a square grid of views, this dataset's is {ds.rig.rows}x{ds.rig.cols}")
     views = sorted(tuple(v) for v in ds.views)
@@ -122,42 +104,25 @@ def predict(model, views: np.ndarray, offsets: np.ndarray, tile: int = 128, over
     dev = next(model.parameters()).device
     rel = torch.from_numpy(offsets)[None].to(dev)
     out = np.zeros((h, w), np.float32)
-    step = max(tile, 1)
-    for y0 in range(0, h, step):
-        for x0 in range(0, w, step):
-            y1, x1 = min(y0 + step, h), min(x0 + step, w)
-            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
-            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
-            d = model(x[..., a0:a1, b0:b1].to(dev), rel)[0].cpu().numpy()
-            out[y0:y1, x0:x1] = d[y0 - a0 : y1 - a0, x0 - b0 : x1 - b0]
+    for part, seen, inner in training.tiles(h, w, tile, overlap):
+        out[part] = model(x[(..., *seen)].to(dev), rel)[0].cpu().numpy()[inner]
     return out
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("lf_dir", help="an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
     p.add_argument("-o", "--output", required=True, help="the PFM file to write (HCI's gt_disp_lowres.pfm format)")
     p.add_argument("--weights", default=None, help="a checkpoint of flow/train_disparity.py (default: the shipped weights, flow/weights/disparity.pt)")
-    p.add_argument("--frame", type=int, default=None, help="frame of an lfusd dataset (default: its first)")
-    p.add_argument("--rig", default=None, help="rig of an lfusd dataset with several")
-    p.add_argument("--tile", type=int, default=128, help="tile side in pixels (default 128)")
-    p.add_argument("--overlap", type=int, default=32, help="context pixels around each tile (default 32)")
-    p.add_argument("--threads", type=int, default=None, help="CPU threads of torch (default: torch's)")
-    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
+    training.predict_args(p, overlap=32)
     a = p.parse_args(argv)
-    if a.tile < 8 or a.overlap < 0:
-        raise LfusdError(f"--tile must be at least 8 and --overlap at least 0, got {a.tile} and {a.overlap}")
-    out = Path(a.output)
+    folder, out = training.check_predict_args(a), Path(a.output)
     if out.suffix.lower() != ".pfm":
         raise LfusdError(f"output {out} must end in .pfm (HCI's disparity format)")
-    folder = Path(a.lf_dir)
-    if not folder.is_dir():
-        raise LfusdError(f"{folder} is not a folder; give an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
     device = training.device_of(a.device, a.threads)
     model, config, _ = load_model(a.weights, device)
     t0 = time.time()
-    if (folder / "input_Cam000.png").is_file():
+    if training.is_hci(folder):
         views, offsets, centre = read_hci_views(folder)
     else:
         views, offsets, centre = read_dataset_views(folder, a.frame, a.rig)

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import re
 import sys
 from pathlib import Path
 
@@ -46,11 +45,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import training  # noqa: E402
 import train_sceneflow as tsf  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 NAME = "predict_sceneflow"
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "sceneflow.pt"
-CAM = re.compile(r"^input_Cam(\d{3})\.png$")
 
 
 def load_model(path) -> tuple[torch.nn.Module, dict]:
@@ -78,24 +77,11 @@ def grid_offsets(n: int) -> np.ndarray:
 
 def read_hci(folder) -> tuple[torch.Tensor, int]:
     """The views of an HCI-layout folder as [N*N, 3, H, W] float in [0, 1] and N."""
-    from lfusd.data import formats
-
     folder = Path(folder)
     if not folder.is_dir():
         raise LfusdError(f"{folder} is not a folder; give an lfusd dataset or two HCI-layout folders (input_Cam000.png ...)")
-    cams = sorted((int(m.group(1)), p) for p in folder.iterdir() if (m := CAM.match(p.name)))
-    n = int(round(len(cams) ** 0.5))
-    if not cams or n * n != len(cams) or [i for i, _ in cams] != list(range(len(cams))):
-        raise LfusdError(f"{folder} holds {len(cams)} input_CamNNN.png files; the HCI layout needs input_Cam000.png ... of an NxN grid, numbered without gaps")
-    imgs = [np.asarray(formats.read_png(p))[..., :3] for _, p in cams]
-    if len({a.shape for a in imgs}) != 1:
-        raise LfusdError(f"the views in {folder} differ in size; every input_CamNNN.png must have one size")
-    a = np.stack(imgs).astype(np.float32)
-    if imgs[0].dtype == np.uint8:
-        a /= 255.0
-    elif imgs[0].dtype == np.uint16:
-        a /= 65535.0
-    return torch.from_numpy(a).permute(0, 3, 1, 2).contiguous(), n
+    n, views = training.read_hci(folder)
+    return torch.from_numpy(views).permute(0, 3, 1, 2).contiguous(), n
 
 
 def hci_camera(folder, width: int, height: int) -> tuple[np.ndarray, float] | None:
@@ -152,6 +138,7 @@ def predict_dataset(model, config: dict, data, out: Path, frames=None, rig=None)
     from lfusd.data.dataset import open_dataset
 
     ds = open_dataset(data, rig)
+    require_pinhole(ds, "the scene-flow network (it shifts views by disparity and composes scene flow with K)")
     if ds.rig.rows != ds.rig.cols:
         raise LfusdError(f"the network needs a square grid of views and {data} has {ds.rig.rows}x{ds.rig.cols}")
     check_grid(config, ds.rig.rows, data)

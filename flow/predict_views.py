@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 import time
 from pathlib import Path
@@ -74,29 +73,15 @@ def central_grid(rows: int, cols: int, n: int, where) -> list[tuple[int, int]]:
 
 def read_hci_corners(folder: Path, n: int) -> tuple[dict, list, np.dtype]:
     """({corner view: image [H, W, 3] as stored}, the n x n grid, the PNGs' dtype) of an HCI-layout folder."""
-    files = sorted(folder.glob("input_Cam*.png"))
-    size = math.isqrt(len(files))
-    if size < 2 or size * size != len(files) or [f.name for f in files] != [f"input_Cam{i:03d}.png" for i in range(size * size)]:
-        raise LfusdError(f"{folder} holds {len(files)} input_CamNNN.png files; an HCI light field needs N*N of them "
-                         "numbered from input_Cam000.png (e.g. 81 for 9x9)")
+    size, files = training.hci_files(folder)
     grid = central_grid(size, size, n, folder)
-    images = {}
-    for v in corners_of(grid, n):
-        img = formats.read_png(folder / f"input_Cam{v[0] * size + v[1]:03d}.png")
-        if img.ndim == 2:
-            img = np.repeat(img[..., None], 3, axis=2)
-        images[v] = img[..., :3]
+    images = {v: training.read_view(files[v[0] * size + v[1]]) for v in corners_of(grid, n)}
     return images, grid, check_same(images, folder)
 
 
 def read_dataset_corners(folder: Path, n: int, frame: int | None, rig: str | None) -> tuple[dict, list, np.dtype]:
     """The same from an lfusd dataset: one frame of a uniform planar parallel rig."""
-    from lfusd.data.dataset import open_dataset
-    from lfusd.exports.common import check_planar_grid, frames_of
-
-    ds = open_dataset(folder, rig)
-    check_planar_grid(ds, "angular super-resolution")
-    t = frames_of(ds, frame)[0]
+    ds, t = training.dataset_frame(folder, frame, rig, "angular super-resolution")
     grid = central_grid(ds.rig.rows, ds.rig.cols, n, folder)
     images = {v: np.asarray(ds.read(t, v, "rgb"))[..., :3] for v in corners_of(grid, n)}
     return images, grid, check_same(images, folder)
@@ -125,43 +110,28 @@ def predict(model, corners: np.ndarray, tile: int = 128, overlap: int = 16) -> n
     x = torch.from_numpy(np.ascontiguousarray(corners.transpose(0, 3, 1, 2)))[None]  # 1, 4, 3, H, W
     dev = next(model.parameters()).device
     out = None
-    step = max(tile, 1)
-    for y0 in range(0, h, step):
-        for x0 in range(0, w, step):
-            y1, x1 = min(y0 + step, h), min(x0 + step, w)
-            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
-            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
-            views = model(x[..., a0:a1, b0:b1].to(dev))[0].clamp(0, 1).cpu().numpy()  # n*n, 3, h', w'
-            if out is None:
-                out = np.zeros((views.shape[0], h, w, 3), np.float32)
-            out[:, y0:y1, x0:x1] = views[:, :, y0 - a0 : y1 - a0, x0 - b0 : x1 - b0].transpose(0, 2, 3, 1)
+    for part, seen, inner in training.tiles(h, w, tile, overlap):
+        views = model(x[(..., *seen)].to(dev))[0].clamp(0, 1).cpu().numpy()  # n*n, 3, h', w'
+        if out is None:
+            out = np.zeros((views.shape[0], h, w, 3), np.float32)
+        out[(slice(None), *part)] = views[(slice(None), slice(None), *inner)].transpose(0, 2, 3, 1)
     return out
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog=__doc__.split("\n\n", 1)[1])
-    p.add_argument("lf_dir", help="an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
     p.add_argument("-o", "--output", required=True, help="folder to write the n x n views to (input_Cam000.png ...)")
     p.add_argument("--weights", default=None, help="a checkpoint of flow/train_asr.py (default: the shipped weights, flow/weights/asr.pt, once they ship)")
-    p.add_argument("--frame", type=int, default=None, help="frame of an lfusd dataset (default: its first)")
-    p.add_argument("--rig", default=None, help="rig of an lfusd dataset with several")
     p.add_argument("--overwrite", action="store_true", help="replace the input_CamNNN.png files OUT_DIR already holds")
-    p.add_argument("--tile", type=int, default=128, help="tile side in pixels (default 128)")
-    p.add_argument("--overlap", type=int, default=16, help="context pixels around each tile (default 16)")
-    p.add_argument("--threads", type=int, default=None, help="CPU threads of torch (default: torch's)")
-    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
+    training.predict_args(p, overlap=16)
     a = p.parse_args(argv)
     if a.weights is None:
         if not SHIPPED.is_file():
             raise LfusdError(f"no --weights given and no shipped weights ({SHIPPED.relative_to(training.ROOT)}) yet; "
                              "train with flow/train_asr.py and pass --weights OUT/checkpoints/last.pt")
         a.weights = str(SHIPPED)
-    if a.tile < 8 or a.overlap < 0:
-        raise LfusdError(f"--tile must be at least 8 and --overlap at least 0, got {a.tile} and {a.overlap}")
-    folder, out = Path(a.lf_dir), Path(a.output)
-    if not folder.is_dir():
-        raise LfusdError(f"{folder} is not a folder; give an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
+    folder, out = training.check_predict_args(a), Path(a.output)
     if out.exists() and (not out.is_dir() or out.resolve() == folder.resolve()):
         raise LfusdError(f"output {out} is {'the input folder' if out.is_dir() else 'a file'}; give a new folder for the views")
     if not a.overwrite and out.is_dir() and any(out.glob("input_Cam*.png")):
@@ -169,9 +139,7 @@ def main(argv=None) -> int:
     model, config = load_model(a.weights)
     n = config["n"]
     t0 = time.time()
-    from lfusd import layout
-
-    if (folder / "input_Cam000.png").is_file() or not (folder / layout.MANIFEST).is_file():
+    if training.is_hci(folder):
         images, grid, dtype = read_hci_corners(folder, n)
     else:
         images, grid, dtype = read_dataset_corners(folder, n, a.frame, a.rig)

@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import training  # noqa: E402
 from models import ASRNet  # noqa: E402
 from lfusd import LfusdError, layout  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 NAME = "train_asr"
@@ -96,6 +97,7 @@ def main(argv=None) -> int:
     parts, crop = [], config["crop"]
     for sc, c in zip(scenes, caches):
         sds = open_dataset(sc, a.rig)
+        require_pinhole(sds, "training a light-field network (it shifts views by disparity times their grid offsets)")
         grid, corners = grid_views(sds.rig, config["n"])
         crop = min(crop, sds.rig.height, sds.rig.width)
         frames = config["train_frames"] or None

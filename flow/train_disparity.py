@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import training  # noqa: E402
 from models import DisparityNet, StarDisparityNet  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 NAME = "train_disparity"
@@ -216,6 +217,7 @@ def main(argv=None) -> int:
         lo, hi = [], []
         for sc, k in zip(scenes, shifts):
             sds = open_dataset(sc, a.rig)
+            require_pinhole(sds, "training a light-field network (it shifts views by disparity times their grid offsets)")
             if (sds.rig.rows, sds.rig.cols) != (ds.rig.rows, ds.rig.cols):
                 raise LfusdError(f"{sc} has a {sds.rig.rows}x{sds.rig.cols} grid, {scenes[0]} {ds.rig.rows}x{ds.rig.cols}; one network takes one grid")
             r0, r1 = disparity_range(sds, frames or list(sds.frames), shifts=refocus_shifts(k, a.refocus))

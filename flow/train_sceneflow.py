@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import training  # noqa: E402
 from models import SceneFlowNet  # noqa: E402
 from lfusd import LfusdError  # noqa: E402
+from lfusd.data.folder import require_pinhole  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
 NAME = "train_sceneflow"
@@ -178,6 +179,7 @@ def main(argv=None) -> int:
         scenes = scenes if recipe else [Path(data)]
         for sc in scenes[1:]:
             sds = open_dataset(sc, a.rig)
+            require_pinhole(sds, "training a light-field network (it shifts views by disparity times their grid offsets)")
             if (sds.rig.rows, sds.rig.cols) != (r.rows, r.cols) or any(f not in sds.frames for t in train_frames for f in (t, t + 1, t + 2)):
                 raise LfusdError(f"{sc} lacks frames {train_frames} (+2) of a {r.rows}x{r.cols} grid that {scenes[0]} has; one run takes one grid and clip")
         k = int(a.refocus)  # refocusing by k moves every disparity by -k

@@ -1,18 +1,21 @@
 """What flow/train_disparity.py and flow/train_asr.py share: arguments, the tiny dataset,
 checkpoints and resume, the JSON training log, the rich progress bar and scoring through
-`lfusd eval` (lfusd.evaluation.score)."""
+`lfusd eval` (lfusd.evaluation.score); and what the predict scripts share: their options, reading
+an HCI-layout folder or opening an lfusd dataset, loading weights and one-line errors."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import logging
+import math
 import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,6 +88,11 @@ def start(a, script: str, tiny: dict, full: dict, tiny_scene: tuple | None = Non
     Returns (run, checkpoint state or None, device, dataset folder, reader, train frames, eval frames).
     """
     t0 = time.time()
+    if a.data and not a.resume and (Path(a.data) / layout.MANIFEST).is_file():  # refused before the run folder is made
+        from lfusd.data.dataset import open_dataset
+        from lfusd.data.folder import require_pinhole
+
+        require_pinhole(open_dataset(a.data, a.rig), "training a light-field network (it shifts views by disparity times their grid offsets)")
     run = Run(a.out, script)
     state = run.load() if a.resume else None
     if state:  # a resumed run keeps its kind and its data unless told otherwise
@@ -99,8 +107,10 @@ def start(a, script: str, tiny: dict, full: dict, tiny_scene: tuple | None = Non
     data = resolve_data(a, tiny_scene)
     run.log["timing"]["render_s"] = time.time() - t0
     from lfusd.data.dataset import open_dataset
+    from lfusd.data.folder import require_pinhole
 
     ds = open_dataset(data, a.rig)
+    require_pinhole(ds, "training a light-field network (it shifts views by disparity times their grid offsets)")
     if state:
         train, evalf = state["config"]["train_frames"], state["config"]["eval_frames"]
     else:
@@ -376,6 +386,101 @@ def train_loop(model, opt, batches, step_fn, run: Run, config: dict, start: int,
 def endless(loader):
     while True:
         yield from loader
+
+
+# ---- the predict scripts' light field: an HCI-layout folder or an lfusd dataset ------------------
+
+
+def predict_args(p: argparse.ArgumentParser, overlap: int) -> None:
+    """The options of the predict scripts that take one light field (predict_views.py,
+    predict_disparity.py): ``lf_dir`` with --frame and --rig for a dataset, the tiles (--tile, and
+    --overlap defaulting to ``overlap``) and torch's --threads and --device; :func:`open_light_field`
+    checks them."""
+    p.add_argument("lf_dir", help="an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
+    p.add_argument("--frame", type=int, default=None, help="frame of an lfusd dataset (default: its first)")
+    p.add_argument("--rig", default=None, help="rig of an lfusd dataset with several")
+    p.add_argument("--tile", type=int, default=128, help="tile side in pixels (default 128)")
+    p.add_argument("--overlap", type=int, default=overlap, help=f"context pixels around each tile (default {overlap})")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads of torch (default: torch's)")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"], help="torch device")
+
+
+def check_predict_args(a) -> Path:
+    """The folder of :func:`predict_args`' ``lf_dir``, once --tile and --overlap are checked; one-line
+    LfusdError when it is not a folder."""
+    if a.tile < 8 or a.overlap < 0:
+        raise LfusdError(f"--tile must be at least 8 and --overlap at least 0, got {a.tile} and {a.overlap}")
+    folder = Path(a.lf_dir)
+    if not folder.is_dir():
+        raise LfusdError(f"{folder} is not a folder; give an HCI-layout folder (input_Cam000.png ...) or an lfusd dataset folder")
+    return folder
+
+
+def is_hci(folder: Path) -> bool:
+    """Whether ``folder`` is read as an HCI-layout folder: it holds input_Cam000.png, or it is no lfusd
+    dataset (then the HCI reader names what is missing)."""
+    return (folder / "input_Cam000.png").is_file() or not (folder / layout.MANIFEST).is_file()
+
+
+def dataset_frame(folder: Path, frame: int | None, rig: str | None, what: str):
+    """(reader, frame) of an lfusd dataset whose one frame (``frame``, default the first) of one rig
+    a predict script reads: a uniform planar parallel grid, as ``what`` needs."""
+    from lfusd.data.dataset import open_dataset
+    from lfusd.exports.common import check_planar_grid, frames_of
+
+    from lfusd.data.folder import require_pinhole
+
+    ds = open_dataset(folder, rig)
+    require_pinhole(ds, f"{what} (it shifts views by disparity times their grid offsets)")
+    check_planar_grid(ds, what)
+    return ds, frames_of(ds, frame)[0]
+
+
+def hci_files(folder: Path) -> tuple[int, list[Path]]:
+    """(N, the N*N files input_Cam000.png ... row-major from the top-left view) of an HCI-layout folder;
+    one-line LfusdError unless it holds exactly those, N at least 2."""
+    files = sorted(Path(folder).glob("input_Cam*.png"))
+    n = math.isqrt(len(files))
+    if n < 2 or n * n != len(files) or [f.name for f in files] != [f"input_Cam{i:03d}.png" for i in range(n * n)]:
+        raise LfusdError(f"{folder} holds {len(files)} input_CamNNN.png files; an HCI light field needs N*N of them "
+                         "numbered from input_Cam000.png (e.g. 81 for 9x9)")
+    return n, files
+
+
+def read_view(path: Path) -> np.ndarray:
+    """One view of an HCI-layout folder as stored: [H, W, 3] uint8 or uint16 (a grey PNG repeated
+    into the three channels, alpha dropped)."""
+    from lfusd.data import formats
+
+    img = formats.read_png(path)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    return img[..., :3]
+
+
+def read_hci(folder: Path) -> tuple[int, np.ndarray]:
+    """(N, every view [N*N, H, W, 3] float32 in [0, 1], row-major) of an HCI-layout folder, each view
+    scaled by its own bit depth; one-line LfusdError when the views differ in size."""
+    n, files = hci_files(folder)
+    views = [read_view(f) for f in files]
+    if len({v.shape for v in views}) != 1:
+        raise LfusdError(f"the views in {folder} differ in size; every input_CamNNN.png must have the same size")
+    return n, np.stack([v.astype(np.float32) / float(np.iinfo(v.dtype).max) for v in views])
+
+
+def tiles(h: int, w: int, tile: int, overlap: int):
+    """The overlapping tiles a predict script runs its network on, covering an h x w image once: per
+    tile (its part of the output, the input it sees: that part and up to ``overlap`` pixels of context
+    on every side within the image, where the part stands in that input), each a (rows, cols) pair of
+    slices; the parts are ``tile`` pixels square, smaller at the image's right and bottom edges."""
+    step = max(tile, 1)
+    for y0 in range(0, h, step):
+        for x0 in range(0, w, step):
+            y1, x1 = min(y0 + step, h), min(x0 + step, w)
+            a0, b0 = max(y0 - overlap, 0), max(x0 - overlap, 0)
+            a1, b1 = min(y1 + overlap, h), min(x1 + overlap, w)
+            yield ((slice(y0, y1), slice(x0, x1)), (slice(a0, a1), slice(b0, b1)),
+                   (slice(y0 - a0, y1 - a0), slice(x0 - b0, x1 - b0)))
 
 
 # ---- scoring through lfusd eval ----------------------------------------------------------------

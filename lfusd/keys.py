@@ -153,7 +153,9 @@ _TABLE = (
         "distance along the pixel's ray from the camera centre to the surface, depth * ||K^-1 [u, v, 1]||; `inf` where no surface",
         _GT, STATIC, storage=Storage("computed", sources=("depth",))),
     Key("coc", "float32", (), "px", "diameter of the circle of confusion: the disc the lens spreads the pixel's surface point over "
-        "(render-video --fstop N --focus S), f_px * (f / N) * |1/S - 1/depth| (Cycles' thin lens, f the focal length)",
+        "(render-video --fstop N --focus S), f_px * (f / N) * |1/S - 1/depth| (Cycles' thin lens, f the focal length); "
+        "through a lens (--lens), the largest diameter of the ellipse the model images that disc as (f_px then the largest "
+        "singular value of its Jacobian at the pixel, CONVENTIONS \"Lens distortion\")",
         _GT, STATIC, storage=Storage("computed", sources=("depth",)), effect="defocus"),
     Key("flow_fwd", "float32", (2,), "px", "(du, dv): the point at (u, v) in frame t is at (u+du, v+dv) in t+1", _MOTION, MOTION,
         step=1, accuracy=0.05, accuracy_unit="px", storage=_FLOW),

@@ -288,8 +288,6 @@ def _distortion(ds: dict, source: str) -> tuple[tuple[float, ...], int | None, f
         raise _bad(source, "dataset.lens_spread", spread, "must be a non-negative number")
     from .render.request import check_lens
 
-    if coeffs and any(coeffs) and ds.get("fstop"):
-        raise _bad(source, "dataset.lens", coeffs, "does not go with dataset.fstop (the lens camera has no thin lens); keep one of them")
     try:
         check_lens(Distortion(*map(float, coeffs)) if coeffs else None, seed, float(spread),
                    ("dataset.lens", "dataset.lens_seed", "dataset.lens_spread"))

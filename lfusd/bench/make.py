@@ -76,6 +76,9 @@ def load_definition(name: str) -> Definition:
     path = DEFINITIONS / f"{name}.toml"
     text = path.read_text()
     recipe = parse_recipe(tomllib.loads(text), str(path))
+    if any(recipe.distortion):  # what lfusd.data.folder.require_pinhole refuses, before any scene is rendered
+        raise LfusdError(f"benchmark {path}: dataset.lens renders distorted scenes, and a benchmark needs pinhole cameras (its "
+                         "cameras.json carries K alone, its baselines and scoring compute with K alone); remove dataset.lens")
     parts = [p.name for p in recipe.parts]
     if sorted(parts) != sorted(SPLITS) or not all(p.dynamic for p in recipe.parts):
         raise LfusdError(f"benchmark {path}: needs exactly the dynamic parts {', '.join(SPLITS)}, got {', '.join(parts)}; fix the definition")
@@ -174,9 +177,11 @@ def disparity_range(ds) -> list[float]:
 
 
 def cameras(ds) -> dict:
-    """cameras.json of a scene: what a method gets besides the images."""
+    """cameras.json of a scene: what a method gets besides the images (a pinhole's: K, poses, offsets)."""
+    from ..data.folder import require_pinhole
     from ..layout import view_key
 
+    require_pinhole(ds, "a benchmark's cameras.json (K alone)", "make the benchmark from a definition without dataset.lens")
     r = ds.rig
     return {
         "grid": [r.rows, r.cols], "resolution": [r.width, r.height], "baseline": ds.baseline, "centre_view": list(r.centre_view),

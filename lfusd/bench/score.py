@@ -222,9 +222,12 @@ def angular(ds, frame: int, truths: dict, preds: dict) -> tuple[float, float, in
 
 def _test_scenes(root: Path, rec: dict):
     from ..data.dataset import Dataset
+    from ..data.folder import require_pinhole
 
     for scene in rec["splits"]["test"]:
-        yield scene, Dataset(Path(root) / layout.BENCH_GT / scene)
+        ds = Dataset(Path(root) / layout.BENCH_GT / scene)
+        require_pinhole(ds, "the bench's scoring (its angular consistency projects with K)", "score it on a bench made without a lens")
+        yield scene, ds
 
 
 def score_submission(sub, root, progress=None) -> dict:

@@ -13,7 +13,8 @@ the exports) and every reader goes through here:
   :mod:`lfusd.data.metadata` (names that become paths, sizes that become loops) and written back
   exactly as read (the fields a record does not type keep their place and value);
 - :class:`DatasetLike`: what reads like a :class:`lfusd.data.dataset.Dataset` (exports,
-  evaluation and verification take any such object);
+  evaluation and verification take any such object), and :func:`require_pinhole`, the one refusal
+  of a lens-distorted one by whatever computes with K alone;
 - creating, resuming and locking: :func:`resumable_folder` (the one rule for the output folder a
   render, a rig study or a recipe resumes; :func:`existing_dataset` is the render's),
   :func:`output_lock` (one writer per folder), :func:`new_folder` (an export target written whole
@@ -62,6 +63,16 @@ class DatasetLike(Protocol):
     def intrinsics(self, view): ...
 
     def cam_to_world(self, frame: int, view): ...
+
+
+def require_pinhole(ds, needs: str, fix: str = "render it again without --lens into another folder") -> None:
+    """Refuse, in one line, a dataset (any :class:`DatasetLike`) rendered through a lens distortion
+    (``render-video --lens``) for ``needs`` (what it is and why it needs a pinhole, e.g. "the plane sweep
+    (it shifts views by disparity)"): something that computes with K alone or shifts views by
+    disparity would be silently wrong on distorted pixels. ``fix``: what the user can do instead."""
+    if getattr(ds, "distorted", False):
+        where = getattr(ds, "root", None) or "the dataset"
+        raise LfusdError(f"{where} was rendered through a lens distortion (--lens), and {needs} needs a pinhole dataset; {fix}")
 
 
 # ---- typed records of the folder's metadata ---------------------------------------------------

@@ -406,13 +406,29 @@ def position(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray, dist: D
     return np.where(fg[..., None], p, np.nan).astype(np.float32)
 
 
-def circle_of_confusion(depth: np.ndarray, focal_px: float, aperture_m: float, focus_m: float) -> np.ndarray:
+def circle_of_confusion(depth: np.ndarray, K: np.ndarray, aperture_m: float, focus_m: float, dist: Distortion | None = None) -> np.ndarray:
     """The ``coc`` key: the diameter in pixels of the disc a point at planar depth z is spread over by a
     thin lens of aperture diameter A focused on the plane at planar depth S, as Cycles renders it
-    (its image plane at the focal length): f_px * A * |1/S - 1/z|; f_px * A / S where no surface (z = inf)."""
+    (its image plane at the focal length): f_px * A * |1/S - 1/z|; f_px * A / S where no surface (z = inf).
+
+    Through a lens distortion ``dist`` the point spreads over the undistorted disc of diameter
+    A * |1/S - 1/z| (normalised coordinates) about the pixel's undistorted (x, y), which the model images
+    as an ellipse, that disc through its Jacobian M = diag(fx, fy) d(xd, yd)/d(x, y) at (x, y): the key is
+    the ellipse's largest diameter, A * |1/S - 1/z| times M's largest singular value (f_px without distortion)."""
+    K = np.asarray(K, np.float64)
     with np.errstate(divide="ignore"):
         inv = np.where(np.isfinite(depth), 1.0 / depth.astype(np.float64), 0.0)
-    return (focal_px * aperture_m * np.abs(1.0 / focus_m - inv)).astype(np.float32)
+    disc = aperture_m * np.abs(1.0 / focus_m - inv)  # the diameter in undistorted normalised coordinates
+    if dist is None or dist.is_identity:
+        return (float(K[0, 0]) * disc).astype(np.float32)
+    h, w = depth.shape
+    u, v = pixel_grid(h, w, np.float64)
+    uu, vu = undistort_pixels(u, v, K, dist)
+    a, b, c, d = dist.jacobian((uu - K[0, 2]) / K[0, 0], (vu - K[1, 2]) / K[1, 1])
+    a, b, c, d = K[0, 0] * a, K[0, 0] * b, K[1, 1] * c, K[1, 1] * d
+    frob, det = a * a + b * b + c * c + d * d, a * d - b * c
+    sigma_max = np.sqrt(0.5 * (frob + np.sqrt(np.maximum(frob * frob - 4.0 * det * det, 0.0))))
+    return (sigma_max * disc).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -436,7 +452,7 @@ DERIVED: dict[str, Callable[[dict, ViewInfo], np.ndarray]] = {
     "disparity": lambda raw, info: (disparity(raw["depth"], float(info.K[0, 0]), info.baseline) if info.dist is None
                                     else disparity_distorted(raw["depth"], info.K, info.dist, info.baseline)),
     "depth_euclidean": lambda raw, info: depth_euclidean(raw["depth"], info.K, info.dist),
-    "coc": lambda raw, info: circle_of_confusion(raw["depth"], float(info.K[0, 0]), *info.defocus),
+    "coc": lambda raw, info: circle_of_confusion(raw["depth"], info.K, *info.defocus, info.dist),
 }
 
 

@@ -250,8 +250,10 @@ def run_baselines(ds, frames=None, views="all", n_planes: int = 64, asr: int = 7
     ``asr``: the n of the 2x2 -> n x n view-synthesis task, on the central n x n views.
     ``window``: side of the box window that aggregates the disparity sweep's matching cost.
     """
+    from ..data.folder import require_pinhole
     from ..data.torch import select_views
 
+    require_pinhole(ds, "the baselines (a plane sweep shifting views by disparity, scene flow composed with K)")
     device = torch.device(device) if device is not None else default_device()
     say = log or (lambda *_: None)
     frames = list(ds.frames if frames is None else frames)

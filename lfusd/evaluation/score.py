@@ -175,6 +175,11 @@ def evaluate(ds, pred_dir, task: str, rig: str | None = None, protocol: str = "l
         if found is not None:
             return _evaluate_export(*found, pred, task, protocol)
         ds = dataset.open_dataset(ds, rig)
+    if protocol == "kitti":  # as `lfusd export kitti` refuses it
+        from ..data.folder import require_pinhole
+
+        require_pinhole(ds, "the kitti protocol (its noc masks match pixels along image rows, a rectified pinhole pair's)",
+                        "score it with --protocol lfusd")
     files = find_predictions(pred, task)
     if not files:
         raise LfusdError(f"no {task} predictions in {pred}: expected files like 0001_04_04{EXTS[task][0]} (frame_row_col)")

@@ -11,8 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..data.folder import DatasetLike, new_folder
-from ..errors import LfusdError
+from ..data.folder import DatasetLike, new_folder, require_pinhole
 from .registry import FORMATS, Format, find_export, get
 
 # The formats, in the order the command line lists them (each module registers itself).
@@ -27,10 +26,9 @@ def export(ds: DatasetLike, fmt: str, dest, frame: int | None = None, **kw):
     A resumable format (``cache``) makes or completes ``dest`` itself."""
     f = get(fmt)
     writer = f.writer
-    if f.pinhole and getattr(ds, "distorted", False):
+    if f.pinhole:
         lens = ", ".join(n for n, g in sorted(FORMATS.items()) if not g.pinhole)
-        raise LfusdError(f"{getattr(ds, 'root', 'the dataset')} was rendered through a lens distortion (--lens), which the {fmt} format "
-                         f"cannot express (its cameras are pinholes); export it as one of {lens}, or render it without --lens")
+        require_pinhole(ds, f"the {fmt} format (its cameras are pinholes)", f"export it as one of {lens}, or render it without --lens")
     if f.resumable:  # makes or completes dest itself (the training cache)
         return writer(ds, dest, frame=frame, **kw)
     with new_folder(dest, "export") as tmp:

@@ -86,9 +86,6 @@ class RenderRequest:
         if bool(self.fstop) != bool(self.focus):
             raise LfusdError("--fstop and --focus go together (a lens's f-number and the distance it focuses at, e.g. --fstop 2.8 --focus 3)")
         check_lens(self.lens, self.lens_seed, self.lens_spread)
-        if self.distorted and self.fstop:
-            raise LfusdError("--lens and --fstop do not go together: the OSL lens camera has no thin lens (Cycles ignores its depth "
-                             "of field) and coc is a pinhole's; render with one of them")
         if self.distorted and self.device in ("cuda", "optix"):
             raise LfusdError(f"--lens renders through an OSL camera, which lfusd has checked on the CPU only; use --device cpu "
                              f"(or auto, which renders a --lens job on the CPU) instead of --device {self.device}")

@@ -836,12 +836,14 @@ def _shift_lenses(scene, on: bool) -> None:
 
 def _use_lens(scene, fstop: float, focus: float) -> None:
     """--fstop / --focus: every view's camera a thin lens (Cycles' depth of field, a round aperture of
-    diameter lens / fstop, focused on the plane at planar depth ``focus`` metres); 0: a pinhole."""
+    diameter lens / fstop, focused on the plane at planar depth ``focus`` metres); 0: a pinhole.
+    A --lens view's OSL camera is its own thin lens (Lenses): Cycles' depth of field stays off there."""
     for view in scene.render.views:
         if not view.use:
             continue
-        dof = bpy.data.objects[VIEW_PREFIX + view.camera_suffix].data.dof
-        dof.use_dof = fstop > 0
+        cam = bpy.data.objects[VIEW_PREFIX + view.camera_suffix].data
+        dof = cam.dof
+        dof.use_dof = fstop > 0 and cam.type != "CUSTOM"
         if fstop > 0:
             dof.focus_object = None
             dof.focus_distance = focus
@@ -867,7 +869,9 @@ def compile_lens(name: str, source: str) -> tuple[str, str]:
 class Lenses:
     """--lens: each view's camera the OSL custom camera of its Brown-Conrady model (WorkUnit.lenses),
     compiled once per view for the beauty (samples about the pixel centre) and once for the data
-    render (its one sample moved onto the pixel centre: the shader takes LENS_SAMPLE_OFFSET_PX off)."""
+    render (its one sample moved onto the pixel centre: the shader takes LENS_SAMPLE_OFFSET_PX off).
+    With --fstop the beauty's shader is the thin lens of lfusd.render.lens; the data render's stays a
+    pinhole through the lens centre."""
 
     def __init__(self, job: WorkUnit):
         from lfusd.camera import Distortion
@@ -879,9 +883,13 @@ class Lenses:
             cam = bpy.data.objects[f"{VIEW_PREFIX}_{key}"].data
             cam.type = "CUSTOM"
             cam.custom_mode = "INTERNAL"
+            # --fstop: the beauty's thin lens, the aperture Cycles' own depth of field gives this camera
+            # (radius lens / (2 fstop), lens in mm; lfusd's scene unit is the metre)
+            radius = cam.lens * 1e-3 / (2.0 * job.fstop) if job.fstop > 0 else 0.0
             self.code[key] = {
                 data: compile_lens(f"{key}_{'data' if data else 'beauty'}", osl_source(
-                    dist, K, job.width, job.height, LENS_SAMPLE_OFFSET_PX if data else (0.0, 0.0)))
+                    dist, K, job.width, job.height, LENS_SAMPLE_OFFSET_PX if data else (0.0, 0.0),
+                    0.0 if data else radius, 0.0 if data else job.focus))
                 for data in (False, True)}
             _name_shader(cam, f"{key}_data")
 

@@ -223,8 +223,10 @@ def _render(req: StudyRequest, render_layer: Path, frames: list[int]) -> None:
 def load_views(root: Path, rig: str, frame: int, index: dict[str, int]) -> Views:
     """Every camera of a union rig at one frame, from the study's renders."""
     from ..data.dataset import open_dataset
+    from ..data.folder import require_pinhole
 
     ds = open_dataset(root, rig)
+    require_pinhole(ds, "the rig study (its sweeps and scores project with K)", "remove it and run the study again")
     n = len(index)
     rgb = np.stack([ds.read(frame, (0, k), "rgb") for k in range(n)])
     depth = np.stack([ds.read(frame, (0, k), "depth") for k in range(n)])

@@ -3,13 +3,12 @@ plain data only, so a crafted pickle cannot run code, and checks its fields befo
 
 from __future__ import annotations
 
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
+from support.flow_scripts import run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -44,10 +43,8 @@ def test_a_pickle_payload_checkpoint_does_not_run_with_resume(tmp_path):
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
     torch.save({**_good_state(), "config": Payload(marker)}, run / "checkpoints" / "last.pt")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     for script in ("train_disparity", "train_asr", "train_sceneflow"):
-        r = subprocess.run([sys.executable, str(ROOT / "flow" / f"{script}.py"), "--out", run, "--resume", "--data", tmp_path],
-                           env=env, capture_output=True, text=True, timeout=300)
+        r = run_script(script, "--out", run, "--resume", "--data", tmp_path)
         assert r.returncode == 2, r.stderr
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and "last.pt is not a checkpoint these scripts write" in lines[0], r.stderr

@@ -3,26 +3,17 @@ the cost volume and the corner blend, checked against their definitions (CPU, no
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from support.fake import texture
+from support.flow_scripts import load_script
 
 
-def _models():
-    path = Path(__file__).resolve().parents[2] / "flow" / "models.py"
-    spec = importlib.util.spec_from_file_location("flow_models", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-M = _models()
+M = load_script("models")
 
 
 def test_macpi_puts_view_uv_pixel_hw_at_h_times_u_plus_u():

@@ -6,88 +6,27 @@ bottom-up) and reads back through the reader HCI files are read with; errors are
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 
 from lfusd.data import formats
-from support.flow_scripts import load_script  # noqa: E402
+from support.flow_scripts import load_script, run_main, run_script
+from support.light_fields import fit_planes, plane_views, write_hci
 
-ROOT = Path(__file__).resolve().parents[2]
 N, SIZE = 9, 24
-
-
-def _load(name: str):
-    return load_script(name)
-
-
-def _main(capsys, *args) -> tuple[int, str]:
-    """The script's main in this process (as its command line runs it): exit code and stderr."""
-    pdm = _load("predict_disparity")
-    code = pdm.training.main_wrapper(pdm.NAME, pdm.main, [str(a) for a in args])
-    return code, capsys.readouterr().err
-
-
-def _script(*args) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    return subprocess.run([sys.executable, str(ROOT / "flow" / "predict_disparity.py"), *map(str, args)], env=env,
-                          capture_output=True, text=True, timeout=300)
-
-
-def plane_views(d: float, rng: np.random.Generator, size: int = SIZE) -> np.ndarray:
-    """[N*N, size, size, 3] in [0, 1]: a fronto-parallel plane at disparity ``d`` seen by an N x N grid,
-    row-major from the top-left view. The centre view shows the texture T; by CONVENTIONS.md a point at
-    (u, v) of the centre view is at (u - d*sx, v - d*sy) in view (r, c) with (sx, sy) = (c - 4, r - 4),
-    so that view shows T(x + d*sx, y + d*sy): T is analytic (sinusoids), so every view is exact."""
-    k = rng.uniform(0.25, 0.9, (3, 4, 2)) * rng.choice([-1, 1], (3, 4, 2))
-    phase = rng.uniform(0, 2 * np.pi, (3, 4))
-    y, x = np.mgrid[0:size, 0:size].astype(float)
-    out = []
-    for r in range(N):
-        for c in range(N):
-            xs, ys = x + d * (c - N // 2), y + d * (r - N // 2)
-            img = [0.5 + 0.12 * np.sin(k[ch, :, 0, None, None] * xs + k[ch, :, 1, None, None] * ys + phase[ch, :, None, None]).sum(0)
-                   for ch in range(3)]
-            out.append(np.stack(img, -1))
-    return np.clip(np.stack(out), 0, 1).astype(np.float32)
-
-
-def write_hci(folder: Path, views: np.ndarray) -> Path:
-    folder.mkdir(parents=True)
-    for i, v in enumerate(views):
-        formats.write_png(folder / f"input_Cam{i:03d}.png", np.round(v * 255).astype(np.uint8))
-    (folder / "parameters.cfg").write_text("[not read]\n")  # present in HCI folders; must not be needed
-    return folder
 
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory):
     """A tiny 9x9 DisparityNet trained for 40 steps on random 16x16 planes (about 30 s on one idle core)."""
-    td = _load("train_disparity")
-    models = _load("models")
+    td = load_script("train_disparity")
+    models = load_script("models")
     torch.manual_seed(0)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # toy tensors gain nothing from more, and on a busy machine extra threads spin
-    rng = np.random.default_rng(0)
     config = {"ang": N, "d_min": -2.0, "d_max": 2.0, "disparities": 9, "channels": 8, "blocks": 1, "cost_channels": 8,
               "train_frames": [1], "eval_frames": [1]}
     model = td.build(config)
-    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
-    rel = torch.from_numpy(np.stack(np.meshgrid(np.arange(N) - N // 2, np.arange(N) - N // 2, indexing="ij"), -1)
-                           .reshape(1, N * N, 2)[..., ::-1].astype(np.float32).copy())
-    for _ in range(40):
-        d = float(rng.uniform(-1.8, 1.8))
-        views = torch.from_numpy(plane_views(d, rng, 16).transpose(0, 3, 1, 2).copy())[None]
-        loss = (model(views, rel)[0, 4:-4, 4:-4] - d).abs().mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    torch.set_num_threads(threads)
+    fit_planes(model, 40, 1.8, 16)
     path = tmp_path_factory.mktemp("weights") / "w.pt"
     torch.save({"model": model.state_dict(), "config": config}, path)
     assert models.DisparityNet  # the script's network
@@ -95,8 +34,8 @@ def weights(tmp_path_factory):
 
 
 def test_the_views_it_reads_follow_hcis_grid_convention(tmp_path):
-    pdm = _load("predict_disparity")
-    models = _load("models")
+    pdm = load_script("predict_disparity")
+    models = load_script("models")
     d = 1.25
     folder = write_hci(tmp_path / "lf", plane_views(d, np.random.default_rng(1)))
     views, offsets, centre = pdm.read_hci_views(folder)
@@ -112,8 +51,8 @@ def test_the_views_it_reads_follow_hcis_grid_convention(tmp_path):
 
 
 def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights, capsys):
-    pdm = _load("predict_disparity")
-    td = _load("train_disparity")
+    pdm = load_script("predict_disparity")
+    td = load_script("train_disparity")
     rng = np.random.default_rng(2)
     config, state = pdm.load_weights(weights)
     model = td.build(config)
@@ -125,10 +64,10 @@ def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights, capsys
         out = tmp_path / f"disp{d}.pfm"
         args = (folder, "-o", out, "--weights", weights, "--tile", 16, "--overlap", 8, "--threads", 1)
         if d < 0:  # the command line once, in its own process
-            r = _script(*args)
+            r = run_script("predict_disparity", *args)
             assert r.returncode == 0, r.stderr
         else:
-            code, err = _main(capsys, *args)
+            code, err = run_main("predict_disparity", capsys, *args)
             assert code == 0, err
         got = formats.read_pfm(out)  # the reader of HCI's gt_disp_lowres.pfm
         assert got.shape == (SIZE, SIZE) and got.dtype == np.float32
@@ -149,20 +88,20 @@ def test_a_plane_goes_through_the_script_into_hcis_pfm(tmp_path, weights, capsys
 
 
 def test_errors_are_one_line(tmp_path, weights, capsys, monkeypatch):
-    r = _script(tmp_path, "-o", tmp_path / "d.pfm", "--weights", tmp_path / "none.pt")  # the command line's exit status
+    r = run_script("predict_disparity", tmp_path, "-o", tmp_path / "d.pfm", "--weights", tmp_path / "none.pt")  # the command line's exit status
     assert r.returncode == 2 and r.stderr.strip().splitlines() == [
         f"predict_disparity: error: no weights at {tmp_path / 'none.pt'}; train with flow/train_disparity.py and pass --weights RUN/checkpoints/last.pt"]
-    pdm = _load("predict_disparity")
+    pdm = load_script("predict_disparity")
     monkeypatch.setattr(pdm, "SHIPPED", tmp_path / "gone.pt")  # a checkout without the shipped weights
     lf = write_hci(tmp_path / "plane", plane_views(0.5, np.random.default_rng(3)))
     code = pdm.training.main_wrapper(pdm.NAME, pdm.main, [str(lf), "-o", str(tmp_path / "d.pfm")])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "shipped weights" in err and "--weights" in err
     lf = write_hci(tmp_path / "few", plane_views(0.5, np.random.default_rng(3))[:80])  # one view short of 9x9
-    code, err = _main(capsys, lf, "-o", tmp_path / "d.pfm", "--weights", weights)
+    code, err = run_main("predict_disparity", capsys, lf, "-o", tmp_path / "d.pfm", "--weights", weights)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "N*N of them" in err
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
-    code, err = _main(capsys, tmp_path / "few", "-o", tmp_path / "d.pfm", "--weights", tmp_path / "bad.pt")
+    code, err = run_main("predict_disparity", capsys, tmp_path / "few", "-o", tmp_path / "d.pfm", "--weights", tmp_path / "bad.pt")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "not a weights file" in err
     assert not (tmp_path / "d.pfm").exists()
 
@@ -174,7 +113,7 @@ def test_an_lfusd_dataset_and_its_hci_export_give_the_same_pfm(tmp_path):
     from lfusd.author.scenes import generate
     from lfusd.cli import main
 
-    td = _load("train_disparity")
+    td = load_script("train_disparity")
     generate("things", tmp_path / "s.usda", 3, frames=1, rigs=1, grid=(3, 3), resolution=(32, 32))
     assert main(["render", str(tmp_path / "s.usda"), "-o", str(tmp_path / "ds"), "--rig", "rig_00", "--samples", "1",
                  "--device", "cpu", "--quiet"]) == 0
@@ -184,7 +123,7 @@ def test_an_lfusd_dataset_and_its_hci_export_give_the_same_pfm(tmp_path):
     torch.save({"model": td.build(config).state_dict(), "config": config}, tmp_path / "w.pt")
     (folder,) = (tmp_path / "hci").iterdir()
     for src, out in ((tmp_path / "ds", tmp_path / "a.pfm"), (folder, tmp_path / "b.pfm")):
-        r = _script(src, "-o", out, "--weights", tmp_path / "w.pt", "--threads", 1)
+        r = run_script("predict_disparity", src, "-o", out, "--weights", tmp_path / "w.pt", "--threads", 1)
         assert r.returncode == 0, r.stderr
     a, b = formats.read_pfm(tmp_path / "a.pfm"), formats.read_pfm(tmp_path / "b.pfm")
     assert a.shape == b.shape == formats.read_pfm(folder / "gt_disp_lowres.pfm").shape == (32, 32)

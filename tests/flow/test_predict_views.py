@@ -11,10 +11,7 @@ dataset folder and on its `lfusd export hci` folder. Errors are one line, exit 2
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,46 +19,10 @@ import pytest
 import torch
 
 from lfusd.data import formats
-from support.flow_scripts import load_script  # noqa: E402
+from support.flow_scripts import load_script, run_main, run_script
+from support.light_fields import plane_tensor, plane_views, write_hci
 
-ROOT = Path(__file__).resolve().parents[2]
 N, SIZE = 9, 20
-
-
-def _script(name: str, *args) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    return subprocess.run([sys.executable, str(ROOT / "flow" / f"{name}.py"), *map(str, args)], env=env, capture_output=True, text=True, timeout=300)
-
-
-def _main(capsys, *args) -> tuple[int, str]:
-    pv = load_script("predict_views")
-    code = pv.training.main_wrapper(pv.NAME, pv.main, [str(a) for a in args])
-    return code, capsys.readouterr().err
-
-
-def plane_views(d: float, rng: np.random.Generator, n: int = N, size: int = SIZE) -> np.ndarray:
-    """[n*n, size, size, 3] in [0, 1], row-major from the top-left view: a fronto-parallel plane at
-    disparity ``d`` (view (r, c) shows the texture at (x + d*sx, y + d*sy), CONVENTIONS.md), its
-    texture a sum of sinusoids, so every view is exact."""
-    k = rng.uniform(0.2, 0.8, (3, 3, 2)) * rng.choice([-1, 1], (3, 3, 2))
-    phase = rng.uniform(0, 2 * np.pi, (3, 3))
-    y, x = np.mgrid[0:size, 0:size].astype(float)
-    out = []
-    for r in range(n):
-        for c in range(n):
-            xs, ys = x + d * (c - n // 2), y + d * (r - n // 2)
-            out.append(np.stack([0.5 + 0.13 * np.sin(k[ch, :, 0, None, None] * xs + k[ch, :, 1, None, None] * ys
-                                                      + phase[ch, :, None, None]).sum(0) for ch in range(3)], -1))
-    return np.clip(np.stack(out), 0, 1).astype(np.float32)
-
-
-def write_hci(folder: Path, views: np.ndarray, bits: int = 8) -> Path:
-    folder.mkdir(parents=True)
-    scale, dtype = (255, np.uint8) if bits == 8 else (65535, np.uint16)
-    for i, v in enumerate(views):
-        formats.write_png(folder / f"input_Cam{i:03d}.png", np.round(v * scale).astype(dtype))
-    (folder / "parameters.cfg").write_text("[not read]\n")  # present in HCI folders; must not be needed
-    return folder
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +37,8 @@ def weights(tmp_path_factory):
     model = ta.build(config)
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     for _ in range(30):
-        lf = torch.from_numpy(plane_views(float(rng.uniform(-1, 1)), rng, 7, 16).transpose(0, 3, 1, 2).copy())
-        loss = (model(lf[[0, 6, 42, 48]][None])[0] - lf).abs().mean()
+        lf = plane_tensor(float(rng.uniform(-1, 1)), rng, 16, n=7)
+        loss = (model(lf[:, [0, 6, 42, 48]])[0] - lf[0]).abs().mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -93,8 +54,8 @@ def _pngs(folder: Path) -> list[str]:
 
 def test_an_hci_folder_gives_the_central_7x7_in_hcis_naming(tmp_path, weights, capsys):
     pv = load_script("predict_views")
-    lf = write_hci(tmp_path / "lf", plane_views(0.8, np.random.default_rng(1)))
-    r = _script("predict_views", lf, "-o", tmp_path / "out", "--weights", weights, "--threads", 1)  # the command line, its own process
+    lf = write_hci(tmp_path / "lf", plane_views(0.8, np.random.default_rng(1), SIZE))
+    r = run_script("predict_views", lf, "-o", tmp_path / "out", "--weights", weights, "--threads", 1)  # the command line, its own process
     assert r.returncode == 0, r.stderr
     out = tmp_path / "out"
     assert _pngs(out) == [f"input_Cam{i:03d}.png" for i in range(49)]
@@ -113,8 +74,8 @@ def test_an_hci_folder_gives_the_central_7x7_in_hcis_naming(tmp_path, weights, c
     # tiles with enough context stitch to the whole-image result
     assert np.abs(pv.predict(model, corners, tile=8, overlap=12) - whole).max() < 1e-5
     # 16-bit views give 16-bit views
-    lf16 = write_hci(tmp_path / "lf16", plane_views(0.8, np.random.default_rng(1)), bits=16)
-    code, err = _main(capsys, lf16, "-o", tmp_path / "out16", "--weights", weights, "--threads", 1)
+    lf16 = write_hci(tmp_path / "lf16", plane_views(0.8, np.random.default_rng(1), SIZE), bits=16)
+    code, err = run_main("predict_views", capsys, lf16, "-o", tmp_path / "out16", "--weights", weights, "--threads", 1)
     assert code == 0, err
     a = formats.read_png(tmp_path / "out16" / "input_Cam024.png")
     assert a.dtype == np.uint16 and np.abs(a / 65535.0 - got[24] / 255.0).max() < 2.5 / 255
@@ -122,25 +83,25 @@ def test_an_hci_folder_gives_the_central_7x7_in_hcis_naming(tmp_path, weights, c
 
 def test_errors_are_one_line_and_write_nothing(tmp_path, weights, capsys):
     if not load_script("predict_views").SHIPPED.is_file():  # no weights shipped yet: --weights is required
-        r = _script("predict_views", tmp_path, "-o", tmp_path / "o")
+        r = run_script("predict_views", tmp_path, "-o", tmp_path / "o")
         assert r.returncode == 2 and r.stderr.strip().splitlines() == [
             "predict_views: error: no --weights given and no shipped weights (flow/weights/asr.pt) yet; train with flow/train_asr.py "
             "and pass --weights OUT/checkpoints/last.pt"]
-    few = write_hci(tmp_path / "few", plane_views(0.5, np.random.default_rng(3))[:80])  # one view short of 9x9
-    code, err = _main(capsys, few, "-o", tmp_path / "o", "--weights", weights)
+    few = write_hci(tmp_path / "few", plane_views(0.5, np.random.default_rng(3), SIZE)[:80])  # one view short of 9x9
+    code, err = run_main("predict_views", capsys, few, "-o", tmp_path / "o", "--weights", weights)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "N*N of them" in err
-    small = write_hci(tmp_path / "small", plane_views(0.5, np.random.default_rng(3), n=5))  # 5x5 < the weights' 7x7
-    code, err = _main(capsys, small, "-o", tmp_path / "o", "--weights", weights)
+    small = write_hci(tmp_path / "small", plane_views(0.5, np.random.default_rng(3), SIZE, n=5))  # 5x5 < the weights' 7x7
+    code, err = run_main("predict_views", capsys, small, "-o", tmp_path / "o", "--weights", weights)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "has only 5x5" in err
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
-    code, err = _main(capsys, small, "-o", tmp_path / "o", "--weights", tmp_path / "bad.pt")
+    code, err = run_main("predict_views", capsys, small, "-o", tmp_path / "o", "--weights", tmp_path / "bad.pt")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "not a weights file" in err
-    code, err = _main(capsys, tmp_path / "nowhere", "-o", tmp_path / "o", "--weights", weights)
+    code, err = run_main("predict_views", capsys, tmp_path / "nowhere", "-o", tmp_path / "o", "--weights", weights)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "is not a folder" in err
     assert not (tmp_path / "o").exists()
     # an output folder holding views is not overwritten unless asked
-    lf = write_hci(tmp_path / "lf", plane_views(0.5, np.random.default_rng(4)))
-    code, err = _main(capsys, lf, "-o", small, "--weights", weights)
+    lf = write_hci(tmp_path / "lf", plane_views(0.5, np.random.default_rng(4), SIZE))
+    code, err = run_main("predict_views", capsys, lf, "-o", small, "--weights", weights)
     assert code == 2 and "already holds input_CamNNN.png" in err and len(list(small.glob("*.png"))) == 25
 
 
@@ -175,11 +136,11 @@ def test_train_asr_on_a_recipe_and_predict_views_on_a_dataset_and_its_hci_export
     run = tmp_path / "run"
     args = ("--data", recipe, "--cache", caches, "--out", run, "--n", 3, "--channels", 8, "--blocks", 1, "--batch", 2, "--crop", 16,
             "--save-every", 2, "--log-every", 1, "--threads", 1, "--quiet")
-    r = _script("train_asr", *args, "--steps", 3)
+    r = run_script("train_asr", *args, "--steps", 3)
     assert r.returncode == 0, r.stderr
     log = json.loads((run / "train_log.json").read_text())
     assert log["config"]["scenes"] == [str(recipe / "scenes" / train_name)] and log["config"]["caches"] == [str(caches / train_name)]
-    r = _script("train_asr", "--out", run, "--resume", "--steps", 5, "--log-every", 1, "--quiet", "--threads", 1)
+    r = run_script("train_asr", "--out", run, "--resume", "--steps", 5, "--log-every", 1, "--quiet", "--threads", 1)
     assert r.returncode == 0, r.stderr
     log = json.loads((run / "train_log.json").read_text())
     assert log["resumed_at"] == [3] and [h["step"] for h in log["history"]] == [1, 2, 3, 4, 5]
@@ -191,15 +152,15 @@ def test_train_asr_on_a_recipe_and_predict_views_on_a_dataset_and_its_hci_export
         assert files == [f"0001_{r:02d}_{c:02d}.npy" for r in range(3) for c in range(3) if (r, c) not in ((0, 0), (0, 2), (2, 0), (2, 2))]
         assert scores[method]["views"] == 5 and 5 < scores[method]["psnr_db"] < 80 and 0 < scores[method]["ssim"] <= 1
     # a training cache of the wrong scene (rgb missing) is refused in one line
-    r = _script("train_asr", "--data", recipe, "--cache", tmp_path / "nocache", "--out", tmp_path / "run2", "--n", 3, "--steps", 1, "--quiet")
+    r = run_script("train_asr", "--data", recipe, "--cache", tmp_path / "nocache", "--out", tmp_path / "run2", "--n", 3, "--steps", 1, "--quiet")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "is no training cache" in r.stderr
     # predict_views: the dataset folder and its HCI export give the same views
     w = run / "checkpoints" / "last.pt"
     assert main(["export", "hci", str(tmp_path / "ds"), str(tmp_path / "hci")]) == 0
     (hci,) = (tmp_path / "hci").iterdir()
     for src, out in ((tmp_path / "ds", tmp_path / "va"), (hci, tmp_path / "vb")):
-        r = _script("predict_views", src, "-o", out, "--weights", w, "--threads", 1, "--frame", 1) if src.name == "ds" else \
-            _script("predict_views", src, "-o", out, "--weights", w, "--threads", 1)
+        r = run_script("predict_views", src, "-o", out, "--weights", w, "--threads", 1, "--frame", 1) if src.name == "ds" else \
+            run_script("predict_views", src, "-o", out, "--weights", w, "--threads", 1)
         assert r.returncode == 0, r.stderr
         assert _pngs(out) == [f"input_Cam{i:03d}.png" for i in range(9)]
     for i in range(9):

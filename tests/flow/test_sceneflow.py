@@ -6,8 +6,6 @@ does, and the predict script writes what `lfusd eval` scores, the same on an HCI
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,25 +14,18 @@ import pytest
 import torch
 
 from lfusd.camera import RigSpec
+from support.flow_scripts import load_script, run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 RIG = RigSpec(name="lf", rows=3, cols=3, width=40, height=32, baseline=0.1, at=(0.3, -5.0, 1.8), look_at=(0.0, 0.5, 0.6))
 RIG_MOTION = (0.05, -0.03, 0.0)  # metres per frame: the camera moves too
 
 
-def _script(name: str, *args) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    return subprocess.run([sys.executable, str(ROOT / "flow" / f"{name}.py"), *map(str, args)], env=env, capture_output=True, text=True, timeout=300)
+_script = run_script
 
 
 def _train_main():
-    import importlib.util
-
-    sys.path.insert(0, str(ROOT / "flow"))
-    spec = importlib.util.spec_from_file_location("flow_train_sceneflow", ROOT / "flow" / "train_sceneflow.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.main
+    return load_script("train_sceneflow").main
 
 
 @pytest.fixture(scope="module")

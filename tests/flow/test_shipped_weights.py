@@ -1,7 +1,7 @@
 """The shipped disparity weights (flow/weights/disparity.pt, trained on lfusd data alone: flow/README.md
 "Shipped weights"): loaded with weights_only=True by predict_disparity.py without --weights, they put
 synthetic fronto-parallel planes at known disparities of each sign on the right side of zero and near
-their value (analytic views: tests/flow/test_predict_disparity.py plane_views, a texture no lfusd
+their value (analytic views: tests/support/light_fields.py plane_views, a texture no lfusd
 stage has), through the command line on HCI-layout folders, as a user runs them.
 
 The bound is the one the shipped weights are documented to meet, :data:`BOUND_PX`. Issue 36 asks for
@@ -22,7 +22,7 @@ import torch
 
 from lfusd.data import formats
 from support.flow_scripts import load_script
-from test_predict_disparity import plane_views, write_hci
+from support.light_fields import plane_views, write_hci
 
 ROOT = Path(__file__).resolve().parents[2]
 WEIGHTS = ROOT / "flow" / "weights" / "disparity.pt"

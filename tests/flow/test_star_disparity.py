@@ -1,7 +1,7 @@
 """flow/models.py StarDisparityNet (issue 36's CPU-affordable disparity network): it uses the views on
 the reference's row, column and diagonals, keeps DisparityNet's forward contract (any crop size, odd
 ones too), old checkpoints without an ``arch`` still build the original network, and a briefly
-trained network puts synthetic fronto-parallel planes (analytic views, tests/flow/test_predict_disparity.py
+trained network puts synthetic fronto-parallel planes (analytic views, tests/support/light_fields.py
 plane_views) at known disparities of each sign on the right side of zero, near their value."""
 
 from __future__ import annotations
@@ -15,18 +15,12 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "flow"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import models  # noqa: E402
 import train_disparity  # noqa: E402
-from test_predict_disparity import N, plane_views  # noqa: E402
+from support.light_fields import N, centre_offsets, fit_planes, plane_tensor  # noqa: E402
 
 from lfusd import LfusdError  # noqa: E402
-
-
-def _rel() -> torch.Tensor:
-    rows, cols = np.divmod(np.arange(N * N), N)
-    return torch.from_numpy(np.stack([cols - N // 2, rows - N // 2], 1).astype(np.float32))[None]
 
 
 def test_star_views_are_the_centre_row_column_and_diagonals():
@@ -44,33 +38,18 @@ def test_configs_build_their_network_and_old_checkpoints_stay_distg():
     assert type(train_disparity.build({**base, "arch": "star"})) is models.StarDisparityNet
     net = train_disparity.build({**base, "arch": "star"})
     for h, w in [(16, 16), (17, 23)]:
-        assert net(torch.rand(2, N * N, 3, h, w), _rel().expand(2, -1, -1)).shape == (2, h, w)
+        assert net(torch.rand(2, N * N, 3, h, w), centre_offsets().expand(2, -1, -1)).shape == (2, h, w)
     with pytest.raises(ValueError, match="centre view"):
-        net(torch.rand(1, N * N, 3, 8, 8), _rel() + 1)  # offsets from another reference
+        net(torch.rand(1, N * N, 3, 8, 8), centre_offsets() + 1)  # offsets from another reference
     with pytest.raises(LfusdError, match="odd grid"):
         train_disparity.build({**base, "ang": 4, "arch": "star"})
 
 
 def test_a_briefly_trained_star_network_gets_the_sign_of_planes_of_each_sign():
     torch.manual_seed(0)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    rng = np.random.default_rng(0)
     net = models.StarDisparityNet(N, -2.2, 2.2, 9, ch=8, n_blocks=1, cost_ch=8)
-    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    rel = _rel()
-    try:
-        for _ in range(200):
-            d = float(rng.uniform(-2.0, 2.0))
-            views = torch.from_numpy(plane_views(d, rng, 24).transpose(0, 3, 1, 2).copy())[None]
-            loss = (net(views, rel)[0, 4:-4, 4:-4] - d).abs().mean()
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        with torch.no_grad():
-            for d in (-1.5, 1.5):
-                views = torch.from_numpy(plane_views(d, np.random.default_rng(7), 32).transpose(0, 3, 1, 2).copy())[None]
-                got = float(net(views, rel)[0, 6:-6, 6:-6].median())
-                assert np.sign(got) == np.sign(d) and abs(got - d) < 0.5, (d, got)
-    finally:
-        torch.set_num_threads(threads)
+    fit_planes(net, 200, 2.0, 24)
+    with torch.no_grad():
+        for d in (-1.5, 1.5):
+            got = float(net(plane_tensor(d, np.random.default_rng(7), 32), centre_offsets())[0, 6:-6, 6:-6].median())
+            assert np.sign(got) == np.sign(d) and abs(got - d) < 0.5, (d, got)

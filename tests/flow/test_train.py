@@ -5,24 +5,21 @@ through `lfusd eval` (the same numbers as the command on the prediction folder).
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from support.flow_scripts import load_script  # noqa: E402
+from support.flow_scripts import load_script, run_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _script(name: str, *args) -> tuple[subprocess.CompletedProcess, float]:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     t0 = time.time()
-    r = subprocess.run([sys.executable, str(ROOT / "flow" / f"{name}.py"), *map(str, args)], env=env, capture_output=True, text=True, timeout=600)
+    r = run_script(name, *args, timeout=600)
     return r, time.time() - t0
 
 

@@ -180,3 +180,49 @@ def test_torch_items_carry_each_views_lens(lens_video):
     uv = _opencv(position, Camera(K, ds.cam_to_world(1, (0, 0)), LENS))
     u, v = pixel_grid(20, 30, np.float64)
     assert np.abs(uv - np.stack([u, v], -1)).max() < 0.01
+
+
+def _one_line_refusal(err: str, root) -> None:
+    lines = str(err).strip().splitlines()
+    assert len(lines) == 1 and str(root) in lines[0] and "lens distortion" in lines[0] and "needs a pinhole dataset" in lines[0], lines
+
+
+def test_pinhole_only_consumers_refuse_the_distorted_dataset_in_one_line(lens_video, tmp_path, capsys):
+    """The baselines, the rig study, the bench, eval's kitti protocol and the flow/ scripts compute with K
+    alone or match along image rows: each refuses
+    a dataset rendered through a lens (lfusd.data.folder.require_pinhole) before computing anything."""
+    from support.flow_scripts import load_script
+
+    from lfusd import layout
+    from lfusd.bench.make import cameras
+    from lfusd.bench.score import _test_scenes
+    from lfusd.errors import LfusdError
+    from lfusd.evaluation.baselines import run_baselines
+    from lfusd.evaluation.score import evaluate
+    from lfusd.study.run import load_views
+
+    ds = Dataset(lens_video)
+    (tmp_path / "pred").mkdir()
+    for call in (lambda: run_baselines(ds), lambda: load_views(lens_video, "main", 1, {"0_0": 0, "0_1": 1}),
+                 lambda: cameras(ds), lambda: evaluate(lens_video, tmp_path / "pred", "disparity", protocol="kitti")):
+        with pytest.raises(LfusdError) as e:
+            call()
+        _one_line_refusal(e.value, lens_video)
+    (tmp_path / "bench" / layout.BENCH_GT).mkdir(parents=True)  # a bench whose test scene is the distorted dataset
+    (tmp_path / "bench" / layout.BENCH_GT / "s").symlink_to(lens_video)
+    with pytest.raises(LfusdError) as e:
+        next(_test_scenes(tmp_path / "bench", {"splits": {"test": ["s"]}}))
+    assert "needs a pinhole dataset" in str(e.value)
+    # flow/: the predictions (through their one-line error wrapper) and the training scripts
+    for name, args in (("predict_disparity", [lens_video, "-o", tmp_path / "d.pfm"]),
+                       ("train_sceneflow", ["--data", lens_video, "--out", tmp_path / "run"])):
+        script = load_script(name)
+        assert script.training.main_wrapper(script.NAME, script.main, [str(a) for a in args]) == 2
+        _one_line_refusal(capsys.readouterr().err, lens_video)
+    assert not (tmp_path / "d.pfm").exists() and not (tmp_path / "run").exists()
+    for call in (lambda: load_script("predict_views").read_dataset_corners(lens_video, 3, None, None),
+                 lambda: load_script("predict_sceneflow").predict_dataset(None, {}, lens_video, tmp_path / "sf")):
+        with pytest.raises(LfusdError) as e:
+            call()
+        _one_line_refusal(e.value, lens_video)
+    assert not (tmp_path / "sf").exists()

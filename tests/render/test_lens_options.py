@@ -47,8 +47,7 @@ def test_the_options_parse_into_the_request_and_are_checked():
         with pytest.raises(LfusdError, match="--device cpu"):
             RenderRequest(**req, lens=LENS, device=device).check()
     RenderRequest(**req, lens=LENS, device="auto").check()
-    with pytest.raises(LfusdError, match="--lens and --fstop"):
-        RenderRequest(**req, lens=LENS, fstop=2.8, focus=3.0).check()
+    RenderRequest(**req, lens=LENS, fstop=2.8, focus=3.0).check()  # the OSL camera has its own thin lens
     assert RenderRequest(**req, lens=LENS).distorted and not RenderRequest(**req, lens=Distortion()).distorted
 
 
@@ -101,10 +100,11 @@ def test_a_recipe_asks_for_the_lens_and_the_card_says_so():
     assert "lens distortion k1, k2, p1, p2, k3 = -0.1, 0.01, 0, 0, 0" in said and "seed 2" in said
     assert "lens" not in effects_text(json.loads(json.dumps(asdict(parse_recipe({"dataset": ds, "part": part})))))
     for bad, words in (({"lens": [1, 2]}, "dataset.lens must be"), ({"lens": [-0.1, 0, 0, 0, 0], "lens_seed": 1}, "go together"),
-                       ({"lens_seed": 1, "lens_spread": 0.1}, "add dataset.lens"),
-                       ({"lens": [-0.1, 0, 0, 0, 0], "fstop": 2.8, "focus": 3.0}, "does not go with dataset.fstop")):
+                       ({"lens_seed": 1, "lens_spread": 0.1}, "add dataset.lens")):
         with pytest.raises(LfusdError, match=words):
             parse_recipe({"dataset": {**ds, **bad}, "part": part})
+    both = parse_recipe({"dataset": {**ds, "lens": [-0.1, 0, 0, 0, 0], "fstop": 2.8, "focus": 3.0}, "part": part})
+    assert both.distortion[0] == -0.1 and both.lens == (2.8, 3.0)  # distortion and defocus together
 
 
 def test_geometric_augmentations_refuse_distorted_views_and_colour_ones_keep_them():
@@ -120,3 +120,62 @@ def test_geometric_augmentations_refuse_distorted_views_and_colour_ones_keep_the
     assert np.array_equal(colour_jitter(item, brightness=1.1)["distortion"], item["distortion"])
     pinhole = {**item, "distortion": np.zeros((2, 5))}
     assert flip(pinhole, "x")["rgb"].shape == (2, 3, 4, 4)
+
+
+def test_a_bench_definition_with_a_lens_is_refused_before_anything_renders(tmp_path, monkeypatch):
+    import lfusd.bench.make as make
+
+    text = (make.DEFINITIONS / "tiny.toml").read_text()
+    assert "[dataset]\n" in text
+    (tmp_path / "lensy.toml").write_text(text.replace("[dataset]\n", "[dataset]\nlens = [-0.1, 0.0, 0.0, 0.0, 0.0]\n", 1))
+    monkeypatch.setattr(make, "DEFINITIONS", tmp_path)
+    with pytest.raises(LfusdError, match="dataset.lens renders distorted scenes, and a benchmark needs pinhole cameras"):
+        make.load_definition("lensy")
+    out = tmp_path / "bench"
+    with pytest.raises(LfusdError, match="dataset.lens"):
+        make.make_bench("lensy", out)
+    assert not out.exists()
+
+
+def test_coc_through_a_lens_is_the_disc_imaged_through_the_models_jacobian():
+    """lfusd.data.passes.circle_of_confusion against OpenCV's projectPoints differentiated numerically."""
+    import cv2
+
+    from lfusd.camera import pixel_grid
+    from lfusd.data.passes import circle_of_confusion
+
+    K = RIG.intrinsics()
+    h, w = RIG.height, RIG.width
+    z = np.linspace(0.5, 6.0, h * w).reshape(h, w)
+    z[0, 0] = np.inf  # no surface: the disc of a point at infinity
+    aperture, focus = 0.02, 2.0
+    pinhole = circle_of_confusion(z, K, aperture, focus)
+    np.testing.assert_allclose(pinhole, K[0, 0] * aperture * np.abs(1 / focus - 1 / z), rtol=1e-6)
+    np.testing.assert_array_equal(circle_of_confusion(z, K, aperture, focus, Distortion()), pinhole)
+    got = circle_of_confusion(z, K, aperture, focus, LENS)
+    u, v = pixel_grid(h, w, np.float64)
+    pts = np.stack([u, v], -1).reshape(-1, 1, 2)
+    xy = cv2.undistortPointsIter(pts, K, LENS.coeffs, None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14))[:, 0]
+    e = 1e-6
+
+    def proj(p):
+        uv, _ = cv2.projectPoints(np.concatenate([p, np.ones((len(p), 1))], 1)[:, None], np.zeros(3), np.zeros(3), K, LENS.coeffs)
+        return uv[:, 0]
+
+    M = np.stack([(proj(xy + [e, 0]) - proj(xy - [e, 0])) / (2 * e), (proj(xy + [0, e]) - proj(xy - [0, e])) / (2 * e)], -1)
+    want = aperture * np.abs(1 / focus - 1 / z.ravel()) * np.linalg.svd(M, compute_uv=False)[:, 0]
+    np.testing.assert_allclose(got.ravel(), want, rtol=1e-5)
+    assert (got[pinhole > 0.01] / pinhole[pinhole > 0.01]).min() < 0.9  # the barrel lens shrinks the blur towards the corners
+
+
+def test_the_lens_shader_is_a_thin_lens_only_when_asked():
+    from lfusd.render.lens import osl_source
+
+    K = RIG.intrinsics()
+    pinhole = osl_source(LENS, K, RIG.width, RIG.height)
+    assert "camera_shader_random_sample" not in pinhole and "position = point(0, 0, 0);" in pinhole
+    thin = osl_source(LENS, K, RIG.width, RIG.height, aperture_radius=0.0125, focus=3.0)
+    assert "camera_shader_random_sample" in thin and "0.0125" in thin and "* 3.0 - vector(position)" in thin
+    for radius, focus in ((-0.01, 3.0), (0.01, 0.0)):
+        with pytest.raises(ValueError, match="thin lens"):
+            osl_source(LENS, K, RIG.width, RIG.height, aperture_radius=radius, focus=focus)
