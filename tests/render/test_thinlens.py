@@ -29,7 +29,7 @@ def renders(tmp_path_factory):
     common = ["--quiet", "--device", "cpu", "--light", "none", "--samples", "256", "--lens", LENS_ARG]
     # --verify: exit 0 only when lfusd verify, tracing through the lens, passes with every effect on
     assert main(["render-video", str(root / "s.usda"), "-o", str(root / "thin"), *common, "--fstop", str(FSTOP), "--focus", str(FOCUS),
-                 "--shutter", "0.5", "--verify"]) == 0
+                 "--shutter", "0.5", "--materials", "--iso", "800", "--verify"]) == 0
     assert main(["render-video", str(root / "s.usda"), "-o", str(root / "lens"), *common, "--keys", "rgb_linear"]) == 0
     return Dataset(root / "thin"), Dataset(root / "lens")
 
@@ -142,7 +142,7 @@ def test_the_focus_plane_stays_sharp_and_a_nearer_square_spreads_over_the_coc_el
     assert np.abs(uv[:, 0] - np.stack([u, v], -1)).max() < 0.01
 
 
-def test_the_certificate_names_distortion_defocus_and_blur_together(renders):
+def test_verify_passes_with_every_camera_effect_on_and_the_certificate_names_them(renders):
     from lfusd.data.certificate import certified
 
     ds, _ = renders
@@ -150,3 +150,4 @@ def test_the_certificate_names_distortion_defocus_and_blur_together(renders):
     assert cert["ok"] and cert["unchecked"] == 0
     assert cert["camera_effects"]["defocus"] == {"fstop": FSTOP, "focus": FOCUS}
     assert cert["camera_effects"]["lens_distortion"]["model"] == LENS.to_dict() and cert["camera_effects"]["motion_blur"] == {"shutter": 0.5}
+    assert set(cert["camera_effects"]) == {"motion_blur", "defocus", "sensor_noise", "material_masks", "lens_distortion"}  # issue 40's five
