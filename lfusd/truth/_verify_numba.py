@@ -14,6 +14,40 @@ from numba import njit
 @njit(cache=True, error_model="numpy")
 def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
     """Per ray i with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
+    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64 (per-ray origins o (N, 3); :func:`surface_from`: one origin)."""
+    for i in range(mesh.size):
+        m = mesh[i]
+        if m < 0:
+            continue
+        k = toff[m] + tri[i]
+        a, b, c = T[k, 0], T[k, 1], T[k, 2]
+        e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+        e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        dn = dx * nx + dy * ny + dz * nz
+        t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        wx, wy, wz = px - V[a, 0], py - V[a, 1], pz - V[a, 2]
+        d00 = e1x * e1x + e1y * e1y + e1z * e1z
+        d01 = e1x * e2x + e1y * e2y + e1z * e2z
+        d11 = e2x * e2x + e2y * e2y + e2z * e2z
+        d20 = wx * e1x + wy * e1y + wz * e1z
+        d21 = wx * e2x + wy * e2y + wz * e2z
+        den = d00 * d11 - d01 * d01
+        depth[i] = t
+        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+        bary[i, 0] = (d11 * d20 - d01 * d21) / den
+        bary[i, 1] = (d00 * d21 - d01 * d20) / den
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        s = -1.0 if dn > 0 else 1.0  # the side the camera sees
+        normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+
+
+@njit(cache=True, error_model="numpy")
+def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
+    """Per ray i from the point o (3,) with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
     barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64; a
     ray that hit nothing gets depth inf, NaN point and normal, barycentric 0."""
     for i in range(mesh.size):
@@ -30,7 +64,7 @@ def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: n
         e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
         e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        ox, oy, oz = o[0], o[1], o[2]
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         dn = dx * nx + dy * ny + dz * nz
         t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
@@ -105,6 +139,46 @@ def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):
                         if np.sqrt(gx * gx + gy * gy) > flow_px:  # NaN (unknown motion) counts as none
                             res = True
             out[y * W + x] = res
+
+
+@njit(cache=True, error_model="numpy")
+def mixed_decisions(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out, depth_rel2, flow_px2, out2):  # pragma: no cover - compiled
+    """:func:`mixed_decision` decided in the same pass with two sets of limits (depth_rel, flow_px into ``out``; depth_rel2, flow_px2
+    into ``out2``)."""
+    wc = W + 1
+    for y in range(H):
+        for x in range(W):
+            c0 = y * wc + x
+            cs = (c0, c0 + 1, c0 + wc, c0 + wc + 1)
+            i0 = ident[c0]
+            res = False
+            for c in cs:
+                if ident[c] != i0:
+                    res = True
+            res2 = res
+            if not res:
+                lo, hi, fin = np.inf, -np.inf, True
+                for c in cs:
+                    z = depth[c]
+                    if not np.isfinite(z):
+                        fin = False
+                    lo, hi = min(lo, z), max(hi, z)
+                if fin and hi - lo > depth_rel * lo:
+                    res = True
+                if fin and hi - lo > depth_rel2 * lo:
+                    res2 = True
+            if not (res and res2) and use_flow and i0 >= 0:
+                for a in range(4):
+                    for b in range(a + 1, 4):
+                        gx = flow[cs[a], 0] - flow[cs[b], 0]
+                        gy = flow[cs[a], 1] - flow[cs[b], 1]
+                        g = np.sqrt(gx * gx + gy * gy)
+                        if g > flow_px:  # NaN (unknown motion) counts as none
+                            res = True
+                        if g > flow_px2:
+                            res2 = True
+            out[y * W + x] = res
+            out2[y * W + x] = res2
 
 
 @njit(cache=True, error_model="numpy")
@@ -414,3 +488,47 @@ def visibility_split(points, valid, u1, v1, z1, still, near, H, W, C):  # pragma
                 moving_rays[b, 3 + j] = points[i, j] - C[j]
             b += 1
     return inside, t_hit, full_idx, full_rays, moving_idx, moving_rays
+
+
+_SIGN = np.uint64(1) << np.uint64(63)
+_TOP = np.uint64(48)
+
+
+@njit(cache=True, error_model="numpy")
+def _ordered(b):  # pragma: no cover - compiled
+    """A float64's bits as an unsigned key in the float's order (negatives reversed below positives)."""
+    return ~b if b & _SIGN else b | _SIGN
+
+
+@njit(cache=True, error_model="numpy")
+def order_stats(x, ks, out):  # pragma: no cover - compiled
+    """out[j] = the ks[j]-th smallest of x (0-based; x float64 without NaN, ks ascending): what
+    np.partition(x, ks) puts at ks, without reordering x. Radix selection: a histogram of the top
+    16 bits of the keys in float order finds each rank's bucket, whose values alone (usually a few
+    percent of x) are then partitioned."""
+    n = x.size
+    raw = x.view(np.uint64)
+    hist = np.zeros(65536, np.int64)
+    for i in range(n):
+        hist[_ordered(raw[i]) >> _TOP] += 1
+    start = np.zeros(65537, np.int64)
+    for b in range(65536):
+        start[b + 1] = start[b] + hist[b]
+    last = -1
+    buf = np.empty(0)
+    b = 0
+    for j in range(ks.size):
+        k = ks[j]
+        while start[b + 1] <= k:
+            b += 1
+        if b != last:  # gather the bucket's values
+            buf = np.empty(hist[b])
+            p = 0
+            ub = np.uint64(b)
+            for i in range(n):
+                if _ordered(raw[i]) >> _TOP == ub:
+                    buf[p] = x[i]
+                    p += 1
+            last = b
+        r = k - start[b]
+        out[j] = np.partition(buf, r)[r]

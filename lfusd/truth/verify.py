@@ -110,6 +110,7 @@ class TracedScene:
         self._same: dict = {}  # per other time: same topology per mesh; ("static", t), ("moving", t): see below
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
         self._edges: tuple | None = None
+        self._near: tuple | None = None  # (moving scene, camera, what moved's nearest depth per pixel): see visibility_of
 
     def static_triangles(self, other: "TracedScene") -> np.ndarray:
         """Per triangle (rows of T): whether ``other`` (another time) holds it traced, with the same
@@ -289,18 +290,17 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     if key is not None and s0._surface is not None and s0._surface[0] == key:
         o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
-        o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
+        o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)  # every ray's origin: the camera centre
         if lens:  # the lens's ray through each pixel (camera-z component 1)
             d = ray_directions(u, v, _camera(ctx))
-            mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+            mesh, tri = s0.cast(np.broadcast_to(o, (n, 3)), d)[1:] if hits is None else hits
         else:
             # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole), in one pass
-            d, rays = _numba.rays_through(u, v, Camera(K, ctx["c2w"])._pixel_to_world(np.float64),
-                                          np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64))
+            d, rays = _numba.rays_through(u, v, Camera(K, ctx["c2w"])._pixel_to_world(np.float64), o)
             mesh, tri = s0.cast_rays(rays)[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth, pos, normal, bary = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
-        _numba.surface(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
+        _numba.surface_from(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
         g = np.flatnonzero(mesh >= 0)
         if key is not None:
             s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
@@ -379,9 +379,15 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
         # only where a moving triangle may lie in front: its screen rectangle (grown by a
         # pixel) covers the pixel nearest the point, nearer than the point (depth is the ray
         # parameter times the point's depth: a triangle no nearer cannot hit before 1)
-        mscene, V1, T1 = moving
-        R, _ = cam.world_to_cam()
-        near = _numba.nearest_depth(V1, T1, np.asarray(cam.K, np.float64) @ R, C1, np.ascontiguousarray(R[2], np.float64), H, W, 1.0)
+        # (kept per scene for the last camera: a view's tie candidates trace through the same one)
+        key = (np.asarray(cam.K, np.float64).tobytes(), np.asarray(cam.cam_to_world, np.float64).tobytes(), H, W)
+        if scene._near is not None and scene._near[0] is moving and scene._near[1] == key:
+            near = scene._near[2]
+        else:
+            mscene, V1, T1 = moving
+            R, _ = cam.world_to_cam()
+            near = _numba.nearest_depth(V1, T1, np.asarray(cam.K, np.float64) @ R, C1, np.ascontiguousarray(R[2], np.float64), H, W, 1.0)
+            scene._near = (moving, key, near)
     f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
     inside, t_hit, idx, rays, known, krays = _numba.visibility_split(
         f64(points), np.ascontiguousarray(valid, bool), f64(u1), f64(v1), f64(z1),
@@ -923,8 +929,7 @@ def compare_view(
                 rows.append(Row(frame, view, key, label, int(count[r]), m, m, m, thr[key], int(over[r]), fg_c, n_ties,
                                 (j % W, j // W, float(top[r])), by_kind))
             else:
-                x = grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]]
-                med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
+                med, p99 = _percentiles(grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]], (50, 99))
                 rows.append(Row(frame, view, key, label, int(count[r]), float(med), float(p99), float(top[r]),
                                 thr[key], int(over[r]), fg_c, n_ties, (j % W, j // W, float(top[r])), by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
@@ -933,18 +938,43 @@ def compare_view(
     return rows
 
 
-def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
-                    depth_rel: float, flow_px: float) -> np.ndarray:
-    """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
-    the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
-    ``flow``) in forward flow by more than ``flow_px``."""
+def _percentiles(x: np.ndarray, q: tuple[float, ...]) -> tuple[float, ...]:
+    """np.percentile(x, q) (its default, linear interpolation between the order statistics around
+    (n - 1) q / 100, by the same arithmetic) of a float64 array without NaN, the order statistics
+    found by radix selection (lfusd.truth._verify_numba.order_stats) instead of a partition of all
+    of x."""
     from . import _verify_numba as _numba
 
-    out = np.zeros(H * W, bool)
+    n = len(x)
+    vi = (n - 1) * (np.asarray(q, np.float64) / 100)
+    lo = np.floor(vi).astype(np.int64)
+    hi = np.minimum(lo + 1, n - 1)
+    ks = np.unique(np.concatenate([lo, hi]))
+    val = np.empty(len(ks))
+    _numba.order_stats(np.ascontiguousarray(x, np.float64), ks, val)
+    a, b = val[np.searchsorted(ks, lo)], val[np.searchsorted(ks, hi)]
+    t = vi - lo
+    with np.errstate(invalid="ignore"):  # inf - inf: NaN, as numpy's
+        diff = b - a
+        out = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp
+    return tuple(float(v) for v in out)
+
+
+def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
+                    depth_rel: float, flow_px: float, depth_rel2: float | None = None, flow_px2: float | None = None):
+    """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
+    the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
+    ``flow``) in forward flow by more than ``flow_px``. With ``depth_rel2`` and ``flow_px2``: the
+    decisions under both sets of limits, from one pass."""
+    from . import _verify_numba as _numba
+
+    out, out2 = np.zeros(H * W, bool), np.zeros(H * W, bool)
     f = np.zeros((0, 2)) if flow is None else np.ascontiguousarray(flow, np.float64)
-    _numba.mixed_decision(np.ascontiguousarray(ident, np.int64), np.ascontiguousarray(depth, np.float64), f, flow is not None, H, W,
-                          float(depth_rel), float(flow_px), out)
-    return out
+    two = depth_rel2 is not None
+    _numba.mixed_decisions(np.ascontiguousarray(ident, np.int64), np.ascontiguousarray(depth, np.float64), f, flow is not None, H, W,
+                           float(depth_rel), float(flow_px), out, float(depth_rel2 if two else depth_rel),
+                           float(flow_px2 if two else flow_px), out2)
+    return (out, out2) if two else out
 
 
 def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
@@ -965,8 +995,8 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
     flow = c["flow"] if carry else None
     lo, hi = MIXED_BAND
-    surely = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi)
-    maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
+    surely, maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
+                                    MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
     # the footprint's edges, from the stage's own triangles: surely crossed (squares shrunk by the
     # float bound, nearly edge-on triangles no silhouette), or maybe (grown, edge-on either side)
     T, mesh, table = ctx["s0"].edges()
