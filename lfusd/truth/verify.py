@@ -938,6 +938,9 @@ def compare_view(
     return rows
 
 
+RADIX_MIN = 1 << 15  # fewer errors than this in a row: their percentiles by np.partition
+
+
 def _percentiles(x: np.ndarray, q: tuple[float, ...]) -> tuple[float, ...]:
     """np.percentile(x, q) (its default, linear interpolation between the order statistics around
     (n - 1) q / 100, by the same arithmetic) of a float64 array without NaN, the order statistics
@@ -950,8 +953,11 @@ def _percentiles(x: np.ndarray, q: tuple[float, ...]) -> tuple[float, ...]:
     lo = np.floor(vi).astype(np.int64)
     hi = np.minimum(lo + 1, n - 1)
     ks = np.unique(np.concatenate([lo, hi]))
-    val = np.empty(len(ks))
-    _numba.order_stats(np.ascontiguousarray(x, np.float64), ks, val)
+    if n < RADIX_MIN:  # a partition of a copy costs less than the radix histogram's 2^16 bins
+        val = np.partition(np.asarray(x, np.float64), ks)[ks]
+    else:
+        val = np.empty(len(ks))
+        _numba.order_stats(np.ascontiguousarray(x, np.float64), ks, val)
     a, b = val[np.searchsorted(ks, lo)], val[np.searchsorted(ks, hi)]
     t = vi - lo
     with np.errstate(invalid="ignore"):  # inf - inf: NaN, as numpy's
