@@ -14,7 +14,7 @@ from numba import njit
 @njit(cache=True, error_model="numpy")
 def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
     """Per ray i with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
-    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64."""
+    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64 (per-ray origins o (N, 3); :func:`surface_from`: one origin)."""
     for i in range(mesh.size):
         m = mesh[i]
         if m < 0:
@@ -25,6 +25,46 @@ def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: n
         e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
         ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+        dn = dx * nx + dy * ny + dz * nz
+        t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        wx, wy, wz = px - V[a, 0], py - V[a, 1], pz - V[a, 2]
+        d00 = e1x * e1x + e1y * e1y + e1z * e1z
+        d01 = e1x * e2x + e1y * e2y + e1z * e2z
+        d11 = e2x * e2x + e2y * e2y + e2z * e2z
+        d20 = wx * e1x + wy * e1y + wz * e1z
+        d21 = wx * e2x + wy * e2y + wz * e2z
+        den = d00 * d11 - d01 * d01
+        depth[i] = t
+        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+        bary[i, 0] = (d11 * d20 - d01 * d21) / den
+        bary[i, 1] = (d00 * d21 - d01 * d20) / den
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        s = -1.0 if dn > 0 else 1.0  # the side the camera sees
+        normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+
+
+@njit(cache=True, error_model="numpy")
+def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
+    """Per ray i from the point o (3,) with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
+    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64; a
+    ray that hit nothing gets depth inf, NaN point and normal, barycentric 0."""
+    for i in range(mesh.size):
+        m = mesh[i]
+        if m < 0:
+            depth[i] = np.inf
+            for j in range(3):
+                pos[i, j] = np.nan
+                normal[i, j] = np.nan
+            bary[i, 0], bary[i, 1] = 0.0, 0.0
+            continue
+        k = toff[m] + tri[i]
+        a, b, c = T[k, 0], T[k, 1], T[k, 2]
+        e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+        e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        ox, oy, oz = o[0], o[1], o[2]
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         dn = dx * nx + dy * ny + dz * nz
         t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
@@ -99,6 +139,46 @@ def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):
                         if np.sqrt(gx * gx + gy * gy) > flow_px:  # NaN (unknown motion) counts as none
                             res = True
             out[y * W + x] = res
+
+
+@njit(cache=True, error_model="numpy")
+def mixed_decisions(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out, depth_rel2, flow_px2, out2):  # pragma: no cover - compiled
+    """:func:`mixed_decision` decided in the same pass with two sets of limits (depth_rel, flow_px into ``out``; depth_rel2, flow_px2
+    into ``out2``)."""
+    wc = W + 1
+    for y in range(H):
+        for x in range(W):
+            c0 = y * wc + x
+            cs = (c0, c0 + 1, c0 + wc, c0 + wc + 1)
+            i0 = ident[c0]
+            res = False
+            for c in cs:
+                if ident[c] != i0:
+                    res = True
+            res2 = res
+            if not res:
+                lo, hi, fin = np.inf, -np.inf, True
+                for c in cs:
+                    z = depth[c]
+                    if not np.isfinite(z):
+                        fin = False
+                    lo, hi = min(lo, z), max(hi, z)
+                if fin and hi - lo > depth_rel * lo:
+                    res = True
+                if fin and hi - lo > depth_rel2 * lo:
+                    res2 = True
+            if not (res and res2) and use_flow and i0 >= 0:
+                for a in range(4):
+                    for b in range(a + 1, 4):
+                        gx = flow[cs[a], 0] - flow[cs[b], 0]
+                        gy = flow[cs[a], 1] - flow[cs[b], 1]
+                        g = np.sqrt(gx * gx + gy * gy)
+                        if g > flow_px:  # NaN (unknown motion) counts as none
+                            res = True
+                        if g > flow_px2:
+                            res2 = True
+            out[y * W + x] = res
+            out2[y * W + x] = res2
 
 
 @njit(cache=True, error_model="numpy")
@@ -211,3 +291,244 @@ def rays_through(u, v, A, C):  # pragma: no cover - compiled
             rays[i, k] = C[k]
             rays[i, 3 + k] = x
     return d, rays
+
+
+@njit(cache=True, error_model="numpy")
+def static_errors(d_ds, mesh, depth_tr, ids, inst_ds, sem_ds, classes, normal_ds, normal_tr, bg, len_tol,
+                  e_depth, e_inst, e_sem, e_normal, fg_ds, both):  # pragma: no cover - compiled
+    """verify._errors' static keys per pixel in one pass (NaN where not compared): relative depth
+    where both the dataset (finite, under ``bg``) and the trace (mesh >= 0) see a surface; instance
+    where either does (1: another id or only one sees a surface); semantic (the trace's instance's
+    class, ``classes``) and the normal (1 - cos to the traced normal, 2 when its length is off by
+    more than ``len_tol``) where both do. A key whose dataset array is empty is not written. Also
+    writes fg_ds (the dataset sees a surface) and both."""
+    has_inst, has_sem, has_norm = inst_ds.size > 0, sem_ds.size > 0, normal_ds.size > 0
+    nc = classes.size
+    bg_id = ids[ids.size - 1]
+    for i in range(d_ds.size):
+        d = np.float64(d_ds[i])
+        m = mesh[i]
+        ftr = m >= 0
+        fds = np.isfinite(d) and d < bg
+        b = fds and ftr
+        fg_ds[i] = fds
+        both[i] = b
+        it = ids[m] if ftr else bg_id
+        e_depth[i] = abs(d - depth_tr[i]) / depth_tr[i] if b else np.nan
+        if has_inst:
+            if fds or ftr:
+                e_inst[i] = 1.0 if (inst_ds[i] != it or fds != ftr) else 0.0
+            else:
+                e_inst[i] = np.nan
+        if has_sem:
+            if b:
+                e_sem[i] = 1.0 if sem_ds[i] != classes[min(max(it, 0), nc - 1)] else 0.0
+            else:
+                e_sem[i] = np.nan
+        if has_norm:
+            if b:
+                nx, ny, nz = np.float64(normal_ds[i, 0]), np.float64(normal_ds[i, 1]), np.float64(normal_ds[i, 2])
+                ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+                e = 1.0 - (nx * normal_tr[i, 0] + ny * normal_tr[i, 1] + nz * normal_tr[i, 2]) / ln
+                e_normal[i] = e if abs(ln - 1.0) <= len_tol else 2.0
+            else:
+                e_normal[i] = np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def motion_errors(both, tr_valid, valid_ds, flow_ds, flow_tr, sf_ds, sf_tr, sf_limit, sf_thr, mesh, ids, dc_ds, dc_tr,
+                  occ_ds, occ_tr, hit, eps, e_valid, e_flow, e_sf, e_dc, e_occ):  # pragma: no cover - compiled
+    """verify._errors' keys of one direction per pixel in one pass (NaN where not compared): the
+    validity where both see a surface (1: the dataset's bit is not the trace's); flow, scene flow
+    (scaled by ``sf_thr`` over the limit of the trace's object, ``sf_limit`` per instance id),
+    disparity change and occlusion (0 where they agree or the visibility hit ``hit`` lies in the
+    tie band [1 - 10 eps, 1 - eps/10]) where both see a surface, the trace knows the motion and the
+    dataset calls it valid. A key whose dataset array is empty is not written. Returns whether the
+    traced disparity change is finite at every pixel compared."""
+    has_valid, has_flow, has_sf, has_dc, has_occ = valid_ds.size > 0, flow_ds.size > 0, sf_ds.size > 0, dc_ds.size > 0, occ_ds.size > 0
+    lo, hi = 1 - 10 * eps, 1 - eps / 10
+    finite = True
+    for i in range(both.size):
+        b = both[i]
+        tv = tr_valid[i]
+        ok = b and tv
+        if has_valid:
+            e_valid[i] = (1.0 if valid_ds[i] != tv else 0.0) if b else np.nan
+            ok = ok and valid_ds[i]
+        if has_flow:
+            if ok:
+                gx = np.float64(flow_ds[i, 0]) - flow_tr[i, 0]
+                gy = np.float64(flow_ds[i, 1]) - flow_tr[i, 1]
+                e_flow[i] = np.sqrt(gx * gx + gy * gy)
+            else:
+                e_flow[i] = np.nan
+        if has_sf:
+            if ok:
+                gx = np.float64(sf_ds[i, 0]) - sf_tr[i, 0]
+                gy = np.float64(sf_ds[i, 1]) - sf_tr[i, 1]
+                gz = np.float64(sf_ds[i, 2]) - sf_tr[i, 2]
+                e_sf[i] = np.sqrt(gx * gx + gy * gy + gz * gz) * sf_thr / sf_limit[max(ids[mesh[i]], 0)]
+            else:
+                e_sf[i] = np.nan
+        if has_dc:
+            if ok:
+                x = dc_tr[i]
+                if not np.isfinite(x):
+                    finite = False
+                e_dc[i] = abs(np.float64(dc_ds[i]) - x)
+            else:
+                e_dc[i] = np.nan
+        if has_occ:
+            if ok:
+                h = hit[i]
+                e_occ[i] = 0.0 if (occ_ds[i] == occ_tr[i] or (h >= lo and h <= hi)) else 1.0
+            else:
+                e_occ[i] = np.nan
+    return finite
+
+
+@njit(cache=True, error_model="numpy")
+def over_any(E, limits, rate, out):  # pragma: no cover - compiled
+    """Per pixel (columns of E, one row per key): whether some key's error exceeds its limit (over
+    0.5 where ``rate``); NaN exceeds nothing."""
+    for i in range(E.shape[1]):
+        b = False
+        for k in range(E.shape[0]):
+            x = E[k, i]
+            if (x > 0.5) if rate[k] else (x > limits[k]):
+                b = True
+                break
+        out[i] = b
+
+
+@njit(cache=True, error_model="numpy")
+def carry_motion(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, u, v, pos, depth, fb, static, toff0,
+                 pos1, valid, u1, v1, z1, flow, sflow, dchange, still):  # pragma: no cover - compiled
+    """:func:`carry` at every ray (NaN, invalid where the motion is not known) and in the same pass
+    what verify derives from it: flow (u1 - u, v1 - v), scene flow (pos1 - pos), disparity change
+    (fb / z1 - fb / depth; fb = f * baseline, NaN without one) and, where ``static`` is not empty
+    (per row of T at t, toff0 its mesh offsets), whether the first hit lies on a triangle that stands
+    still."""
+    use_static = static.size > 0
+    for i in range(mesh.size):
+        m = mesh[i]
+        still[i] = use_static and m >= 0 and static[toff0[max(m, 0)] + tri[i]]
+        if m < 0 or not same[m]:
+            valid[i] = False
+            for j in range(3):
+                pos1[i, j] = np.nan
+                sflow[i, j] = np.nan
+            u1[i], v1[i], z1[i] = np.nan, np.nan, np.nan
+            flow[i, 0], flow[i, 1] = np.nan, np.nan
+            dchange[i] = np.nan
+            continue
+        k = toff1[m] + tri[i]
+        b1, b2 = bary[i, 0], bary[i, 1]
+        b0 = 1 - b1 - b2
+        a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
+        for j in range(3):
+            pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
+            sflow[i, j] = pos1[i, j] - pos[i, j]
+        valid[i] = True
+        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
+        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+        u1[i], v1[i] = x0 / x2, x1 / x2
+        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
+        flow[i, 0], flow[i, 1] = u1[i] - u[i], v1[i] - v[i]
+        dchange[i] = fb / z1[i] - fb / depth[i]
+
+
+@njit(cache=True, error_model="numpy")
+def visibility_split(points, valid, u1, v1, z1, still, near, H, W, C):  # pragma: no cover - compiled
+    """verify.visibility_of's partition of the points in one pass: inside (valid, projected inside
+    the image, in front of the camera); the first-hit ray parameter where it is known without a
+    cast (1: a point on a triangle that stands still, seen from the same centre, where ``near``
+    (H, W: the least depth of what moved, :func:`nearest_depth`; empty: nothing moved) shows
+    nothing nearer); the points to cast against the moving triangles only (the rest of the still
+    ones) and against the whole scene (inside, not still), with their segments from C as Open3D
+    takes them ((N, 6) float32). Returns (inside, t_hit, full index, full rays, moving index,
+    moving rays)."""
+    n = valid.size
+    use_still, use_near = still.size > 0, near.size > 0
+    inside = np.zeros(n, np.bool_)
+    t_hit = np.full(n, np.nan)
+    kind = np.zeros(n, np.int8)  # 1: cast against the whole scene, 2: against what moved
+    nf, nm = 0, 0
+    for i in range(n):
+        if not (valid[i] and u1[i] >= -0.5 and u1[i] <= W - 0.5 and v1[i] >= -0.5 and v1[i] <= H - 0.5 and z1[i] > 0):
+            continue
+        inside[i] = True
+        if use_still and still[i]:
+            t_hit[i] = 1.0
+            if use_near:
+                r = min(max(np.rint(v1[i]), 0.0), H - 1.0)
+                c = min(max(np.rint(u1[i]), 0.0), W - 1.0)
+                if near[int(r), int(c)] < z1[i]:
+                    kind[i] = 2
+                    nm += 1
+        else:
+            kind[i] = 1
+            nf += 1
+    full_idx, moving_idx = np.empty(nf, np.int64), np.empty(nm, np.int64)
+    full_rays, moving_rays = np.empty((nf, 6), np.float32), np.empty((nm, 6), np.float32)
+    a, b = 0, 0
+    for i in range(n):
+        if kind[i] == 1:
+            full_idx[a] = i
+            for j in range(3):
+                full_rays[a, j] = C[j]
+                full_rays[a, 3 + j] = points[i, j] - C[j]
+            a += 1
+        elif kind[i] == 2:
+            moving_idx[b] = i
+            for j in range(3):
+                moving_rays[b, j] = C[j]
+                moving_rays[b, 3 + j] = points[i, j] - C[j]
+            b += 1
+    return inside, t_hit, full_idx, full_rays, moving_idx, moving_rays
+
+
+_SIGN = np.uint64(1) << np.uint64(63)
+_TOP = np.uint64(48)
+
+
+@njit(cache=True, error_model="numpy")
+def _ordered(b):  # pragma: no cover - compiled
+    """A float64's bits as an unsigned key in the float's order (negatives reversed below positives)."""
+    return ~b if b & _SIGN else b | _SIGN
+
+
+@njit(cache=True, error_model="numpy")
+def order_stats(x, ks, out):  # pragma: no cover - compiled
+    """out[j] = the ks[j]-th smallest of x (0-based; x float64 without NaN, ks ascending): what
+    np.partition(x, ks) puts at ks, without reordering x. Radix selection: a histogram of the top
+    16 bits of the keys in float order finds each rank's bucket, whose values alone (usually a few
+    percent of x) are then partitioned."""
+    n = x.size
+    raw = x.view(np.uint64)
+    hist = np.zeros(65536, np.int64)
+    for i in range(n):
+        hist[_ordered(raw[i]) >> _TOP] += 1
+    start = np.zeros(65537, np.int64)
+    for b in range(65536):
+        start[b + 1] = start[b] + hist[b]
+    last = -1
+    buf = np.empty(0)
+    b = 0
+    for j in range(ks.size):
+        k = ks[j]
+        while start[b + 1] <= k:
+            b += 1
+        if b != last:  # gather the bucket's values
+            buf = np.empty(hist[b])
+            p = 0
+            ub = np.uint64(b)
+            for i in range(n):
+                if _ordered(raw[i]) >> _TOP == ub:
+                    buf[p] = x[i]
+                    p += 1
+            last = b
+        r = k - start[b]
+        out[j] = np.partition(buf, r)[r]

@@ -110,6 +110,7 @@ class TracedScene:
         self._same: dict = {}  # per other time: same topology per mesh; ("static", t), ("moving", t): see below
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
         self._edges: tuple | None = None
+        self._near: tuple | None = None  # (moving scene, camera, what moved's nearest depth per pixel): see visibility_of
 
     def static_triangles(self, other: "TracedScene") -> np.ndarray:
         """Per triangle (rows of T): whether ``other`` (another time) holds it traced, with the same
@@ -264,89 +265,86 @@ def trace_motion(
     ctx = {"s0": scenes[frame], "s1": scenes[frame + step], "K": np.asarray(K, np.float64), "c2w": np.asarray(cam_to_world_t, np.float64),
            "c2w1": np.asarray(cam_to_world_t1, np.float64), "H": H, "W": W, "baseline": baseline, "dist": dist}
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    out = trace_pixels(ctx, u.ravel(), v.ravel())
+    out = trace_pixels(ctx, u.ravel(), v.ravel(), grid=True)
     full = {k: (a.reshape(H, W, *a.shape[1:]) if isinstance(a, np.ndarray) and a.shape[:1] == (H * W,) else a) for k, a in out.items()}
     full["ctx"] = ctx
     return full
 
 
 def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray, np.ndarray] | None = None,
-                 visibility: bool = True) -> dict[str, Any]:
+                 visibility: bool = True, grid: bool = False) -> dict[str, Any]:
     """:func:`trace_motion`'s values for rays through arbitrary pixel coordinates (u, v) (flat arrays);
     ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray);
-    ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False)."""
+    ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False);
+    ``grid``: (u, v) is the view's full pixel grid (its surface is then kept for the view's other
+    direction)."""
     from . import _verify_numba as _numba  # the per-ray arithmetic, compiled
 
     s0, s1, K, H, W = ctx["s0"], ctx["s1"], ctx["K"], ctx["H"], ctx["W"]
     n = len(u)
+    u, v = np.ascontiguousarray(u, np.float64).ravel(), np.ascontiguousarray(v, np.float64).ravel()
     key = None
-    if hits is None and n == H * W:  # a full grid: the same surface for a view's traces to t+1 and t-1
-        key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), np.asarray(u).tobytes(), np.asarray(v).tobytes(), repr(ctx.get("dist")))
+    if hits is None and grid:  # a full grid: the same surface for a view's traces to t+1 and t-1
+        key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), repr(ctx.get("dist")))
+    lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
     if key is not None and s0._surface is not None and s0._surface[0] == key:
         o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
-        o = np.ascontiguousarray(np.broadcast_to(ctx["c2w"][:3, 3], (n, 3)))
-        lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
+        o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)  # every ray's origin: the camera centre
         if lens:  # the lens's ray through each pixel (camera-z component 1)
             d = ray_directions(u, v, _camera(ctx))
-            mesh, tri = s0.cast(o, d)[1:] if hits is None else hits
+            mesh, tri = s0.cast(np.broadcast_to(o, (n, 3)), d)[1:] if hits is None else hits
         else:
             # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole), in one pass
-            d, rays = _numba.rays_through(np.ascontiguousarray(u, np.float64).ravel(), np.ascontiguousarray(v, np.float64).ravel(),
-                                          Camera(K, ctx["c2w"])._pixel_to_world(np.float64), np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64))
+            d, rays = _numba.rays_through(u, v, Camera(K, ctx["c2w"])._pixel_to_world(np.float64), o)
             mesh, tri = s0.cast_rays(rays)[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
-        depth = np.full(n, np.inf)
-        pos = np.full((n, 3), np.nan)
-        normal = np.full((n, 3), np.nan)
-        bary = np.zeros((n, 2))
+        depth, pos, normal, bary = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
+        _numba.surface_from(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
         g = np.flatnonzero(mesh >= 0)
-        if g.size:
-            _numba.surface(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
         if key is not None:
             s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
-    pos1 = np.full((n, 3), np.nan)
-    valid = np.zeros(n, bool)
     cam1 = _camera(ctx, 1)
     R, C = cam1.world_to_cam()
-    u1, v1, z1 = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
-    if g.size:
-        _numba.carry(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, np.ascontiguousarray(K @ R, np.float64),
-                     np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), pos1, valid, u1, v1, z1)
-    lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
+    baseline = ctx["baseline"]
+    fb = float(K[0, 0]) * float(baseline) if baseline else np.nan
+    # The camera centre stays put: a first hit on a triangle that stands still is the same point on
+    # the same segment from the centre as at t, where nothing lay before it; only what moved can
+    # hide it now (see visibility_of).
+    same_centre = visibility and hits is None and np.array_equal(ctx["c2w1"][:3, 3], ctx["c2w"][:3, 3]) and g.size > 0
+    static = s0.static_triangles(s1) if same_centre else np.zeros(0, bool)
+    pos1, valid, u1, v1, z1 = np.empty((n, 3)), np.empty(n, bool), np.empty(n), np.empty(n), np.empty(n)
+    flow, sflow, dchange, still = np.empty((n, 2)), np.empty((n, 3)), np.empty(n), np.empty(n, bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        _numba.carry_motion(mesh, tri, bary, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset, np.ascontiguousarray(K @ R, np.float64),
+                            np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64), u, v, pos, depth, fb, static,
+                            s0.tri_offset, pos1, valid, u1, v1, z1, flow, sflow, dchange, still)
     if lens and g.size:  # the kernel projects through the pinhole: image the carried points through the lens
         from ..camera import project_imaged
 
         u1, v1, z1, imaged = project_imaged(np.where(valid[:, None], pos1, 0.0), cam1)
         valid &= imaged  # beyond the lens's fold a point has no image: its motion is not defined there
-    if visibility:
-        still = None
-        if hits is None and np.array_equal(ctx["c2w1"][:3, 3], ctx["c2w"][:3, 3]) and g.size:
-            # The camera centre stays put: a first hit on a triangle that stands still is the same
-            # point on the same segment from the centre as at t, where nothing lay before it; only
-            # what moved can hide it now (see visibility_of).
-            k = np.where(mesh >= 0, s0.tri_offset[np.maximum(mesh, 0)] + tri, 0)
-            still = (mesh >= 0) & s0.static_triangles(s1)[k]
-        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1), still=still,
-                                   moving=s1.moving_scene(s0) if still is not None else None)
-    else:
-        vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
-    baseline = ctx["baseline"]
-    fb = float(K[0, 0]) * float(baseline) if baseline else np.nan
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if lens and baseline:  # the disparity of a distorted view (docs/CONVENTIONS.md, "Lens distortion")
+        flow = np.stack([u1 - u, v1 - v], -1)
+        if baseline:  # the disparity of a distorted view (docs/CONVENTIONS.md, "Lens distortion")
             from ..camera import point_disparity
 
-            dchange = point_disparity(pos1, cam1, float(baseline)) - point_disparity(pos, _camera(ctx), float(baseline))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dchange = point_disparity(pos1, cam1, float(baseline)) - point_disparity(pos, _camera(ctx), float(baseline))
             valid &= np.isfinite(dchange)
         else:
-            dchange = fb / z1 - fb / depth
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dchange = fb / z1 - fb / depth
+    if visibility:
+        vis, t_hit = visibility_of(s1, cam1, pos1, valid, H, W, uvz=(u1, v1, z1), still=still if same_centre else None,
+                                   moving=s1.moving_scene(s0) if same_centre else None)
+    else:
+        vis, t_hit = np.ones(n, bool), np.full(n, np.nan)
     return {
         "depth": depth, "position": pos, "normal": normal, "mesh": mesh, "triangle": tri,
         "prim_paths": s0.prim_paths,
         "mesh_bounds": s0.bounds,
-        "flow": np.stack([u1 - u, v1 - v], -1),
-        "scene_flow": pos1 - pos,
+        "flow": flow,
+        "scene_flow": sflow,
         "next_position": pos1,
         "disparity_change": dchange,
         "occluded": valid & ~vis,
@@ -370,38 +368,34 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
     that stands still, so no triangle that stands still lies before it: its segment is cast against
     ``moving`` alone (:meth:`TracedScene.moving_scene`; None: nothing moved), and only where one of
     those may lie in front of it; its own surface counts as a hit at 1."""
+    import open3d as o3d
+
+    from . import _verify_numba as _numba
+
     u1, v1, z1 = project(points, cam) if uvz is None else uvz
-    inside = valid & (u1 >= -0.5) & (u1 <= W - 0.5) & (v1 >= -0.5) & (v1 <= H - 0.5) & (z1 > 0)
-    C1 = np.asarray(cam.cam_to_world, np.float64)[:3, 3]
-    t_hit = np.full(len(points), np.nan)
-    cast = inside
-    if still is not None:
-        known = np.flatnonzero(inside & still)
-        cast = inside & ~still
-        t_hit[known] = 1.0
-        if known.size and moving is not None:
-            import open3d as o3d
-
-            from . import _verify_numba as _numba
-
-            # only where a moving triangle may lie in front: its screen rectangle (grown by a
-            # pixel) covers the pixel nearest the point, nearer than the point (depth is the ray
-            # parameter times the point's depth: a triangle no nearer cannot hit before 1)
+    C1 = np.ascontiguousarray(np.asarray(cam.cam_to_world, np.float64)[:3, 3])
+    near = np.zeros((0, 0))
+    if still is not None and moving is not None and still.any():
+        # only where a moving triangle may lie in front: its screen rectangle (grown by a
+        # pixel) covers the pixel nearest the point, nearer than the point (depth is the ray
+        # parameter times the point's depth: a triangle no nearer cannot hit before 1)
+        # (kept per scene for the last camera: a view's tie candidates trace through the same one)
+        key = (np.asarray(cam.K, np.float64).tobytes(), np.asarray(cam.cam_to_world, np.float64).tobytes(), H, W)
+        if scene._near is not None and scene._near[0] is moving and scene._near[1] == key:
+            near = scene._near[2]
+        else:
             mscene, V1, T1 = moving
             R, _ = cam.world_to_cam()
-            near = _numba.nearest_depth(V1, T1, np.asarray(cam.K, np.float64) @ R, np.ascontiguousarray(C1, np.float64),
-                                        np.ascontiguousarray(R[2], np.float64), H, W, 1.0)
-            i = np.clip(np.rint(v1[known]), 0, H - 1).astype(np.int64)
-            j = np.clip(np.rint(u1[known]), 0, W - 1).astype(np.int64)
-            known = known[near[i, j] < z1[known]]
-            if known.size:
-                rays = np.empty((known.size, 6), np.float32)
-                rays[:, :3] = C1
-                rays[:, 3:] = points[known] - C1
-                t_hit[known] = np.minimum(mscene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy(), 1.0)
-    idx = np.flatnonzero(cast)
+            near = _numba.nearest_depth(V1, T1, np.asarray(cam.K, np.float64) @ R, C1, np.ascontiguousarray(R[2], np.float64), H, W, 1.0)
+            scene._near = (moving, key, near)
+    f64 = lambda a: np.ascontiguousarray(a, np.float64)  # noqa: E731
+    inside, t_hit, idx, rays, known, krays = _numba.visibility_split(
+        f64(points), np.ascontiguousarray(valid, bool), f64(u1), f64(v1), f64(z1),
+        np.zeros(0, bool) if still is None else np.ascontiguousarray(still, bool), near, H, W, C1)
+    if known.size:
+        t_hit[known] = np.minimum(moving[0].cast_rays(o3d.core.Tensor(krays))["t_hit"].numpy(), 1.0)
     if idx.size:
-        t_hit[idx] = scene.cast(np.broadcast_to(C1, (idx.size, 3)), points[idx] - C1)[0]
+        t_hit[idx] = scene.cast_rays(o3d.core.Tensor(rays))[0]
     with np.errstate(invalid="ignore"):
         return inside & (t_hit >= 1 - eps), t_hit
 
@@ -601,6 +595,13 @@ class VerifyReport:
 ALL = "(all)"
 
 
+class _Errors(dict):
+    """Per-key errors (key -> (N,) array) that are the rows of one (keys, N) array ``stack``, in order:
+    what :func:`_over` reads in one compiled pass."""
+
+    stack: np.ndarray
+
+
 def _errors(ds: dict, idx: np.ndarray | slice, st: dict, fw: dict | None, bw: dict | None, ids: np.ndarray, thr: dict,
             classes: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Per-key error at flat pixels ``idx`` (``slice(None)``: all of them, without a copy) (NaN where
@@ -609,55 +610,74 @@ def _errors(ds: dict, idx: np.ndarray | slice, st: dict, fw: dict | None, bw: di
     frame has no neighbour that way, so the dataset must call no pixel valid that way), each
     indexed like ``idx``; ``classes``: the stage's class id of every instance id (semantic check).
     Instance, semantic, validity and occlusion errors are 0 (agree) or 1; normal: 1 - cos of the
-    angle to the traced triangle's normal facing the camera (2 when not of unit length)."""
-    nan = np.full(len(ds["depth"]) if isinstance(idx, slice) else idx.size, np.nan)
-    inst_tr = ids[st["mesh"]]
-    fg_tr = st["mesh"] >= 0
-    d_ds = ds["depth"][idx]
-    fg_ds = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH)
-    both = fg_ds & fg_tr
-    err = {}
-    with np.errstate(invalid="ignore", divide="ignore"):
-        err["depth"] = np.where(both, np.abs(d_ds - st["depth"]) / st["depth"], nan)
-        if ds.get("instance") is not None:
-            err["instance"] = np.where(fg_ds | fg_tr, ((ds["instance"][idx] != inst_tr) | (fg_ds != fg_tr)).astype(float), nan)
-        if ds.get("semantic") is not None and classes is not None:
-            err["semantic"] = np.where(both, (ds["semantic"][idx] != classes[np.clip(inst_tr, 0, len(classes) - 1)]).astype(float), nan)
-        if ds.get("normal") is not None and "normal" in st:
-            n = ds["normal"][idx].astype(np.float64)
-            length = _norm(n)
-            e = 1.0 - (n * st["normal"]).sum(-1) / length
-            err["normal"] = np.where(both, np.where(np.abs(length - 1) <= NORMAL_LENGTH_TOL, e, 2.0), nan)
-        for name, tr in (("fwd", fw), ("bwd", bw)):
-            if tr is None:
-                # No neighbour frame that way (the ends of the rendered range): nothing is valid there.
-                if ds.get(f"valid_{name}") is not None:
-                    err[f"valid_{name}"] = np.where(fg_ds, ds[f"valid_{name}"][idx].astype(float), nan)
-                continue
-            ok = both & tr["valid"]
-            if ds.get(f"valid_{name}") is not None:
-                # Valid exactly where the surface's motion is known: its mesh keeps its topology.
-                err[f"valid_{name}"] = np.where(both, (ds[f"valid_{name}"][idx] != tr["valid"]).astype(float), nan)
-                ok &= ds[f"valid_{name}"][idx]
-            if ds.get(f"flow_{name}") is not None:
-                err[f"flow_{name}"] = np.where(ok, _norm(ds[f"flow_{name}"][idx] - tr["flow"]), nan)
-            if name == "fwd" and ds.get("scene_flow") is not None:
-                # Held to the limit or SCENE_FLOW_REL of the object's size, whichever is smaller, but
-                # never below the storage step (a 1.5 mm object's true error is the rounding).
-                size = object_sizes(ids, tr["mesh_bounds"])[np.clip(inst_tr, 0, None)]
-                limit = np.maximum(np.minimum(thr["scene_flow"], SCENE_FLOW_REL * size), SCENE_FLOW_FLOOR)
-                e = _norm(ds["scene_flow"][idx] - tr["scene_flow"]) * thr["scene_flow"] / limit
-                err["scene_flow"] = np.where(ok, e, nan)
-            if name == "fwd" and ds.get("disparity_change") is not None and np.isfinite(tr["disparity_change"][ok]).all():
-                err["disparity_change"] = np.where(ok, np.abs(ds["disparity_change"][idx] - tr["disparity_change"]), nan)
-            if ds.get(f"occlusion_{name}") is not None:
-                occ = ds[f"occlusion_{name}"][idx]
-                agree = occ == tr["occluded"]
-                # Tie rule of visibility: a surface within [eps/10, 10 eps] of the distance in front
-                # of the point lies inside the band where float32 geometry cannot tell: either label.
-                h = tr["visibility_hit"]
-                tie = (h >= 1 - 10 * VISIBLE_EPS) & (h <= 1 - VISIBLE_EPS / 10)
-                err[f"occlusion_{name}"] = np.where(ok, (~(agree | tie)).astype(float), nan)
+    angle to the traced triangle's normal facing the camera (2 when not of unit length). Every
+    key's pixels in one compiled pass per direction (lfusd.truth._verify_numba)."""
+    from . import _verify_numba as _numba
+
+    kinds = {"instance": np.int64, "semantic": np.int64, "valid_fwd": bool, "valid_bwd": bool, "occlusion_fwd": bool, "occlusion_bwd": bool}
+
+    def at(key, tail=()):  # the dataset's array at the pixels (float32 or float64, int64, bool), or an empty one
+        a = ds.get(key)
+        kind = kinds.get(key, np.float32)
+        if a is None:
+            return np.zeros((0, *tail), kind)
+        a = np.asarray(a if isinstance(idx, slice) else a[idx])
+        if kind is np.float32 and a.dtype != np.float32:
+            kind = np.float64  # one compiled variant per kind of array: what a dataset holds, or float64
+        return np.ascontiguousarray(a, kind)
+
+    d_ds = at("depth")
+    n = len(d_ds)
+    has_sem = ds.get("semantic") is not None and classes is not None
+    has_normal = ds.get("normal") is not None and "normal" in st
+    static = ["depth"] + ["instance"] * (ds.get("instance") is not None) + ["semantic"] * has_sem + ["normal"] * has_normal
+    motion: list[tuple[str, dict | None, list[str]]] = []
+    for name, tr in (("fwd", fw), ("bwd", bw)):
+        keys = [f"valid_{name}"] * (ds.get(f"valid_{name}") is not None)
+        if tr is not None:
+            keys += [f"flow_{name}"] * (ds.get(f"flow_{name}") is not None)
+            keys += ["scene_flow"] * (name == "fwd" and ds.get("scene_flow") is not None)
+            keys += ["disparity_change"] * (name == "fwd" and ds.get("disparity_change") is not None)
+            keys += [f"occlusion_{name}"] * (ds.get(f"occlusion_{name}") is not None)
+        motion.append((name, tr, keys))
+    order = static + [k for _, _, keys in motion for k in keys]
+    E = np.empty((len(order), n))
+    row = {k: E[i] for i, k in enumerate(order)}
+    none = np.zeros(0)
+    fg_ds, both = np.empty(n, bool), np.empty(n, bool)
+    mesh = np.ascontiguousarray(st["mesh"], np.int64)
+    _numba.static_errors(d_ds, mesh, np.ascontiguousarray(st["depth"], np.float64), ids, at("instance"),
+                         at("semantic") if has_sem else np.zeros(0, np.int64), classes if has_sem else np.zeros(1, np.int64),
+                         at("normal", (3,)) if has_normal else np.zeros((0, 3), np.float32),
+                         np.ascontiguousarray(st["normal"], np.float64) if has_normal else np.zeros((0, 3)), float(BACKGROUND_DEPTH),
+                         NORMAL_LENGTH_TOL, row["depth"], row.get("instance", none), row.get("semantic", none), row.get("normal", none),
+                         fg_ds, both)
+    for name, tr, keys in motion:
+        if tr is None:
+            # No neighbour frame that way (the ends of the rendered range): nothing is valid there.
+            if keys:
+                row[keys[0]][:] = np.where(fg_ds, at(keys[0]), np.nan)
+            continue
+        sf_limit = none
+        if "scene_flow" in keys:
+            # Held to the limit or SCENE_FLOW_REL of the object's size, whichever is smaller, but
+            # never below the storage step (a 1.5 mm object's true error is the rounding).
+            sf_limit = np.maximum(np.minimum(thr["scene_flow"], SCENE_FLOW_REL * object_sizes(ids, tr["mesh_bounds"])), SCENE_FLOW_FLOOR)
+        f64 = lambda k, tail=(): np.ascontiguousarray(tr[k], np.float64) if k in tr else np.zeros((0, *tail))  # noqa: E731
+        finite = _numba.motion_errors(
+            both, np.ascontiguousarray(tr["valid"], bool), at(f"valid_{name}"), at(f"flow_{name}", (2,)), f64("flow", (2,)),
+            at("scene_flow", (3,)) if "scene_flow" in keys else np.zeros((0, 3), np.float32), f64("scene_flow", (3,)), sf_limit,
+            float(thr.get("scene_flow", np.nan)), mesh, ids,
+            at("disparity_change") if "disparity_change" in keys else np.zeros(0, np.float32), f64("disparity_change"),
+            at(f"occlusion_{name}") if f"occlusion_{name}" in keys else np.zeros(0, bool), np.ascontiguousarray(tr["occluded"], bool),
+            f64("visibility_hit"), float(VISIBLE_EPS),
+            row.get(f"valid_{name}", none), row.get(f"flow_{name}", none), row.get("scene_flow", none) if name == "fwd" else none,
+            row.get("disparity_change", none) if name == "fwd" else none, row.get(f"occlusion_{name}", none))
+        if "disparity_change" in keys and not finite:
+            order.remove("disparity_change")  # a traced disparity change that is not finite: not compared
+    err = _Errors((k, row[k]) for k in order)
+    err.stack = E if len(order) == len(E) else None
+    err.fg_ds, err.both = fg_ds, both  # where the dataset, and both it and the trace, see a surface
     return err
 
 
@@ -669,6 +689,14 @@ def _norm(a: np.ndarray) -> np.ndarray:
 
 def _over(err: dict[str, np.ndarray], thr: dict) -> np.ndarray:
     """Pixels where some key's error exceeds its limit."""
+    stack = getattr(err, "stack", None)
+    if stack is not None and len(stack) == len(err) and all(e.base is stack and e.ctypes.data == stack[i].ctypes.data
+                                                            for i, e in enumerate(err.values())):
+        from . import _verify_numba as _numba
+
+        out = np.empty(stack.shape[1], bool)
+        _numba.over_any(stack, np.array([float(thr[k]) for k in err]), np.array([UNITS.get(k) == "frac" for k in err]), out)
+        return out
     bad = np.zeros(next(iter(err.values())).shape, bool)
     for k, e in err.items():
         with np.errstate(invalid="ignore"):
@@ -818,11 +846,7 @@ def compare_view(
     flat = lambda t: None if t is None else {k: (a.reshape(H * W, *a.shape[2:]) if isinstance(a, np.ndarray) and a.shape[:2] == (H, W) else a)
                                              for k, a in t.items()}  # noqa: E731
     ds = {k: (None if a is None else np.asarray(a).reshape(H * W, *np.asarray(a).shape[2:])) for k, a in data.items()}
-    ds["depth"] = ds["depth"].astype(np.float64)
-    for k in ("flow_fwd", "flow_bwd", "scene_flow", "disparity_change"):
-        if ds.get(k) is not None:
-            ds[k] = ds[k].astype(np.float64)
-    st, fw, bw = flat(tr), flat(fwd), flat(bwd)
+    st, fw, bw = flat(tr), flat(fwd), flat(bwd)  # the dataset's arrays stay as stored: the kernels compute in float64
     err = _errors(ds, slice(None), st, fw, bw, ids, thr, classes)  # every pixel (views of the arrays, no gathers)
     kind = np.zeros(H * W, np.int8)  # ties of every key at a pixel (edge, surface): 0 none, else 1 + index in TIE_KINDS
     own: dict[str, list] = {}  # ties of one key: key -> [(pixels, kind)]
@@ -855,8 +879,7 @@ def compare_view(
         own["mixed"] = [(np.flatnonzero(tied), 1 + TIE_KINDS.index("mixed"))]
     ties = kind > 0  # pixels whose errors are another surface's
     inst_tr = ids[st["mesh"]]
-    d_ds = ds["depth"]
-    fg_ds = np.isfinite(d_ds) & (d_ds < BACKGROUND_DEPTH)
+    fg_ds = err.fg_ds  # the dataset sees a surface
     # The class of a pixel is the dataset's instance where it shows a labelled surface, else the trace's.
     inst_ds = ds["instance"] if ds.get("instance") is not None else inst_tr
     inst_any = np.where(fg_ds & (inst_ds > 0), inst_ds, inst_tr)
@@ -884,11 +907,13 @@ def compare_view(
     grouped = np.empty(H * W)
     for key, e in err.items():  # one compiled pass per key for every label's row
         rate = UNITS.get(key) == "frac"
-        kk = kind.copy() if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
-        for pix, k in own.get(key, []):
-            kk[pix[kk[pix] == 0]] = k
+        kk = kind if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
+        if any(len(pix) for pix, _ in own.get(key, [])):
+            kk = kk.copy()
+            for pix, k in own.get(key, []):
+                kk[pix[kk[pix] == 0]] = k
         count, over, worst, top, total, kinds = _numba.label_stats(
-            np.ascontiguousarray(e, np.float64), code, kk.astype(np.int64), n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, grouped)
+            np.ascontiguousarray(e, np.float64), code, kk, n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, grouped)
         offset = np.r_[0, np.cumsum(count[:n_labels])]
         for c in [-1] + np.flatnonzero(count[:n_labels]).tolist():
             r = n_labels if c < 0 else c
@@ -904,8 +929,7 @@ def compare_view(
                 rows.append(Row(frame, view, key, label, int(count[r]), m, m, m, thr[key], int(over[r]), fg_c, n_ties,
                                 (j % W, j // W, float(top[r])), by_kind))
             else:
-                x = grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]]
-                med, p99 = np.percentile(x, [50, 99])  # one partition for both (the 50th percentile is the median)
+                med, p99 = _percentiles(grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]], (50, 99))
                 rows.append(Row(frame, view, key, label, int(count[r]), float(med), float(p99), float(top[r]),
                                 thr[key], int(over[r]), fg_c, n_ties, (j % W, j // W, float(top[r])), by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
@@ -914,18 +938,49 @@ def compare_view(
     return rows
 
 
-def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
-                    depth_rel: float, flow_px: float) -> np.ndarray:
-    """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
-    the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
-    ``flow``) in forward flow by more than ``flow_px``."""
+RADIX_MIN = 1 << 15  # fewer errors than this in a row: their percentiles by np.partition
+
+
+def _percentiles(x: np.ndarray, q: tuple[float, ...]) -> tuple[float, ...]:
+    """np.percentile(x, q) (its default, linear interpolation between the order statistics around
+    (n - 1) q / 100, by the same arithmetic) of a float64 array without NaN, the order statistics
+    found by radix selection (lfusd.truth._verify_numba.order_stats) instead of a partition of all
+    of x."""
     from . import _verify_numba as _numba
 
-    out = np.zeros(H * W, bool)
+    n = len(x)
+    vi = (n - 1) * (np.asarray(q, np.float64) / 100)
+    lo = np.floor(vi).astype(np.int64)
+    hi = np.minimum(lo + 1, n - 1)
+    ks = np.unique(np.concatenate([lo, hi]))
+    if n < RADIX_MIN:  # a partition of a copy costs less than the radix histogram's 2^16 bins
+        val = np.partition(np.asarray(x, np.float64), ks)[ks]
+    else:
+        val = np.empty(len(ks))
+        _numba.order_stats(np.ascontiguousarray(x, np.float64), ks, val)
+    a, b = val[np.searchsorted(ks, lo)], val[np.searchsorted(ks, hi)]
+    t = vi - lo
+    with np.errstate(invalid="ignore"):  # inf - inf: NaN, as numpy's
+        diff = b - a
+        out = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp
+    return tuple(float(v) for v in out)
+
+
+def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
+                    depth_rel: float, flow_px: float, depth_rel2: float | None = None, flow_px2: float | None = None):
+    """(H*W,) bool: lfusd.truth.visibility's mixed rule on corner hits over the (H+1) x (W+1) grid:
+    the four corners differ in object (-1: a miss), in depth by more than ``depth_rel``, or (with
+    ``flow``) in forward flow by more than ``flow_px``. With ``depth_rel2`` and ``flow_px2``: the
+    decisions under both sets of limits, from one pass."""
+    from . import _verify_numba as _numba
+
+    out, out2 = np.zeros(H * W, bool), np.zeros(H * W, bool)
     f = np.zeros((0, 2)) if flow is None else np.ascontiguousarray(flow, np.float64)
-    _numba.mixed_decision(np.ascontiguousarray(ident, np.int64), np.ascontiguousarray(depth, np.float64), f, flow is not None, H, W,
-                          float(depth_rel), float(flow_px), out)
-    return out
+    two = depth_rel2 is not None
+    _numba.mixed_decisions(np.ascontiguousarray(ident, np.int64), np.ascontiguousarray(depth, np.float64), f, flow is not None, H, W,
+                           float(depth_rel), float(flow_px), out, float(depth_rel2 if two else depth_rel),
+                           float(flow_px2 if two else flow_px), out2)
+    return (out, out2) if two else out
 
 
 def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
@@ -946,8 +1001,8 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
     flow = c["flow"] if carry else None
     lo, hi = MIXED_BAND
-    surely = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi)
-    maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
+    surely, maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
+                                    MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
     # the footprint's edges, from the stage's own triangles: surely crossed (squares shrunk by the
     # float bound, nearly edge-on triangles no silhouette), or maybe (grown, edge-on either side)
     T, mesh, table = ctx["s0"].edges()
@@ -1012,7 +1067,8 @@ def _bias_rows(ds: dict, st: dict, tr: dict | None, inst: np.ndarray, ids: np.nd
     n = np.zeros(n_obj, np.int64)
     for key in keys:  # one compiled pass per key: per object, the sum of the differences
         trace_key = "flow" if key.startswith("flow") else key
-        a, b = np.asarray(ds[key], np.float64), np.asarray(tr[trace_key], np.float64)
+        a, b = np.asarray(ds[key]), np.asarray(tr[trace_key], np.float64)
+        a = a if a.dtype == np.float32 else a.astype(np.float64)  # float32 as stored (the kernel subtracts in float64)
         a, b = a.reshape(len(a), -1), b.reshape(len(b), -1)
         sums, n, broken = np.zeros((n_obj, a.shape[1])), np.zeros(n_obj, np.int64), np.zeros(n_obj, bool)
         _numba.object_sums(ok, np.ascontiguousarray(inst, np.int64), np.ascontiguousarray(a), np.ascontiguousarray(b), n_obj, sums,
