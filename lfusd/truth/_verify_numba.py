@@ -111,40 +111,15 @@ def carry(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, pos1, valid, u1, v1, z
 
 @njit(cache=True, error_model="numpy")
 def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):  # pragma: no cover - compiled
-    """verify._mixed_decision's rule per pixel (see there) on the (H+1) x (W+1) corner grid."""
-    wc = W + 1
-    for y in range(H):
-        for x in range(W):
-            c0 = y * wc + x
-            cs = (c0, c0 + 1, c0 + wc, c0 + wc + 1)
-            i0 = ident[c0]
-            res = False
-            for c in cs:
-                if ident[c] != i0:
-                    res = True
-            if not res:
-                lo, hi, fin = np.inf, -np.inf, True
-                for c in cs:
-                    z = depth[c]
-                    if not np.isfinite(z):
-                        fin = False
-                    lo, hi = min(lo, z), max(hi, z)
-                if fin and hi - lo > depth_rel * lo:
-                    res = True
-            if not res and use_flow and i0 >= 0:
-                for a in range(4):
-                    for b in range(a + 1, 4):
-                        gx = flow[cs[a], 0] - flow[cs[b], 0]
-                        gy = flow[cs[a], 1] - flow[cs[b], 1]
-                        if np.sqrt(gx * gx + gy * gy) > flow_px:  # NaN (unknown motion) counts as none
-                            res = True
-            out[y * W + x] = res
+    """verify._mixed_decision's rule per pixel (see there) on the (H+1) x (W+1) corner grid: :func:`mixed_decisions` with one
+    set of limits."""
+    mixed_decisions(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out, depth_rel, flow_px, np.empty_like(out))
 
 
 @njit(cache=True, error_model="numpy")
 def mixed_decisions(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out, depth_rel2, flow_px2, out2):  # pragma: no cover - compiled
-    """:func:`mixed_decision` decided in the same pass with two sets of limits (depth_rel, flow_px into ``out``; depth_rel2, flow_px2
-    into ``out2``)."""
+    """verify._mixed_decision's rule per pixel (see there) on the (H+1) x (W+1) corner grid, decided in the same pass with two sets
+    of limits (depth_rel, flow_px into ``out``; depth_rel2, flow_px2 into ``out2``)."""
     wc = W + 1
     for y in range(H):
         for x in range(W):
