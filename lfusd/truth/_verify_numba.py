@@ -12,37 +12,42 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
+def _hit(i, m, ox, oy, oz, d, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
+    """Ray i from (ox, oy, oz) on triangle tri[i] of mesh m: planar depth, hit point, unit normal facing the origin and
+    barycentric (b1, b2), in float64."""
+    k = toff[m] + tri[i]
+    a, b, c = T[k, 0], T[k, 1], T[k, 2]
+    e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+    e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+    dn = dx * nx + dy * ny + dz * nz
+    t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    wx, wy, wz = px - V[a, 0], py - V[a, 1], pz - V[a, 2]
+    d00 = e1x * e1x + e1y * e1y + e1z * e1z
+    d01 = e1x * e2x + e1y * e2y + e1z * e2z
+    d11 = e2x * e2x + e2y * e2y + e2z * e2z
+    d20 = wx * e1x + wy * e1y + wz * e1z
+    d21 = wx * e2x + wy * e2y + wz * e2z
+    den = d00 * d11 - d01 * d01
+    depth[i] = t
+    pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+    bary[i, 0] = (d11 * d20 - d01 * d21) / den
+    bary[i, 1] = (d00 * d21 - d01 * d20) / den
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    s = -1.0 if dn > 0 else 1.0  # the side the camera sees
+    normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+
+
+@njit(cache=True, error_model="numpy")
 def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
     """Per ray i with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
     barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64 (per-ray origins o (N, 3); :func:`surface_from`: one origin)."""
     for i in range(mesh.size):
         m = mesh[i]
-        if m < 0:
-            continue
-        k = toff[m] + tri[i]
-        a, b, c = T[k, 0], T[k, 1], T[k, 2]
-        e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
-        e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
-        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
-        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        dn = dx * nx + dy * ny + dz * nz
-        t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
-        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        wx, wy, wz = px - V[a, 0], py - V[a, 1], pz - V[a, 2]
-        d00 = e1x * e1x + e1y * e1y + e1z * e1z
-        d01 = e1x * e2x + e1y * e2y + e1z * e2z
-        d11 = e2x * e2x + e2y * e2y + e2z * e2z
-        d20 = wx * e1x + wy * e1y + wz * e1z
-        d21 = wx * e2x + wy * e2y + wz * e2z
-        den = d00 * d11 - d01 * d01
-        depth[i] = t
-        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-        bary[i, 0] = (d11 * d20 - d01 * d21) / den
-        bary[i, 1] = (d00 * d21 - d01 * d20) / den
-        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
-        s = -1.0 if dn > 0 else 1.0  # the side the camera sees
-        normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+        if m >= 0:
+            _hit(i, m, o[i, 0], o[i, 1], o[i, 2], d, tri, V, T, toff, depth, pos, normal, bary)
 
 
 @njit(cache=True, error_model="numpy")
@@ -58,31 +63,8 @@ def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # prag
                 pos[i, j] = np.nan
                 normal[i, j] = np.nan
             bary[i, 0], bary[i, 1] = 0.0, 0.0
-            continue
-        k = toff[m] + tri[i]
-        a, b, c = T[k, 0], T[k, 1], T[k, 2]
-        e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
-        e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
-        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        ox, oy, oz = o[0], o[1], o[2]
-        dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-        dn = dx * nx + dy * ny + dz * nz
-        t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
-        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-        wx, wy, wz = px - V[a, 0], py - V[a, 1], pz - V[a, 2]
-        d00 = e1x * e1x + e1y * e1y + e1z * e1z
-        d01 = e1x * e2x + e1y * e2y + e1z * e2z
-        d11 = e2x * e2x + e2y * e2y + e2z * e2z
-        d20 = wx * e1x + wy * e1y + wz * e1z
-        d21 = wx * e2x + wy * e2y + wz * e2z
-        den = d00 * d11 - d01 * d01
-        depth[i] = t
-        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-        bary[i, 0] = (d11 * d20 - d01 * d21) / den
-        bary[i, 1] = (d00 * d21 - d01 * d20) / den
-        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
-        s = -1.0 if dn > 0 else 1.0  # the side the camera sees
-        normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+        else:
+            _hit(i, m, o[0], o[1], o[2], d, tri, V, T, toff, depth, pos, normal, bary)
 
 
 @njit(cache=True, error_model="numpy")
