@@ -100,23 +100,6 @@ def clips(data, frames, crop, random_crop, rig=None):
     return LightFieldVideoDataset(data, keys=KEYS, views="all", frames=frames, clip=2, crop=crop, random_crop=random_crop, rig=rig)
 
 
-def training_source(cache, ds, data):
-    """What the training samples are read from: the training cache of the dataset when given (its
-    rig and the motion keys checked), else the dataset folder."""
-    if not cache:
-        return data
-    from lfusd.data.cache import TrainingCache
-
-    c = TrainingCache(cache)
-    missing = [k for k in KEYS if k not in c.keys]
-    if missing:
-        raise LfusdError(f"the training cache {cache} lacks {', '.join(missing)}; make it with 'lfusd export cache {data} {cache}' (all keys)")
-    a, b = c.rig, ds.rig
-    if (a.rows, a.cols, a.width, a.height) != (b.rows, b.cols, b.width, b.height) or c.rig_name != getattr(ds, "rig_name", b.name):
-        raise LfusdError(f"the training cache {cache} holds rig {c.rig_name} ({a.rows}x{a.cols} at {a.width}x{a.height}), not the dataset's; make it from {data}")
-    return c
-
-
 def centre_index(item_views, centre) -> int:
     return [tuple(v) for v in item_views.tolist()].index(tuple(centre))
 
@@ -214,7 +197,8 @@ def main(argv=None) -> int:
         caches = config.get("caches") or [None] * len(scenes)
         sources = [training.scene_source(sc, Path(c) if c else None, open_dataset(sc, a.rig), KEYS) for sc, c in zip(scenes, caches)]
     else:
-        sources = [training_source(a.cache or config.get("cache"), ds, data)]
+        cache = a.cache or config.get("cache")
+        sources = [training.scene_source(Path(data), Path(cache) if cache else None, ds, KEYS)]
         config["cache"] = a.cache or config.get("cache")
     train = Samples([clips(src, config["train_frames"], crop, True, a.rig) for src in sources], a.seed, augment, shift)
     model = build(config).to(device)

@@ -213,7 +213,8 @@ def scene_source(folder: Path, cache: Path | None, ds, keys):
         raise LfusdError(f"{cache} is no training cache; {make}")
     c = TrainingCache(cache)
     a, b = c.rig, ds.rig
-    if any(k not in c.keys for k in keys) or (a.rows, a.cols, a.width, a.height) != (b.rows, b.cols, b.width, b.height) or list(c.frames) != list(ds.frames):
+    same_rig = (a.rows, a.cols, a.width, a.height) == (b.rows, b.cols, b.width, b.height) and c.rig_name == getattr(ds, "rig_name", b.name)
+    if any(k not in c.keys for k in keys) or not same_rig or list(c.frames) != list(ds.frames):
         raise LfusdError(f"the training cache {cache} is not one of {folder} with {', '.join(keys)}; {make}")
     return c
 

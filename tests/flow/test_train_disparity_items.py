@@ -71,5 +71,9 @@ def test_a_cache_of_another_scene_is_refused(tmp_path):
     with pytest.raises(LfusdError, match="is not one of .* make it with .lfusd export cache") as e:
         train_disparity.scene_source(tmp_path / "scene", tmp_path / "c", FakeDataset(rows=5, cols=5, width=24, height=20, frames=(1, 2)))
     assert "\n" not in str(e.value)
+    other = FakeDataset(rows=3, cols=3, width=24, height=20, frames=(1, 2))
+    other.rig_name = "rig_01"  # the same shape, another rig of the scene
+    with pytest.raises(LfusdError, match="is not one of"):
+        train_disparity.scene_source(tmp_path / "scene", tmp_path / "c", other)
     got = train_disparity.scene_source(tmp_path / "scene", tmp_path / "c", FakeDataset(rows=3, cols=3, width=24, height=20, frames=(1, 2)))
     assert got.rig.rows == 3
