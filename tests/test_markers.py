@@ -151,4 +151,26 @@ def test_every_test_that_starts_ray_is_in_the_ray_group():
     assert not misplaced, f"start Ray outside the ray group (tests/support/markers.py RAY_FILES / RAY_TESTS): {misplaced}"
     faults = TESTS / "test_faults.py"
     assert xdist_group(SimpleNamespace(path=faults, name="test_sigterm_stops_the_workers_and_exits_143",
-                                       originalname="test_sigterm_stops_the_workers_and_exits_143")) == str(faults)
+                                       originalname="test_sigterm_stops_the_workers_and_exits_143")) == "test_faults.py"
+
+
+def test_loadgroup_keeps_each_files_tests_on_one_worker(tmp_path):
+    """Under ``-n 2 --dist loadgroup`` the tests of one file run on one worker (so that a module
+    fixture renders once): with pytest 9 and xdist 3.8 they did not, until markers.py gave each
+    node id its group itself."""
+
+    (tmp_path / "conftest.py").write_text(
+        f"import sys\nsys.path.insert(0, {str(TESTS)!r})\n"
+        "from support.markers import pytest_collection_modifyitems, pytest_configure  # noqa: F401\n")
+    for name in ("a", "b"):
+        (tmp_path / f"test_{name}.py").write_text(
+            "import os, time, pytest\n"
+            "@pytest.mark.parametrize('k', range(6))\n"
+            f"def test_one(k):\n    time.sleep(0.05)\n"
+            f"    with open({str(tmp_path / name)!r} + os.environ['PYTEST_XDIST_WORKER'], 'a') as f:\n        f.write('x')\n")
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-n", "2", "--dist", "loadgroup", "-p", "no:cacheprovider",
+                           "-p", "no:randomly", str(tmp_path)], cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    for name in ("a", "b"):
+        ran = {p.name: len(p.read_text()) for p in tmp_path.glob(f"{name}gw*")}
+        assert len(ran) == 1 and sum(ran.values()) == 6, (name, ran)

@@ -92,6 +92,23 @@ def pytest_collection_modifyitems(config, items) -> None:
             item.add_marker(pytest.mark.timeout(LONG_TIMEOUT))
         if not item.get_closest_marker("xdist_group"):
             item.add_marker(pytest.mark.xdist_group(xdist_group(item)))
+    if getattr(config.option, "loadgroup", False):
+        for item in items:
+            _suffix_group(item)
+
+
+def _suffix_group(item) -> None:
+    """Append ``@group`` to the node id in an xdist worker, as xdist's own hook means to: xdist 3.8
+    sets ``item._nodeid``, which pytest 9 no longer reads (its node id is ``item._id``), so under
+    pytest 9 no test had its group and ``--dist loadgroup`` spread every file over both workers
+    (module fixtures rendered twice, Ray tests side by side). A suffix already there is kept."""
+    try:
+        from _pytest.nodeid import NodeId
+    except ImportError:  # pytest 8: xdist's suffix works
+        return
+    if not isinstance(getattr(item, "_id", None), NodeId) or "@" in item.nodeid.rpartition("]")[2]:
+        return
+    item._id = NodeId.parse(f"{item.nodeid}@{_group_name(item)}")
 
 
 class _Order:
@@ -147,12 +164,21 @@ RAY_FILES = frozenset({"test_ray_shutdown.py", "test_ray_cluster.py", "test_ray_
 RAY_TESTS = frozenset({("test_faults.py", "test_ctrl_c_under_ray_exits_130_and_leaves_no_ray_or_blender_process")})
 
 
+TESTS = Path(__file__).resolve().parents[1]
+
+
 def xdist_group(item) -> str:
     """The group whose tests one xdist worker runs in order (``--dist loadgroup``): the test's
-    file, so that its module fixtures render once, or ``ray`` for :data:`RAY_FILES` and :data:`RAY_TESTS`."""
+    file (relative to tests/), so that its module fixtures render once; ``ray`` for :data:`RAY_FILES`
+    and :data:`RAY_TESTS`; ``bench`` for tests/bench/."""
     name = item.path.name
     test = getattr(item, "originalname", None) or item.name
-    return "ray" if name in RAY_FILES or (name, test) in RAY_TESTS else str(item.path)
+    if name in RAY_FILES or (name, test) in RAY_TESTS:
+        return "ray"
+    if item.path.parent.name == "bench":
+        return "bench"  # its files share the session fixture tiny_bench (`lfusd bench make tiny`, about 30 s)
+    path = Path(item.path)
+    return str(path.relative_to(TESTS)) if path.is_relative_to(TESTS) else str(path)
 
 
 # Rough seconds of one test on a busy 2-core machine, by marker: a plain test, one that starts
