@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, Vt
 
 from ..labels import set_class_label
 from ..stage import round_values
@@ -391,16 +391,17 @@ class Builder:
         opacity = finish["opacity"] if opacity is None else opacity
         m = UsdGeom.Mesh.Define(self.stage, path)
         pts = np.asarray(data.points, float)
-        m.CreatePointsAttr([Gf.Vec3f(*p) for p in pts.tolist()])
-        m.CreateFaceVertexCountsAttr([int(c) for c in data.counts])
-        m.CreateFaceVertexIndicesAttr([int(i) for i in data.indices])
+        # whole arrays through Vt (float64 -> float32 rounds to nearest, as Gf.Vec3f(*p) did per point)
+        m.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        m.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.asarray(data.counts, np.int32)))
+        m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(data.indices, np.int32)))
         m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         m.CreateExtentAttr([Gf.Vec3f(*pts.min(0).tolist()), Gf.Vec3f(*pts.max(0).tolist())])
         normals = round_values(crease_normals(pts, data.counts, data.indices), 4)  # 4 places: short files, 1e-4 rad
-        m.CreateNormalsAttr([Gf.Vec3f(*n) for n in normals.tolist()])
+        m.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(normals, np.float64).astype(np.float32)))
         m.SetNormalsInterpolation(UsdGeom.Tokens.faceVarying)
         st = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
-        st.Set([Gf.Vec2f(*uv) for uv in np.asarray(data.uvs, float).tolist()])
+        st.Set(Vt.Vec2fArray.FromNumpy(np.asarray(data.uvs, float).astype(np.float32)))
         UsdShade.MaterialBindingAPI.Apply(m.GetPrim()).Bind(self.material(texture, roughness, metallic, opacity))
         return m
 
