@@ -15,13 +15,16 @@ demo: setup
 	@echo "dataset written to $(DEMO_OUT); read it with: from lfusd import Dataset; Dataset('$(DEMO_OUT)')"
 	@$(VENV)/bin/python -c "from lfusd.truth.coverage import report; print(*report('$(DEMO_OUT)'), sep='\n')"
 
+# One OpenBLAS thread per process: the suite runs two workers and their Blender and CLI processes on
+# every core, and NumPy's small linear algebra (4x4 inverses by the thousand) spun a second BLAS
+# thread per process against them (a 4x4 inverse took 1 ms instead of 9 us under that load).
 test: setup
-	$(VENV)/bin/python -m pytest -q -n auto --dist loadgroup
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto --dist loadgroup
 
 # The inner loop: everything that needs neither Blender nor a long run (make test stays the full suite).
 # Deselecting `blender` arms tests/support/markers.py: a test that starts Blender anyway fails.
 test-fast: setup
-	$(VENV)/bin/python -m pytest -q -n auto --dist loadgroup -m "not blender and not slow"
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/python -m pytest -q -n auto --dist loadgroup -m "not blender and not slow"
 
 # ruff with the rule set of pyproject.toml; `make test` runs it too (tests/test_lint.py).
 lint: setup
