@@ -8,7 +8,8 @@ Without ``--dataset``, renders a small dataset of the default scene first (``lfu
 sample, CPU) into a temporary folder. The older verifier is ``lfusd/truth/verify.py`` as committed at
 ``--before`` (``git show REV:lfusd/truth/verify.py``), loaded as a module of this tree's
 ``lfusd.truth`` package: its relative imports resolve to this tree's modules, so the two differ only in
-verify.py itself. Both verify the same frames and views in one process, interleaved (before, after,
+verify.py itself and its compiled kernels (``_verify_numba.py`` at ``--before``, loaded beside this
+tree's when they differ; numba compiles them once, cached in a folder named by their content). Both verify the same frames and views in one process, interleaved (before, after,
 before, ...), each ``--repeat`` times; the best of each is reported.
 
 Prints per verifier: core-seconds per view (process CPU time: every thread of Open3D's ray casts
@@ -24,6 +25,7 @@ the cost of the whole verifier, not of the same work. The issue-37 budget: at mo
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import os
 import subprocess
@@ -35,18 +37,36 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def load_verifier(rev: str):
-    """lfusd/truth/verify.py at git revision ``rev``, as a module inside this tree's lfusd.truth."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/truth/verify.py"], capture_output=True, text=True, check=True).stdout
-    name = f"lfusd.truth._verify_at_{rev.replace('/', '_').replace('-', '_')}"
-    path = Path(tempfile.mkdtemp(prefix="bench_verify_")) / "verify.py"
-    path.write_text(src)
+def _load(name: str, path: Path):
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     mod.__package__ = "lfusd.truth"
     sys.modules[name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def load_verifier(rev: str):
+    """lfusd/truth/verify.py at git revision ``rev``, as a module inside this tree's lfusd.truth; with
+    its own compiled kernels (``_verify_numba.py`` at ``rev``) where they differ from this tree's."""
+    show = lambda f: subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/truth/{f}"], capture_output=True,  # noqa: E731
+                                    text=True, check=True).stdout
+    src = show("verify.py")
+    tag = rev.replace('/', '_').replace('-', '_')
+    kernels = show("_verify_numba.py")
+    if kernels != (ROOT / "lfusd" / "truth" / "_verify_numba.py").read_text():
+        # a folder named by the kernels' content: numba's cache there (next to the file) outlives the run
+        folder = Path(tempfile.gettempdir()) / f"bench_verify_kernels_{hashlib.sha1(kernels.encode()).hexdigest()[:12]}"
+        folder.mkdir(exist_ok=True)
+        kpath = folder / "_verify_numba.py"
+        if not kpath.is_file() or kpath.read_text() != kernels:
+            kpath.write_text(kernels)
+        _load(f"lfusd.truth._verify_numba_at_{tag}", kpath)
+        src = src.replace("from . import _verify_numba as _numba", f"from . import _verify_numba_at_{tag} as _numba")
+    name = f"lfusd.truth._verify_at_{tag}"
+    path = Path(tempfile.mkdtemp(prefix="bench_verify_")) / "verify.py"
+    path.write_text(src)
+    return _load(name, path)
 
 
 def render(stage: str, rig: str, frames: str, resolution: str, out: Path) -> None:

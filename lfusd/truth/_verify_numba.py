@@ -12,15 +12,14 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
-def _hit(i, m, ox, oy, oz, d, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
-    """Ray i from (ox, oy, oz) on triangle tri[i] of mesh m: planar depth, hit point, unit normal facing the origin and
-    barycentric (b1, b2), in float64."""
-    k = toff[m] + tri[i]
+def _hit(m, k0, ox, oy, oz, dx, dy, dz, V, T, toff):  # pragma: no cover - compiled
+    """The ray from (ox, oy, oz) along (dx, dy, dz) on triangle k0 of mesh m (row toff[m] + k0 of T), in float64:
+    (ray parameter t, hit point, barycentric b1, b2, unit normal facing the origin)."""
+    k = toff[m] + k0
     a, b, c = T[k, 0], T[k, 1], T[k, 2]
     e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
     e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
     nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
     dn = dx * nx + dy * ny + dz * nz
     t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
@@ -31,30 +30,50 @@ def _hit(i, m, ox, oy, oz, d, tri, V, T, toff, depth, pos, normal, bary):  # pra
     d20 = wx * e1x + wy * e1y + wz * e1z
     d21 = wx * e2x + wy * e2y + wz * e2z
     den = d00 * d11 - d01 * d01
-    depth[i] = t
-    pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-    bary[i, 0] = (d11 * d20 - d01 * d21) / den
-    bary[i, 1] = (d00 * d21 - d01 * d20) / den
+    b1 = (d11 * d20 - d01 * d21) / den
+    b2 = (d00 * d21 - d01 * d20) / den
     ln = np.sqrt(nx * nx + ny * ny + nz * nz)
     s = -1.0 if dn > 0 else 1.0  # the side the camera sees
-    normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+    return t, px, py, pz, b1, b2, s * nx / ln, s * ny / ln, s * nz / ln
 
 
 @njit(cache=True, error_model="numpy")
-def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
-    """Per ray i with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
-    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64 (per-ray origins o (N, 3); :func:`surface_from`: one origin)."""
-    for i in range(mesh.size):
-        m = mesh[i]
-        if m >= 0:
-            _hit(i, m, o[i, 0], o[i, 1], o[i, 2], d, tri, V, T, toff, depth, pos, normal, bary)
+def _carry(m, k0, b1, b2, V1, T1, toff1, M, R2, C):  # pragma: no cover - compiled
+    """The point of barycentric (b1, b2) on triangle k0 of mesh m at the other time, and its projection
+    (u1, v1, planar depth z1) in the camera of centre C, M = K @ R, R2 its world-to-camera rotation's third
+    row (as lfusd.camera.project: the centre subtracted first)."""
+    k = toff1[m] + k0
+    b0 = 1 - b1 - b2
+    a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
+    qx = b0 * V1[a, 0] + b1 * V1[b, 0] + b2 * V1[c, 0]
+    qy = b0 * V1[a, 1] + b1 * V1[b, 1] + b2 * V1[c, 1]
+    qz = b0 * V1[a, 2] + b1 * V1[b, 2] + b2 * V1[c, 2]
+    dx, dy, dz = qx - C[0], qy - C[1], qz - C[2]
+    x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+    x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+    x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+    return qx, qy, qz, x0 / x2, x1 / x2, dx * R2[0] + dy * R2[1] + dz * R2[2]
 
 
 @njit(cache=True, error_model="numpy")
-def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
+def resolve_hits(t, gid, prim, lut, mesh, tri):  # pragma: no cover - compiled
+    """Open3D's cast answer (t_hit float32, geometry and primitive ids uint32) as verify's mesh index
+    (``lut[gid]``; -1 where the ray hit nothing or the geometry is unknown) and triangle id per ray."""
+    n_lut = lut.size
+    for i in range(t.size):
+        g = np.int64(gid[i])
+        m = lut[g] if np.isfinite(t[i]) and g < n_lut else -1
+        mesh[i] = m
+        tri[i] = np.int64(prim[i]) if m >= 0 else 0
+
+
+@njit(cache=True, error_model="numpy")
+def surface_from(o, d, u, v, A, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
     """Per ray i from the point o (3,) with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
     barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64; a
-    ray that hit nothing gets depth inf, NaN point and normal, barycentric 0."""
+    ray that hit nothing gets depth inf, NaN point and normal, barycentric 0. The ray's direction is
+    d[i] (N, 3), or when d is empty the pinhole's A (u[i], v[i], 1) (:func:`rays_through`'s)."""
+    given = d.shape[0] > 0
     for i in range(mesh.size):
         m = mesh[i]
         if m < 0:
@@ -63,39 +82,40 @@ def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # prag
                 pos[i, j] = np.nan
                 normal[i, j] = np.nan
             bary[i, 0], bary[i, 1] = 0.0, 0.0
+            continue
+        if given:
+            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         else:
-            _hit(i, m, o[0], o[1], o[2], d, tri, V, T, toff, depth, pos, normal, bary)
+            dx = A[0, 0] * u[i] + A[0, 1] * v[i] + A[0, 2]
+            dy = A[1, 0] * u[i] + A[1, 1] * v[i] + A[1, 2]
+            dz = A[2, 0] * u[i] + A[2, 1] * v[i] + A[2, 2]
+        t, px, py, pz, b1, b2, nx, ny, nz = _hit(m, tri[i], o[0], o[1], o[2], dx, dy, dz, V, T, toff)
+        depth[i] = t
+        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+        bary[i, 0], bary[i, 1] = b1, b2
+        normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
 
 
 @njit(cache=True, error_model="numpy")
-def carry(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, pos1, valid, u1, v1, z1):  # pragma: no cover - compiled
-    """Per ray whose mesh keeps its topology (same[mesh]): the point of the same barycentric
-    coordinates on the same triangle at the other time, and its projection (u1, v1, planar depth
-    z1) in the camera of centre C, M = K @ R and R2 its world-to-camera rotation's third row (as
-    lfusd.camera.project: the centre subtracted first)."""
+def corner_motion(u, v, A, o, mesh, tri, V, T, toff, same, V1, T1, toff1, M, R2, C, carry, depth, flow):  # pragma: no cover - compiled
+    """What the mixed rule reads at rays through (u, v) (pinhole directions A (u, v, 1) from o):
+    :func:`surface_from`'s depth (inf where nothing is hit) and, with ``carry``, :func:`carry_motion`'s
+    flow (NaN where the motion is not known), by the same arithmetic, without the other values."""
     for i in range(mesh.size):
         m = mesh[i]
-        if m < 0 or not same[m]:
+        if carry:
+            flow[i, 0], flow[i, 1] = np.nan, np.nan
+        if m < 0:
+            depth[i] = np.inf
             continue
-        k = toff1[m] + tri[i]
-        b1, b2 = bary[i, 0], bary[i, 1]
-        b0 = 1 - b1 - b2
-        a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
-        for j in range(3):
-            pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
-        valid[i] = True
-        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
-        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
-        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
-        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
-        u1[i], v1[i] = x0 / x2, x1 / x2
-        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
-
-@njit(cache=True, error_model="numpy")
-def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):  # pragma: no cover - compiled
-    """verify._mixed_decision's rule per pixel (see there) on the (H+1) x (W+1) corner grid: :func:`mixed_decisions` with one
-    set of limits."""
-    mixed_decisions(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out, depth_rel, flow_px, np.empty_like(out))
+        dx = A[0, 0] * u[i] + A[0, 1] * v[i] + A[0, 2]
+        dy = A[1, 0] * u[i] + A[1, 1] * v[i] + A[1, 2]
+        dz = A[2, 0] * u[i] + A[2, 1] * v[i] + A[2, 2]
+        t, px, py, pz, b1, b2, nx, ny, nz = _hit(m, tri[i], o[0], o[1], o[2], dx, dy, dz, V, T, toff)
+        depth[i] = t
+        if carry and same[m]:
+            qx, qy, qz, u1, v1, z1 = _carry(m, tri[i], b1, b2, V1, T1, toff1, M, R2, C)
+            flow[i, 0], flow[i, 1] = u1 - u[i], v1 - v[i]
 
 
 @njit(cache=True, error_model="numpy")
@@ -235,19 +255,15 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # prag
 
 @njit(cache=True, error_model="numpy")
 def rays_through(u, v, A, C):  # pragma: no cover - compiled
-    """The rays from the camera centre C through pixel coordinates (u, v): directions A (u, v, 1)
-    (camera-frame z = 1, float64, (N, 3)) and the same rays as Open3D takes them ((N, 6) float32:
-    origin, direction)."""
+    """The rays from the camera centre C through pixel coordinates (u, v), directions A (u, v, 1)
+    (camera-frame z = 1), as Open3D takes them ((N, 6) float32: origin, direction)."""
     n = u.size
-    d = np.empty((n, 3))
     rays = np.empty((n, 6), np.float32)
     for i in range(n):
         for k in range(3):
-            x = A[k, 0] * u[i] + A[k, 1] * v[i] + A[k, 2]
-            d[i, k] = x
             rays[i, k] = C[k]
-            rays[i, 3 + k] = x
-    return d, rays
+            rays[i, 3 + k] = A[k, 0] * u[i] + A[k, 1] * v[i] + A[k, 2]
+    return rays
 
 
 @njit(cache=True, error_model="numpy")
@@ -361,7 +377,7 @@ def over_any(E, limits, rate, out):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def carry_motion(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, u, v, pos, depth, fb, static, toff0,
                  pos1, valid, u1, v1, z1, flow, sflow, dchange, still):  # pragma: no cover - compiled
-    """:func:`carry` at every ray (NaN, invalid where the motion is not known) and in the same pass
+    """:func:`_carry` at every ray (NaN, invalid where the motion is not known) and in the same pass
     what verify derives from it: flow (u1 - u, v1 - v), scene flow (pos1 - pos), disparity change
     (fb / z1 - fb / depth; fb = f * baseline, NaN without one) and, where ``static`` is not empty
     (per row of T at t, toff0 its mesh offsets), whether the first hit lies on a triangle that stands
@@ -379,20 +395,12 @@ def carry_motion(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, u, v, pos, dept
             flow[i, 0], flow[i, 1] = np.nan, np.nan
             dchange[i] = np.nan
             continue
-        k = toff1[m] + tri[i]
-        b1, b2 = bary[i, 0], bary[i, 1]
-        b0 = 1 - b1 - b2
-        a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
+        q = _carry(m, tri[i], bary[i, 0], bary[i, 1], V1, T1, toff1, M, R2, C)
         for j in range(3):
-            pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
-            sflow[i, j] = pos1[i, j] - pos[i, j]
+            pos1[i, j] = q[j]
+            sflow[i, j] = q[j] - pos[i, j]
         valid[i] = True
-        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
-        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
-        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
-        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
-        u1[i], v1[i] = x0 / x2, x1 / x2
-        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
+        u1[i], v1[i], z1[i] = q[3], q[4], q[5]
         flow[i, 0], flow[i, 1] = u1[i] - u[i], v1[i] - v[i]
         dchange[i] = fb / z1[i] - fb / depth[i]
 

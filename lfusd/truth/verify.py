@@ -194,11 +194,12 @@ class TracedScene:
         """:meth:`cast` of rays as Open3D takes them ((N, 6) float32: origin, direction)."""
         import open3d as o3d
 
+        from . import _verify_numba as _numba
+
         ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else o3d.core.Tensor(rays))
         t = ans["t_hit"].numpy()
-        gid = ans["geometry_ids"].numpy().astype(np.int64)
-        prim = ans["primitive_ids"].numpy().astype(np.int64)
-        mesh = np.where(np.isfinite(t), self._mesh_of(gid), -1)
+        mesh, prim = np.empty(len(t), np.int64), np.empty(len(t), np.int64)
+        _numba.resolve_hits(t, ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy(), self.lut, mesh, prim)
         return t, mesh, prim
 
 
@@ -288,22 +289,24 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), repr(ctx.get("dist")))
     lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
     if key is not None and s0._surface is not None and s0._surface[0] == key:
-        o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
+        o, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
         o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)  # every ray's origin: the camera centre
+        A = _pixel_to_world(ctx)
         if lens:  # the lens's ray through each pixel (camera-z component 1)
-            d = ray_directions(u, v, _camera(ctx))
+            d = np.ascontiguousarray(ray_directions(u, v, _camera(ctx)), np.float64)
             mesh, tri = s0.cast(np.broadcast_to(o, (n, 3)), d)[1:] if hits is None else hits
         else:
-            # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole), in one pass
-            d, rays = _numba.rays_through(u, v, Camera(K, ctx["c2w"])._pixel_to_world(np.float64), o)
-            mesh, tri = s0.cast_rays(rays)[1:] if hits is None else hits
+            # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole): A (u, v, 1),
+            # computed again where needed rather than stored
+            d = np.zeros((0, 3))
+            mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth, pos, normal, bary = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
-        _numba.surface_from(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
+        _numba.surface_from(o, d, u, v, A, mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
         g = np.flatnonzero(mesh >= 0)
         if key is not None:
-            s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
+            s0._surface = (key, (o, mesh, tri, depth, pos, normal, bary, g))
     cam1 = _camera(ctx, 1)
     R, C = cam1.world_to_cam()
     baseline = ctx["baseline"]
@@ -353,6 +356,32 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     }
 
 
+def _pixel_to_world(ctx: dict) -> np.ndarray:
+    """(3, 3) float64 A of the traced view's pinhole at t: the ray direction through pixel (u, v) is A (u, v, 1)."""
+    return np.ascontiguousarray(Camera(ctx["K"], ctx["c2w"])._pixel_to_world(np.float64), np.float64)
+
+
+def _corners(ctx: dict, u: np.ndarray, v: np.ndarray, carry: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """What the ``mixed`` rule reads at rays through (u, v): :func:`trace_pixels`' mesh, depth and (with
+    ``carry``) flow, computed alone (no hit point, normal, scene flow or visibility kept)."""
+    from . import _verify_numba as _numba
+
+    if ctx.get("dist") is not None and not ctx["dist"].is_identity:  # through a lens: the full trace
+        c = trace_pixels(ctx, u, v, visibility=False)
+        return c["mesh"], c["depth"], c["flow"] if carry else None
+    s0, s1, K = ctx["s0"], ctx["s1"], ctx["K"]
+    u, v = np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64)
+    o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)
+    A = _pixel_to_world(ctx)
+    mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:]
+    R, C = _camera(ctx, 1).world_to_cam()
+    depth, flow = np.empty(len(u)), np.empty((len(u) if carry else 0, 2))
+    _numba.corner_motion(u, v, A, o, mesh, tri, s0.V, s0.T, s0.tri_offset, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset,
+                         np.ascontiguousarray(K @ R, np.float64), np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64),
+                         carry, depth, flow)
+    return mesh, depth, flow if carry else None
+
+
 def _camera(ctx: dict, at: int = 0) -> Camera:
     """The traced view's camera at t (``at`` 0) or at the other frame (1), with its lens."""
     return Camera(ctx["K"], ctx["c2w1" if at else "c2w"], ctx.get("dist"))
@@ -368,8 +397,6 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
     that stands still, so no triangle that stands still lies before it: its segment is cast against
     ``moving`` alone (:meth:`TracedScene.moving_scene`; None: nothing moved), and only where one of
     those may lie in front of it; its own surface counts as a hit at 1."""
-    import open3d as o3d
-
     from . import _verify_numba as _numba
 
     u1, v1, z1 = project(points, cam) if uvz is None else uvz
@@ -392,12 +419,30 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
     inside, t_hit, idx, rays, known, krays = _numba.visibility_split(
         f64(points), np.ascontiguousarray(valid, bool), f64(u1), f64(v1), f64(z1),
         np.zeros(0, bool) if still is None else np.ascontiguousarray(still, bool), near, H, W, C1)
+    # what is decided from a first hit: visible (none before 1 - eps) and the occlusion tie band
+    # (one in [1 - 10 eps, 1 - eps / 10], as verify's errors read it): a farther one is not needed
+    upto = max(1 - eps, 1 - VISIBLE_EPS / 10)
     if known.size:
-        t_hit[known] = np.minimum(moving[0].cast_rays(o3d.core.Tensor(krays))["t_hit"].numpy(), 1.0)
+        t_hit[known] = np.minimum(_first_hits(moving[0], krays, upto), 1.0)
     if idx.size:
-        t_hit[idx] = scene.cast_rays(o3d.core.Tensor(rays))[0]
+        t_hit[idx] = _first_hits(scene.scene, rays, upto)
     with np.errstate(invalid="ignore"):
         return inside & (t_hit >= 1 - eps), t_hit
+
+
+def _first_hits(scene, rays: np.ndarray, upto: float) -> np.ndarray:
+    """Per ray ((N, 6) float32, as Open3D takes them) of an Open3D scene: the first hit's ray parameter
+    where one lies at or before ``upto``, else +inf (or a hit just past it). Open3D's occlusion test
+    (any hit up to a limit, cheaper than a cast) picks the rays to cast: a ray has a hit at or before
+    a limit exactly when its first hit is."""
+    import open3d as o3d
+
+    far = np.nextafter(np.float32(upto), np.float32(np.inf))  # float32 at or above upto: no hit at upto is missed
+    t = np.full(len(rays), np.inf, np.float32)
+    sel = np.flatnonzero(scene.test_occlusions(o3d.core.Tensor(rays), tfar=float(far)).numpy())
+    if sel.size:
+        t[sel] = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays[sel])))["t_hit"].numpy()
+    return t
 
 
 # -- comparison ------------------------------------------------------------------------------
@@ -995,13 +1040,12 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     silhouette, depth slack 0.8 times the rule's) and maybe (grown, either side, 1.25 times)."""
     from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
 
-    vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
-    uc, vc = uc.ravel(), vc.ravel()
-    c = trace_pixels(ctx, uc, vc, visibility=False)
-    ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
-    flow = c["flow"] if carry else None
+    uc = np.tile(np.arange(W + 1, dtype=np.float64) - 0.5, H + 1)  # the (H+1) x (W+1) corners, raster order
+    vc = np.repeat(np.arange(H + 1, dtype=np.float64) - 0.5, W + 1)
+    c_mesh, c_depth, flow = _corners(ctx, uc, vc, carry)
+    ident = np.where(c_mesh >= 0, ids[c_mesh], -1)
     lo, hi = MIXED_BAND
-    surely, maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
+    surely, maybe = _mixed_decision(ident, c_depth, flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
                                     MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
     # the footprint's edges, from the stage's own triangles: surely crossed (squares shrunk by the
     # float bound, nearly edge-on triangles no silhouette), or maybe (grown, edge-on either side)
@@ -1012,7 +1056,7 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
 
         cam, inst = Camera(ctx["K"], ctx["c2w"]), ids[mesh]
         for out, grow, strict, rel in ((surely, -TIE_PX, True, MIXED_DEPTH_REL * lo), (maybe, TIE_PX, False, MIXED_DEPTH_REL * hi)):
-            out |= crossed_by_edges(ctx["s0"].V, T, inst, table, cam, c["depth"], H, W, rel, grow=grow, ulps=EDGE_ULPS,
+            out |= crossed_by_edges(ctx["s0"].V, T, inst, table, cam, c_depth, H, W, rel, grow=grow, ulps=EDGE_ULPS,
                                     strict=strict, fpx=float(ctx["K"][0, 0])).ravel()
     got = np.asarray(mixed, bool)
     wrong = (got & ~maybe) | (~got & surely)
@@ -1023,14 +1067,14 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
         a = (bad // W) * wc + bad % W
         corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
         moved = np.zeros(len(uc), bool)
-        z0 = c["depth"][corners]
+        z0 = c_depth[corners]
         for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
-            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)
-            step = np.where(m["mesh"] >= 0, ids[m["mesh"]], -1) != ident[corners]
+            m_mesh, m_depth, m_flow = _corners(ctx, uc[corners] + du, vc[corners] + dv, carry)
+            step = np.where(m_mesh >= 0, ids[m_mesh], -1) != ident[corners]
             with np.errstate(invalid="ignore"):
-                step |= np.abs(m["depth"] - z0) > MIXED_DEPTH_REL * lo * np.fmin(m["depth"], z0)
+                step |= np.abs(m_depth - z0) > MIXED_DEPTH_REL * lo * np.fmin(m_depth, z0)
                 if carry:
-                    step |= np.linalg.norm(m["flow"] - flow[corners], axis=-1) > MIXED_FLOW_PX * lo
+                    step |= np.linalg.norm(m_flow - flow[corners], axis=-1) > MIXED_FLOW_PX * lo
             moved[corners] |= step
         edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
         wrong[bad[edge]] = False
