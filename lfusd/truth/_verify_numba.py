@@ -64,7 +64,7 @@ def resolve_hits(t, gid, prim, lut, mesh, tri):  # pragma: no cover - compiled
         g = np.int64(gid[i])
         m = lut[g] if np.isfinite(t[i]) and g < n_lut else -1
         mesh[i] = m
-        tri[i] = np.int64(prim[i]) if m >= 0 else 0
+        tri[i] = np.int64(prim[i])
 
 
 @njit(cache=True, error_model="numpy")
@@ -212,14 +212,26 @@ def object_sums(ok, obj, a, b, n_obj, sums, count, broken):  # pragma: no cover 
                 broken[o] = True
 
 
+_SIGN = np.uint64(1) << np.uint64(63)
+
+
 @njit(cache=True, error_model="numpy")
-def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # pragma: no cover - compiled
-    """One pass over a key's per-pixel errors ``e`` (NaN: not compared) for verify's rows: per label
-    (``code`` per pixel, 0 .. n_labels-1; row n_labels is every label together) the pixels compared,
-    those over ``limit`` (over 0.5 when ``rate``), the first pixel of the greatest error and that
-    error, the sum of the errors and the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1).
-    Unless ``rate``, ``grouped`` receives the compared errors ordered by label (raster order within
-    one), a label's at its offset (the counts' running sum)."""
+def _ordered(b):  # pragma: no cover - compiled
+    """A float64's bits as an unsigned key in the float's order (negatives reversed below positives)."""
+    return ~b if b & _SIGN else b | _SIGN
+
+
+@njit(cache=True, error_model="numpy")
+def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no cover - compiled
+    """One pass over a key's per-pixel errors ``e`` (float64; NaN: not compared) for verify's rows: per
+    label (``code`` per pixel, 0 .. n_labels-1; row n_labels is every label together) the pixels
+    compared, those over ``limit`` (over 0.5 when ``rate``), the first pixel of the greatest error and
+    that error, the sum of the errors, the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1)
+    and, unless ``rate``, the percentiles ``q`` of the compared errors (np.percentile's default, linear
+    between the order statistics around (n - 1) q / 100, by the same arithmetic; NaN for a row
+    without pixels). The order statistics by radix selection: the same pass histograms the top bits
+    of each error (in float order) per label; a second pass gathers only the buckets that hold the
+    ranks wanted, each then partitioned."""
     rows = n_labels + 1
     count = np.zeros(rows, np.int64)
     over = np.zeros(rows, np.int64)
@@ -227,11 +239,20 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # prag
     top = np.full(rows, -np.inf)
     total = np.zeros(rows)
     kinds = np.zeros((rows, n_kinds), np.int64)
+    nq = q.size
+    pct = np.full((rows, nq), np.nan)
+    bits = 16 if e.size >= 32768 else 4  # a few errors: one partition of (nearly) all of them is cheaper than 2^16 bins
+    shift = np.uint64(64 - bits)
+    nb = 1 << bits
+    hist = np.zeros((0, nb), np.int64) if rate else np.zeros((rows, nb), np.int64)
+    raw = e.view(np.uint64)
     for i in range(e.size):
         x = e[i]
         if x != x:
             continue
         c = code[i]
+        if not rate:
+            hist[c, _ordered(raw[i]) >> shift] += 1
         for r in (c, n_labels):
             count[r] += 1
             total[r] += x
@@ -241,16 +262,70 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # prag
                 top[r] = x
                 worst[r] = i
             kinds[r, kind[i]] += 1
-    if not rate:
-        pos = np.zeros(n_labels, np.int64)
-        for c in range(1, n_labels):
-            pos[c] = pos[c - 1] + count[c - 1]
-        for i in range(e.size):
-            x = e[i]
-            if x == x:
-                grouped[pos[code[i]]] = x
-                pos[code[i]] += 1
-    return count, over, worst, top, total, kinds
+    if rate:
+        return count, over, worst, top, total, kinds, pct
+    for c in range(n_labels):
+        for b in range(nb):
+            hist[n_labels, b] += hist[c, b]
+    # per row the ranks wanted (two per q), the bucket of each and where it starts
+    nk = 2 * nq
+    ks = np.zeros((rows, nk), np.int64)
+    bk = np.full((rows, nk), -1, np.int64)
+    start = np.zeros((rows, nk), np.int64)
+    for r in range(rows):
+        n = count[r]
+        if n == 0:
+            continue
+        for j in range(nq):
+            lo = np.int64(np.floor((n - 1) * (q[j] / 100)))
+            ks[r, 2 * j], ks[r, 2 * j + 1] = lo, min(lo + 1, n - 1)
+        b, below = 0, 0
+        for s in np.argsort(ks[r]):  # one scan of the histogram, the ranks in ascending order
+            while below + hist[r, b] <= ks[r, s]:
+                below += hist[r, b]
+                b += 1
+            bk[r, s], start[r, s] = b, below
+    # one buffer per (row, distinct bucket), held by the first rank in that bucket (owner)
+    owner = np.zeros((rows, nk), np.int64)
+    off = np.full((rows, nk), -1, np.int64)
+    size = 0
+    for r in range(rows):
+        for s in range(nk):
+            f = 0
+            while bk[r, f] != bk[r, s]:
+                f += 1
+            owner[r, s] = f
+            if f == s and bk[r, s] >= 0:
+                off[r, s] = size
+                size += hist[r, bk[r, s]]
+    buf = np.empty(size)
+    fill = off.copy()
+    for i in range(e.size):
+        x = e[i]
+        if x != x:
+            continue
+        b = np.int64(_ordered(raw[i]) >> shift)
+        for r in (code[i], n_labels):
+            for s in range(nk):
+                if off[r, s] >= 0 and bk[r, s] == b:
+                    buf[fill[r, s]] = x
+                    fill[r, s] += 1
+    val = np.zeros(nk)
+    for r in range(rows):
+        n = count[r]
+        if n == 0:
+            continue
+        for s in range(nk):
+            f = owner[r, s]
+            part = np.partition(buf[off[r, f]:off[r, f] + hist[r, bk[r, s]]], ks[r, s] - start[r, s])
+            val[s] = part[ks[r, s] - start[r, s]]
+        for j in range(nq):
+            vi = (n - 1) * (q[j] / 100)
+            t = vi - ks[r, 2 * j]
+            a, b2 = val[2 * j], val[2 * j + 1]
+            diff = b2 - a  # inf - inf: NaN, as numpy's
+            pct[r, j] = b2 - diff * (1 - t) if t >= 0.5 else a + diff * t  # numpy's _lerp
+    return count, over, worst, top, total, kinds, pct
 
 
 @njit(cache=True, error_model="numpy")
@@ -453,47 +528,3 @@ def visibility_split(points, valid, u1, v1, z1, still, near, H, W, C):  # pragma
                 moving_rays[b, 3 + j] = points[i, j] - C[j]
             b += 1
     return inside, t_hit, full_idx, full_rays, moving_idx, moving_rays
-
-
-_SIGN = np.uint64(1) << np.uint64(63)
-_TOP = np.uint64(48)
-
-
-@njit(cache=True, error_model="numpy")
-def _ordered(b):  # pragma: no cover - compiled
-    """A float64's bits as an unsigned key in the float's order (negatives reversed below positives)."""
-    return ~b if b & _SIGN else b | _SIGN
-
-
-@njit(cache=True, error_model="numpy")
-def order_stats(x, ks, out):  # pragma: no cover - compiled
-    """out[j] = the ks[j]-th smallest of x (0-based; x float64 without NaN, ks ascending): what
-    np.partition(x, ks) puts at ks, without reordering x. Radix selection: a histogram of the top
-    16 bits of the keys in float order finds each rank's bucket, whose values alone (usually a few
-    percent of x) are then partitioned."""
-    n = x.size
-    raw = x.view(np.uint64)
-    hist = np.zeros(65536, np.int64)
-    for i in range(n):
-        hist[_ordered(raw[i]) >> _TOP] += 1
-    start = np.zeros(65537, np.int64)
-    for b in range(65536):
-        start[b + 1] = start[b] + hist[b]
-    last = -1
-    buf = np.empty(0)
-    b = 0
-    for j in range(ks.size):
-        k = ks[j]
-        while start[b + 1] <= k:
-            b += 1
-        if b != last:  # gather the bucket's values
-            buf = np.empty(hist[b])
-            p = 0
-            ub = np.uint64(b)
-            for i in range(n):
-                if _ordered(raw[i]) >> _TOP == ub:
-                    buf[p] = x[i]
-                    p += 1
-            last = b
-        r = k - start[b]
-        out[j] = np.partition(buf, r)[r]

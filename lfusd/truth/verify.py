@@ -949,7 +949,7 @@ def compare_view(
     fg_of = np.bincount(code[fg], minlength=n_labels)  # foreground pixels per label
     fg_all = int(fg.sum())
     rows: list[Row] = []
-    grouped = np.empty(H * W)
+    q = np.array([50.0, 99.0])  # each row's median and p99
     for key, e in err.items():  # one compiled pass per key for every label's row
         rate = UNITS.get(key) == "frac"
         kk = kind if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
@@ -957,9 +957,8 @@ def compare_view(
             kk = kk.copy()
             for pix, k in own.get(key, []):
                 kk[pix[kk[pix] == 0]] = k
-        count, over, worst, top, total, kinds = _numba.label_stats(
-            np.ascontiguousarray(e, np.float64), code, kk, n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, grouped)
-        offset = np.r_[0, np.cumsum(count[:n_labels])]
+        count, over, worst, top, total, kinds, pct = _numba.label_stats(
+            np.ascontiguousarray(e, np.float64), code, kk, n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, q)
         for c in [-1] + np.flatnonzero(count[:n_labels]).tolist():
             r = n_labels if c < 0 else c
             label, fg_c = (ALL, fg_all) if c < 0 else (names_[c], int(fg_of[c]))
@@ -974,41 +973,12 @@ def compare_view(
                 rows.append(Row(frame, view, key, label, int(count[r]), m, m, m, thr[key], int(over[r]), fg_c, n_ties,
                                 (j % W, j // W, float(top[r])), by_kind))
             else:
-                med, p99 = _percentiles(grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]], (50, 99))
-                rows.append(Row(frame, view, key, label, int(count[r]), float(med), float(p99), float(top[r]),
+                rows.append(Row(frame, view, key, label, int(count[r]), float(pct[r, 0]), float(pct[r, 1]), float(top[r]),
                                 thr[key], int(over[r]), fg_c, n_ties, (j % W, j // W, float(top[r])), by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
     return rows
-
-
-RADIX_MIN = 1 << 15  # fewer errors than this in a row: their percentiles by np.partition
-
-
-def _percentiles(x: np.ndarray, q: tuple[float, ...]) -> tuple[float, ...]:
-    """np.percentile(x, q) (its default, linear interpolation between the order statistics around
-    (n - 1) q / 100, by the same arithmetic) of a float64 array without NaN, the order statistics
-    found by radix selection (lfusd.truth._verify_numba.order_stats) instead of a partition of all
-    of x."""
-    from . import _verify_numba as _numba
-
-    n = len(x)
-    vi = (n - 1) * (np.asarray(q, np.float64) / 100)
-    lo = np.floor(vi).astype(np.int64)
-    hi = np.minimum(lo + 1, n - 1)
-    ks = np.unique(np.concatenate([lo, hi]))
-    if n < RADIX_MIN:  # a partition of a copy costs less than the radix histogram's 2^16 bins
-        val = np.partition(np.asarray(x, np.float64), ks)[ks]
-    else:
-        val = np.empty(len(ks))
-        _numba.order_stats(np.ascontiguousarray(x, np.float64), ks, val)
-    a, b = val[np.searchsorted(ks, lo)], val[np.searchsorted(ks, hi)]
-    t = vi - lo
-    with np.errstate(invalid="ignore"):  # inf - inf: NaN, as numpy's
-        diff = b - a
-        out = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp
-    return tuple(float(v) for v in out)
 
 
 def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
