@@ -221,6 +221,24 @@ def _ordered(b):  # pragma: no cover - compiled
     return ~b if b & _SIGN else b | _SIGN
 
 
+_ZERO = np.uint64(1) << np.uint64(63)  # the key of +0.0
+N_BUCKETS = 2048
+_LOW = 0x8000 + (1023 - 62) * 16  # top 16 bits of the key of 2^-62: 16 buckets a binade from there (to 2^65)
+
+
+@njit(cache=True, error_model="numpy")
+def _bucket(b):  # pragma: no cover - compiled
+    """A float64's radix bucket (its bits ``b``), in the float's order: 0 negatives and -0.0, 1 exactly
+    +0.0 (exact agreement, often most pixels: never gathered), 2 under 2^-62, then the top 16 bits of
+    the key (sign, exponent, 4 bits of mantissa) up to 2^65, the last bucket anything larger (inf)."""
+    k = _ordered(b)
+    if k < _ZERO:
+        return 0
+    if k == _ZERO:
+        return 1
+    return 2 + min(max(np.int64(k >> np.uint64(48)) - _LOW, 0), N_BUCKETS - 3)
+
+
 @njit(cache=True, error_model="numpy")
 def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no cover - compiled
     """One pass over a key's per-pixel errors ``e`` (float64; NaN: not compared) for verify's rows: per
@@ -229,10 +247,11 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no
     that error, the sum of the errors, the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1)
     and, unless ``rate``, the percentiles ``q`` of the compared errors (np.percentile's default, linear
     between the order statistics around (n - 1) q / 100, by the same arithmetic; NaN for a row
-    without pixels). The order statistics by radix selection: the same pass histograms the top bits
-    of each error (in float order) per label; a second pass gathers only the buckets that hold the
-    ranks wanted, each then partitioned."""
+    without pixels). The order statistics by radix selection: the same pass histograms the errors'
+    buckets (:func:`_bucket`, in float order) per label; a second pass gathers only the buckets that
+    hold the ranks wanted, each then partitioned."""
     rows = n_labels + 1
+    L = n_labels
     count = np.zeros(rows, np.int64)
     over = np.zeros(rows, np.int64)
     worst = np.zeros(rows, np.int64)
@@ -241,32 +260,42 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no
     kinds = np.zeros((rows, n_kinds), np.int64)
     nq = q.size
     pct = np.full((rows, nq), np.nan)
-    bits = 16 if e.size >= 32768 else 4  # a few errors: one partition of (nearly) all of them is cheaper than 2^16 bins
-    shift = np.uint64(64 - bits)
-    nb = 1 << bits
+    nb = N_BUCKETS
     hist = np.zeros((0, nb), np.int64) if rate else np.zeros((rows, nb), np.int64)
     raw = e.view(np.uint64)
-    for i in range(e.size):
+    everything = 0.0  # the sum over all labels, in pixel order
+    for i in range(e.size):  # per label; the row of all labels from theirs below
         x = e[i]
         if x != x:
             continue
         c = code[i]
         if not rate:
-            hist[c, _ordered(raw[i]) >> shift] += 1
-        for r in (c, n_labels):
-            count[r] += 1
-            total[r] += x
-            if (x > 0.5) if rate else (x > limit):
-                over[r] += 1
-            if count[r] == 1 or x > top[r]:
-                top[r] = x
-                worst[r] = i
-            kinds[r, kind[i]] += 1
+            hist[c, _bucket(raw[i])] += 1
+        count[c] += 1
+        total[c] += x
+        everything += x
+        if (x > 0.5) if rate else (x > limit):
+            over[c] += 1
+        if count[c] == 1 or x > top[c]:
+            top[c] = x
+            worst[c] = i
+        kinds[c, kind[i]] += 1
+    total[L] = everything
+    for c in range(L):
+        if count[c] == 0:
+            continue
+        count[L] += count[c]
+        over[L] += over[c]
+        for k in range(n_kinds):
+            kinds[L, k] += kinds[c, k]
+        # the first pixel of the greatest error of all: the earliest of the labels' that share it
+        if count[L] == count[c] or top[c] > top[L] or (top[c] == top[L] and worst[c] < worst[L]):
+            top[L], worst[L] = top[c], worst[c]
     if rate:
         return count, over, worst, top, total, kinds, pct
-    for c in range(n_labels):
+    for c in range(L):
         for b in range(nb):
-            hist[n_labels, b] += hist[c, b]
+            hist[L, b] += hist[c, b]
     # per row the ranks wanted (two per q), the bucket of each and where it starts
     nk = 2 * nq
     ks = np.zeros((rows, nk), np.int64)
@@ -285,40 +314,52 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no
                 below += hist[r, b]
                 b += 1
             bk[r, s], start[r, s] = b, below
-    # one buffer per (row, distinct bucket), held by the first rank in that bucket (owner)
-    owner = np.zeros((rows, nk), np.int64)
-    off = np.full((rows, nk), -1, np.int64)
-    size = 0
+    # one buffer per (row, wanted bucket) but bucket 1 (+0.0 alone: its values are known); slot[r, b]
+    slot = np.full((rows, nb), -1, np.int64)
+    off = np.zeros(rows * nk + 1, np.int64)
+    n_slots = 0
     for r in range(rows):
         for s in range(nk):
-            f = 0
-            while bk[r, f] != bk[r, s]:
-                f += 1
-            owner[r, s] = f
-            if f == s and bk[r, s] >= 0:
-                off[r, s] = size
-                size += hist[r, bk[r, s]]
-    buf = np.empty(size)
-    fill = off.copy()
-    for i in range(e.size):
-        x = e[i]
-        if x != x:
-            continue
-        b = np.int64(_ordered(raw[i]) >> shift)
-        for r in (code[i], n_labels):
-            for s in range(nk):
-                if off[r, s] >= 0 and bk[r, s] == b:
-                    buf[fill[r, s]] = x
-                    fill[r, s] += 1
+            b = bk[r, s]
+            if b >= 0 and b != 1 and slot[r, b] < 0:
+                slot[r, b] = n_slots
+                off[n_slots + 1] = off[n_slots] + hist[r, b]
+                n_slots += 1
+    buf = np.empty(off[n_slots])
+    fill = off[:n_slots].copy()
+    if n_slots:
+        for i in range(e.size):
+            x = e[i]
+            if x != x:
+                continue
+            b = _bucket(raw[i])
+            k = slot[code[i], b]
+            if k >= 0:
+                buf[fill[k]] = x
+                fill[k] += 1
+            k = slot[L, b]
+            if k >= 0:
+                buf[fill[k]] = x
+                fill[k] += 1
     val = np.zeros(nk)
+    part = np.empty(0)
     for r in range(rows):
         n = count[r]
         if n == 0:
             continue
         for s in range(nk):
-            f = owner[r, s]
-            part = np.partition(buf[off[r, f]:off[r, f] + hist[r, bk[r, s]]], ks[r, s] - start[r, s])
-            val[s] = part[ks[r, s] - start[r, s]]
+            b = bk[r, s]
+            if b == 1:
+                val[s] = 0.0
+                continue
+            k = slot[r, b]
+            j = ks[r, s] - start[r, s]
+            if s % 2 == 1 and bk[r, s - 1] == b and ks[r, s] == ks[r, s - 1] + 1:
+                # the next rank in the same bucket: the least of what the last partition put above it
+                val[s] = part[j:].min()
+                continue
+            part = np.partition(buf[off[k]:off[k + 1]], j)
+            val[s] = part[j]
         for j in range(nq):
             vi = (n - 1) * (q[j] / 100)
             t = vi - ks[r, 2 * j]

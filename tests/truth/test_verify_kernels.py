@@ -137,9 +137,9 @@ def test_the_two_limit_mixed_decision_is_two_single_decisions():
 def test_label_rows_follow_their_rules(n):
     """One pass gives every label's row and the row of all labels together, as written out here: pixels
     compared (not NaN), over the limit, the first pixel of the greatest error, the sum, the tie kinds,
-    and median and p99 exactly numpy's linear percentiles (radix-selected from 2^15 errors, by
-    partition below): spread and heavy-tailed errors, many equal ones, signed zeros, infinities,
-    negatives; a label without pixels; rates (over 0.5) without percentiles."""
+    and median and p99 exactly numpy's linear percentiles (radix-selected): spread and heavy-tailed
+    errors, many equal ones, mostly exact zeros, signed zeros, infinities, negatives, values beyond
+    the resolved buckets either way; a label without pixels; rates (over 0.5) without percentiles."""
     from lfusd.truth import _verify_numba as K
 
     rng = np.random.default_rng(n)
@@ -149,6 +149,9 @@ def test_label_rows_follow_their_rules(n):
     z[1::7] = -0.0
     z[2::11] = np.inf
     cases.append(z)
+    # mostly exact agreement (+0.0, never gathered), and beyond the resolved buckets either way
+    cases.append(np.where(rng.random(n) < 0.7, 0.0, rng.lognormal(-12, 4, n)))
+    cases.append(rng.choice([1e-300, 3e-300, 1e30, 2e30, 0.0, -0.0, 5e-20, 1.0, -1e-16], n))
     n_labels, n_kinds, limit = 4, 6, 1e-4
     q = np.array([50.0, 99.0])
     for x in cases:
