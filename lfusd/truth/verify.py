@@ -196,7 +196,7 @@ class TracedScene:
 
         from . import _verify_numba as _numba
 
-        ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else o3d.core.Tensor(rays))
+        ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else _tensor(rays))
         t = ans["t_hit"].numpy()
         mesh, prim = np.empty(len(t), np.int64), np.empty(len(t), np.int64)
         _numba.resolve_hits(t, ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy(), self.lut, mesh, prim)
@@ -435,14 +435,20 @@ def _first_hits(scene, rays: np.ndarray, upto: float) -> np.ndarray:
     where one lies at or before ``upto``, else +inf (or a hit just past it). Open3D's occlusion test
     (any hit up to a limit, cheaper than a cast) picks the rays to cast: a ray has a hit at or before
     a limit exactly when its first hit is."""
-    import open3d as o3d
 
     far = np.nextafter(np.float32(upto), np.float32(np.inf))  # float32 at or above upto: no hit at upto is missed
     t = np.full(len(rays), np.inf, np.float32)
-    sel = np.flatnonzero(scene.test_occlusions(o3d.core.Tensor(rays), tfar=float(far)).numpy())
+    sel = np.flatnonzero(scene.test_occlusions(_tensor(rays), tfar=float(far)).numpy())
     if sel.size:
-        t[sel] = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays[sel])))["t_hit"].numpy()
+        t[sel] = scene.cast_rays(_tensor(rays[sel]))["t_hit"].numpy()
     return t
+
+
+def _tensor(rays: np.ndarray):
+    """Rays ((N, 6) float32) as an Open3D tensor sharing their memory (no copy)."""
+    import open3d as o3d
+
+    return o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, np.float32))
 
 
 # -- comparison ------------------------------------------------------------------------------
