@@ -265,8 +265,9 @@ def trace_motion(
             scenes[t] = TracedScene(geo, t)
     ctx = {"s0": scenes[frame], "s1": scenes[frame + step], "K": np.asarray(K, np.float64), "c2w": np.asarray(cam_to_world_t, np.float64),
            "c2w1": np.asarray(cam_to_world_t1, np.float64), "H": H, "W": W, "baseline": baseline, "dist": dist}
-    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    out = trace_pixels(ctx, u.ravel(), v.ravel(), grid=True)
+    u = np.tile(np.arange(W, dtype=np.float64), H)  # the pixel centres, raster order
+    v = np.repeat(np.arange(H, dtype=np.float64), W)
+    out = trace_pixels(ctx, u, v, grid=True)
     full = {k: (a.reshape(H, W, *a.shape[1:]) if isinstance(a, np.ndarray) and a.shape[:1] == (H * W,) else a) for k, a in out.items()}
     full["ctx"] = ctx
     return full
