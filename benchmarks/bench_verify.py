@@ -55,18 +55,20 @@ def load_verifier(rev: str):
     tag = rev.replace('/', '_').replace('-', '_')
     kernels = show("_verify_numba.py")
     if kernels != (ROOT / "lfusd" / "truth" / "_verify_numba.py").read_text():
-        # a folder named by the kernels' content: numba's cache there (next to the file) outlives the run
-        folder = Path(tempfile.gettempdir()) / f"bench_verify_kernels_{hashlib.sha1(kernels.encode()).hexdigest()[:12]}"
-        folder.mkdir(exist_ok=True)
-        kpath = folder / "_verify_numba.py"
-        if not kpath.is_file() or kpath.read_text() != kernels:
-            kpath.write_text(kernels)
-        _load(f"lfusd.truth._verify_numba_at_{tag}", kpath)
+        # numba's cache lies next to the file: in a folder named by the content, it outlives the run
+        _load(f"lfusd.truth._verify_numba_at_{tag}", _stored(kernels, "_verify_numba.py"))
         src = src.replace("from . import _verify_numba as _numba", f"from . import _verify_numba_at_{tag} as _numba")
-    name = f"lfusd.truth._verify_at_{tag}"
-    path = Path(tempfile.mkdtemp(prefix="bench_verify_")) / "verify.py"
-    path.write_text(src)
-    return _load(name, path)
+    return _load(f"lfusd.truth._verify_at_{tag}", _stored(src, "verify.py"))
+
+
+def _stored(text: str, name: str) -> Path:
+    """``text`` as file ``name`` in a temporary folder named by its content (one per content, reused)."""
+    folder = Path(tempfile.gettempdir()) / f"bench_verify_{hashlib.sha1(text.encode()).hexdigest()[:12]}"
+    folder.mkdir(exist_ok=True)
+    path = folder / name
+    if not path.is_file() or path.read_text() != text:
+        path.write_text(text)
+    return path
 
 
 def render(stage: str, rig: str, frames: str, resolution: str, out: Path) -> None:
