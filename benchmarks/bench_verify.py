@@ -133,10 +133,12 @@ def main() -> None:
     n = len(frames) * len(views)
     best = {name: (float("inf"), float("inf")) for name, _ in mods}
     reports = {}
+    every: dict[str, list[float]] = {name: [] for name, _ in mods}  # each repeat's core-s (the spread)
     for _ in range(a.repeat):
         for name, mod in mods:
             cpu, wall, rep = run(mod, path, frames, views)
             best[name] = (min(best[name][0], cpu), min(best[name][1], wall))
+            every[name].append(cpu)
             reports[name] = rep
     scale = 1024 * 1024 / (H * W)
     after_name = mods[-1][0]
@@ -148,15 +150,20 @@ def main() -> None:
               f"{str(reports[name].ok):<5} {len(reports[name].failures())}")
     if a.marginal and len(views) > 1:
         one = {name: float("inf") for name, _ in mods}
+        ones: dict[str, list[float]] = {name: [] for name, _ in mods}
         for _ in range(a.repeat):
             for name, mod in mods:
-                one[name] = min(one[name], run(mod, path, frames, views[:1])[0])
+                cpu1 = run(mod, path, frames, views[:1])[0]
+                one[name] = min(one[name], cpu1)
+                ones[name].append(cpu1)
         m = len(frames) * (len(views) - 1)
         print(f"marginal: the {len(views) - 1} view(s) after the first, per view (fixed costs out)")
-        print(f"{'verifier':<28}{'core-s/view':>12}{'core-s/1024^2 view':>20}{'x after':>9}")
+        print(f"{'verifier':<28}{'core-s/view':>12}{'core-s/1024^2 view':>20}{'x after':>9}  spread/1024^2 view (repeat by repeat)")
         marg = {name: (best[name][0] - one[name]) / m for name, _ in mods}
         for name, _ in mods:
-            print(f"{name:<28}{marg[name]:>12.3f}{marg[name] * scale:>20.2f}{marg[name] / marg[after_name]:>9.2f}")
+            each = [(x - y) / m * scale for x, y in zip(every[name], ones[name])]
+            print(f"{name:<28}{marg[name]:>12.3f}{marg[name] * scale:>20.2f}{marg[name] / marg[after_name]:>9.2f}  "
+                  f"{min(each):.2f}-{max(each):.2f}")
     for name, _ in mods:
         for line in reports[name].failures()[:5]:
             print(f"  {name}: {line}")
