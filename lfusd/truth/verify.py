@@ -393,6 +393,8 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
                   moving=None) -> tuple[np.ndarray, np.ndarray]:
     """(visible, first-hit ray parameter) of world points at the scene's time: inside the image and
     no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule);
+    the ray parameter is exact where it decides anything (at or before ``1 - eps`` and the top of the
+    occlusion tie band, 1 - VISIBLE_EPS / 10); a segment with nothing up to there gets +inf (:func:`_first_hits`);
     ``uvz``: the points' projection in ``cam`` when the caller has it. ``still`` (per point): the
     point is the first hit, at the other time, of a ray from this same camera centre, on a triangle
     that stands still, so no triangle that stands still lies before it: its segment is cast against
@@ -436,7 +438,6 @@ def _first_hits(scene, rays: np.ndarray, upto: float) -> np.ndarray:
     where one lies at or before ``upto``, else +inf (or a hit just past it). Open3D's occlusion test
     (any hit up to a limit, cheaper than a cast) picks the rays to cast: a ray has a hit at or before
     a limit exactly when its first hit is."""
-
     far = np.nextafter(np.float32(upto), np.float32(np.inf))  # float32 at or above upto: no hit at upto is missed
     t = np.full(len(rays), np.inf, np.float32)
     sel = np.flatnonzero(scene.test_occlusions(_tensor(rays), tfar=float(far)).numpy())
