@@ -425,8 +425,8 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
     # what is decided from a first hit: visible (none before 1 - eps) and the occlusion tie band
     # (one in [1 - 10 eps, 1 - eps / 10], as verify's errors read it): a farther one is not needed
     upto = max(1 - eps, 1 - VISIBLE_EPS / 10)
-    if known.size:
-        t_hit[known] = np.minimum(_first_hits(moving[0], krays, upto), 1.0)
+    if known.size:  # picked as maybe hidden by what moved: cast at once (most are, the occlusion test would not pay)
+        t_hit[known] = np.minimum(moving[0].cast_rays(_tensor(krays))["t_hit"].numpy(), 1.0)
     if idx.size:
         t_hit[idx] = _first_hits(scene.scene, rays, upto)
     with np.errstate(invalid="ignore"):
