@@ -8,7 +8,8 @@ Without ``--dataset``, renders a small dataset of the default scene first (``lfu
 sample, CPU) into a temporary folder. The older verifier is ``lfusd/truth/verify.py`` as committed at
 ``--before`` (``git show REV:lfusd/truth/verify.py``), loaded as a module of this tree's
 ``lfusd.truth`` package: its relative imports resolve to this tree's modules, so the two differ only in
-verify.py itself. Both verify the same frames and views in one process, interleaved (before, after,
+verify.py itself and its compiled kernels (``_verify_numba.py`` at ``--before``, loaded beside this
+tree's when they differ; numba compiles them once, cached in a folder named by their content). Both verify the same frames and views in one process, interleaved (before, after,
 before, ...), each ``--repeat`` times; the best of each is reported.
 
 Prints per verifier: core-seconds per view (process CPU time: every thread of Open3D's ray casts
@@ -24,6 +25,7 @@ the cost of the whole verifier, not of the same work. The issue-37 budget: at mo
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import os
 import subprocess
@@ -35,18 +37,38 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def load_verifier(rev: str):
-    """lfusd/truth/verify.py at git revision ``rev``, as a module inside this tree's lfusd.truth."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/truth/verify.py"], capture_output=True, text=True, check=True).stdout
-    name = f"lfusd.truth._verify_at_{rev.replace('/', '_').replace('-', '_')}"
-    path = Path(tempfile.mkdtemp(prefix="bench_verify_")) / "verify.py"
-    path.write_text(src)
+def _load(name: str, path: Path):
     spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     mod.__package__ = "lfusd.truth"
     sys.modules[name] = mod
     spec.loader.exec_module(mod)
     return mod
+
+
+def load_verifier(rev: str):
+    """lfusd/truth/verify.py at git revision ``rev``, as a module inside this tree's lfusd.truth; with
+    its own compiled kernels (``_verify_numba.py`` at ``rev``) where they differ from this tree's."""
+    show = lambda f: subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/truth/{f}"], capture_output=True,  # noqa: E731
+                                    text=True, check=True).stdout
+    src = show("verify.py")
+    tag = rev.replace('/', '_').replace('-', '_')
+    kernels = show("_verify_numba.py")
+    if kernels != (ROOT / "lfusd" / "truth" / "_verify_numba.py").read_text():
+        # numba's cache lies next to the file: in a folder named by the content, it outlives the run
+        _load(f"lfusd.truth._verify_numba_at_{tag}", _stored(kernels, "_verify_numba.py"))
+        src = src.replace("from . import _verify_numba as _numba", f"from . import _verify_numba_at_{tag} as _numba")
+    return _load(f"lfusd.truth._verify_at_{tag}", _stored(src, "verify.py"))
+
+
+def _stored(text: str, name: str) -> Path:
+    """``text`` as file ``name`` in a temporary folder named by its content (one per content, reused)."""
+    folder = Path(tempfile.gettempdir()) / f"bench_verify_{hashlib.sha1(text.encode()).hexdigest()[:12]}"
+    folder.mkdir(exist_ok=True)
+    path = folder / name
+    if not path.is_file() or path.read_text() != text:
+        path.write_text(text)
+    return path
 
 
 def render(stage: str, rig: str, frames: str, resolution: str, out: Path) -> None:
@@ -111,10 +133,12 @@ def main() -> None:
     n = len(frames) * len(views)
     best = {name: (float("inf"), float("inf")) for name, _ in mods}
     reports = {}
+    every: dict[str, list[float]] = {name: [] for name, _ in mods}  # each repeat's core-s (the spread)
     for _ in range(a.repeat):
         for name, mod in mods:
             cpu, wall, rep = run(mod, path, frames, views)
             best[name] = (min(best[name][0], cpu), min(best[name][1], wall))
+            every[name].append(cpu)
             reports[name] = rep
     scale = 1024 * 1024 / (H * W)
     after_name = mods[-1][0]
@@ -126,15 +150,20 @@ def main() -> None:
               f"{str(reports[name].ok):<5} {len(reports[name].failures())}")
     if a.marginal and len(views) > 1:
         one = {name: float("inf") for name, _ in mods}
+        ones: dict[str, list[float]] = {name: [] for name, _ in mods}
         for _ in range(a.repeat):
             for name, mod in mods:
-                one[name] = min(one[name], run(mod, path, frames, views[:1])[0])
+                cpu1 = run(mod, path, frames, views[:1])[0]
+                one[name] = min(one[name], cpu1)
+                ones[name].append(cpu1)
         m = len(frames) * (len(views) - 1)
         print(f"marginal: the {len(views) - 1} view(s) after the first, per view (fixed costs out)")
-        print(f"{'verifier':<28}{'core-s/view':>12}{'core-s/1024^2 view':>20}{'x after':>9}")
+        print(f"{'verifier':<28}{'core-s/view':>12}{'core-s/1024^2 view':>20}{'x after':>9}  spread/1024^2 view (repeat by repeat)")
         marg = {name: (best[name][0] - one[name]) / m for name, _ in mods}
         for name, _ in mods:
-            print(f"{name:<28}{marg[name]:>12.3f}{marg[name] * scale:>20.2f}{marg[name] / marg[after_name]:>9.2f}")
+            each = [(x - y) / m * scale for x, y in zip(every[name], ones[name])]
+            print(f"{name:<28}{marg[name]:>12.3f}{marg[name] * scale:>20.2f}{marg[name] / marg[after_name]:>9.2f}  "
+                  f"{min(each):.2f}-{max(each):.2f}")
     for name, _ in mods:
         for line in reports[name].failures()[:5]:
             print(f"  {name}: {line}")

@@ -12,15 +12,14 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
-def _hit(i, m, ox, oy, oz, d, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
-    """Ray i from (ox, oy, oz) on triangle tri[i] of mesh m: planar depth, hit point, unit normal facing the origin and
-    barycentric (b1, b2), in float64."""
-    k = toff[m] + tri[i]
+def _hit(m, k0, ox, oy, oz, dx, dy, dz, V, T, toff):  # pragma: no cover - compiled
+    """The ray from (ox, oy, oz) along (dx, dy, dz) on triangle k0 of mesh m (row toff[m] + k0 of T), in float64:
+    (ray parameter t, hit point, barycentric b1, b2, unit normal facing the origin)."""
+    k = toff[m] + k0
     a, b, c = T[k, 0], T[k, 1], T[k, 2]
     e1x, e1y, e1z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
     e2x, e2y, e2z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
     nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
     dn = dx * nx + dy * ny + dz * nz
     t = ((V[a, 0] - ox) * nx + (V[a, 1] - oy) * ny + (V[a, 2] - oz) * nz) / dn
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
@@ -31,30 +30,50 @@ def _hit(i, m, ox, oy, oz, d, tri, V, T, toff, depth, pos, normal, bary):  # pra
     d20 = wx * e1x + wy * e1y + wz * e1z
     d21 = wx * e2x + wy * e2y + wz * e2z
     den = d00 * d11 - d01 * d01
-    depth[i] = t
-    pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
-    bary[i, 0] = (d11 * d20 - d01 * d21) / den
-    bary[i, 1] = (d00 * d21 - d01 * d20) / den
+    b1 = (d11 * d20 - d01 * d21) / den
+    b2 = (d00 * d21 - d01 * d20) / den
     ln = np.sqrt(nx * nx + ny * ny + nz * nz)
     s = -1.0 if dn > 0 else 1.0  # the side the camera sees
-    normal[i, 0], normal[i, 1], normal[i, 2] = s * nx / ln, s * ny / ln, s * nz / ln
+    return t, px, py, pz, b1, b2, s * nx / ln, s * ny / ln, s * nz / ln
 
 
 @njit(cache=True, error_model="numpy")
-def surface(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
-    """Per ray i with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
-    barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64 (per-ray origins o (N, 3); :func:`surface_from`: one origin)."""
-    for i in range(mesh.size):
-        m = mesh[i]
-        if m >= 0:
-            _hit(i, m, o[i, 0], o[i, 1], o[i, 2], d, tri, V, T, toff, depth, pos, normal, bary)
+def _carry(m, k0, b1, b2, V1, T1, toff1, M, R2, C):  # pragma: no cover - compiled
+    """The point of barycentric (b1, b2) on triangle k0 of mesh m at the other time, and its projection
+    (u1, v1, planar depth z1) in the camera of centre C, M = K @ R, R2 its world-to-camera rotation's third
+    row (as lfusd.camera.project: the centre subtracted first)."""
+    k = toff1[m] + k0
+    b0 = 1 - b1 - b2
+    a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
+    qx = b0 * V1[a, 0] + b1 * V1[b, 0] + b2 * V1[c, 0]
+    qy = b0 * V1[a, 1] + b1 * V1[b, 1] + b2 * V1[c, 1]
+    qz = b0 * V1[a, 2] + b1 * V1[b, 2] + b2 * V1[c, 2]
+    dx, dy, dz = qx - C[0], qy - C[1], qz - C[2]
+    x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
+    x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
+    x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
+    return qx, qy, qz, x0 / x2, x1 / x2, dx * R2[0] + dy * R2[1] + dz * R2[2]
 
 
 @njit(cache=True, error_model="numpy")
-def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
+def resolve_hits(t, gid, prim, lut, mesh, tri):  # pragma: no cover - compiled
+    """Open3D's cast answer (t_hit float32, geometry and primitive ids uint32) as verify's mesh index
+    (``lut[gid]``; -1 where the ray hit nothing or the geometry is unknown) and triangle id per ray."""
+    n_lut = lut.size
+    for i in range(t.size):
+        g = np.int64(gid[i])
+        m = lut[g] if np.isfinite(t[i]) and g < n_lut else -1
+        mesh[i] = m
+        tri[i] = np.int64(prim[i])
+
+
+@njit(cache=True, error_model="numpy")
+def surface_from(o, d, u, v, A, mesh, tri, V, T, toff, depth, pos, normal, bary):  # pragma: no cover - compiled
     """Per ray i from the point o (3,) with mesh[i] >= 0: planar depth, hit point, unit normal facing the ray's origin and
     barycentric (b1, b2) on triangle tri[i] of mesh[i] (rows of T from toff[mesh]), in float64; a
-    ray that hit nothing gets depth inf, NaN point and normal, barycentric 0."""
+    ray that hit nothing gets depth inf, NaN point and normal, barycentric 0. The ray's direction is
+    d[i] (N, 3), or when d is empty the pinhole's A (u[i], v[i], 1) (:func:`rays_through`'s)."""
+    given = d.shape[0] > 0
     for i in range(mesh.size):
         m = mesh[i]
         if m < 0:
@@ -63,39 +82,40 @@ def surface_from(o, d, mesh, tri, V, T, toff, depth, pos, normal, bary):  # prag
                 pos[i, j] = np.nan
                 normal[i, j] = np.nan
             bary[i, 0], bary[i, 1] = 0.0, 0.0
+            continue
+        if given:
+            dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         else:
-            _hit(i, m, o[0], o[1], o[2], d, tri, V, T, toff, depth, pos, normal, bary)
+            dx = A[0, 0] * u[i] + A[0, 1] * v[i] + A[0, 2]
+            dy = A[1, 0] * u[i] + A[1, 1] * v[i] + A[1, 2]
+            dz = A[2, 0] * u[i] + A[2, 1] * v[i] + A[2, 2]
+        t, px, py, pz, b1, b2, nx, ny, nz = _hit(m, tri[i], o[0], o[1], o[2], dx, dy, dz, V, T, toff)
+        depth[i] = t
+        pos[i, 0], pos[i, 1], pos[i, 2] = px, py, pz
+        bary[i, 0], bary[i, 1] = b1, b2
+        normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
 
 
 @njit(cache=True, error_model="numpy")
-def carry(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, pos1, valid, u1, v1, z1):  # pragma: no cover - compiled
-    """Per ray whose mesh keeps its topology (same[mesh]): the point of the same barycentric
-    coordinates on the same triangle at the other time, and its projection (u1, v1, planar depth
-    z1) in the camera of centre C, M = K @ R and R2 its world-to-camera rotation's third row (as
-    lfusd.camera.project: the centre subtracted first)."""
+def corner_motion(u, v, A, o, mesh, tri, V, T, toff, same, V1, T1, toff1, M, R2, C, carry, depth, flow):  # pragma: no cover - compiled
+    """What the mixed rule reads at rays through (u, v) (pinhole directions A (u, v, 1) from o):
+    :func:`surface_from`'s depth (inf where nothing is hit) and, with ``carry``, :func:`carry_motion`'s
+    flow (NaN where the motion is not known), by the same arithmetic, without the other values."""
     for i in range(mesh.size):
         m = mesh[i]
-        if m < 0 or not same[m]:
+        if carry:
+            flow[i, 0], flow[i, 1] = np.nan, np.nan
+        if m < 0:
+            depth[i] = np.inf
             continue
-        k = toff1[m] + tri[i]
-        b1, b2 = bary[i, 0], bary[i, 1]
-        b0 = 1 - b1 - b2
-        a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
-        for j in range(3):
-            pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
-        valid[i] = True
-        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
-        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
-        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
-        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
-        u1[i], v1[i] = x0 / x2, x1 / x2
-        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
-
-@njit(cache=True, error_model="numpy")
-def mixed_decision(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out):  # pragma: no cover - compiled
-    """verify._mixed_decision's rule per pixel (see there) on the (H+1) x (W+1) corner grid: :func:`mixed_decisions` with one
-    set of limits."""
-    mixed_decisions(ident, depth, flow, use_flow, H, W, depth_rel, flow_px, out, depth_rel, flow_px, np.empty_like(out))
+        dx = A[0, 0] * u[i] + A[0, 1] * v[i] + A[0, 2]
+        dy = A[1, 0] * u[i] + A[1, 1] * v[i] + A[1, 2]
+        dz = A[2, 0] * u[i] + A[2, 1] * v[i] + A[2, 2]
+        t, px, py, pz, b1, b2, nx, ny, nz = _hit(m, tri[i], o[0], o[1], o[2], dx, dy, dz, V, T, toff)
+        depth[i] = t
+        if carry and same[m]:
+            qx, qy, qz, u1, v1, z1 = _carry(m, tri[i], b1, b2, V1, T1, toff1, M, R2, C)
+            flow[i, 0], flow[i, 1] = u1 - u[i], v1 - v[i]
 
 
 @njit(cache=True, error_model="numpy")
@@ -192,62 +212,174 @@ def object_sums(ok, obj, a, b, n_obj, sums, count, broken):  # pragma: no cover 
                 broken[o] = True
 
 
+_SIGN = np.uint64(1) << np.uint64(63)
+
+
 @njit(cache=True, error_model="numpy")
-def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, grouped):  # pragma: no cover - compiled
-    """One pass over a key's per-pixel errors ``e`` (NaN: not compared) for verify's rows: per label
-    (``code`` per pixel, 0 .. n_labels-1; row n_labels is every label together) the pixels compared,
-    those over ``limit`` (over 0.5 when ``rate``), the first pixel of the greatest error and that
-    error, the sum of the errors and the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1).
-    Unless ``rate``, ``grouped`` receives the compared errors ordered by label (raster order within
-    one), a label's at its offset (the counts' running sum)."""
+def _ordered(b):  # pragma: no cover - compiled
+    """A float64's bits as an unsigned key in the float's order (negatives reversed below positives)."""
+    return ~b if b & _SIGN else b | _SIGN
+
+
+_ZERO = np.uint64(1) << np.uint64(63)  # the key of +0.0
+N_BUCKETS = 2048
+_LOW = 0x8000 + (1023 - 62) * 16  # top 16 bits of the key of 2^-62: 16 buckets a binade from there (to 2^65)
+
+
+@njit(cache=True, error_model="numpy")
+def _bucket(b):  # pragma: no cover - compiled
+    """A float64's radix bucket (its bits ``b``), in the float's order: 0 negatives and -0.0, 1 exactly
+    +0.0 (exact agreement, often most pixels: never gathered), 2 under 2^-62, then the top 16 bits of
+    the key (sign, exponent, 4 bits of mantissa) up to 2^65, the last bucket anything larger (inf)."""
+    k = _ordered(b)
+    if k < _ZERO:
+        return 0
+    if k == _ZERO:
+        return 1
+    return 2 + min(max(np.int64(k >> np.uint64(48)) - _LOW, 0), N_BUCKETS - 3)
+
+
+@njit(cache=True, error_model="numpy")
+def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no cover - compiled
+    """One pass over a key's per-pixel errors ``e`` (float64; NaN: not compared) for verify's rows: per
+    label (``code`` per pixel, 0 .. n_labels-1; row n_labels is every label together) the pixels
+    compared, those over ``limit`` (over 0.5 when ``rate``), the first pixel of the greatest error and
+    that error, the sum of the errors, the count per tie kind (``kind`` per pixel, 0 .. n_kinds-1)
+    and, unless ``rate``, the percentiles ``q`` of the compared errors (np.percentile's default, linear
+    between the order statistics around (n - 1) q / 100, by the same arithmetic; NaN for a row
+    without pixels). The order statistics by radix selection: the same pass histograms the errors'
+    buckets (:func:`_bucket`, in float order) per label; a second pass gathers only the buckets that
+    hold the ranks wanted, each then partitioned."""
     rows = n_labels + 1
+    L = n_labels
     count = np.zeros(rows, np.int64)
     over = np.zeros(rows, np.int64)
     worst = np.zeros(rows, np.int64)
     top = np.full(rows, -np.inf)
     total = np.zeros(rows)
     kinds = np.zeros((rows, n_kinds), np.int64)
-    for i in range(e.size):
+    nq = q.size
+    pct = np.full((rows, nq), np.nan)
+    nb = N_BUCKETS
+    hist = np.zeros((0, nb), np.int64) if rate else np.zeros((rows, nb), np.int64)
+    raw = e.view(np.uint64)
+    everything = 0.0  # the sum over all labels, in pixel order
+    for i in range(e.size):  # per label; the row of all labels from theirs below
         x = e[i]
         if x != x:
             continue
         c = code[i]
-        for r in (c, n_labels):
-            count[r] += 1
-            total[r] += x
-            if (x > 0.5) if rate else (x > limit):
-                over[r] += 1
-            if count[r] == 1 or x > top[r]:
-                top[r] = x
-                worst[r] = i
-            kinds[r, kind[i]] += 1
-    if not rate:
-        pos = np.zeros(n_labels, np.int64)
-        for c in range(1, n_labels):
-            pos[c] = pos[c - 1] + count[c - 1]
+        if not rate:
+            hist[c, _bucket(raw[i])] += 1
+        count[c] += 1
+        total[c] += x
+        everything += x
+        if (x > 0.5) if rate else (x > limit):
+            over[c] += 1
+        if count[c] == 1 or x > top[c]:
+            top[c] = x
+            worst[c] = i
+        kinds[c, kind[i]] += 1
+    total[L] = everything
+    for c in range(L):
+        if count[c] == 0:
+            continue
+        count[L] += count[c]
+        over[L] += over[c]
+        for k in range(n_kinds):
+            kinds[L, k] += kinds[c, k]
+        # the first pixel of the greatest error of all: the earliest of the labels' that share it
+        if count[L] == count[c] or top[c] > top[L] or (top[c] == top[L] and worst[c] < worst[L]):
+            top[L], worst[L] = top[c], worst[c]
+    if rate:
+        return count, over, worst, top, total, kinds, pct
+    for c in range(L):
+        for b in range(nb):
+            hist[L, b] += hist[c, b]
+    # per row the ranks wanted (two per q), the bucket of each and where it starts
+    nk = 2 * nq
+    ks = np.zeros((rows, nk), np.int64)
+    bk = np.full((rows, nk), -1, np.int64)
+    start = np.zeros((rows, nk), np.int64)
+    for r in range(rows):
+        n = count[r]
+        if n == 0:
+            continue
+        for j in range(nq):
+            lo = np.int64(np.floor((n - 1) * (q[j] / 100)))
+            ks[r, 2 * j], ks[r, 2 * j + 1] = lo, min(lo + 1, n - 1)
+        b, below = 0, 0
+        for s in np.argsort(ks[r]):  # one scan of the histogram, the ranks in ascending order
+            while below + hist[r, b] <= ks[r, s]:
+                below += hist[r, b]
+                b += 1
+            bk[r, s], start[r, s] = b, below
+    # one buffer per (row, wanted bucket) but bucket 1 (+0.0 alone: its values are known); slot[r, b]
+    slot = np.full((rows, nb), -1, np.int64)
+    off = np.zeros(rows * nk + 1, np.int64)
+    n_slots = 0
+    for r in range(rows):
+        for s in range(nk):
+            b = bk[r, s]
+            if b >= 0 and b != 1 and slot[r, b] < 0:
+                slot[r, b] = n_slots
+                off[n_slots + 1] = off[n_slots] + hist[r, b]
+                n_slots += 1
+    buf = np.empty(off[n_slots])
+    fill = off[:n_slots].copy()
+    if n_slots:
         for i in range(e.size):
             x = e[i]
-            if x == x:
-                grouped[pos[code[i]]] = x
-                pos[code[i]] += 1
-    return count, over, worst, top, total, kinds
+            if x != x:
+                continue
+            b = _bucket(raw[i])
+            k = slot[code[i], b]
+            if k >= 0:
+                buf[fill[k]] = x
+                fill[k] += 1
+            k = slot[L, b]
+            if k >= 0:
+                buf[fill[k]] = x
+                fill[k] += 1
+    val = np.zeros(nk)
+    part = np.empty(0)
+    for r in range(rows):
+        n = count[r]
+        if n == 0:
+            continue
+        for s in range(nk):
+            b = bk[r, s]
+            if b == 1:
+                val[s] = 0.0
+                continue
+            k = slot[r, b]
+            j = ks[r, s] - start[r, s]
+            if s % 2 == 1 and bk[r, s - 1] == b and ks[r, s] == ks[r, s - 1] + 1:
+                # the next rank in the same bucket: the least of what the last partition put above it
+                val[s] = part[j:].min()
+                continue
+            part = np.partition(buf[off[k]:off[k + 1]], j)
+            val[s] = part[j]
+        for j in range(nq):
+            vi = (n - 1) * (q[j] / 100)
+            t = vi - ks[r, 2 * j]
+            a, b2 = val[2 * j], val[2 * j + 1]
+            diff = b2 - a  # inf - inf: NaN, as numpy's
+            pct[r, j] = b2 - diff * (1 - t) if t >= 0.5 else a + diff * t  # numpy's _lerp
+    return count, over, worst, top, total, kinds, pct
 
 
 @njit(cache=True, error_model="numpy")
 def rays_through(u, v, A, C):  # pragma: no cover - compiled
-    """The rays from the camera centre C through pixel coordinates (u, v): directions A (u, v, 1)
-    (camera-frame z = 1, float64, (N, 3)) and the same rays as Open3D takes them ((N, 6) float32:
-    origin, direction)."""
+    """The rays from the camera centre C through pixel coordinates (u, v), directions A (u, v, 1)
+    (camera-frame z = 1), as Open3D takes them ((N, 6) float32: origin, direction)."""
     n = u.size
-    d = np.empty((n, 3))
     rays = np.empty((n, 6), np.float32)
     for i in range(n):
         for k in range(3):
-            x = A[k, 0] * u[i] + A[k, 1] * v[i] + A[k, 2]
-            d[i, k] = x
             rays[i, k] = C[k]
-            rays[i, 3 + k] = x
-    return d, rays
+            rays[i, 3 + k] = A[k, 0] * u[i] + A[k, 1] * v[i] + A[k, 2]
+    return rays
 
 
 @njit(cache=True, error_model="numpy")
@@ -361,7 +493,7 @@ def over_any(E, limits, rate, out):  # pragma: no cover - compiled
 @njit(cache=True, error_model="numpy")
 def carry_motion(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, u, v, pos, depth, fb, static, toff0,
                  pos1, valid, u1, v1, z1, flow, sflow, dchange, still):  # pragma: no cover - compiled
-    """:func:`carry` at every ray (NaN, invalid where the motion is not known) and in the same pass
+    """:func:`_carry` at every ray (NaN, invalid where the motion is not known) and in the same pass
     what verify derives from it: flow (u1 - u, v1 - v), scene flow (pos1 - pos), disparity change
     (fb / z1 - fb / depth; fb = f * baseline, NaN without one) and, where ``static`` is not empty
     (per row of T at t, toff0 its mesh offsets), whether the first hit lies on a triangle that stands
@@ -379,20 +511,12 @@ def carry_motion(mesh, tri, bary, same, V1, T1, toff1, M, R2, C, u, v, pos, dept
             flow[i, 0], flow[i, 1] = np.nan, np.nan
             dchange[i] = np.nan
             continue
-        k = toff1[m] + tri[i]
-        b1, b2 = bary[i, 0], bary[i, 1]
-        b0 = 1 - b1 - b2
-        a, b, c = T1[k, 0], T1[k, 1], T1[k, 2]
+        q = _carry(m, tri[i], bary[i, 0], bary[i, 1], V1, T1, toff1, M, R2, C)
         for j in range(3):
-            pos1[i, j] = b0 * V1[a, j] + b1 * V1[b, j] + b2 * V1[c, j]
-            sflow[i, j] = pos1[i, j] - pos[i, j]
+            pos1[i, j] = q[j]
+            sflow[i, j] = q[j] - pos[i, j]
         valid[i] = True
-        dx, dy, dz = pos1[i, 0] - C[0], pos1[i, 1] - C[1], pos1[i, 2] - C[2]
-        x0 = dx * M[0, 0] + dy * M[0, 1] + dz * M[0, 2]
-        x1 = dx * M[1, 0] + dy * M[1, 1] + dz * M[1, 2]
-        x2 = dx * M[2, 0] + dy * M[2, 1] + dz * M[2, 2]
-        u1[i], v1[i] = x0 / x2, x1 / x2
-        z1[i] = dx * R2[0] + dy * R2[1] + dz * R2[2]
+        u1[i], v1[i], z1[i] = q[3], q[4], q[5]
         flow[i, 0], flow[i, 1] = u1[i] - u[i], v1[i] - v[i]
         dchange[i] = fb / z1[i] - fb / depth[i]
 
@@ -445,47 +569,3 @@ def visibility_split(points, valid, u1, v1, z1, still, near, H, W, C):  # pragma
                 moving_rays[b, 3 + j] = points[i, j] - C[j]
             b += 1
     return inside, t_hit, full_idx, full_rays, moving_idx, moving_rays
-
-
-_SIGN = np.uint64(1) << np.uint64(63)
-_TOP = np.uint64(48)
-
-
-@njit(cache=True, error_model="numpy")
-def _ordered(b):  # pragma: no cover - compiled
-    """A float64's bits as an unsigned key in the float's order (negatives reversed below positives)."""
-    return ~b if b & _SIGN else b | _SIGN
-
-
-@njit(cache=True, error_model="numpy")
-def order_stats(x, ks, out):  # pragma: no cover - compiled
-    """out[j] = the ks[j]-th smallest of x (0-based; x float64 without NaN, ks ascending): what
-    np.partition(x, ks) puts at ks, without reordering x. Radix selection: a histogram of the top
-    16 bits of the keys in float order finds each rank's bucket, whose values alone (usually a few
-    percent of x) are then partitioned."""
-    n = x.size
-    raw = x.view(np.uint64)
-    hist = np.zeros(65536, np.int64)
-    for i in range(n):
-        hist[_ordered(raw[i]) >> _TOP] += 1
-    start = np.zeros(65537, np.int64)
-    for b in range(65536):
-        start[b + 1] = start[b] + hist[b]
-    last = -1
-    buf = np.empty(0)
-    b = 0
-    for j in range(ks.size):
-        k = ks[j]
-        while start[b + 1] <= k:
-            b += 1
-        if b != last:  # gather the bucket's values
-            buf = np.empty(hist[b])
-            p = 0
-            ub = np.uint64(b)
-            for i in range(n):
-                if _ordered(raw[i]) >> _TOP == ub:
-                    buf[p] = x[i]
-                    p += 1
-            last = b
-        r = k - start[b]
-        out[j] = np.partition(buf, r)[r]

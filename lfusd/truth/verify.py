@@ -194,11 +194,12 @@ class TracedScene:
         """:meth:`cast` of rays as Open3D takes them ((N, 6) float32: origin, direction)."""
         import open3d as o3d
 
-        ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else o3d.core.Tensor(rays))
+        from . import _verify_numba as _numba
+
+        ans = self.scene.cast_rays(rays if isinstance(rays, o3d.core.Tensor) else _tensor(rays))
         t = ans["t_hit"].numpy()
-        gid = ans["geometry_ids"].numpy().astype(np.int64)
-        prim = ans["primitive_ids"].numpy().astype(np.int64)
-        mesh = np.where(np.isfinite(t), self._mesh_of(gid), -1)
+        mesh, prim = np.empty(len(t), np.int64), np.empty(len(t), np.int64)
+        _numba.resolve_hits(t, ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy(), self.lut, mesh, prim)
         return t, mesh, prim
 
 
@@ -264,8 +265,9 @@ def trace_motion(
             scenes[t] = TracedScene(geo, t)
     ctx = {"s0": scenes[frame], "s1": scenes[frame + step], "K": np.asarray(K, np.float64), "c2w": np.asarray(cam_to_world_t, np.float64),
            "c2w1": np.asarray(cam_to_world_t1, np.float64), "H": H, "W": W, "baseline": baseline, "dist": dist}
-    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    out = trace_pixels(ctx, u.ravel(), v.ravel(), grid=True)
+    u = np.tile(np.arange(W, dtype=np.float64), H)  # the pixel centres, raster order
+    v = np.repeat(np.arange(H, dtype=np.float64), W)
+    out = trace_pixels(ctx, u, v, grid=True)
     full = {k: (a.reshape(H, W, *a.shape[1:]) if isinstance(a, np.ndarray) and a.shape[:1] == (H * W,) else a) for k, a in out.items()}
     full["ctx"] = ctx
     return full
@@ -288,22 +290,24 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
         key = (H, W, K.tobytes(), ctx["c2w"].tobytes(), repr(ctx.get("dist")))
     lens = ctx.get("dist") is not None and not ctx["dist"].is_identity
     if key is not None and s0._surface is not None and s0._surface[0] == key:
-        o, d, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
+        o, mesh, tri, depth, pos, normal, bary, g = s0._surface[1]
     else:
         o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)  # every ray's origin: the camera centre
+        A = _pixel_to_world(ctx)
         if lens:  # the lens's ray through each pixel (camera-z component 1)
-            d = ray_directions(u, v, _camera(ctx))
+            d = np.ascontiguousarray(ray_directions(u, v, _camera(ctx)), np.float64)
             mesh, tri = s0.cast(np.broadcast_to(o, (n, 3)), d)[1:] if hits is None else hits
         else:
-            # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole), in one pass
-            d, rays = _numba.rays_through(u, v, Camera(K, ctx["c2w"])._pixel_to_world(np.float64), o)
-            mesh, tri = s0.cast_rays(rays)[1:] if hits is None else hits
+            # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole): A (u, v, 1),
+            # computed again where needed rather than stored
+            d = np.zeros((0, 3))
+            mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:] if hits is None else hits
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth, pos, normal, bary = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
-        _numba.surface_from(o, np.ascontiguousarray(d, np.float64), mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
+        _numba.surface_from(o, d, u, v, A, mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
         g = np.flatnonzero(mesh >= 0)
         if key is not None:
-            s0._surface = (key, (o, d, mesh, tri, depth, pos, normal, bary, g))
+            s0._surface = (key, (o, mesh, tri, depth, pos, normal, bary, g))
     cam1 = _camera(ctx, 1)
     R, C = cam1.world_to_cam()
     baseline = ctx["baseline"]
@@ -353,6 +357,32 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     }
 
 
+def _pixel_to_world(ctx: dict) -> np.ndarray:
+    """(3, 3) float64 A of the traced view's pinhole at t: the ray direction through pixel (u, v) is A (u, v, 1)."""
+    return np.ascontiguousarray(Camera(ctx["K"], ctx["c2w"])._pixel_to_world(np.float64), np.float64)
+
+
+def _corners(ctx: dict, u: np.ndarray, v: np.ndarray, carry: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """What the ``mixed`` rule reads at rays through (u, v): :func:`trace_pixels`' mesh, depth and (with
+    ``carry``) flow, computed alone (no hit point, normal, scene flow or visibility kept)."""
+    from . import _verify_numba as _numba
+
+    if ctx.get("dist") is not None and not ctx["dist"].is_identity:  # through a lens: the full trace
+        c = trace_pixels(ctx, u, v, visibility=False)
+        return c["mesh"], c["depth"], c["flow"] if carry else None
+    s0, s1, K = ctx["s0"], ctx["s1"], ctx["K"]
+    u, v = np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64)
+    o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)
+    A = _pixel_to_world(ctx)
+    mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:]
+    R, C = _camera(ctx, 1).world_to_cam()
+    depth, flow = np.empty(len(u)), np.empty((len(u) if carry else 0, 2))
+    _numba.corner_motion(u, v, A, o, mesh, tri, s0.V, s0.T, s0.tri_offset, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset,
+                         np.ascontiguousarray(K @ R, np.float64), np.ascontiguousarray(R[2], np.float64), np.ascontiguousarray(C, np.float64),
+                         carry, depth, flow)
+    return mesh, depth, flow if carry else None
+
+
 def _camera(ctx: dict, at: int = 0) -> Camera:
     """The traced view's camera at t (``at`` 0) or at the other frame (1), with its lens."""
     return Camera(ctx["K"], ctx["c2w1" if at else "c2w"], ctx.get("dist"))
@@ -363,13 +393,13 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
                   moving=None) -> tuple[np.ndarray, np.ndarray]:
     """(visible, first-hit ray parameter) of world points at the scene's time: inside the image and
     no surface on the segment from the camera centre before ``1 - eps`` (lfusd.truth.visibility's rule);
+    the ray parameter is exact where it decides anything (at or before ``1 - eps`` and the top of the
+    occlusion tie band, 1 - VISIBLE_EPS / 10); a segment with nothing up to there gets +inf (:func:`_first_hits`);
     ``uvz``: the points' projection in ``cam`` when the caller has it. ``still`` (per point): the
     point is the first hit, at the other time, of a ray from this same camera centre, on a triangle
     that stands still, so no triangle that stands still lies before it: its segment is cast against
     ``moving`` alone (:meth:`TracedScene.moving_scene`; None: nothing moved), and only where one of
     those may lie in front of it; its own surface counts as a hit at 1."""
-    import open3d as o3d
-
     from . import _verify_numba as _numba
 
     u1, v1, z1 = project(points, cam) if uvz is None else uvz
@@ -392,12 +422,35 @@ def visibility_of(scene: "TracedScene", cam: Camera, points: np.ndarray, valid: 
     inside, t_hit, idx, rays, known, krays = _numba.visibility_split(
         f64(points), np.ascontiguousarray(valid, bool), f64(u1), f64(v1), f64(z1),
         np.zeros(0, bool) if still is None else np.ascontiguousarray(still, bool), near, H, W, C1)
-    if known.size:
-        t_hit[known] = np.minimum(moving[0].cast_rays(o3d.core.Tensor(krays))["t_hit"].numpy(), 1.0)
+    # what is decided from a first hit: visible (none before 1 - eps) and the occlusion tie band
+    # (one in [1 - 10 eps, 1 - eps / 10], as verify's errors read it): a farther one is not needed
+    upto = max(1 - eps, 1 - VISIBLE_EPS / 10)
+    if known.size:  # picked as maybe hidden by what moved: cast at once (most are, the occlusion test would not pay)
+        t_hit[known] = np.minimum(moving[0].cast_rays(_tensor(krays))["t_hit"].numpy(), 1.0)
     if idx.size:
-        t_hit[idx] = scene.cast_rays(o3d.core.Tensor(rays))[0]
+        t_hit[idx] = _first_hits(scene.scene, rays, upto)
     with np.errstate(invalid="ignore"):
         return inside & (t_hit >= 1 - eps), t_hit
+
+
+def _first_hits(scene, rays: np.ndarray, upto: float) -> np.ndarray:
+    """Per ray ((N, 6) float32, as Open3D takes them) of an Open3D scene: the first hit's ray parameter
+    where one lies at or before ``upto``, else +inf (or a hit just past it). Open3D's occlusion test
+    (any hit up to a limit, cheaper than a cast) picks the rays to cast: a ray has a hit at or before
+    a limit exactly when its first hit is."""
+    far = np.nextafter(np.float32(upto), np.float32(np.inf))  # float32 at or above upto: no hit at upto is missed
+    t = np.full(len(rays), np.inf, np.float32)
+    sel = np.flatnonzero(scene.test_occlusions(_tensor(rays), tfar=float(far)).numpy())
+    if sel.size:
+        t[sel] = scene.cast_rays(_tensor(rays[sel]))["t_hit"].numpy()
+    return t
+
+
+def _tensor(rays: np.ndarray):
+    """Rays ((N, 6) float32) as an Open3D tensor sharing their memory (no copy)."""
+    import open3d as o3d
+
+    return o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, np.float32))
 
 
 # -- comparison ------------------------------------------------------------------------------
@@ -904,7 +957,7 @@ def compare_view(
     fg_of = np.bincount(code[fg], minlength=n_labels)  # foreground pixels per label
     fg_all = int(fg.sum())
     rows: list[Row] = []
-    grouped = np.empty(H * W)
+    q = np.array([50.0, 99.0])  # each row's median and p99
     for key, e in err.items():  # one compiled pass per key for every label's row
         rate = UNITS.get(key) == "frac"
         kk = kind if key != "mixed" else np.zeros_like(kind)  # this key's tie kind per pixel
@@ -912,9 +965,8 @@ def compare_view(
             kk = kk.copy()
             for pix, k in own.get(key, []):
                 kk[pix[kk[pix] == 0]] = k
-        count, over, worst, top, total, kinds = _numba.label_stats(
-            np.ascontiguousarray(e, np.float64), code, kk, n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, grouped)
-        offset = np.r_[0, np.cumsum(count[:n_labels])]
+        count, over, worst, top, total, kinds, pct = _numba.label_stats(
+            np.ascontiguousarray(e, np.float64), code, kk, n_labels, len(TIE_KINDS) + 1, float(thr[key]), rate, q)
         for c in [-1] + np.flatnonzero(count[:n_labels]).tolist():
             r = n_labels if c < 0 else c
             label, fg_c = (ALL, fg_all) if c < 0 else (names_[c], int(fg_of[c]))
@@ -929,41 +981,12 @@ def compare_view(
                 rows.append(Row(frame, view, key, label, int(count[r]), m, m, m, thr[key], int(over[r]), fg_c, n_ties,
                                 (j % W, j // W, float(top[r])), by_kind))
             else:
-                med, p99 = _percentiles(grouped[:offset[-1]] if c < 0 else grouped[offset[c]:offset[c + 1]], (50, 99))
-                rows.append(Row(frame, view, key, label, int(count[r]), float(med), float(p99), float(top[r]),
+                rows.append(Row(frame, view, key, label, int(count[r]), float(pct[r, 0]), float(pct[r, 1]), float(top[r]),
                                 thr[key], int(over[r]), fg_c, n_ties, (j % W, j // W, float(top[r])), by_kind))
     rows += _bias_rows(ds, st, fw, inst_tr, ids, objects, ties, frame, view, W, thr)
     if bw is not None:
         rows += _bias_rows(ds, st, bw, inst_tr, ids, objects, ties, frame, view, W, thr, "bwd")
     return rows
-
-
-RADIX_MIN = 1 << 15  # fewer errors than this in a row: their percentiles by np.partition
-
-
-def _percentiles(x: np.ndarray, q: tuple[float, ...]) -> tuple[float, ...]:
-    """np.percentile(x, q) (its default, linear interpolation between the order statistics around
-    (n - 1) q / 100, by the same arithmetic) of a float64 array without NaN, the order statistics
-    found by radix selection (lfusd.truth._verify_numba.order_stats) instead of a partition of all
-    of x."""
-    from . import _verify_numba as _numba
-
-    n = len(x)
-    vi = (n - 1) * (np.asarray(q, np.float64) / 100)
-    lo = np.floor(vi).astype(np.int64)
-    hi = np.minimum(lo + 1, n - 1)
-    ks = np.unique(np.concatenate([lo, hi]))
-    if n < RADIX_MIN:  # a partition of a copy costs less than the radix histogram's 2^16 bins
-        val = np.partition(np.asarray(x, np.float64), ks)[ks]
-    else:
-        val = np.empty(len(ks))
-        _numba.order_stats(np.ascontiguousarray(x, np.float64), ks, val)
-    a, b = val[np.searchsorted(ks, lo)], val[np.searchsorted(ks, hi)]
-    t = vi - lo
-    with np.errstate(invalid="ignore"):  # inf - inf: NaN, as numpy's
-        diff = b - a
-        out = np.where(t >= 0.5, b - diff * (1 - t), a + diff * t)  # numpy's _lerp
-    return tuple(float(v) for v in out)
 
 
 def _mixed_decision(ident: np.ndarray, depth: np.ndarray, flow: np.ndarray | None, H: int, W: int,
@@ -995,13 +1018,12 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
     silhouette, depth slack 0.8 times the rule's) and maybe (grown, either side, 1.25 times)."""
     from .visibility import MIXED_DEPTH_REL, MIXED_FLOW_PX
 
-    vc, uc = np.mgrid[0:H + 1, 0:W + 1].astype(np.float64) - 0.5
-    uc, vc = uc.ravel(), vc.ravel()
-    c = trace_pixels(ctx, uc, vc, visibility=False)
-    ident = np.where(c["mesh"] >= 0, ids[c["mesh"]], -1)
-    flow = c["flow"] if carry else None
+    uc = np.tile(np.arange(W + 1, dtype=np.float64) - 0.5, H + 1)  # the (H+1) x (W+1) corners, raster order
+    vc = np.repeat(np.arange(H + 1, dtype=np.float64) - 0.5, W + 1)
+    c_mesh, c_depth, flow = _corners(ctx, uc, vc, carry)
+    ident = np.where(c_mesh >= 0, ids[c_mesh], -1)
     lo, hi = MIXED_BAND
-    surely, maybe = _mixed_decision(ident, c["depth"], flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
+    surely, maybe = _mixed_decision(ident, c_depth, flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
                                     MIXED_DEPTH_REL * lo, MIXED_FLOW_PX * lo)
     # the footprint's edges, from the stage's own triangles: surely crossed (squares shrunk by the
     # float bound, nearly edge-on triangles no silhouette), or maybe (grown, edge-on either side)
@@ -1012,7 +1034,7 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
 
         cam, inst = Camera(ctx["K"], ctx["c2w"]), ids[mesh]
         for out, grow, strict, rel in ((surely, -TIE_PX, True, MIXED_DEPTH_REL * lo), (maybe, TIE_PX, False, MIXED_DEPTH_REL * hi)):
-            out |= crossed_by_edges(ctx["s0"].V, T, inst, table, cam, c["depth"], H, W, rel, grow=grow, ulps=EDGE_ULPS,
+            out |= crossed_by_edges(ctx["s0"].V, T, inst, table, cam, c_depth, H, W, rel, grow=grow, ulps=EDGE_ULPS,
                                     strict=strict, fpx=float(ctx["K"][0, 0])).ravel()
     got = np.asarray(mixed, bool)
     wrong = (got & ~maybe) | (~got & surely)
@@ -1023,14 +1045,14 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
         a = (bad // W) * wc + bad % W
         corners = np.unique(np.concatenate([a, a + 1, a + wc, a + wc + 1]))
         moved = np.zeros(len(uc), bool)
-        z0 = c["depth"][corners]
+        z0 = c_depth[corners]
         for du, dv in ((TIE_PX, 0), (-TIE_PX, 0), (0, TIE_PX), (0, -TIE_PX)):
-            m = trace_pixels(ctx, uc[corners] + du, vc[corners] + dv, visibility=False)
-            step = np.where(m["mesh"] >= 0, ids[m["mesh"]], -1) != ident[corners]
+            m_mesh, m_depth, m_flow = _corners(ctx, uc[corners] + du, vc[corners] + dv, carry)
+            step = np.where(m_mesh >= 0, ids[m_mesh], -1) != ident[corners]
             with np.errstate(invalid="ignore"):
-                step |= np.abs(m["depth"] - z0) > MIXED_DEPTH_REL * lo * np.fmin(m["depth"], z0)
+                step |= np.abs(m_depth - z0) > MIXED_DEPTH_REL * lo * np.fmin(m_depth, z0)
                 if carry:
-                    step |= np.linalg.norm(m["flow"] - flow[corners], axis=-1) > MIXED_FLOW_PX * lo
+                    step |= np.linalg.norm(m_flow - flow[corners], axis=-1) > MIXED_FLOW_PX * lo
             moved[corners] |= step
         edge = moved[a] | moved[a + 1] | moved[a + wc] | moved[a + wc + 1]
         wrong[bad[edge]] = False

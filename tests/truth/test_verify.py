@@ -118,6 +118,57 @@ def test_trace_motion_matches_closed_form_boxes(tmp_path):
         assert (tr["occluded"][both] == hidden[both]).mean() > 0.999
 
 
+def test_the_mixed_rules_corner_trace_is_the_closed_form_and_the_full_traces(tmp_path):
+    """The rays through the pixel corners that the mixed rule reads (verify._corners: mesh, depth
+    and flow alone) give the closed-form boxes' depth and flow at every corner, and bit for bit what
+    the full trace (trace_pixels) gives there, with and without the carry to t+1."""
+    from lfusd.truth import verify as V
+
+    sc = scene()
+    stage = stage_of(sc, tmp_path / "s.usda")
+    ctx = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[3], N, N, step=1, baseline=sc.baseline)["ctx"]
+    uc = np.tile(np.arange(N + 1.0) - 0.5, N + 1)
+    vc = np.repeat(np.arange(N + 1.0) - 0.5, N + 1)
+    full = V.trace_pixels(ctx, uc, vc, visibility=False)
+    for carry in (False, True):
+        mesh, depth, flow = V._corners(ctx, uc, vc, carry)
+        assert np.array_equal(mesh, full["mesh"]) and np.array_equal(depth, full["depth"])
+        assert flow is None if not carry else np.array_equal(flow, full["flow"], equal_nan=True)
+    c2w = sc.cams[2]
+    d = np.stack([uc, vc, np.ones_like(uc)], -1) @ np.linalg.inv(sc.K).T @ c2w[:3, :3].T
+    s, which, local = sc.cast(np.broadcast_to(c2w[:3, 3], d.shape), d, 2)
+    agree = (which >= 0) & (mesh == which)
+    assert agree.mean() > 0.99 * (which >= 0).mean() > 0.5  # silhouettes may differ by float rounding
+    assert np.isinf(depth[(which < 0) & (mesh < 0)]).all() and np.isnan(flow[mesh < 0]).all()
+    np.testing.assert_allclose(depth[agree], s[agree], rtol=1e-9)
+    u1, v1, _ = sc.project(sc.to_world(which, local, 3), 3)
+    np.testing.assert_allclose(flow[agree], np.stack([u1 - uc, v1 - vc], -1)[agree], atol=1e-7)
+
+
+def test_visibility_casts_only_the_segments_hit_up_to_the_tie_band(tmp_path):
+    """verify._first_hits (Open3D's occlusion test up to a limit, then a cast of the rays it flags)
+    gives a cast's first-hit ray parameter wherever it lies at or before the limit, and a value past
+    the limit elsewhere: on the segments from the camera at t+1 to every traced point carried there
+    (some hidden by the block, most ending on their own surface at 1)."""
+    import open3d as o3d
+
+    from lfusd.truth import verify as V
+
+    sc = scene()
+    stage = stage_of(sc, tmp_path / "s.usda")
+    tr = trace_motion(stage, 2, sc.K, sc.cams[2], sc.cams[3], N, N, step=1, baseline=sc.baseline)
+    scene1 = tr["ctx"]["s1"].scene
+    P = tr["next_position"][tr["valid"]].reshape(-1, 3)
+    C = sc.cams[3][:3, 3]
+    rays = np.ascontiguousarray(np.concatenate([np.broadcast_to(C, P.shape), P - C], 1), np.float32)
+    want = scene1.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+    for upto in (1 - V.VISIBLE_EPS / 10, 0.9, 1.5):
+        got = V._first_hits(scene1, rays, upto)
+        near = want <= upto
+        assert near.sum() > 20 and (upto > 1 or (~near).sum() > 20)
+        assert np.array_equal(got[near], want[near]) and (got[~near] > upto).all()
+
+
 def test_verify_passes_on_exact_data_and_prints_per_class_rows(tmp_path):
     sc = scene()
     stage_of(sc, tmp_path / "s.usda")

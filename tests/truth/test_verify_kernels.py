@@ -1,5 +1,5 @@
 """lfusd.truth.verify's compiled passes against their rules written out pixel by pixel: the per-key
-errors, the over-limit test, the two-limit mixed decision and the radix-selected percentiles."""
+errors, the over-limit test, the two-limit mixed decision, the label rows with their radix-selected percentiles and the corner trace of the mixed rule."""
 
 import math
 
@@ -134,9 +134,14 @@ def test_the_two_limit_mixed_decision_is_two_single_decisions():
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 100, 1001, 40_000, 200_003])
-def test_percentiles_are_numpys(n):
-    """The rows' median and p99 (by partition, or radix selection from RADIX_MIN errors) are numpy's linear percentiles exactly: spread
-    and heavy-tailed errors, many equal ones, signed zeros, infinities and negatives."""
+def test_label_rows_follow_their_rules(n):
+    """One pass gives every label's row and the row of all labels together, as written out here: pixels
+    compared (not NaN), over the limit, the first pixel of the greatest error, the sum, the tie kinds,
+    and median and p99 exactly numpy's linear percentiles (radix-selected): spread and heavy-tailed
+    errors, many equal ones, mostly exact zeros, signed zeros, infinities, negatives, values beyond
+    the resolved buckets either way; a label without pixels; rates (over 0.5) without percentiles."""
+    from lfusd.truth import _verify_numba as K
+
     rng = np.random.default_rng(n)
     cases = [rng.random(n), rng.lognormal(-12, 4, n), np.zeros(n), np.round(rng.normal(0, 1e-3, n), 5), -rng.random(n)]
     z = np.zeros(n)
@@ -144,8 +149,45 @@ def test_percentiles_are_numpys(n):
     z[1::7] = -0.0
     z[2::11] = np.inf
     cases.append(z)
+    # mostly exact agreement (+0.0, never gathered), and beyond the resolved buckets either way
+    cases.append(np.where(rng.random(n) < 0.7, 0.0, rng.lognormal(-12, 4, n)))
+    cases.append(rng.choice([1e-300, 3e-300, 1e30, 2e30, 0.0, -0.0, 5e-20, 1.0, -1e-16], n))
+    n_labels, n_kinds, limit = 4, 6, 1e-4
+    q = np.array([50.0, 99.0])
     for x in cases:
-        got = V._percentiles(x, (50, 99))
-        with np.errstate(invalid="ignore"):  # inf - inf in numpy's interpolation
-            want = np.percentile(x, [50, 99])
-        assert np.array_equal(got, want, equal_nan=True), (x[:5], got)
+        e = x.copy()
+        e[rng.random(n) < 0.2] = np.nan  # not compared
+        code = rng.integers(0, n_labels - 1, n)  # label 3 has no pixel
+        kind = rng.integers(0, n_kinds, n)
+        for rate in (False, True):
+            count, over, worst, top, total, kinds, pct = K.label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q)
+            for r in range(n_labels + 1):
+                idx = np.flatnonzero(((code == r) if r < n_labels else np.ones(n, bool)) & ~np.isnan(e))
+                vals = e[idx]
+                assert count[r] == len(vals)
+                assert over[r] == int((vals > (0.5 if rate else limit)).sum())
+                assert kinds[r].tolist() == np.bincount(kind[idx], minlength=n_kinds).tolist()
+                if len(vals) == 0:
+                    assert np.isnan(pct[r]).all()
+                    continue
+                assert worst[r] == idx[np.argmax(vals)] and top[r] == vals.max()
+                with np.errstate(invalid="ignore"):
+                    np.testing.assert_allclose(total[r], vals.sum(), rtol=1e-9)
+                    want = np.full(2, np.nan) if rate else np.percentile(vals, [50, 99])
+                assert np.array_equal(pct[r], want, equal_nan=True), (r, x[:5], pct[r], want)
+
+
+def test_open3ds_cast_answer_resolves_to_mesh_and_triangle():
+    """Per ray: the mesh of its geometry id (the scene's lookup table) where it hit something and
+    the id is known, else -1; the triangle id as Open3D gives it."""
+    from lfusd.truth import _verify_numba as K
+
+    none = np.iinfo(np.uint32).max  # Open3D's invalid id
+    t = np.array([1.0, INF, 2.0, 3.0, 0.5], np.float32)
+    gid = np.array([0, none, 1, 7, 2], np.uint32)
+    prim = np.array([5, none, 9, 2, 0], np.uint32)
+    lut = np.array([2, 0, -1], np.int64)  # geometry 0: mesh 2, geometry 1: mesh 0, geometry 2: none (the table's last entry)
+    mesh, tri = np.empty(5, np.int64), np.empty(5, np.int64)
+    K.resolve_hits(t, gid, prim, lut, mesh, tri)
+    assert mesh.tolist() == [2, -1, 0, -1, -1]
+    assert tri.tolist() == [5, int(none), 9, 2, 0]
