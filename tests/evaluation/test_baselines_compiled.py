@@ -216,7 +216,7 @@ def _ray_flow_reference(images0, images1, offsets, ref_view, K, d, solver, windo
     return V
 
 
-def _lf(t, n=48):
+def _lf(t):
     """A 3x3 rig of a textured plane at 2 m with a still plane behind and a moving half-plane in front
     of its right half (tests/evaluation/test_rayflow.py's depth edge), uint8 as rendered."""
     from test_rayflow import OFFSETS, _step_view
@@ -242,7 +242,7 @@ def test_the_compiled_ray_flow_is_the_numpy_ray_flow(solver):
 
 
 def test_a_pair_lends_its_second_frame_to_the_next_pair():
-    (i0, offs), (i1, _) = _lf(0), _lf(1)
+    (i0, _), (i1, _) = _lf(0), _lf(1)
     first = rayflow.LightFieldPair(i0, i1)
     nxt = rayflow.LightFieldPair(i1, i0, previous=first)
     fresh = rayflow.LightFieldPair(i1, i0)
