@@ -126,11 +126,14 @@ def main() -> int:
                 best = (min(best[0], wall), min(best[1], cpu))
             times[(name, label)] = best
     print(f"{a.bench}: {rows}x{cols} views of {w}x{h}; {total} view-frames in its test split; {len(refs)} views timed, CPU, best of {a.repeat}")
-    print(f"{'method':<24} {'implementation':<26} {'wall s/vf':>10} {'CPU s/vf':>9} {'before/after':>13} {'test split, min':>16}")
+    print(f"{'method':<24} {'implementation':<26} {'wall s/vf':>10} {'CPU s/vf':>9} {'before/after wall':>18} {'CPU':>7} {'test split, min':>16}")
     after = impls[-1][0]
     for (name, label), (wall, cpu) in times.items():
-        ratio = times[(name, impls[0][0])][0] / times[(name, after)][0] if label == after and len(impls) > 1 else None
-        rs = f"{ratio:>12.2f}x" if ratio else f"{'':>13}"
+        if label == after and len(impls) > 1:
+            before = times[(name, impls[0][0])]
+            rs = f"{before[0] / wall:>17.2f}x {before[1] / cpu:>6.2f}x"
+        else:
+            rs = f"{'':>18} {'':>7}"
         print(f"{name:<24} {label:<26} {wall:>10.2f} {cpu:>9.2f} {rs} {total * wall / 60:>16.1f}")
     return 0
 

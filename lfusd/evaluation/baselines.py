@@ -1,7 +1,8 @@
 """Classical baselines that give a new dataset a first results table without training.
 
 - :func:`plane_sweep` / :func:`plane_sweep_disparity`: light-field disparity by sweeping fronto-
-  parallel planes (PyTorch, GPU when present). For each candidate disparity d every view is warped
+  parallel planes (a compiled kernel on the CPU, PyTorch on a GPU when present). For each
+  candidate disparity d every view is warped
   to the reference position with the light-field relation of CONVENTIONS.md (a point at
   disparity d seen at (u, v) from offset s0 appears at u - d*(sx - sx0), v - d*(sy - sy0) in a
   view at offset s), the colour variance across views is box-filtered, the best d is taken per
