@@ -2,9 +2,10 @@
 (lfusd.evaluation.baselines) and the ray flow's per-ray normal equations, cubic-spline sampling and
 preconditioned conjugate gradients (lfusd.evaluation.rayflow).
 
-Each kernel computes what the NumPy / PyTorch / SciPy expression it replaces computes, in float64
-(tests/evaluation/test_baselines_speed.py compares them): the same samples (bilinear with the border
-clamped, scipy's cubic B-spline with mirrored indices), the same sums, the same iteration.
+Each kernel computes what the NumPy / PyTorch / SciPy expression it replaces computes, in float64:
+the same samples (bilinear with the border clamped, scipy's cubic B-spline with mirrored indices),
+the same sums, the same iteration (tests/evaluation/test_baselines_compiled.py compares them with
+copies of the code they replaced).
 """
 
 from __future__ import annotations
