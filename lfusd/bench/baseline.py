@@ -165,8 +165,11 @@ def write_baseline(root, sub, n_planes: int = 48, window: int = 9, device=None, 
     from .make import read_record
     from .score import _savez, submission_path
 
+    from ..evaluation.baselines import check_window
+
     if method not in METHODS:
         raise LfusdError(f"unknown baseline {method!r}; use one of {', '.join(METHODS)}")
+    check_window(window)  # before anything is written
     root, sub = Path(root), Path(sub)
     rec = read_record(root)
     if method == "rayflow":  # refuse before anything is written

@@ -39,6 +39,12 @@ def _img_tensor(img, device) -> torch.Tensor:
     return t.permute(2, 0, 1)
 
 
+def check_window(window: int) -> None:
+    """Refuse a cost window the sweep cannot centre on a pixel (even) or that holds no pixel."""
+    if window < 1 or window % 2 == 0:
+        raise LfusdError(f"a plane sweep's window must be an odd number of pixels, got {window}; use {max(window - 1, 1)} or {max(window + 1, 1)}")
+
+
 def plane_sweep(images: dict, offsets: dict, ref_offset=(0.0, 0.0), d_range=(-4.0, 4.0), n_planes: int = 64, window: int = 5, device=None, chunk: int = 8):
     """Sweep planes of constant disparity from a reference position through a set of views.
 
@@ -52,6 +58,7 @@ def plane_sweep(images: dict, offsets: dict, ref_offset=(0.0, 0.0), d_range=(-4.
         raise LfusdError("a plane sweep needs at least two views")
     if n_planes < 3 or not d_range[1] > d_range[0]:
         raise LfusdError(f"a plane sweep needs d_min < d_max and at least 3 planes, got {d_range} and {n_planes}")
+    check_window(window)
     device = torch.device(device) if device is not None else default_device()
     keys = list(images)
     ds = torch.linspace(float(d_range[0]), float(d_range[1]), n_planes)  # the candidates, whichever device

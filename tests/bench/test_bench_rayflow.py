@@ -109,3 +109,9 @@ def test_ray_flow_shares_each_frame_pairs_image_work_and_predicts_what_a_fresh_r
         np.testing.assert_array_equal(preds[(t, v)]["disparity"], d0)
         np.testing.assert_allclose(preds[(t, v)]["scene_flow"], sf.astype(np.float32), rtol=0, atol=1e-7)
         np.testing.assert_allclose(preds[(t, v)]["flow"], flow.astype(np.float32), rtol=0, atol=1e-5)
+
+
+def test_an_even_sweep_window_is_refused_before_anything_is_written(tmp_path):
+    with pytest.raises(baseline.LfusdError, match="odd number of pixels, got 8; use 7 or 9"):
+        baseline.write_baseline(tmp_path / "bench", tmp_path / "sub", window=8)
+    assert not (tmp_path / "sub").exists()
