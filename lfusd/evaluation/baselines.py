@@ -39,6 +39,13 @@ def _img_tensor(img, device) -> torch.Tensor:
     return t.permute(2, 0, 1)
 
 
+def _img_array(img) -> np.ndarray:
+    """(H,W,C) float32 in [0, 1]: the values :func:`_img_tensor` gives (uint8 / 255 rounded to float32), without torch."""
+    a = np.asarray(img)
+    f = a.astype(np.float32) / np.float32(255) if a.dtype == np.uint8 else a.astype(np.float32)
+    return f[..., None] if f.ndim == 2 else f
+
+
 def check_window(window: int) -> None:
     """Refuse a cost window the sweep cannot centre on a pixel (even) or that holds no pixel."""
     if window < 1 or window % 2 == 0:
@@ -66,7 +73,7 @@ def plane_sweep(images: dict, offsets: dict, ref_offset=(0.0, 0.0), d_range=(-4.
     if device.type == "cpu":
         from ._baselines_numba import sweep_costs
 
-        imgs = np.stack([_img_tensor(images[k], "cpu").permute(1, 2, 0).numpy() for k in keys])  # V,H,W,C float32 as on the GPU
+        imgs = np.stack([_img_array(images[k]) for k in keys])  # V,H,W,C
         costs = torch.from_numpy(sweep_costs(imgs, np.asarray(rel, np.float32).astype(np.float64), ds.numpy().astype(np.float64), window))
     else:
         costs = _sweep_costs_torch(torch.stack([_img_tensor(images[k], device) for k in keys]), torch.tensor(rel, dtype=torch.float32, device=device),

@@ -292,3 +292,9 @@ def test_the_3x3_solve_is_lapacks():
     rhs = rng.normal(size=(4, 5, 3))
     eps = np.full((4, 5), 1e-3)
     np.testing.assert_allclose(nb.solve3(A, rhs, eps), np.linalg.solve(A + 1e-3 * np.eye(3), rhs[..., None])[..., 0], rtol=1e-9, atol=1e-12)
+
+
+def test_the_sweeps_images_are_the_torch_paths_values():
+    rng = np.random.default_rng(4)
+    for img in (rng.integers(0, 256, (5, 6, 3), dtype=np.uint8), rng.integers(0, 256, (5, 6), dtype=np.uint8), rng.random((5, 6, 3))):
+        np.testing.assert_array_equal(baselines._img_array(img), baselines._img_tensor(img, "cpu").permute(1, 2, 0).numpy())
