@@ -1,29 +1,57 @@
 """Time the benchmark's baselines (a) DIS + plane sweep and (b) ray flow (global and local) per view
-and frame at a benchmark's size (default preview: 5x5 views, 128x128), side by side, and
-extrapolate to its test split.
+and frame at a benchmark's size (default preview: 5x5 views, 128x128), an older revision's
+implementation beside this tree's, and extrapolate to its test split.
 
-    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_baselines.py [--bench preview] [--views 3]
+    PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_baselines.py [--bench preview] [--views 3] [--before main]
 
 The input is a synthetic light-field pair (a textured plane moving in 3-D, ray-traced in closed
 form, as in tests/evaluation/test_rayflow.py), so no render is needed; the work per view-frame is
-what `lfusd bench baseline` does (the disparity of (a) at t+1 counted: it sweeps both frames).
+what `lfusd bench baseline` does (lfusd/bench/baseline.py): (a) one plane sweep (the one at t+1; t's
+is the previous pair's t+1), DIS flow and the composition; (b) the plane sweep at t, the ray flow and
+the composition, plus a 1/(rows x cols) share of the frame pair's image-only work
+(rayflow.LightFieldPair, built once per frame for every view; timed apart) where the revision has it.
 ``--views`` reference views are timed per method (each one's work is independent of which view).
+
+``--before REV``: lfusd/evaluation/baselines.py and rayflow.py as committed at REV (``git show``),
+loaded as modules of this tree's lfusd.evaluation package, so the two differ only in those files.
+Both run in one process, interleaved per method (before, after), each the best of ``--repeat``.
+Prints per implementation wall seconds and CPU seconds (process time: every thread counted) per
+view-frame, the ratio before / after, and the test split's minutes at that rate (wall). On a
+shared machine the CPU seconds are the steadier figure.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import inspect
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from lfusd.bench.make import load_definition  # noqa: E402
-from lfusd.evaluation.baselines import dis_flow, plane_sweep_disparity, scene_flow_from  # noqa: E402
-from lfusd.evaluation.rayflow import compose, ray_flow  # noqa: E402
+from lfusd.evaluation import baselines, rayflow  # noqa: E402
+
+
+def load_at(rev: str, name: str):
+    """lfusd/evaluation/NAME.py at git revision ``rev``, as a module inside this tree's lfusd.evaluation."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/evaluation/{name}.py"], capture_output=True, text=True, check=True).stdout
+    mod_name = f"lfusd.evaluation._{name}_at_{rev.replace('/', '_').replace('-', '_').replace('~', '_').replace('^', '_')}"
+    path = Path(tempfile.mkdtemp(prefix="bench_baselines_")) / f"{name}.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__package__ = "lfusd.evaluation"
+    sys.modules[mod_name] = mod
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def light_field(rows: int, cols: int, w: int, h: int, t: int) -> tuple[dict, dict, np.ndarray]:
@@ -48,6 +76,9 @@ def main() -> int:
     p = argparse.ArgumentParser()
     p.add_argument("--bench", default="preview")
     p.add_argument("--views", type=int, default=3)
+    p.add_argument("--before", default=None, help="a git revision whose baselines.py / rayflow.py to time beside this tree's")
+    p.add_argument("--repeat", type=int, default=1)
+    p.add_argument("--only", default="a,global,local", help="methods to time: a, global, local")
     a = p.parse_args()
     d = load_definition(a.bench)
     w, h = d.recipe.resolution
@@ -57,34 +88,53 @@ def main() -> int:
     rng = (0.5 * 0.9 * w * 0.05 / 2.0, 2.0 * 0.9 * w * 0.05 / 2.0)
     refs = list(offsets)[: a.views]
     eye = np.eye(4)
+    impls = ([(f"before ({a.before})", load_at(a.before, "baselines"), load_at(a.before, "rayflow"))] if a.before else []) + [("after (this tree)", baselines, rayflow)]
 
     def group(v, imgs):
         return {u: imgs[u] for u in offsets if u[0] == v[0] or u[1] == v[1]}
 
-    def run_a(v):
-        d0 = plane_sweep_disparity(group(v, i0), offsets, offsets[v], rng, 48, 9, device="cpu")
-        d1 = plane_sweep_disparity(group(v, i1), offsets, offsets[v], rng, 48, 9, device="cpu")
-        scene_flow_from(d0, d1, dis_flow(i0[v], i1[v]), k, eye, eye, 0.05)
+    def run_a(bl, rf, v, pair):
+        d1 = bl.plane_sweep_disparity(group(v, i1), offsets, offsets[v], rng, 48, 9, device="cpu")
+        bl.scene_flow_from(d1, d1, bl.dis_flow(i0[v], i1[v]), k, eye, eye, 0.05)  # d1 stands in for t's (the previous pair's t+1)
 
-    def run_b(v, solver):
-        d0 = plane_sweep_disparity(group(v, i0), offsets, offsets[v], rng, 48, 9, device="cpu")
-        compose(d0, ray_flow(i0, i1, offsets, v, k, d0, solver=solver), k, 0.05, eye, eye)
+    def run_b(bl, rf, v, pair, solver):
+        d0 = bl.plane_sweep_disparity(group(v, i0), offsets, offsets[v], rng, 48, 9, device="cpu")
+        extra = {"pair": pair} if pair is not None else {}
+        rf.compose(d0, rf.ray_flow(i0, i1, offsets, v, k, d0, solver=solver, **extra), k, 0.05, eye, eye)
 
-    methods = {"(a) DIS + plane sweep": run_a, "(b) ray flow, global": lambda v: run_b(v, "global"),
-               "(b) ray flow, local": lambda v: run_b(v, "local")}
+    methods = {"a": ("(a) DIS + plane sweep", run_a), "global": ("(b) ray flow, global", lambda *x: run_b(*x, "global")),
+               "local": ("(b) ray flow, local", lambda *x: run_b(*x, "local"))}
     total = sum((s.frames - 1) * rows * cols for s in d.split("test"))
+    n = rows * cols
     times = {}
-    for name, fn in methods.items():
-        fn(refs[0])  # warm-up: imports, torch's first call
-        t0 = time.perf_counter()
-        for v in refs:
-            fn(v)
-        times[name] = (time.perf_counter() - t0) / len(refs)
-    base = times["(a) DIS + plane sweep"]
-    print(f"{a.bench}: {rows}x{cols} views of {w}x{h}; {total} view-frames in its test split; {len(refs)} views timed, CPU")
-    print(f"{'method':<24} {'s / view-frame':>15} {'vs (a)':>8} {'test split, min':>16}")
-    for name, t in times.items():
-        print(f"{name:<24} {t:>15.2f} {t / base:>7.2f}x {total * t / 60:>16.1f}")
+    for key in a.only.split(","):
+        name, fn = methods[key]
+        for label, bl, rf in impls:
+            has_pair = hasattr(rf, "LightFieldPair") and "pair" in inspect.signature(rf.ray_flow).parameters
+            make_pair = (lambda: rf.LightFieldPair(i0, i1)) if has_pair and key != "a" else (lambda: None)
+            fn(bl, rf, refs[0], make_pair())  # warm-up: imports, torch's first call, numba's compilation or cache
+            best = (float("inf"), float("inf"))
+            for _ in range(a.repeat):
+                w0, c0 = time.perf_counter(), time.process_time()
+                pair = make_pair()
+                wp, cp = time.perf_counter() - w0, time.process_time() - c0  # once per frame pair: 1/n of it per view-frame
+                w0, c0 = time.perf_counter(), time.process_time()
+                for v in refs:
+                    fn(bl, rf, v, pair)
+                wall = (time.perf_counter() - w0) / len(refs) + wp / n
+                cpu = (time.process_time() - c0) / len(refs) + cp / n
+                best = (min(best[0], wall), min(best[1], cpu))
+            times[(name, label)] = best
+    print(f"{a.bench}: {rows}x{cols} views of {w}x{h}; {total} view-frames in its test split; {len(refs)} views timed, CPU, best of {a.repeat}")
+    print(f"{'method':<24} {'implementation':<26} {'wall s/vf':>10} {'CPU s/vf':>9} {'before/after wall':>18} {'CPU':>7} {'test split, min':>16}")
+    after = impls[-1][0]
+    for (name, label), (wall, cpu) in times.items():
+        if label == after and len(impls) > 1:
+            before = times[(name, impls[0][0])]
+            rs = f"{before[0] / wall:>17.2f}x {before[1] / cpu:>6.2f}x"
+        else:
+            rs = f"{'':>18} {'':>7}"
+        print(f"{name:<24} {label:<26} {wall:>10.2f} {cpu:>9.2f} {rs} {total * wall / 60:>16.1f}")
     return 0
 
 

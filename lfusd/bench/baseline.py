@@ -13,7 +13,10 @@ motion and zero change, so every pixel is predicted.
 Baseline (b), ``rayflow``: the ray flow of Ma, Smith & Gupta (ECCV 2018; lfusd.evaluation.rayflow).
 Per frame and view: the same plane-sweep disparity, then the 3-D motion of every pixel's point
 from the light-field gradients of every view at t and t+1 (``local`` or ``global`` solver),
-composed into flow, disparity change and world scene flow with the cameras of both frames.
+composed into flow, disparity change and world scene flow with the cameras of both frames. It
+needs the disparity at t only, which no earlier frame pair swept (unlike (a), whose t+1 sweep is the
+next pair's t); what it shares is the images' work, once per frame pair for every reference view
+(:class:`lfusd.evaluation.rayflow.LightFieldPair`).
 """
 
 from __future__ import annotations
@@ -90,7 +93,7 @@ def predict_scene_rayflow(scene_dir: Path, n_planes: int = 48, window: int = 9, 
     """Yield (frame, view, arrays of a submission file) for every scored frame and view of one public
     test scene with baseline (b), ray flow (lfusd.evaluation.rayflow)."""
     from ..evaluation.baselines import plane_sweep_disparity
-    from ..evaluation.rayflow import compose, ray_flow
+    from ..evaluation.rayflow import LightFieldPair, compose, ray_flow
     from ..layout import view_key
 
     cams, rgb = _inputs(scene_dir)
@@ -100,14 +103,19 @@ def predict_scene_rayflow(scene_dir: Path, n_planes: int = 48, window: int = 9, 
     K = np.asarray(cams["intrinsics"], np.float64)
     rng = tuple(cams["disparity_range"])
     frames = cams["frames"]
+    pair, last = None, None
     for f in cams["scored_frames"]:
         nxt = frames[frames.index(f) + 1]
         i0 = {v: rgb(f, v) for v in views}
         i1 = {v: rgb(nxt, v) for v in views}
+        # the image-only work (pyramids, splines, gradients) once per frame pair for every reference
+        # view; the previous pair's t+1 is this pair's t when the scored frames follow each other
+        pair = LightFieldPair(i0, i1, previous=pair if last == f else None)
+        last = nxt
         for v in views:
             group = {u: i0[u] for u in views if u[0] == v[0] or u[1] == v[1]}
             d0 = plane_sweep_disparity(group, offsets, offsets[v], rng, n_planes, window, device=device)
-            motion = ray_flow(i0, i1, offsets, v, K, d0, solver=solver)
+            motion = ray_flow(i0, i1, offsets, v, K, d0, solver=solver, pair=pair)
             c0 = np.asarray(cams["cam_to_world"][str(f)][view_key(v)], np.float64)
             c1 = np.asarray(cams["cam_to_world"][str(nxt)][view_key(v)], np.float64)
             flow, dchange, sf = compose(d0, motion, K, cams["baseline"], c0, c1)
@@ -157,8 +165,11 @@ def write_baseline(root, sub, n_planes: int = 48, window: int = 9, device=None, 
     from .make import read_record
     from .score import _savez, submission_path
 
+    from ..evaluation.baselines import check_window
+
     if method not in METHODS:
         raise LfusdError(f"unknown baseline {method!r}; use one of {', '.join(METHODS)}")
+    check_window(window)  # before anything is written
     root, sub = Path(root), Path(sub)
     rec = read_record(root)
     if method == "rayflow":  # refuse before anything is written

@@ -1,7 +1,8 @@
 """Classical baselines that give a new dataset a first results table without training.
 
 - :func:`plane_sweep` / :func:`plane_sweep_disparity`: light-field disparity by sweeping fronto-
-  parallel planes (PyTorch, GPU when present). For each candidate disparity d every view is warped
+  parallel planes (a compiled kernel on the CPU, PyTorch on a GPU when present). For each
+  candidate disparity d every view is warped
   to the reference position with the light-field relation of CONVENTIONS.md (a point at
   disparity d seen at (u, v) from offset s0 appears at u - d*(sx - sx0), v - d*(sy - sy0) in a
   view at offset s), the colour variance across views is box-filtered, the best d is taken per
@@ -38,24 +39,63 @@ def _img_tensor(img, device) -> torch.Tensor:
     return t.permute(2, 0, 1)
 
 
+def _img_array(img) -> np.ndarray:
+    """(H,W,C) float32 in [0, 1]: the values :func:`_img_tensor` gives (uint8 / 255 rounded to float32), without torch."""
+    a = np.asarray(img)
+    f = a.astype(np.float32) / np.float32(255) if a.dtype == np.uint8 else a.astype(np.float32)
+    return f[..., None] if f.ndim == 2 else f
+
+
+def check_window(window: int) -> None:
+    """Refuse a cost window the sweep cannot centre on a pixel (even) or that holds no pixel."""
+    if window < 1 or window % 2 == 0:
+        raise LfusdError(f"a plane sweep's window must be an odd number of pixels, got {window}; use {max(window - 1, 1)} or {max(window + 1, 1)}")
+
+
 def plane_sweep(images: dict, offsets: dict, ref_offset=(0.0, 0.0), d_range=(-4.0, 4.0), n_planes: int = 64, window: int = 5, device=None, chunk: int = 8):
     """Sweep planes of constant disparity from a reference position through a set of views.
 
     ``images``: {view: (H,W,3) uint8 or float}; ``offsets``: {view: (sx, sy)} in baselines;
     ``ref_offset``: the reference (possibly virtual) view's offset. Returns (disparity (H,W)
-    float32, colour (H,W,3) float32 in [0, 1]: the mean of the warped views at the chosen depth,
-    cost (H,W) float32).
+    float32, cost (H,W) float32: the aggregated cost at the chosen plane). On the CPU a compiled
+    kernel builds the cost volume (lfusd.evaluation._baselines_numba, float64); on a GPU PyTorch
+    does, ``chunk`` planes at a time (float32). Both take the same candidates, cost and refinement.
     """
     if len(images) < 2:
         raise LfusdError("a plane sweep needs at least two views")
     if n_planes < 3 or not d_range[1] > d_range[0]:
         raise LfusdError(f"a plane sweep needs d_min < d_max and at least 3 planes, got {d_range} and {n_planes}")
+    check_window(window)
     device = torch.device(device) if device is not None else default_device()
     keys = list(images)
-    imgs = torch.stack([_img_tensor(images[k], device) for k in keys])  # V,C,H,W
+    ds = torch.linspace(float(d_range[0]), float(d_range[1]), n_planes)  # the candidates, whichever device
+    rel = [[offsets[k][0] - ref_offset[0], offsets[k][1] - ref_offset[1]] for k in keys]
+    if device.type == "cpu":
+        from ._baselines_numba import sweep_costs
+
+        imgs = np.stack([_img_array(images[k]) for k in keys])  # V,H,W,C
+        costs = torch.from_numpy(sweep_costs(imgs, np.asarray(rel, np.float32).astype(np.float64), ds.numpy().astype(np.float64), window))
+    else:
+        costs = _sweep_costs_torch(torch.stack([_img_tensor(images[k], device) for k in keys]), torch.tensor(rel, dtype=torch.float32, device=device),
+                                   ds.to(device), window, chunk)
+    ds = ds.to(costs)
+    best = costs.argmin(dim=0)
+    # parabola through the costs at best-1, best, best+1
+    i0 = (best - 1).clamp(min=0)
+    i2 = (best + 1).clamp(max=n_planes - 1)
+    c0, c1, c2 = (costs.gather(0, i[None])[0] for i in (i0, best, i2))
+    denom = c0 - 2 * c1 + c2
+    delta = torch.where((denom > 1e-12) & (best > 0) & (best < n_planes - 1), 0.5 * (c0 - c2) / denom.clamp(min=1e-12), torch.zeros_like(c1))
+    step = (d_range[1] - d_range[0]) / (n_planes - 1)
+    disp = ds[best] + delta.clamp(-0.5, 0.5) * step
+    return disp.cpu().numpy().astype(np.float32), c1.cpu().numpy().astype(np.float32)
+
+
+def _sweep_costs_torch(imgs: torch.Tensor, rel: torch.Tensor, ds: torch.Tensor, window: int, chunk: int) -> torch.Tensor:
+    """The cost volume (P,H,W) of :func:`plane_sweep` with PyTorch (a GPU): (V,C,H,W) views warped by grid_sample."""
     v, c, h, w = imgs.shape
-    rel = torch.tensor([[offsets[k][0] - ref_offset[0], offsets[k][1] - ref_offset[1]] for k in keys], dtype=torch.float32, device=device)
-    ds = torch.linspace(float(d_range[0]), float(d_range[1]), n_planes, device=device)
+    device = imgs.device
+    n_planes = ds.shape[0]
     yy, xx = torch.meshgrid(torch.arange(h, device=device, dtype=torch.float32), torch.arange(w, device=device, dtype=torch.float32), indexing="ij")
     costs = torch.empty(n_planes, h, w, device=device)
     pad = window // 2
@@ -74,16 +114,7 @@ def plane_sweep(images: dict, offsets: dict, ref_offset=(0.0, 0.0), d_range=(-4.
         wv = warp(ds[s : s + chunk])
         var = wv.var(dim=1, unbiased=False).sum(dim=1)  # P,H,W
         costs[s : s + chunk] = F.avg_pool2d(var[:, None], window, stride=1, padding=pad, count_include_pad=False)[:, 0]
-    best = costs.argmin(dim=0)
-    # parabola through the costs at best-1, best, best+1
-    i0 = (best - 1).clamp(min=0)
-    i2 = (best + 1).clamp(max=n_planes - 1)
-    c0, c1, c2 = (costs.gather(0, i[None])[0] for i in (i0, best, i2))
-    denom = c0 - 2 * c1 + c2
-    delta = torch.where((denom > 1e-12) & (best > 0) & (best < n_planes - 1), 0.5 * (c0 - c2) / denom.clamp(min=1e-12), torch.zeros_like(c1))
-    step = (d_range[1] - d_range[0]) / (n_planes - 1)
-    disp = ds[best] + delta.clamp(-0.5, 0.5) * step
-    return disp.cpu().numpy().astype(np.float32), c1.cpu().numpy().astype(np.float32)
+    return costs
 
 
 def _warp_map(imgs: torch.Tensor, rel: torch.Tensor, disp: torch.Tensor) -> torch.Tensor:

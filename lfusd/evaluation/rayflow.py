@@ -56,36 +56,14 @@ def _grey_stack(img) -> np.ndarray:
     return f[..., None] if f.ndim == 2 else f
 
 
-def _sample(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bilinear samples of (H,W,C) at float pixel coordinates (pixel centres at integers, clamped at the
-    border) and the inside mask. In float64: OpenCV's remap quantises the weights to 1/32 px, an error
-    a gradient method reads as motion."""
-    h, w = img.shape[:2]
-    inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    uc, vc = np.clip(u, 0, w - 1), np.clip(v, 0, h - 1)
-    u0 = np.minimum(np.floor(uc).astype(np.intp), max(w - 2, 0))
-    v0 = np.minimum(np.floor(vc).astype(np.intp), max(h - 2, 0))
-    a, b = (uc - u0)[..., None], (vc - v0)[..., None]
-    u1, v1 = np.minimum(u0 + 1, w - 1), np.minimum(v0 + 1, h - 1)
-    out = (1 - b) * ((1 - a) * img[v0, u0] + a * img[v0, u1]) + b * ((1 - a) * img[v1, u0] + a * img[v1, u1])
-    return out, inside
-
-
 def _spline(img: np.ndarray) -> np.ndarray:
-    """Cubic B-spline coefficients of (H,W,C), per channel (scipy.ndimage.spline_filter)."""
+    """Cubic B-spline coefficients of (H,W,C), per channel (scipy.ndimage.spline_filter). Samples of
+    them (_baselines_numba.cubic_sample) interpolate the image: a bilinear resampling's error
+    (several percent of a texture of 8 px wavelength) would read as motion; so would OpenCV remap's
+    weights, quantised to 1/32 px."""
     from scipy import ndimage
 
     return np.stack([ndimage.spline_filter(img[..., c], order=3, mode="mirror") for c in range(img.shape[2])], -1)
-
-
-def _sample_cubic(coef: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Cubic-spline samples of the image whose coefficients :func:`_spline` made: a bilinear
-    resampling's error (several percent of a texture of 8 px wavelength) would read as motion."""
-    from scipy import ndimage
-
-    h, w = coef.shape[:2]
-    coords = np.stack([np.clip(v, 0, h - 1).ravel(), np.clip(u, 0, w - 1).ravel()])
-    return np.stack([ndimage.map_coordinates(coef[..., c], coords, order=3, mode="mirror", prefilter=False).reshape(u.shape) for c in range(coef.shape[2])], -1)
 
 
 def _gradients(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -110,31 +88,47 @@ def _box(a: np.ndarray, window: int) -> np.ndarray:
     return cv2.blur(a.astype(np.float64), (window, window), borderType=cv2.BORDER_REFLECT)
 
 
-def _solve3(A: np.ndarray, b: np.ndarray, eps: np.ndarray) -> np.ndarray:
-    """Solve (A + eps I) x = b for stacks (...,3,3), (...,3)."""
-    return np.linalg.solve(A + eps[..., None, None] * np.eye(3), b[..., None])[..., 0]
+def _edge_weights(disparity: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Smoothness weights exp(-|d_p - d_q| / sigma) of the 4-neighbour pixel grid: (right (H,W-1), down (H-1,W))."""
+    return np.exp(-np.abs(np.diff(disparity, axis=1)) / sigma), np.exp(-np.abs(np.diff(disparity, axis=0)) / sigma)
 
 
-def _smoothness(h: int, w: int, disparity: np.ndarray, sigma: float):
-    """Weighted graph Laplacian (N,N) of the 4-neighbour pixel grid, weights exp(-|d_p - d_q| / sigma)."""
-    import scipy.sparse as sp
+class LightFieldPair:
+    """The parts of ray flow that depend on the images only, not on the reference view or its disparity:
+    per pyramid level the grey stacks, their cubic-spline coefficients at t and t+1 and the image
+    gradients at t+1 of every view. Build it once per frame pair and pass it to :func:`ray_flow` for
+    every reference view (a 5x5 rig: 25 times less of this work); ``previous``, the pair of (t-1, t),
+    lends its t+1 half as this pair's t."""
 
-    idx = np.arange(h * w).reshape(h, w)
-    rows, cols, wts = [], [], []
-    for a, b, da, db in ((idx[:, :-1], idx[:, 1:], disparity[:, :-1], disparity[:, 1:]), (idx[:-1], idx[1:], disparity[:-1], disparity[1:])):
-        wt = np.exp(-np.abs(da - db) / sigma).ravel()
-        rows.append(a.ravel())
-        cols.append(b.ravel())
-        wts.append(wt)
-    r, c, wt = np.concatenate(rows), np.concatenate(cols), np.concatenate(wts)
-    W = sp.coo_matrix((np.concatenate([wt, wt]), (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(h * w, h * w)).tocsr()
-    return sp.diags(np.asarray(W.sum(axis=1)).ravel()) - W
+    def __init__(self, images0: dict, images1: dict, levels: int | None = None, previous: "LightFieldPair | None" = None):
+        self.views = [v for v in images0 if v in images1]
+        if not self.views:
+            raise LfusdError("ray flow needs the views at t and t+1")
+        shapes = {np.shape(images0[v])[:2] for v in self.views} | {np.shape(images1[v])[:2] for v in self.views}
+        if len(shapes) != 1:
+            raise LfusdError(f"ray flow needs every image at one size, got {sorted(shapes)}")
+        h, w = shapes.pop()
+        self.shape = (h, w)
+        self.levels = max(1, int(np.floor(np.log2(min(h, w) / 16))) + 1) if levels is None else levels
+        if previous is not None and previous.views == self.views and previous.levels == self.levels and previous.shape == self.shape:
+            self.I0, self.S0 = previous.I1, previous.S1
+        else:
+            self.I0 = self._pyramid(images0)
+            self.S0 = [np.stack([_spline(a) for a in lvl]) for lvl in self.I0]
+        self.I1 = self._pyramid(images1)
+        self.S1 = [np.stack([_spline(a) for a in lvl]) for lvl in self.I1]
+        self.G1 = [np.stack([np.concatenate(_gradients(a), -1) for a in lvl]) for lvl in self.I1]
+
+    def _pyramid(self, images: dict) -> list[list[np.ndarray]]:
+        pyr = [[_grey_stack(images[s]) for s in self.views]]
+        for _ in range(self.levels - 1):
+            pyr.append([_pyr_down(a) for a in pyr[-1]])
+        return pyr
 
 
-def _level_step(I0, I1, G1, S1, d, rel, K, V, solver, window, lam, sigma_d, robust, iterations):
+def _level_step(pair: LightFieldPair, lvl: int, d, rel, K, V, solver, window, lam, sigma_d, robust, iterations):
     """Gauss-Newton iterations of the ray flow at one pyramid level; returns V (H,W,3), baseline units."""
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
+    from . import _baselines_numba as nb
 
     fx, fy, cx, cy = K
     h, w = d.shape
@@ -143,31 +137,19 @@ def _level_step(I0, I1, G1, S1, d, rel, K, V, solver, window, lam, sigma_d, robu
     Z = fx / dd
     X, Y = (u - cx) / fx * Z, (v - cy) / fy * Z
     # the rays of the reference pixel's point in every view at t: its light-field correspondence
-    ref = []
-    for s in range(len(I0)):
-        us, vs = u - d * rel[s][0], v - d * rel[s][1]
-        ref.append((_sample_cubic(_spline(I0[s]), us, vs), (us >= 0) & (us <= w - 1) & (vs >= 0) & (vs <= h - 1)))
-    lap = _smoothness(h, w, d, sigma_d) if solver == "global" else None
+    S0, S1, G1 = pair.S0[lvl], pair.S1[lvl], pair.G1[lvl]
+    L0 = np.empty(S0.shape)
+    in0 = np.empty((len(rel), h, w), bool)
+    for s in range(len(rel)):
+        us, vs = u - d * rel[s, 0], v - d * rel[s, 1]
+        L0[s] = nb.cubic_sample(S0[s], us, vs)
+        in0[s] = (us >= 0) & (us <= w - 1) & (vs >= 0) & (vs <= h - 1)
+    if solver == "global":
+        wr, wd = _edge_weights(d, sigma_d)
     for _ in range(iterations):
-        A = np.zeros((h, w, 3, 3))
-        b = np.zeros((h, w, 3))
-        Zp = np.maximum(Z + V[..., 2], 1e-3 * Z)
-        for s in range(len(I0)):
-            # where the moved point's ray lands in view s at t+1, and the ray flow coefficients there
-            us = fx * (X + V[..., 0] - rel[s][0]) / Zp + cx
-            vs = fy * (Y + V[..., 1] - rel[s][1]) / Zp + cy
-            L1 = _sample_cubic(S1[s], us, vs)
-            g, inside = _sample(G1[s], us, vs)  # (H,W,2C): d/du of every channel, then d/dv
-            nc = L1.shape[-1]
-            L0, inside0 = ref[s]
-            Lt = L1 - L0  # (H,W,C)
-            LX, LY = fx / Zp[..., None] * g[..., :nc], fy / Zp[..., None] * g[..., nc:]  # angular gradients d grad L (per channel)
-            LZ = -((us - cx) / fx)[..., None] * LX - ((vs - cy) / fy)[..., None] * LY
-            J = np.stack([LX, LY, LZ], -1)  # (H,W,C,3)
-            wgt = (inside & inside0)[..., None] / (1.0 + (Lt / robust) ** 2)  # Cauchy weights: occluded rays disagree
-            Jw = np.swapaxes(J * wgt[..., None], -1, -2)  # (H,W,3,C)
-            A += Jw @ J
-            b += (Jw @ Lt[..., None])[..., 0]
+        # every view's ray of the moved point at t+1, its ray flow equation per channel, Cauchy-weighted
+        # (occluded rays disagree), summed into 3x3 normal equations per pixel
+        A, b = nb.ray_normal_equations(S1, G1, L0, in0, rel, X, Y, Z, V, fx, fy, cx, cy, robust)
         scale = max(float(np.mean(np.trace(A, axis1=-2, axis2=-1))) / 3.0, 1e-12)
         if window > 1:
             # V constant over the window: each neighbour q's equations, linearised at its own V_q,
@@ -176,18 +158,13 @@ def _level_step(I0, I1, G1, S1, d, rel, K, V, solver, window, lam, sigma_d, robu
             A = _box(A.reshape(h, w, 9), window).reshape(h, w, 3, 3)
             b = np.einsum("hwij,hwj->hwi", A, V) - _box(AV - b, window)  # the normal equations A (V + delta) = box(AV - b)
         if solver == "local":
-            delta = _solve3(A, -b, np.full((h, w), 1e-6 * scale))
+            delta = nb.solve3(A, -b, np.full((h, w), 1e-6 * scale))
         else:
-            n = h * w
-            Ab = sp.bsr_matrix((A.reshape(n, 3, 3), np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n)).tocsr()
-            Lk = sp.kron(lap, sp.identity(3), format="csr")
-            M = Ab + lam * scale * Lk + 1e-6 * scale * sp.identity(3 * n)
-            rhs = -b.reshape(-1) - lam * scale * (Lk @ V.reshape(-1))
-            # conjugate gradients (M is symmetric positive definite) with each pixel's 3x3 block
-            # inverted as preconditioner: a direct factorisation costs seconds at 128x128
-            blocks = np.linalg.inv(A.reshape(n, 3, 3) + ((lam * scale * lap.diagonal() + 1e-6 * scale)[:, None, None] * np.eye(3)))
-            prec = spla.LinearOperator(M.shape, matvec=lambda x: (blocks @ x.reshape(n, 3, 1)).reshape(-1), dtype=np.float64)
-            sol, _ = spla.cg(M, rhs, M=prec, rtol=1e-5, maxiter=200)  # Gauss-Newton refines the rest
+            # (A + lam L + eps) delta = -b - lam L V with the structure-aware Laplacian L, by conjugate
+            # gradients (symmetric positive definite) with each pixel's 3x3 block inverted as
+            # preconditioner: a direct factorisation costs seconds at 128x128
+            rhs = -b.reshape(-1) - nb.smooth_apply(V.reshape(-1), wr, wd, lam * scale)
+            sol = nb.block_cg(np.ascontiguousarray(A.reshape(h * w, 3, 3)), wr, wd, lam * scale, 1e-6 * scale, rhs, 1e-5, 200)  # Gauss-Newton refines the rest
             delta = sol.reshape(h, w, 3)
         V = V + delta
         if float(np.max(np.abs(delta))) < 1e-4:
@@ -196,7 +173,7 @@ def _level_step(I0, I1, G1, S1, d, rel, K, V, solver, window, lam, sigma_d, robu
 
 
 def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity, solver: str = "global", window: int = 7,
-             smoothness: float = 1.0, levels: int | None = None, iterations: int = 5, robust: float = 0.1, edge: float = 0.3, global_window: int = 7) -> np.ndarray:
+             smoothness: float = 1.0, levels: int | None = None, iterations: int = 5, robust: float = 0.1, edge: float = 0.3, global_window: int = 7, pair: LightFieldPair | None = None) -> np.ndarray:
     """3-D displacement of the point seen at every pixel of ``ref_view`` between t and t+1, in the
     reference camera's frame (OpenCV axes, units of the baseline), as if the rig stood still.
 
@@ -206,7 +183,9 @@ def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity
     ``solver``: 'local' (window ``window``) or 'global' (data aggregated over ``global_window``;
     ``smoothness`` lambda, relative to the mean data term; ``edge``: px of disparity difference over
     which the smoothness weight falls by 1/e).
-    ``robust``: the Cauchy scale of the temporal difference, in [0, 1] intensity. Returns (H,W,3) float64.
+    ``robust``: the Cauchy scale of the temporal difference, in [0, 1] intensity.
+    ``pair``: the :class:`LightFieldPair` of these images, when one was built for another reference view.
+    Returns (H,W,3) float64.
     """
     if solver not in SOLVERS:
         raise LfusdError(f"unknown ray flow solver {solver!r}; use one of {', '.join(SOLVERS)}")
@@ -216,31 +195,28 @@ def ray_flow(images0: dict, images1: dict, offsets: dict, ref_view, K, disparity
     K = np.asarray(K, np.float64)
     d = np.asarray(disparity, np.float64)
     h, w = d.shape
-    I0 = [_grey_stack(images0[s]) for s in views]
-    I1 = [_grey_stack(images1[s]) for s in views]
-    if any(a.shape[:2] != (h, w) for a in I0 + I1):
+    if any(np.shape(images0[s])[:2] != (h, w) or np.shape(images1[s])[:2] != (h, w) for s in views):
         raise LfusdError(f"ray flow needs every image at the disparity's size {w}x{h}")
-    rel = [(offsets[s][0] - offsets[ref_view][0], offsets[s][1] - offsets[ref_view][1]) for s in views]
-    if levels is None:
-        levels = max(1, int(np.floor(np.log2(min(h, w) / 16))) + 1)
-    pyr = [(I0, I1, d, (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))]
+    if pair is None or pair.views != views or (levels is not None and pair.levels != levels):
+        pair = LightFieldPair(images0, images1, levels)
+    levels = pair.levels
+    rel = np.array([(offsets[s][0] - offsets[ref_view][0], offsets[s][1] - offsets[ref_view][1]) for s in views], np.float64).reshape(-1, 2)
+    pyr = [(d, (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))]
     for _ in range(levels - 1):
-        a0, a1, dl, (fx, fy, cx, cy) = pyr[-1]
+        dl, (fx, fy, cx, cy) = pyr[-1]
         dl_small = _pyr_down(dl[..., None])[..., 0] * 0.5  # disparity is in pixels: it halves with the image
         # pyrDown's pixel x is the blurred source pixel 2x: x' = x / 2
-        pyr.append(([_pyr_down(a) for a in a0], [_pyr_down(a) for a in a1], dl_small, (fx / 2, fy / 2, cx / 2, cy / 2)))
-    V = np.zeros(pyr[-1][2].shape + (3,))
+        pyr.append((dl_small, (fx / 2, fy / 2, cx / 2, cy / 2)))
+    V = np.zeros(pyr[-1][0].shape + (3,))
     for lvl in range(levels - 1, -1, -1):
-        a0, a1, dl, Kl = pyr[lvl]
+        dl, Kl = pyr[lvl]
         if V.shape[:2] != dl.shape:
             import cv2
 
             # V is in baselines (no rescale) and smooth: resize's half-pixel grid, a quarter pixel
             # off pyrDown's, only shifts the next level's starting point, which it then refines
             V = np.dstack([cv2.resize(V[..., i], (dl.shape[1], dl.shape[0]), interpolation=cv2.INTER_LINEAR) for i in range(3)])
-        G1 = [np.concatenate(_gradients(a), -1) for a in a1]
-        S1 = [_spline(a) for a in a1]
-        V = _level_step(a0, a1, G1, S1, dl, rel, Kl, V, solver, window if solver == "local" else global_window, smoothness, edge * 0.5**lvl, robust, iterations)
+        V = _level_step(pair, lvl, dl, rel, Kl, V, solver, window if solver == "local" else global_window, smoothness, edge * 0.5**lvl, robust, iterations)
     return V
 
 

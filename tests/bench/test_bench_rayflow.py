@@ -56,3 +56,62 @@ def test_ray_flow_refuses_a_rig_that_is_not_planar_and_parallel(tmp_path, capsys
     code, _, err = run_cli(capsys, "bench", "baseline", tmp_path, "-o", tmp_path / "sub", "--method", "rayflow")
     assert_one_line_error(code, err, "view 00_01", "planar, parallel rig", "--method dis")
     assert not (tmp_path / "sub").exists()  # refused before anything is written
+
+
+def test_ray_flow_shares_each_frame_pairs_image_work_and_predicts_what_a_fresh_ray_flow_does(monkeypatch):
+    """predict_scene_rayflow builds one LightFieldPair per frame pair (the next pair borrowing its t+1)
+    for every reference view; each view's prediction is the ray flow computed afresh from the images."""
+    from lfusd.evaluation import baselines as bl
+    from lfusd.evaluation import rayflow
+    from lfusd.layout import view_key
+
+    n, f, b = 32, 30.0, 0.1
+    rng = np.random.default_rng(5)
+    waves = [(rng.uniform(-1, 1, 2) / rng.uniform(0.2, 0.5), rng.uniform(0, 6.3)) for _ in range(12)]
+    views = [(r, c) for r in range(3) for c in range(3)]
+    offsets = {view_key(v): [v[1] - 1.0, v[0] - 1.0] for v in views}
+    frames = [0, 1, 2]
+
+    def rgb(t, v):  # a textured plane at 2 m moving by (1, -1, 5) cm per frame: views of one rig, closed form
+        yy, xx = np.mgrid[0:n, 0:n].astype(np.float64)
+        z = 2.0 + 0.05 * t
+        X = b * (v[1] - 1) + (xx - (n - 1) / 2) / f * z - 0.01 * t
+        Y = b * (v[0] - 1) + (yy - (n - 1) / 2) / f * z + 0.01 * t
+        ch = [0.5 + sum(0.1 * np.sin(2 * np.pi * (q[0] * X + q[1] * Y) + p) for q, p in waves[4 * c:4 * c + 4]) for c in range(3)]
+        return np.round(255 * np.clip(np.stack(ch, -1), 0, 1)).astype(np.uint8)
+
+    def pose(v):
+        m = np.eye(4)
+        m[:2, 3] = [b * (v[1] - 1), b * (v[0] - 1)]
+        return m.tolist()
+
+    K = [[f, 0, (n - 1) / 2], [0, f, (n - 1) / 2], [0, 0, 1]]
+    cams = {"views": [list(v) for v in views], "offsets": offsets, "intrinsics": K, "disparity_range": [1.0, 2.0], "baseline": b,
+            "frames": frames, "scored_frames": [0, 1], "cam_to_world": {str(t): {view_key(v): pose(v) for v in views} for t in frames}}
+    monkeypatch.setattr(baseline, "_inputs", lambda scene_dir: (cams, rgb))
+    built = []
+    real = rayflow.LightFieldPair
+
+    class Spy(real):
+        def __init__(self, *a, previous=None, **k):
+            built.append(previous)
+            super().__init__(*a, previous=previous, **k)
+
+    monkeypatch.setattr(rayflow, "LightFieldPair", Spy)
+    preds = {(t, v): arr for t, v, arr in baseline.predict_scene_rayflow(None, n_planes=12, window=5, device="cpu")}
+    assert len(built) == 2 and built[0] is None and isinstance(built[1], real)  # one per frame pair; the second borrows
+    offs = {v: tuple(offsets[view_key(v)]) for v in views}
+    for t, v in ((0, (0, 0)), (1, (1, 2))):
+        i0, i1 = {u: rgb(t, u) for u in views}, {u: rgb(t + 1, u) for u in views}
+        d0 = bl.plane_sweep_disparity({u: i0[u] for u in views if u[0] == v[0] or u[1] == v[1]}, offs, offs[v], (1.0, 2.0), 12, 5, device="cpu")
+        motion = rayflow.ray_flow(i0, i1, offs, v, np.asarray(K, float), d0)
+        flow, dchange, sf = rayflow.compose(d0, motion, np.asarray(K, float), b, np.asarray(pose(v)), np.asarray(pose(v)))
+        np.testing.assert_array_equal(preds[(t, v)]["disparity"], d0)
+        np.testing.assert_allclose(preds[(t, v)]["scene_flow"], sf.astype(np.float32), rtol=0, atol=1e-7)
+        np.testing.assert_allclose(preds[(t, v)]["flow"], flow.astype(np.float32), rtol=0, atol=1e-5)
+
+
+def test_an_even_sweep_window_is_refused_before_anything_is_written(tmp_path):
+    with pytest.raises(baseline.LfusdError, match="odd number of pixels, got 8; use 7 or 9"):
+        baseline.write_baseline(tmp_path / "bench", tmp_path / "sub", window=8)
+    assert not (tmp_path / "sub").exists()

@@ -120,6 +120,9 @@ def test_bad_inputs():
         baselines.plane_sweep_disparity({(0, 0): imgs[(0, 0)]}, offs)
     with pytest.raises(LfusdError):
         baselines.plane_sweep_disparity(imgs, offs, d_range=(2, 1))
+    for window in (8, 0):  # an even window cannot centre on its pixel (PyTorch's avg_pool2d failed on it)
+        with pytest.raises(LfusdError, match="odd"):
+            baselines.plane_sweep_disparity(imgs, offs, window=window, device="cpu")
     with pytest.raises(LfusdError):
         baselines.dis_flow(imgs[(0, 0)], imgs[(0, 0)][:10])
     with pytest.raises(LfusdError):
