@@ -23,11 +23,8 @@ shared machine the CPU seconds are the steadier figure.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import inspect
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -38,20 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 from lfusd.bench.make import load_definition  # noqa: E402
 from lfusd.evaluation import baselines, rayflow  # noqa: E402
-
-
-def load_at(rev: str, name: str):
-    """lfusd/evaluation/NAME.py at git revision ``rev``, as a module inside this tree's lfusd.evaluation."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/evaluation/{name}.py"], capture_output=True, text=True, check=True).stdout
-    mod_name = f"lfusd.evaluation._{name}_at_{rev.replace('/', '_').replace('-', '_').replace('~', '_').replace('^', '_')}"
-    path = Path(tempfile.mkdtemp(prefix="bench_baselines_")) / f"{name}.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location(mod_name, path)
-    mod = importlib.util.module_from_spec(spec)
-    mod.__package__ = "lfusd.evaluation"
-    sys.modules[mod_name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+from revisions import module_at  # noqa: E402  (benchmarks/revisions.py)
 
 
 def light_field(rows: int, cols: int, w: int, h: int, t: int) -> tuple[dict, dict, np.ndarray]:
@@ -88,7 +72,7 @@ def main() -> int:
     rng = (0.5 * 0.9 * w * 0.05 / 2.0, 2.0 * 0.9 * w * 0.05 / 2.0)
     refs = list(offsets)[: a.views]
     eye = np.eye(4)
-    impls = ([(f"before ({a.before})", load_at(a.before, "baselines"), load_at(a.before, "rayflow"))] if a.before else []) + [("after (this tree)", baselines, rayflow)]
+    impls = ([(f"before ({a.before})", module_at(a.before, "lfusd.evaluation", "baselines"), module_at(a.before, "lfusd.evaluation", "rayflow"))] if a.before else []) + [("after (this tree)", baselines, rayflow)]
 
     def group(v, imgs):
         return {u: imgs[u] for u in offsets if u[0] == v[0] or u[1] == v[1]}

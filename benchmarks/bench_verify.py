@@ -25,8 +25,6 @@ the cost of the whole verifier, not of the same work. The issue-37 budget: at mo
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib.util
 import os
 import subprocess
 import sys
@@ -35,40 +33,20 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-
-def _load(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    mod.__package__ = "lfusd.truth"
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+import revisions  # noqa: E402  (benchmarks/revisions.py, beside this script)
 
 
 def load_verifier(rev: str):
     """lfusd/truth/verify.py at git revision ``rev``, as a module inside this tree's lfusd.truth; with
     its own compiled kernels (``_verify_numba.py`` at ``rev``) where they differ from this tree's."""
-    show = lambda f: subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:lfusd/truth/{f}"], capture_output=True,  # noqa: E731
-                                    text=True, check=True).stdout
-    src = show("verify.py")
-    tag = rev.replace('/', '_').replace('-', '_')
-    kernels = show("_verify_numba.py")
+    src = revisions.source_at(rev, "lfusd/truth/verify.py")
+    kernels = revisions.source_at(rev, "lfusd/truth/_verify_numba.py")
     if kernels != (ROOT / "lfusd" / "truth" / "_verify_numba.py").read_text():
-        # numba's cache lies next to the file: in a folder named by the content, it outlives the run
-        _load(f"lfusd.truth._verify_numba_at_{tag}", _stored(kernels, "_verify_numba.py"))
-        src = src.replace("from . import _verify_numba as _numba", f"from . import _verify_numba_at_{tag} as _numba")
-    return _load(f"lfusd.truth._verify_at_{tag}", _stored(src, "verify.py"))
-
-
-def _stored(text: str, name: str) -> Path:
-    """``text`` as file ``name`` in a temporary folder named by its content (one per content, reused)."""
-    folder = Path(tempfile.gettempdir()) / f"bench_verify_{hashlib.sha1(text.encode()).hexdigest()[:12]}"
-    folder.mkdir(exist_ok=True)
-    path = folder / name
-    if not path.is_file() or path.read_text() != text:
-        path.write_text(text)
-    return path
+        revisions.module_at(rev, "lfusd.truth", "_verify_numba", kernels)
+        src = src.replace("from . import _verify_numba as _numba", f"from . import _verify_numba_at_{revisions.tag(rev)} as _numba")
+    return revisions.module_at(rev, "lfusd.truth", "verify", src)
 
 
 def render(stage: str, rig: str, frames: str, resolution: str, out: Path) -> None:
