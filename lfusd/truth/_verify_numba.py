@@ -552,20 +552,22 @@ def visibility_split(points, valid, u1, v1, z1, still, near, H, W, C):  # pragma
         else:
             kind[i] = 1
             nf += 1
-    full_idx, moving_idx = np.empty(nf, np.int64), np.empty(nm, np.int64)
-    full_rays, moving_rays = np.empty((nf, 6), np.float32), np.empty((nm, 6), np.float32)
-    a, b = 0, 0
-    for i in range(n):
-        if kind[i] == 1:
-            full_idx[a] = i
-            for j in range(3):
-                full_rays[a, j] = C[j]
-                full_rays[a, 3 + j] = points[i, j] - C[j]
-            a += 1
-        elif kind[i] == 2:
-            moving_idx[b] = i
-            for j in range(3):
-                moving_rays[b, j] = C[j]
-                moving_rays[b, 3 + j] = points[i, j] - C[j]
-            b += 1
+    full_idx, full_rays = _segments(points, C, kind, 1, nf)
+    moving_idx, moving_rays = _segments(points, C, kind, 2, nm)
     return inside, t_hit, full_idx, full_rays, moving_idx, moving_rays
+
+
+@njit(cache=True, error_model="numpy")
+def _segments(points, C, kind, which, count):  # pragma: no cover - compiled
+    """The indices of the ``count`` points of ``kind`` ``which`` and their segments from C as Open3D
+    takes them ((count, 6) float32: origin C, direction point - C)."""
+    idx, rays = np.empty(count, np.int64), np.empty((count, 6), np.float32)
+    a = 0
+    for i in range(kind.size):
+        if kind[i] == which:
+            idx[a] = i
+            for j in range(3):
+                rays[a, j] = C[j]
+                rays[a, 3 + j] = points[i, j] - C[j]
+            a += 1
+    return idx, rays
