@@ -17,6 +17,7 @@ stops every Ray of this user on the machine (other people's included).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import signal
@@ -104,6 +105,7 @@ class Cluster:
         }
         self.nodes: dict[str, subprocess.Popen] = {}
         self.seen: list[psutil.Process] = []  # every process of the nodes seen so far
+        self.run = 0  # start-up tries so far (each has its own temp folder and output files)
 
     def _start(self, name: str, argv: list[str], env: dict) -> None:
         ports = [f"--node-manager-port={_free_port()}", f"--object-manager-port={_free_port()}",
@@ -112,20 +114,44 @@ class Cluster:
         low = 30000 + _free_port() % 20000  # not Ray's default worker ports, which another Ray here may use
         self.nodes[name] = subprocess.Popen(
             [*argv, "--block", "--num-cpus=1", f"--resources={json.dumps({name: 1})}", "--disable-usage-stats",
-             f"--temp-dir={self.temp / name}", "--object-store-memory=100000000",
+             f"--temp-dir={self.temp / f'{name}{self.run}'}", "--object-store-memory=100000000",
              f"--min-worker-port={low}", f"--max-worker-port={low + 40}", *ports],
-            env=env, start_new_session=True, stdout=open(self.temp / f"{name}.out", "w"), stderr=subprocess.STDOUT)
+            env=env, start_new_session=True, stdout=open(self.temp / f"{name}{self.run}.out", "w"), stderr=subprocess.STDOUT)
 
-    def start(self) -> None:
-        self._start("node_a", [*RAY, "start", "--head", f"--port={self.port}", "--node-ip-address=127.0.0.1",
-                               "--include-dashboard=false"], {**self.env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"})
-        _wait("the head node", lambda: self._started("node_a"), procs=self.nodes.values())
-        self._start("node_b", [*RAY_JOIN, "start", f"--address={self.address}"], {**self.env, "LFUSD_TEST_FRAME_DELAY": str(FRAME_DELAY)})
-        _wait("the second node", lambda: self._started("node_b"), procs=self.nodes.values())
+    def start(self, tries: int = 3) -> None:
+        """Start both nodes. Each port is picked free and then handed to Ray, so another process of a
+        busy machine can take one in between (CI saw the head exit with 1): a node that ends while
+        starting is started again, both nodes afresh on new ports, at most ``tries`` times. The
+        test's subject (where units run, what a dead node loses) begins only after this."""
+        for attempt in range(tries):
+            try:
+                self._start("node_a", [*RAY, "start", "--head", f"--port={self.port}", "--node-ip-address=127.0.0.1",
+                                       "--include-dashboard=false"],
+                            {**self.env, "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"})
+                _wait("the head node", lambda: self._started("node_a"), procs=self.nodes.values())
+                self._start("node_b", [*RAY_JOIN, "start", f"--address={self.address}"],
+                            {**self.env, "LFUSD_TEST_FRAME_DELAY": str(FRAME_DELAY)})
+                _wait("the second node", lambda: self._started("node_b"), procs=self.nodes.values())
+                return
+            except AssertionError as e:
+                ended = [n for n, p in self.nodes.items() if p.poll() is not None]
+                logs = {n: self._log(n)[-2000:] for n in self.nodes}
+                if not ended or attempt == tries - 1:
+                    raise AssertionError(f"{e}; the nodes' output: {logs}") from None
+                logging.getLogger(__name__).warning("%s ended while starting (try %d): %s", ended, attempt + 1, logs)
+                self.stop()
+                self.nodes.clear()
+                self.port = _free_port()
+                self.address = f"127.0.0.1:{self.port}"
+                self.run += 1
+
+    def _log(self, name: str) -> str:
+        path = self.temp / f"{name}{self.run}.out"
+        return path.read_text(errors="replace") if path.exists() else ""
 
     def _started(self, name: str) -> bool:
         """`ray start` says so once its raylet has registered with the cluster."""
-        return "Ray runtime started" in (self.temp / f"{name}.out").read_text()
+        return "Ray runtime started" in self._log(name)
 
     def processes(self, name: str | None = None) -> list[psutil.Process]:
         procs = [p for n, node in self.nodes.items() if name in (None, n) for p in _tree(node)]
