@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import training  # noqa: E402
 from models import SceneFlowNet  # noqa: E402
-from lfusd import LfusdError  # noqa: E402
+from lfusd import LfusdError, layout  # noqa: E402
 from lfusd.data.folder import require_pinhole  # noqa: E402
 
 log = logging.getLogger("lfusd.flow")
@@ -137,12 +137,14 @@ def main(argv=None) -> int:
     p.add_argument("--eval-split", default="test", help="the split of a recipe dataset scored after training, every pair t -> t+1 of each scene (default test)")
     p.add_argument("--disparity-weights", default=None, help="start the disparity half from this train_disparity.py checkpoint (its network and "
                    "candidates replace --channels ... --disparities), e.g. flow/weights/disparity.pt")
+    p.add_argument("--references", choices=("centre", "all"), default=None, help="the reference view the network is trained to predict: centre "
+                   "(default), or all: each batch a view drawn at random, so that one network serves every view (lfusd bench scores every view)")
     p.add_argument("--freeze-disparity", action="store_true", help="with --disparity-weights: keep the disparity half fixed and train the flow network "
                    "(loss: flow and disparity change)")
     a = p.parse_args(argv)
     t_start = time.time()
     recipe = None
-    if not a.resume and a.data and (Path(a.data) / "recipe.toml").is_file():
+    if not a.resume and a.data and any((Path(a.data) / n).is_file() for n in (layout.RECIPE_COPY, layout.BENCH_RECORD)):
         recipe = Path(a.data)
         scenes = training.recipe_scenes(recipe, a.split)
         a.data = str(scenes[0])  # the reference scene: rig, frames and the network's grid
@@ -184,7 +186,7 @@ def main(argv=None) -> int:
                       refocus=k, centre=list(r.centre_view), baseline=float(r.baseline), recipe=str(recipe) if recipe else None,
                       scenes=[str(sc) for sc in scenes], caches=caches, cache=caches[0] if caches and not recipe else None,
                       eval_split=a.eval_split if recipe else None, disparity_net=disparity_net, disparity_weights=a.disparity_weights,
-                      freeze_disparity=bool(a.freeze_disparity), translate=int(a.translate))
+                      freeze_disparity=bool(a.freeze_disparity), translate=int(a.translate), references=a.references or "centre")
     from lfusd.data.augment import refocus_margin
 
     offsets = [r.offsets(v) for v in ds.views]
@@ -200,7 +202,8 @@ def main(argv=None) -> int:
         cache = a.cache or config.get("cache")
         sources = [training.scene_source(Path(data), Path(cache) if cache else None, ds, KEYS)]
         config["cache"] = a.cache or config.get("cache")
-    train = Samples([clips(src, config["train_frames"], crop, True, a.rig) for src in sources], a.seed, augment, shift)
+    refs = len(ds.views) if config.get("references") == "all" else None
+    train = Samples([clips(src, config["train_frames"], crop, True, a.rig) for src in sources], a.seed, augment, shift, refs, config["batch"])
     model = build(config).to(device)
     if disparity_weights is not None:
         model.disparity.load_state_dict(disparity_weights)
@@ -217,7 +220,7 @@ def main(argv=None) -> int:
     centre = tuple(config["centre"])
 
     def step(batch):
-        ci = centre_index(batch["views"][0], centre)
+        ci = int(batch["ref"][0]) if "ref" in batch else centre_index(batch["views"][0], centre)
         rel = (batch["offsets"] - batch["offsets"][:, ci : ci + 1]).to(device, torch.float32)
         rgb = batch["rgb"].to(device)  # B,T,V,3,h,w
         out = model(rgb[:, 0], rgb[:, 1], rel, ci)
@@ -243,10 +246,13 @@ class Samples(torch.utils.data.Dataset):
     """Training sample n of a run: a scene and a clip of it drawn, cropped (lfusd.torch's random crop) and augmented
     (lfusd.data.augment.RandomLightField, then for half the samples translate_next by up to
     ``translate`` px) from the run's seed and n alone, in any process, so that
-    a resumed run sees exactly the batches the uninterrupted one would have seen."""
+    a resumed run sees exactly the batches the uninterrupted one would have seen. With ``references``
+    (the number of views), each sample's ``ref`` is the index of the view its loss is taken on,
+    drawn per batch of ``batch`` samples (the network takes one reference view per batch)."""
 
-    def __init__(self, clips: list, seed: int, augment: dict, translate: int = 0):
+    def __init__(self, clips: list, seed: int, augment: dict, translate: int = 0, references: int | None = None, batch: int = 1):
         self.clips, self.seed, self.augment, self.translate = list(clips), int(seed), augment, int(translate)
+        self.references, self.batch = references, max(int(batch), 1)
 
     def __len__(self):
         return 2**62
@@ -259,6 +265,9 @@ class Samples(torch.utils.data.Dataset):
             c = self.clips[int(torch.randint(len(self.clips), ())) if len(self.clips) > 1 else 0]  # a scene, then one of its clips
             item = c[int(torch.randint(len(c), ()))]
         item = RandomLightField(seed=[self.seed, int(n)], **self.augment)(item)
+        if self.references:
+            # an index into the item's views: flips and transposes reorder the pixels, not the offsets
+            item["ref"] = int(np.random.default_rng([self.seed, int(n) // self.batch, 2]).integers(self.references))
         if not self.translate:
             return item
         from lfusd.data.augment import translate_next

@@ -188,11 +188,22 @@ def split_frames(ds, a) -> tuple[list[int], list[int]]:
 
 
 def recipe_scenes(data: Path, split: str) -> list[Path]:
-    """The dataset folders to train on: ``data`` itself, or the scenes of ``split`` of a made recipe
-    dataset (lfusd dataset make: its complete, verified scenes)."""
+    """The dataset folders to train on: ``data`` itself, the scenes of ``split`` of a made recipe
+    dataset (lfusd dataset make: its complete, verified scenes), or of a benchmark folder (lfusd
+    bench make: ``public/<split>/``, train and val only; its test ground truth is not public)."""
     from lfusd.recipe import split_scenes
 
     data = Path(data)
+    if (data / layout.BENCH_RECORD).is_file():
+        from lfusd.bench.make import read_record
+
+        if split not in ("train", "val"):
+            raise LfusdError(f"benchmark {data} publishes ground truth for its train and val splits only; pick --split/--eval-split train or val")
+        scenes = [data / layout.BENCH_PUBLIC / split / name for name in read_record(data)["splits"].get(split, [])]
+        missing = [sc for sc in scenes if not (sc / layout.MANIFEST).is_file()]
+        if missing or not scenes:
+            raise LfusdError(f"benchmark {data} has no public {split} scene{f' at {missing[0]}' if missing else 's'}; rerun `lfusd bench make` to finish it")
+        return scenes
     if not (data / layout.RECIPE_COPY).is_file():
         return [data]
     scenes = split_scenes(data).get(split, [])
