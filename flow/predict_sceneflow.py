@@ -23,8 +23,9 @@ scene's rgb/ and cameras.json) and writes SUB, a submission that `lfusd bench sc
 BENCH` scores: baseline (c) of the benchmark. The scorer needs every view, and the network predicts
 its reference view, so it runs once per view with that view as its reference (the offsets of the
 others taken from it, the flow on that view's two frames), and scene flow is composed through that
-view's cameras at t and t+1. The network was trained with the centre view as reference only; the
-others are outside its training (SUB/submission.json says so, with the weights' sha256).
+view's cameras at t and t+1. Weights trained with ``--references all`` saw every view as
+reference; others saw the centre only, and the other views are outside their training
+(SUB/submission.json says which, with the weights' sha256).
 
 Weights (a checkpoint of train_sceneflow.py, or a file with its ``model`` and ``config``) are
 loaded with ``torch.load(weights_only=True)``: a crafted file cannot run code.
@@ -209,8 +210,9 @@ def predict_bench(model, config: dict, bench, sub: Path, weights) -> int:
             log.info("%s: frame %d -> %d, %d views", scene, f, nxt, len(views))
     meta = {"method": "(c) learned scene flow (flow/train_sceneflow.py SceneFlowNet)", "weights": str(weights),
             "weights_sha256": sha256_of(weights), "views": "every view",
-            "reference": "each view predicted with itself as the network's reference view; the network was trained with the centre "
-                         "view as reference only, so the other views are outside its training",
+            "reference": "each view predicted with itself as the network's reference view; " + (
+                "the network was trained with every view as reference (train_sceneflow.py --references all)" if config.get("references") == "all"
+                else "the network was trained with the centre view as reference only, so the other views are outside its training"),
             "scene_flow": "composed from the predicted disparity, disparity change and flow through each view's cameras at t and t+1 "
                           "(lfusd.evaluation.baselines.scene_flow_from_change); zero where it has no value",
             "disparity_candidates_px": [config["d_min"], config["d_max"]]}

@@ -267,7 +267,7 @@ class Samples(torch.utils.data.Dataset):
         item = RandomLightField(seed=[self.seed, int(n)], **self.augment)(item)
         if self.references:
             # an index into the item's views: flips and transposes reorder the pixels, not the offsets
-            item["ref"] = int(np.random.default_rng([self.seed, int(n) // self.batch, 2]).integers(self.references))
+            item = {**item, "ref": int(np.random.default_rng([self.seed, int(n) // self.batch, 2]).integers(self.references))}
         if not self.translate:
             return item
         from lfusd.data.augment import translate_next

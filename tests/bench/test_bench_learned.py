@@ -116,3 +116,19 @@ def test_weights_for_another_grid_are_refused_in_one_line_before_writing(public_
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "the weights are for 3x3 views" in err
     assert not (tmp_path / "sub").exists()
+
+
+@pytest.mark.render
+def test_training_reads_a_benchmarks_public_train_and_val_scenes_and_never_its_test(public_only):
+    """train_sceneflow.py --data BENCH: flow/training.recipe_scenes lists public/<split>/ of the
+    record's scenes; the test split (ground truth not public) is refused in one line."""
+    from lfusd import LfusdError
+
+    _, public = public_only
+    training = load_script("training")
+    rec = json.loads((public / "bench.json").read_text())
+    for split in ("train", "val"):
+        assert training.recipe_scenes(public, split) == [public / "public" / split / s for s in rec["splits"][split]]
+    with pytest.raises(LfusdError, match="train and val splits only") as e:
+        training.recipe_scenes(public, "test")
+    assert "\n" not in str(e.value)

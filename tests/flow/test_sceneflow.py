@@ -141,6 +141,41 @@ def test_training_from_the_cache_is_training_from_the_folder(video, tmp_path):
         assert torch.allclose(a["model"][k], b["model"][k], rtol=1e-5, atol=1e-6), k
 
 
+def test_every_view_references_are_drawn_per_batch_from_the_seed_alone():
+    """Samples(references=N, batch=B): the B samples of a batch share one reference view (the network
+    takes one per batch), drawn from the run's seed and the batch number alone (a resumed run or
+    another process draws the same), and over many batches every view is drawn."""
+    tsf = load_script("train_sceneflow")
+    item = {"rgb": np.zeros((2, 9, 3, 4, 4), np.float32), "views": np.array([[r, c] for r in range(3) for c in range(3)])}
+    plain = dict(refocus=0, flip=False)
+
+    def refs(seed, n):
+        samples = tsf.Samples([[item]], seed, plain, 0, references=9, batch=3)
+        return [samples[i]["ref"] for i in range(n)]
+
+    got = refs(7, 300)
+    assert all(got[i] == got[i - i % 3] for i in range(300))  # one view per batch of 3
+    assert set(got) == set(range(9))  # every view, over 100 batches
+    assert refs(7, 300) == got and refs(8, 300) != got  # the seed alone decides
+    assert "ref" not in tsf.Samples([[item]], 7, plain, 0)[0]  # the centre-only default
+
+
+@pytest.mark.render
+def test_a_run_on_every_reference_view_records_it_for_predict(video, tmp_path):
+    """--references all: the run trains (each step on the drawn view's ground truth) and its checkpoint
+    says so, which a benchmark submission reports."""
+    train = _train_main()
+    threads = torch.get_num_threads()
+    try:
+        assert train(["--tiny", "--data", str(video), "--out", str(tmp_path / "run"), "--steps", "2", "--references", "all", "--no-baselines", "--quiet"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    state = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", weights_only=True)
+    assert state["step"] == 2 and state["config"]["references"] == "all"
+    log = json.loads((tmp_path / "run" / "train_log.json").read_text())
+    assert all(np.isfinite(h["loss"]) for h in log["history"])
+
+
 @pytest.mark.render
 def test_predict_on_a_dataset_is_what_lfusd_eval_scores(video, weights, tmp_path):
     out = tmp_path / "pred"
