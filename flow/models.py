@@ -401,7 +401,12 @@ class SceneFlowNet(nn.Module):
     def forward(self, views0: torch.Tensor, views1: torch.Tensor, rel: torch.Tensor, ref: int) -> dict:
         b = views0.shape[0]
         d = self.disparity(torch.cat([views0, views1]), torch.cat([rel, rel]))
-        d0, d1 = d[:b], d[b:]
-        flow = self.flow(views0[:, ref], views1[:, ref])
+        return self.motion(views0[:, ref], views1[:, ref], d[:b], d[b:])
+
+    def motion(self, img0: torch.Tensor, img1: torch.Tensor, d0: torch.Tensor, d1: torch.Tensor) -> dict:
+        """The outputs of :meth:`forward` from the reference view's images [B, 3, H, W] and its
+        disparities at t and t+1 [B, H, W] (the disparity network's, which a caller predicting
+        consecutive pairs computes once per frame)."""
+        flow = self.flow(img0, img1)
         d1_at = backward_warp(d1[:, None], flow)[:, 0]
         return {"flow": flow, "disparity": d0, "disparity_next": d1, "disparity_change": d1_at - d0}

@@ -196,11 +196,24 @@ def predict_bench(model, config: dict, bench, sub: Path, weights) -> int:
             a = np.stack(imgs).astype(np.float32) / float(np.iinfo(imgs[0].dtype).max)
             return torch.from_numpy(a).permute(0, 3, 1, 2).contiguous()
 
+        rels = [torch.from_numpy(off - off[i]).to(torch.float32) for i in range(len(views))]
+        disparity = {}  # (frame, view index) -> the network's disparity: each frame's is needed twice, as t+1 and as t
+
+        @torch.no_grad()
+        def disparity_of(frame, lf, i):
+            if (frame, i) not in disparity:
+                disparity[frame, i] = model.disparity(lf[None], rels[i][None])
+            return disparity[frame, i]
+
         for f in cams["scored_frames"]:
             nxt = frames[frames.index(f) + 1]
             v0, v1 = load(f), load(nxt)
+            for key in [k for k in disparity if k[0] not in (f, nxt)]:
+                del disparity[key]
             for i, v in enumerate(views):
-                res = tsf.predict(model, v0, v1, torch.from_numpy(off - off[i]).to(torch.float32), i)
+                with torch.no_grad():
+                    out = model.motion(v0[None, i], v1[None, i], disparity_of(f, v0, i), disparity_of(nxt, v1, i))
+                res = tsf.as_arrays(out)
                 c0 = np.asarray(cams["cam_to_world"][str(f)][view_key(v)], np.float64)
                 c1 = np.asarray(cams["cam_to_world"][str(nxt)][view_key(v)], np.float64)
                 sf = tsf.scene_flow(res, K, c0, c1, float(cams["baseline"]))

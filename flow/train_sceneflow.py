@@ -283,7 +283,11 @@ def predict(model, views0, views1, rel, ref: int) -> dict:
     disparity_change (H,W); views [N,3,H,W] float in [0, 1], rel [N,2]."""
     model.eval()
     p = next(model.parameters())
-    out = model(views0[None].to(p), views1[None].to(p), rel[None].to(p), ref)
+    return as_arrays(model(views0[None].to(p), views1[None].to(p), rel[None].to(p), ref))
+
+
+def as_arrays(out: dict) -> dict:
+    """The first item of the network's outputs as NumPy float32: flow (H,W,2), the others (H,W)."""
     res = {k: v[0].cpu().numpy().astype(np.float32) for k, v in out.items()}
     res["flow"] = np.ascontiguousarray(res["flow"].transpose(1, 2, 0))
     return res
