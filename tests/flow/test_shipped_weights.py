@@ -90,3 +90,28 @@ def test_a_moving_plane_comes_out_of_the_shipped_scene_flow_weights_with_its_flo
     assert abs(got[0] - fx) < SF_FLOW_BOUND_PX and abs(got[1] - fy) < SF_FLOW_BOUND_PX, (d, (fx, fy), got)
     assert np.sign(np.median(disp)) == np.sign(d) and abs(float(np.median(disp)) - d) < BOUND_PX, (d, float(np.median(disp)))
     assert abs(float(np.median(change))) < SF_CHANGE_BOUND_PX, float(np.median(change))
+
+
+BENCH_WEIGHTS = ROOT / "flow" / "weights" / "sceneflow_bench_preview.pt"
+
+
+def test_the_benchmark_scene_flow_weights_take_every_view_of_the_preview_grid():
+    """flow/weights/sceneflow_bench_preview.pt (docs/commands/bench.md, row (c) of the preview
+    leaderboard): small, loaded without pickled code, trained on the preview grid (5x5) with every view
+    as reference and a disparity network that takes any reference (not the centre-only star), so that
+    `predict_sceneflow.py --bench` accepts it; its candidates span the preview test split's disparity
+    (-1.04..23.39 px, recorded in public/test/*/cameras.json when the split was rendered)."""
+    assert BENCH_WEIGHTS.is_file() and BENCH_WEIGHTS.stat().st_size <= 10 * 2**20
+    state = torch.load(BENCH_WEIGHTS, map_location="cpu", weights_only=True)
+    config = state["config"]
+    assert config["ang"] == 5 and config["references"] == "all" and not config.get("disparity_net")
+    assert config["d_min"] <= -1.04 and config["d_max"] >= 23.39
+    model, _ = load_script("predict_sceneflow").load_model(BENCH_WEIGHTS)
+    assert type(model.disparity).__name__ == "DisparityNet"
+    # any view is a reference: a corner's offsets in, its disparity map out
+    views = torch.rand(1, 25, 3, 24, 24, generator=torch.Generator().manual_seed(0))
+    k = torch.arange(5.0) - 2
+    off = torch.stack(torch.meshgrid(k, k, indexing="ij")[::-1], -1).reshape(1, 25, 2)
+    with torch.no_grad():
+        d = model.disparity(views, off - off[:, :1])
+    assert d.shape == (1, 24, 24) and torch.isfinite(d).all()
