@@ -199,8 +199,7 @@ def predict_bench(model, config: dict, bench, sub: Path, weights) -> int:
         rels = [torch.from_numpy(off - off[i]).to(torch.float32) for i in range(len(views))]
         disparity = {}  # (frame, view index) -> the network's disparity: each frame's is needed twice, as t+1 and as t
 
-        @torch.no_grad()
-        def disparity_of(frame, lf, i):
+        def disparity_of(frame, lf, i):  # called under torch.no_grad() below
             if (frame, i) not in disparity:
                 disparity[frame, i] = model.disparity(lf[None], rels[i][None])
             return disparity[frame, i]

@@ -94,7 +94,6 @@ class Cluster:
     def __init__(self, temp: Path):
         self.temp = temp
         self.port = _free_port()
-        self.address = f"127.0.0.1:{self.port}"
         self.env = {
             **os.environ, "PYTHONPATH": str(ROOT), "RAY_USAGE_STATS_ENABLED": "0",
             # Token authentication, with a token of this cluster only (not ~/.ray/auth_token).
@@ -142,8 +141,12 @@ class Cluster:
                 self.stop()
                 self.nodes.clear()
                 self.port = _free_port()
-                self.address = f"127.0.0.1:{self.port}"
                 self.run += 1
+
+    @property
+    def address(self) -> str:
+        """The head node's address (its port changes when a start is tried again)."""
+        return f"127.0.0.1:{self.port}"
 
     def _log(self, name: str) -> str:
         path = self.temp / f"{name}{self.run}.out"
