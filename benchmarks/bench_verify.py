@@ -44,8 +44,8 @@ def load_verifier(rev: str):
     src = revisions.source_at(rev, "lfusd/truth/verify.py")
     kernels = revisions.source_at(rev, "lfusd/truth/_verify_numba.py")
     if kernels != (ROOT / "lfusd" / "truth" / "_verify_numba.py").read_text():
-        revisions.module_at(rev, "lfusd.truth", "_verify_numba", kernels)
-        src = src.replace("from . import _verify_numba as _numba", f"from . import _verify_numba_at_{revisions.tag(rev)} as _numba")
+        mod = revisions.module_at(rev, "lfusd.truth", "_verify_numba", kernels)
+        src = src.replace("from . import _verify_numba as _numba", f"from . import {mod.__name__.rsplit('.', 1)[1]} as _numba")
     return revisions.module_at(rev, "lfusd.truth", "verify", src)
 
 

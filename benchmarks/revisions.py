@@ -47,7 +47,8 @@ def load(name: str, path: Path, package: str):
 
 def module_at(rev: str, package: str, name: str, source: str | None = None):
     """Module ``package.name`` as committed at ``rev`` (or ``source`` given for it), loaded as
-    ``package._name_at_REV`` beside this tree's."""
+    ``package._name_at_REV`` beside this tree's (one leading underscore: a name with two would be
+    mangled where a class body imports it)."""
     if source is None:
         source = source_at(rev, f"{package.replace('.', '/')}/{name}.py")
-    return load(f"{package}._{name}_at_{tag(rev)}", stored(source, f"{name}.py"), package)
+    return load(f"{package}._{name.lstrip('_')}_at_{tag(rev)}", stored(source, f"{name}.py"), package)

@@ -51,6 +51,19 @@ def quiet_thread_pools() -> None:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
+@contextlib.contextmanager
+def one_blas_thread():
+    """Inside this block, NumPy's BLAS (OpenBLAS) computes on the calling thread alone. lfusd's
+    matrix products are per-pixel and per-vertex (N, 3) x (3, 3): bound by memory, not arithmetic;
+    a second BLAS thread speeds none of them and spins after each, burning a core the ray casts
+    could use (measured in verify: 0.14-0.2 core-s per 1024x1024 view of a worker doing nothing).
+    threadpoolctl restores the previous limit on exit."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
 REUSED_BYTES = 1 << 30  # allocations below this come from the heap and stay there once freed
 
 

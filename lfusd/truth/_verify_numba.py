@@ -264,22 +264,42 @@ def label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q):  # pragma: no
     hist = np.zeros((0, nb), np.int64) if rate else np.zeros((rows, nb), np.int64)
     raw = e.view(np.uint64)
     everything = 0.0  # the sum over all labels, in pixel order
+    bar = 0.5 if rate else limit
+    # A label's figures are kept in locals while its pixels follow one another (labels come in runs
+    # along image rows), written back when another label's pixel comes: the same sums in the same
+    # order, without a store and load per pixel. Tie kinds other than 0 are counted as they come.
+    cur = -1
+    n_c, sum_c, over_c, top_c, worst_c = 0, 0.0, 0, -np.inf, 0
     for i in range(e.size):  # per label; the row of all labels from theirs below
         x = e[i]
         if x != x:
             continue
         c = code[i]
+        if c != cur:
+            if cur >= 0:
+                count[cur], total[cur], over[cur], top[cur], worst[cur] = n_c, sum_c, over_c, top_c, worst_c
+            cur = c
+            n_c, sum_c, over_c, top_c, worst_c = count[c], total[c], over[c], top[c], worst[c]
         if not rate:
             hist[c, _bucket(raw[i])] += 1
-        count[c] += 1
-        total[c] += x
+        n_c += 1
+        sum_c += x
         everything += x
-        if (x > 0.5) if rate else (x > limit):
-            over[c] += 1
-        if count[c] == 1 or x > top[c]:
-            top[c] = x
-            worst[c] = i
-        kinds[c, kind[i]] += 1
+        if x > bar:
+            over_c += 1
+        if n_c == 1 or x > top_c:
+            top_c = x
+            worst_c = i
+        k = kind[i]
+        if k != 0:
+            kinds[c, k] += 1
+    if cur >= 0:
+        count[cur], total[cur], over[cur], top[cur], worst[cur] = n_c, sum_c, over_c, top_c, worst_c
+    for c in range(L):
+        others = 0
+        for k in range(1, n_kinds):
+            others += kinds[c, k]
+        kinds[c, 0] = count[c] - others
     total[L] = everything
     for c in range(L):
         if count[c] == 0:

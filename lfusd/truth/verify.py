@@ -1,10 +1,13 @@
 """Independent verification of a dataset's motion ground truth against the stage's own geometry.
 
 Every mesh of the stage is rebuilt with pxr (:class:`lfusd.author.geometry.StageGeometry`: UsdGeom
-points and transforms, UsdSkel skinning) at t and t+-1. A ray through every pixel centre (K and
-cam_to_world) is cast with Open3D's ``RaycastingScene``; the hit is recomputed in float64 on its
-triangle, moved with that triangle to the other frame (same barycentric coordinates on the same
-triangle), projected, and tested for visibility there with a second ray cast. That gives depth,
+points and transforms, UsdSkel skinning) at t and t+-1. The first hit of the ray through every
+pixel centre (K and cam_to_world) is found per triangle by an exact float64 ray-triangle test
+(:meth:`TracedScene.grid_hits`, lfusd.truth._grid_numba: the answer of Open3D's ``RaycastingScene``
+cast wherever a ray is not within rounding of two surfaces, at a tenth of its cost; rays off the
+grid, through a lens and the tie candidates are cast with Open3D); the hit is recomputed in float64
+on its triangle, moved with that triangle to the other frame (same barycentric coordinates on the
+same triangle), projected, and tested for visibility there with an Open3D ray cast. That gives depth,
 instance, flow, scene flow, disparity change and occlusion independently of Blender and of
 :mod:`lfusd.truth.motion`; :func:`verify_dataset` compares a dataset with them.
 
@@ -111,6 +114,8 @@ class TracedScene:
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
         self._edges: tuple | None = None
         self._near: tuple | None = None  # (moving scene, camera, what moved's nearest depth per pixel): see visibility_of
+        self._use: np.ndarray | None = None  # per row of T: traced (grid_hits)
+        self._tri_mesh: np.ndarray | None = None  # per row of T: its mesh
 
     def static_triangles(self, other: "TracedScene") -> np.ndarray:
         """Per triangle (rows of T): whether ``other`` (another time) holds it traced, with the same
@@ -189,6 +194,24 @@ class TracedScene:
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_hit float32 in units of |dir|, mesh index (-1 none), triangle id) per ray."""
         return self.cast_rays(self._rays(origins, dirs))
+
+    def grid_hits(self, A: np.ndarray, origin: np.ndarray, u0: float, v0: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+        """(mesh index (-1 none), triangle id) of the first hit of each ray of a pinhole's H x W grid of
+        samples (u0 + i, v0 + j), raster order: the rays from ``origin`` along A (u, v, 1). What
+        :meth:`cast_rays` answers for them (lfusd.truth._grid_numba: float64, watertight; the two
+        differ only where a ray meets two surfaces within rounding, which verify's tie rule decides)."""
+        from ._grid_numba import grid_first_hits
+
+        if self._use is None:
+            traced = np.array([g >= 0 for g in self.geom_ids] + [False], bool)
+            self._tri_mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
+            self._use = np.ascontiguousarray(traced[self._tri_mesh]) if len(self._tri_mesh) else np.zeros(0, bool)
+        A = np.ascontiguousarray(A, np.float64)
+        n = H * W
+        depth, row, mesh, tri = np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+        grid_first_hits(self.V, self.T, self._use, np.ascontiguousarray(origin, np.float64), A, np.ascontiguousarray(np.linalg.inv(A)),
+                        float(u0), float(v0), int(W), int(H), depth, row, self._tri_mesh, self.tri_offset, mesh, tri)
+        return mesh, tri
 
     def cast_rays(self, rays) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`cast` of rays as Open3D takes them ((N, 6) float32: origin, direction)."""
@@ -301,7 +324,12 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
             # directions with camera-z component 1 (lfusd.camera.ray_directions of a pinhole): A (u, v, 1),
             # computed again where needed rather than stored
             d = np.zeros((0, 3))
-            mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:] if hits is None else hits
+            if hits is not None:
+                mesh, tri = hits
+            elif grid:  # the view's full pixel grid: binned per triangle (TracedScene.grid_hits), not one cast per ray
+                mesh, tri = s0.grid_hits(A, o, 0.0, 0.0, W, H)
+            else:
+                mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:]
         mesh, tri = np.ascontiguousarray(mesh, np.int64), np.ascontiguousarray(tri, np.int64)
         depth, pos, normal, bary = np.empty(n), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 2))
         _numba.surface_from(o, d, u, v, A, mesh, tri, s0.V, s0.T, s0.tri_offset, depth, pos, normal, bary)
@@ -362,9 +390,10 @@ def _pixel_to_world(ctx: dict) -> np.ndarray:
     return np.ascontiguousarray(Camera(ctx["K"], ctx["c2w"])._pixel_to_world(np.float64), np.float64)
 
 
-def _corners(ctx: dict, u: np.ndarray, v: np.ndarray, carry: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def _corners(ctx: dict, u: np.ndarray, v: np.ndarray, carry: bool, grid: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """What the ``mixed`` rule reads at rays through (u, v): :func:`trace_pixels`' mesh, depth and (with
-    ``carry``) flow, computed alone (no hit point, normal, scene flow or visibility kept)."""
+    ``carry``) flow, computed alone (no hit point, normal, scene flow or visibility kept). ``grid``: (u, v)
+    is the view's full (H + 1) x (W + 1) grid of pixel corners, raster order."""
     from . import _verify_numba as _numba
 
     if ctx.get("dist") is not None and not ctx["dist"].is_identity:  # through a lens: the full trace
@@ -374,7 +403,10 @@ def _corners(ctx: dict, u: np.ndarray, v: np.ndarray, carry: bool) -> tuple[np.n
     u, v = np.ascontiguousarray(u, np.float64), np.ascontiguousarray(v, np.float64)
     o = np.ascontiguousarray(ctx["c2w"][:3, 3], np.float64)
     A = _pixel_to_world(ctx)
-    mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:]
+    if grid:
+        mesh, tri = s0.grid_hits(A, o, -0.5, -0.5, ctx["W"] + 1, ctx["H"] + 1)
+    else:
+        mesh, tri = s0.cast_rays(_numba.rays_through(u, v, A, o))[1:]
     R, C = _camera(ctx, 1).world_to_cam()
     depth, flow = np.empty(len(u)), np.empty((len(u) if carry else 0, 2))
     _numba.corner_motion(u, v, A, o, mesh, tri, s0.V, s0.T, s0.tri_offset, s0.same_topology(s1), s1.V, s1.T, s1.tri_offset,
@@ -1020,7 +1052,7 @@ def _mixed_errors(mixed: np.ndarray, ctx: dict, carry: bool, ids: np.ndarray, H:
 
     uc = np.tile(np.arange(W + 1, dtype=np.float64) - 0.5, H + 1)  # the (H+1) x (W+1) corners, raster order
     vc = np.repeat(np.arange(H + 1, dtype=np.float64) - 0.5, W + 1)
-    c_mesh, c_depth, flow = _corners(ctx, uc, vc, carry)
+    c_mesh, c_depth, flow = _corners(ctx, uc, vc, carry, grid=True)
     ident = np.where(c_mesh >= 0, ids[c_mesh], -1)
     lo, hi = MIXED_BAND
     surely, maybe = _mixed_decision(ident, c_depth, flow, H, W, MIXED_DEPTH_REL * hi, MIXED_FLOW_PX * hi,
@@ -1239,6 +1271,13 @@ def verify_dataset(
     comes from ``stage_path``, ``ds.stage_path`` or ``ds.record.stage['path']``; ``baseline`` (or ``ds.baseline``) enables
     the disparity-change check. ``progress(frame, view)`` is called before each view.
     """
+    from ..processes import one_blas_thread
+
+    with one_blas_thread():
+        return _verify_dataset(ds, stage_path, frames, views, thresholds, baseline, progress)
+
+
+def _verify_dataset(ds, stage_path, frames, views, thresholds, baseline, progress) -> VerifyReport:
     from ..author.geometry import StageGeometry
     from ..author.labels import object_table
     from ..author.stage import open_stage

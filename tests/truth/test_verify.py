@@ -188,6 +188,22 @@ def test_verify_passes_on_exact_data_and_prints_per_class_rows(tmp_path):
     assert cert["bias"]["scene_flow"]["max"] < 1e-5  # exact data: only the float rounding
 
 
+def test_verify_runs_numpys_blas_on_one_thread_and_gives_the_callers_back(tmp_path):
+    """Inside verify, BLAS computes on the calling thread alone (a second thread only spins after
+    lfusd's (N, 3) x (3, 3) products); the caller's setting is back afterwards."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    sc = scene()
+    stage_of(sc, tmp_path / "s.usda")
+    blas = lambda: {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}  # noqa: E731
+    seen = []
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas()
+        verify_dataset(FakeDataset(sc, tmp_path / "s.usda"), frames=[2], progress=lambda f, v: seen.append(blas()))
+        assert blas() == before
+    assert seen and all(s == {1} for s in seen)
+
+
 def test_verify_sees_the_silhouette_errors_of_the_vector_plus_depth_route(tmp_path):
     """The fallback route (no position AOVs: datasets rendered before them) decides occlusion and
     scene flow from the image within half a pixel of edges. The old verify skipped pixels within

@@ -157,9 +157,10 @@ def test_label_rows_follow_their_rules(n):
     for x in cases:
         e = x.copy()
         e[rng.random(n) < 0.2] = np.nan  # not compared
-        code = rng.integers(0, n_labels - 1, n)  # label 3 has no pixel
         kind = rng.integers(0, n_kinds, n)
-        for rate in (False, True):
+        # labels pixel by pixel, and in runs as along image rows (label 3 has no pixel either way)
+        for code, rate in [(c, r) for c in (rng.integers(0, n_labels - 1, n), np.repeat(rng.integers(0, n_labels - 1, n // 7 + 1), 7)[:n])
+                           for r in (False, True)]:
             count, over, worst, top, total, kinds, pct = K.label_stats(e, code, kind, n_labels, n_kinds, limit, rate, q)
             for r in range(n_labels + 1):
                 idx = np.flatnonzero(((code == r) if r < n_labels else np.ones(n, bool)) & ~np.isnan(e))
