@@ -12,8 +12,9 @@ float64 (Embree, behind Open3D, tests in float32). The ray parameter, here the c
 (n . a_p) / (n . d) for the triangle's normal n.
 
 Watertight: the volume of an edge shared by two triangles is computed once per vertex pair (the
-lower vertex index first), so both triangles evaluate the same float expression, one negated; a ray
-through the edge is inside both (a zero volume counts as inside) or neither, never passing between.
+lower vertex index first), so both triangles evaluate the same float expression, one negated, and a
+volume within its rounding bound of zero counts as inside: a ray on or near the edge is inside one of
+them at least (a ray through a vertex too), never passing between.
 Where two surfaces meet a ray within rounding of each other (an edge, a tie in depth), the answer
 may name either, as Open3D's may: verify's tie rule (lfusd.truth.verify._candidates) decides those
 pixels, whichever the grid named.
@@ -80,6 +81,7 @@ def _scan(V, T, use, O, A, B, u0, v0, W, H, depth, hit):  # pragma: no cover - c
             z = A[2, 0] * uu + A[2, 1] * vv + A[2, 2]
             dmax = max(dmax, math.sqrt(x * x + y * y + z * z))
     slack = SLACK * dmax
+    zs, xs, ys = np.empty(3), np.empty(3), np.empty(3)
     for g in range(T.shape[0]):
         if not use[g]:
             continue
@@ -98,9 +100,6 @@ def _scan(V, T, use, O, A, B, u0, v0, W, H, depth, hit):  # pragma: no cover - c
         # the rows the triangle's part in front of the centre can image: its projected bounds (the
         # part behind clipped away at a tiny depth, whose image reaches past any grid)
         umin, umax, vmin, vmax = np.inf, -np.inf, np.inf, -np.inf
-        zs = np.empty(3)
-        xs = np.empty(3)
-        ys = np.empty(3)
         for c in range(3):
             vi = T[g, c]
             dx, dy, dz = V[vi, 0] - O[0], V[vi, 1] - O[1], V[vi, 2] - O[2]

@@ -105,6 +105,8 @@ class TracedScene:
         nt = np.array([len(m.triangles) for m in self.meshes], np.int64)
         self.vert_offset = np.concatenate([[0], np.cumsum(nv)])
         self.tri_offset = np.concatenate([[0], np.cumsum(nt)])
+        self.tri_mesh = np.repeat(np.arange(len(self.meshes)), nt)  # per row of T (below): its mesh
+        self.traced_rows = np.array([g >= 0 for g in self.geom_ids], bool)[self.tri_mesh]  # per row of T: in the Open3D scene
         self.V = np.concatenate([np.asarray(m.vertices, np.float64).reshape(-1, 3) for m in self.meshes] + [np.zeros((0, 3))])
         self.T = np.concatenate([np.asarray(m.triangles, np.int64).reshape(-1, 3) + o for m, o in zip(self.meshes, self.vert_offset)]
                                 + [np.zeros((0, 3), np.int64)])
@@ -114,8 +116,6 @@ class TracedScene:
         self._surface: tuple | None = None  # the last full-grid surface (key, value): shared by a view's traces
         self._edges: tuple | None = None
         self._near: tuple | None = None  # (moving scene, camera, what moved's nearest depth per pixel): see visibility_of
-        self._use: np.ndarray | None = None  # per row of T: traced (grid_hits)
-        self._tri_mesh: np.ndarray | None = None  # per row of T: its mesh
 
     def static_triangles(self, other: "TracedScene") -> np.ndarray:
         """Per triangle (rows of T): whether ``other`` (another time) holds it traced, with the same
@@ -140,9 +140,7 @@ class TracedScene:
 
         key = ("moving", other.time)
         if key not in self._same:
-            mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
-            traced = np.array([g >= 0 for g in self.geom_ids] + [False], bool)
-            moving = traced[mesh] & ~self.static_triangles(other) if len(mesh) else np.zeros(0, bool)
+            moving = self.traced_rows & ~self.static_triangles(other)
             scene = None
             if moving.any():
                 scene = o3d.t.geometry.RaycastingScene()
@@ -157,10 +155,8 @@ class TracedScene:
         if self._edges is None:
             from .footprint import edge_table
 
-            traced = np.array([g >= 0 for g in self.geom_ids], bool)
-            mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
-            keep = traced[mesh] if len(mesh) else np.zeros(0, bool)
-            T, mesh = np.ascontiguousarray(self.T[keep]), mesh[keep]
+            keep = self.traced_rows
+            T, mesh = np.ascontiguousarray(self.T[keep]), self.tri_mesh[keep]
             self._edges = (T, mesh, edge_table(self.V, T))
         return self._edges
 
@@ -202,15 +198,11 @@ class TracedScene:
         differ only where a ray meets two surfaces within rounding, which verify's tie rule decides)."""
         from ._grid_numba import grid_first_hits
 
-        if self._use is None:
-            traced = np.array([g >= 0 for g in self.geom_ids] + [False], bool)
-            self._tri_mesh = np.repeat(np.arange(len(self.meshes)), np.diff(self.tri_offset))
-            self._use = np.ascontiguousarray(traced[self._tri_mesh]) if len(self._tri_mesh) else np.zeros(0, bool)
         A = np.ascontiguousarray(A, np.float64)
         n = H * W
         depth, row, mesh, tri = np.empty(n), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-        grid_first_hits(self.V, self.T, self._use, np.ascontiguousarray(origin, np.float64), A, np.ascontiguousarray(np.linalg.inv(A)),
-                        float(u0), float(v0), int(W), int(H), depth, row, self._tri_mesh, self.tri_offset, mesh, tri)
+        grid_first_hits(self.V, self.T, self.traced_rows, np.ascontiguousarray(origin, np.float64), A, np.ascontiguousarray(np.linalg.inv(A)),
+                        float(u0), float(v0), int(W), int(H), depth, row, self.tri_mesh, self.tri_offset, mesh, tri)
         return mesh, tri
 
     def cast_rays(self, rays) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -301,8 +293,8 @@ def trace_pixels(ctx: dict, u: np.ndarray, v: np.ndarray, hits: tuple[np.ndarray
     """:func:`trace_motion`'s values for rays through arbitrary pixel coordinates (u, v) (flat arrays);
     ``hits`` (mesh, triangle) per ray replaces the first hit (a second surface along the ray);
     ``visibility=False`` skips the visibility cast at the other frame (``occluded`` all False);
-    ``grid``: (u, v) is the view's full pixel grid (its surface is then kept for the view's other
-    direction)."""
+    ``grid``: (u, v) is the view's full pixel grid (its first hits then come from
+    :meth:`TracedScene.grid_hits`, and its surface is kept for the view's other direction)."""
     from . import _verify_numba as _numba  # the per-ray arithmetic, compiled
 
     s0, s1, K, H, W = ctx["s0"], ctx["s1"], ctx["K"], ctx["H"], ctx["W"]
